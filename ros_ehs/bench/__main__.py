@@ -1,0 +1,33 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Dispatch ``python -m ros_ehs.bench <name>``."""
+
+import importlib
+import sys
+
+BENCHES = {'model': 'model_bench', 'paper': 'paper_bench'}
+
+
+def main(argv=None) -> int:
+    """Run the benchmark named by the first argument."""
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] not in BENCHES:
+        print(f'usage: python -m ros_ehs.bench {{{",".join(BENCHES)}}}', file=sys.stderr)
+        return 2
+    mod = importlib.import_module(f'ros_ehs.bench.{BENCHES[argv[0]]}')
+    return mod.main(argv[1:])
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,22 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Controller core: PID (eq. 19), feedforward (eqs. 9-20) and their combination (eq. 18)."""
+
+from ros_ehs.control.controller import Controller
+from ros_ehs.control.feedforward import (
+    DelayLine, Feedforward, psc_force, stribeck_estimate, xi_blend)
+from ros_ehs.control.pid import Pid, PidGains
+
+__all__ = ['Controller', 'DelayLine', 'Feedforward', 'Pid', 'PidGains', 'psc_force',
+           'stribeck_estimate', 'xi_blend']

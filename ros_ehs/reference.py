@@ -1,0 +1,142 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Reference trajectories z_ref(t) [m] and v_ref(t) [m/s]: sine, step, chirp, CSV file.
+
+Each is a callable ``ref(t) -> (z, v)`` on an array of times [s].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ros_ehs.errors import DataError, InputError
+
+__all__ = ['Chirp', 'CsvTrajectory', 'Sine', 'Step']
+
+
+def _finite(name: str, value: float) -> float:
+    if not (isinstance(value, (int, float)) and math.isfinite(value)):
+        raise InputError(f'`{name}` = {value!r} must be a finite number')
+    return float(value)
+
+
+@dataclass(frozen=True)
+class Sine:
+    """``amplitude * sin(2 pi f t) + offset``: the paper's test is 0.04 m at 1 Hz."""
+
+    amplitude: float = 0.04
+    frequency: float = 1.0
+    offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        """Validate."""
+        for k in ('amplitude', 'frequency', 'offset'):
+            _finite(k, getattr(self, k))
+        if self.frequency <= 0:
+            raise InputError(f'`frequency` = {self.frequency!r} Hz must be > 0')
+
+    def __call__(self, t):
+        """Return (z_ref, v_ref) at times ``t``."""
+        w = 2.0 * math.pi * self.frequency
+        t = np.asarray(t, dtype=float)
+        return (self.offset + self.amplitude * np.sin(w * t),
+                self.amplitude * w * np.cos(w * t))
+
+
+@dataclass(frozen=True)
+class Step:
+    """Step of ``amplitude`` at ``t0``, smoothed over ``rise`` seconds (cosine ramp)."""
+
+    amplitude: float = 0.01
+    t0: float = 0.1
+    rise: float = 0.0
+
+    def __post_init__(self) -> None:
+        """Validate."""
+        for k in ('amplitude', 't0', 'rise'):
+            _finite(k, getattr(self, k))
+        if self.rise < 0:
+            raise InputError(f'`rise` = {self.rise!r} s must be >= 0')
+
+    def __call__(self, t):
+        """Return (z_ref, v_ref) at times ``t``."""
+        t = np.asarray(t, dtype=float)
+        if self.rise == 0:
+            return np.where(t >= self.t0, self.amplitude, 0.0), np.zeros_like(t)
+        s = np.clip((t - self.t0) / self.rise, 0.0, 1.0)
+        z = self.amplitude * 0.5 * (1 - np.cos(math.pi * s))
+        inside = (s > 0) & (s < 1)
+        v = np.where(inside, self.amplitude * 0.5 * math.pi / self.rise * np.sin(math.pi * s),
+                     0.0)
+        return z, v
+
+
+@dataclass(frozen=True)
+class Chirp:
+    """Linear chirp from ``f0`` to ``f1`` Hz over ``duration`` s, amplitude [m]."""
+
+    amplitude: float = 0.005
+    f0: float = 0.5
+    f1: float = 20.0
+    duration: float = 10.0
+
+    def __post_init__(self) -> None:
+        """Validate."""
+        for k in ('amplitude', 'f0', 'f1', 'duration'):
+            _finite(k, getattr(self, k))
+        if not (self.f0 > 0 and self.f1 > 0 and self.duration > 0):
+            raise InputError('`f0`, `f1` and `duration` must be > 0')
+
+    def __call__(self, t):
+        """Return (z_ref, v_ref) at times ``t``."""
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        k = (self.f1 - self.f0) / self.duration
+        phase = 2 * math.pi * (self.f0 * t + 0.5 * k * t * t)
+        f = self.f0 + k * t
+        return self.amplitude * np.sin(phase), self.amplitude * 2 * math.pi * f * np.cos(phase)
+
+
+class CsvTrajectory:
+    """
+    Trajectory from a CSV file with columns ``t`` [s] and ``z`` [m] (header row required).
+
+    Linear interpolation; velocity by central differences. Holds the end values outside.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        path = Path(path)
+        try:
+            data = np.genfromtxt(path, delimiter=',', names=True)
+        except (OSError, ValueError) as err:
+            raise DataError(f'cannot read trajectory CSV {path}: {err}') from err
+        names = data.dtype.names or ()
+        if 't' not in names or 'z' not in names:
+            raise DataError(f'{path}: need header columns `t` and `z`, found {list(names)}')
+        t, z = np.atleast_1d(data['t']), np.atleast_1d(data['z'])
+        if t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(z))):
+            raise DataError(f'{path}: need >= 2 finite rows')
+        if np.any(np.diff(t) <= 0):
+            raise DataError(f'{path}: column `t` must increase strictly')
+        self.t, self.z = t, z
+        self.v = np.gradient(z, t)
+
+    def __call__(self, t):
+        """Return (z_ref, v_ref) at times ``t``."""
+        t = np.asarray(t, dtype=float)
+        return np.interp(t, self.t, self.z), np.interp(t, self.t, self.v)

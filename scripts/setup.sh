@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Idempotent set-up: a virtual environment in .venv with every pinned dependency and ros_ehs
+# installed (editable), so its console scripts are on the venv's PATH. Safe to re-run.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+venv="${EHS_VENV:-$root/.venv}"
+py="${PYTHON:-python3}"
+stamp="$venv/.ros_ehs_setup"
+want="$(cat "$root/requirements.txt" "$root/constraints.txt" "$root/setup.py" | sha256sum | cut -c1-16)"
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+  exit 0
+fi
+echo "[setup] creating $venv"
+"$py" -m venv "$venv"
+"$venv/bin/python" -m pip install -q --upgrade 'pip==25.3' 'setuptools==79.0.1' 'wheel==0.45.1'
+"$venv/bin/python" -m pip install -q -r "$root/requirements.txt" -c "$root/constraints.txt"
+"$venv/bin/python" -m pip install -q --no-deps --no-build-isolation -e "$root"
+echo "$want" > "$stamp"
+echo "[setup] done"

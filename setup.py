@@ -1,0 +1,29 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'ros_ehs'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/launch_scripts', glob('launch_scripts/*.py')),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'pyyaml'],
+    extras_require={'test': ['pytest']},
+    zip_safe=False,
+    maintainer='ros_ehs maintainers',
+    maintainer_email='maintainers@ros-ehs.dev',
+    description='Electro-hydraulic servo axis: model, controller, identification, ROS 2 nodes',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'ehs_sim = ros_ehs.cli:main',
+        ],
+    },
+)

@@ -1,0 +1,156 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Plant physics: each test checks a property that a wrong model would fail."""
+
+import numpy as np
+import pytest
+
+from ros_ehs.closed_loop import run_closed_loop
+from ros_ehs.errors import InputError, ParameterError
+from ros_ehs.model import flow_gain_kq, Plant
+from ros_ehs.model.kernels import edge_gap
+from ros_ehs.params import preset
+from ros_ehs.reference import Sine
+
+EST = preset('table1_estimated', ff_enable=0.0)
+FRICTIONLESS = EST.replace(F_cc=0.0, F_sc=0.0, c_c=0.0, K_C=0.0)
+
+
+def _hold(plant, i, seconds, x0=None, f_load=0.0):
+    n = int(round(seconds / 1e-3))
+    return plant.simulate(1e-3, np.tile([i, f_load], (n, 1)), x0=x0)
+
+
+def test_frictionless_linear_law_steady_speed_is_kq_kx_i_over_a():
+    p = FRICTIONLESS.replace(flow_law='linear')
+    i = 2e-3
+    r = _hold(Plant(p, 'simplified'), i, 0.5)
+    expected = flow_gain_kq(p) * p['K_x'] * i / p['A_p']
+    assert r.z_dot[-1] == pytest.approx(expected, rel=1e-6)
+
+
+def test_frictionless_orifice_law_steady_speed_matches_the_opening_law():
+    p = FRICTIONLESS
+    i = 2e-3
+    r = _hold(Plant(p, 'simplified'), i, 0.5)
+    xe = p['K_x'] * i + p['x_bias']
+    gap = edge_gap(xe, p['d_c'] / 2, p['r_c']) - edge_gap(-xe, p['d_c'] / 2, p['r_c'])
+    w = np.pi * (p['d_s'] + p['d_c'] / 2)
+    exact = p['C_d'] * w * gap * np.sqrt((p['p_s'] - p['p_t']) / p['rho']) / p['A_p']
+    assert r.z_dot[-1] == pytest.approx(exact, rel=2e-3)
+    # wide open (x >> d_c, r_c) the orifice law tends to the linear law of eq. (7)
+    i = 10e-3
+    r = _hold(Plant(p, 'simplified'), i, 0.1)
+    linear = flow_gain_kq(p) * p['K_x'] * i / p['A_p']
+    assert r.z_dot[-1] == pytest.approx(linear, rel=0.02)
+
+
+@pytest.mark.parametrize('model', ['full', 'simplified'])
+def test_zero_current_keeps_pressures_balanced_and_the_piston_still(model):
+    p = EST.replace(x_bias=0.0)
+    plant = Plant(p, model)
+    r = _hold(plant, 0.0, 1.0)
+    assert abs(r.p_a[-1] - r.p_b[-1]) < 1.0
+    assert r.p_a[-1] == pytest.approx(0.5 * p['p_s'], rel=1e-3)
+    assert np.abs(r.z).max() < 1e-9
+    # with the paper's null bias the pressures differ a little, and friction holds the piston
+    r = _hold(Plant(EST, model), 0.0, 1.0)
+    assert abs(EST['A_p'] * (r.p_a[-1] - r.p_b[-1])) < EST['F_sc']
+    assert np.abs(r.z).max() < 1e-7
+
+
+def test_piston_sticks_until_the_hydraulic_force_reaches_static_friction():
+    p = EST.replace(c_c=0.0)
+    plant = Plant(p, 'simplified', h=1e-4)
+    r = _hold(plant, 0.1e-3, 0.6)   # a trickle of flow builds pressure in a stuck piston
+    moving = np.flatnonzero(np.abs(r.z_dot) > 1e-4)
+    assert moving.size, 'piston never broke away'
+    k = moving[0]
+    assert np.abs(r.z[: k - 20]).max() < 2e-6
+    assert np.abs(r.force[: k - 20]).max() < p['F_sc']
+    assert abs(r.force[k]) == pytest.approx(p['F_sc'], rel=0.05)
+
+
+def test_papers_friction_form_creeps_at_rest_where_the_renormalised_form_sticks():
+    f_load = 0.5 * EST['F_sc']
+    stuck = _hold(Plant(EST, 'simplified', h=1e-4), 0.0, 0.3, f_load=f_load)
+    creep = _hold(Plant(EST.replace(friction_law='paper'), 'simplified', h=1e-4), 0.0, 0.3,
+                  f_load=f_load)
+    # with the valve at null a load compresses the oil column by F/k_h ~ 43 um; the paper's
+    # form (xi(0) = 0.119) lets the piston follow, the renormalised form holds it
+    k_h = 2 * EST['beta_e'] * EST['A_p'] / EST['l_iac']
+    assert abs(stuck.z[-1]) < 1e-6
+    assert abs(creep.z[-1]) > 0.5 * f_load / k_h
+
+
+@pytest.mark.parametrize('model', ['full', 'simplified'])
+def test_pressures_stay_within_tank_and_supply_on_the_papers_test(model):
+    r = run_closed_loop(EST, Sine(), 2.0, model=model)
+    for name in ('p_CP', 'p_CT'):
+        s = r.signal(name)
+        assert s.min() > EST['p_t'] and s.max() < EST['p_s']
+
+
+def test_full_and_simplified_models_agree_on_the_1hz_sine():
+    full = run_closed_loop(EST, Sine(), 2.0, model='full')
+    simp = run_closed_loop(EST, Sine(), 2.0, model='simplified')
+    assert np.abs(full.z - simp.z).max() < 1e-3          # 2.5 % of the 0.04 m amplitude
+    assert np.sqrt(np.mean((full.z - simp.z) ** 2)) < 4e-4
+
+
+@pytest.mark.parametrize('model,tol', [('full', 1e-6), ('simplified', 1e-4)])
+def test_fast_integrator_matches_the_radau_reference(model, tol):
+    fast = run_closed_loop(EST, Sine(), 0.15, model=model)
+    ref = run_closed_loop(EST, Sine(), 0.15, model=model, stepper='reference')
+    assert np.abs(fast.z - ref.z).max() < tol
+    assert np.abs(fast.z_dot - ref.z_dot).max() < 1e3 * tol
+
+
+def test_integrator_error_shrinks_as_h_squared():
+    ref = run_closed_loop(EST, Sine(), 0.3, model='full', h=1.25e-5)
+    errs = [np.abs(run_closed_loop(EST, Sine(), 0.3, model='full', h=h).z - ref.z).max()
+            for h in (2e-4, 1e-4)]
+    assert 3.0 < errs[0] / errs[1] < 5.0
+
+
+def test_smoothing_leaves_the_response_unchanged():
+    smooth = run_closed_loop(EST, Sine(), 1.0, model='simplified', h=1e-4)
+    from ros_ehs.control import Controller
+    plant = Plant(EST, 'simplified', h=1e-6, smooth=False)   # exact sign/sat/sqrt
+    ctrl = Controller(EST)
+    x = plant.equilibrium()
+    z_ref, v_ref = Sine()(smooth.t)
+    z = [x[3]]
+    for k in range(smooth.t.size - 1):
+        x = plant.step(x, [ctrl.step(z_ref[k], v_ref[k], x[3]), 0.0], 1e-3)
+        z.append(x[3])
+    assert np.abs(np.array(z) - smooth.z).max() < 5e-5     # 0.1 % of the amplitude
+
+
+def test_bad_inputs_give_clear_errors():
+    plant = Plant(EST, 'simplified')
+    x = plant.equilibrium()
+    with pytest.raises(InputError, match=r'`u` = \[nan, 0.0\] is not finite'):
+        plant.step(x, [np.nan, 0.0], 1e-3)
+    with pytest.raises(InputError, match='`dt`'):
+        plant.step(x, [0.0, 0.0], -1e-3)
+    with pytest.raises(InputError, match=r"non-finite states: \['z_dot'\]"):
+        plant.step(np.array([1e7, 1e7, np.inf, 0.0]), [0.0, 0.0], 1e-3)
+    with pytest.raises(InputError, match='shape'):
+        plant.dynamics(0.0, np.zeros(10), [0.0, 0.0])
+    with pytest.raises(InputError, match='not finite at sample 2'):
+        plant.simulate(1e-3, [0.0, 0.0, np.inf])
+    with pytest.raises(ParameterError, match='`model`'):
+        Plant(EST, 'quantum')
+    assert np.array_equal(plant.step(x, [0.0, 0.0], 0.0), x)

@@ -1,0 +1,79 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The package installs both ways: pip (console scripts) and colcon (the ros2 run layout)."""
+
+import os
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _console_scripts():
+    import ast
+    tree = ast.parse((ROOT / 'setup.py').read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Dict):
+            for k, v in zip(node.keys, node.values):
+                if isinstance(k, ast.Constant) and k.value == 'console_scripts':
+                    return [e.value.split('=')[0].strip() for e in v.elts]
+    raise AssertionError('no console_scripts in setup.py')
+
+
+def test_pip_install_puts_working_console_scripts_on_path(tmp_path):
+    prefix = tmp_path / 'prefix'
+    res = subprocess.run([sys.executable, '-m', 'pip', 'install', '-q', '--no-deps',
+                          '--no-build-isolation', '--prefix', str(prefix), str(ROOT)],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    site = next(prefix.glob('lib/python*/site-packages'))
+    env = dict(os.environ, PYTHONPATH=str(site), PATH=f'{prefix / "bin"}:{os.environ["PATH"]}')
+    for name in _console_scripts():
+        assert (prefix / 'bin' / name).exists(), name
+    out = subprocess.run(['ehs_sim', 'main', '--model', 'simplified', '--duration', '1.0'],
+                         capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert 'rms error' in out.stdout
+    bad = subprocess.run(['ehs_sim', 'main', '--preset', 'nonsense'], capture_output=True,
+                         text=True, env=env, cwd=tmp_path)
+    assert bad.returncode == 2 and 'unknown preset `nonsense`' in bad.stderr
+    assert 'Traceback' not in bad.stderr
+
+
+@pytest.mark.skipif(shutil.which('colcon') is None, reason='colcon not installed')
+def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
+    src = tmp_path / 'src' / 'ros_ehs'
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
+        '.venv', '.git', 'build', 'install', 'log', '.cache', '__pycache__', '*.egg-info'))
+    listed = subprocess.run(['colcon', 'list'], cwd=tmp_path, capture_output=True, text=True)
+    assert '(ros.ament_python)' in listed.stdout, listed.stdout + listed.stderr
+    res = subprocess.run(['colcon', 'build', '--event-handlers', 'console_direct-'],
+                         cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    install = tmp_path / 'install' / 'ros_ehs'
+    lib = install / 'lib' / 'ros_ehs'
+    for name in _console_scripts():
+        assert os.access(lib / name, os.X_OK), f'{name} missing from {lib}'
+    assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'ros_ehs').exists()
+    # what `ros2 run ros_ehs <exe>` does: ament_index lookup, then lib/<pkg>/<exe>
+    prefix_path = f'{install}:{os.environ.get("AMENT_PREFIX_PATH", "")}'
+    env = dict(os.environ, AMENT_PREFIX_PATH=prefix_path)
+    code = ('from ament_index_python.packages import get_package_prefix\n'
+            "print(get_package_prefix('ros_ehs'))")
+    found = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True)
+    assert found.stdout.strip() == str(install), found.stderr
