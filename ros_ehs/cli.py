@@ -44,6 +44,27 @@ def _cmd_main(args) -> int:
     return 0
 
 
+def _cmd_figures(args) -> int:
+    from ros_ehs.experiments import paper_runs, plot_runs
+
+    runs = paper_runs(args.model, args.duration)
+    for name, (_, m) in runs.items():
+        print(f'{name:>16}: dead zone {m.deadzone_s * 1e3:5.1f} ms/half cycle, rms error '
+              f'{m.rms_err_m * 1e3:6.3f} mm, lag {m.lag_s * 1e3:5.1f} ms')
+    for path in plot_runs(runs, args.out, args.model):
+        print(f'wrote {path}')
+    return 0
+
+
+def _cmd_params_doc(args) -> int:
+    from pathlib import Path
+
+    from ros_ehs.params import markdown_table
+    Path(args.out).write_text(markdown_table() + '\n')
+    print(f'wrote {args.out}')
+    return 0
+
+
 def main(argv=None) -> int:
     """Parse arguments and run; core errors become one clear line and exit code 2."""
     ap = argparse.ArgumentParser(prog='ehs_sim', description=__doc__.strip().splitlines()[0])
@@ -55,6 +76,14 @@ def main(argv=None) -> int:
     m.add_argument('--amplitude', type=float, default=0.04)
     m.add_argument('--frequency', type=float, default=1.0)
     m.set_defaults(func=_cmd_main)
+    f = sub.add_parser('figures', help="the paper's Figs. 5-7 as PNG, from simulation")
+    f.add_argument('--out', default='out/figures')
+    f.add_argument('--model', choices=['full', 'simplified'], default='simplified')
+    f.add_argument('--duration', type=float, default=3.0)
+    f.set_defaults(func=_cmd_figures)
+    d = sub.add_parser('params-doc', help='write docs/parameters.md from the parameter table')
+    d.add_argument('--out', default='docs/parameters.md')
+    d.set_defaults(func=_cmd_params_doc)
     args = ap.parse_args(argv)
     try:
         return args.func(args)

@@ -201,10 +201,13 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
     _p('tracking_tau', 's', 0.0, 0.0, 100.0, 'back-calculation anti-windup time constant '
        '(0: sqrt(kd/ki), or kp/ki when kd = 0)', 'pid', 'D'),
     _p('ff_enable', '1', 1.0, 0.0, 1.0, 'feedforward on (1) or off (0)', 'feedforward', 'D'),
-    _p('tau_delay', 's', 0.016, 0.0, 0.5, 'signal-to-response delay tau, eq. (17)',
-       'feedforward', 'P'),
+    _p('tau_delay', 's', 0.0, 0.0, 0.5, 'signal-to-response delay tau of eq. (17): the '
+       'measured loop delay (paper: 0.016 s under PID; ~0 with velocity feedforward)',
+       'feedforward', 'D'),
     _p('ff_leak_tau', 's', 0.5, 1.0e-3, 100.0, 'leak of the pressure-force estimate of '
        'eq. (11)', 'feedforward', 'D'),
+    _p('ff_velocity', '1', 1.1, 0.0, 1.5, 'weight of the velocity (flow-inversion) '
+       'feedforward A v_ref / (K_q K_x); 0 = the law of the paper as printed', 'feedforward', 'D'),
     _p('ff_max', 'A', 0.015, 0.0, 0.1, 'limit of the feedforward current alone',
        'feedforward', 'D'),
     _p('stale_timeout', 's', 0.005, 1.0e-4, 10.0, 'state older than this is stale: hold, '
@@ -331,6 +334,28 @@ def preset(name: str = 'g761_baseline', **changes: object) -> Params:
     if name not in PRESETS:
         raise ParameterError(f'unknown preset `{name}`; choose one of {sorted(PRESETS)}')
     return Params({**PRESETS[name], **changes})
+
+
+def markdown_table() -> str:
+    """Return the parameter reference (docs/parameters.md), derived from the table."""
+    lines = ['# Parameters', '',
+             'Generated from `ros_ehs/params.py` by `ehs_sim params-doc`; do not edit by hand.',
+             'Source tags: P paper, K textbook/catalogue, D derived (research notes), '
+             'I rig assumption.', '']
+    for title, specs in (('Plant', PLANT_SPECS), ('Controller', CONTROL_SPECS)):
+        lines += [f'## {title}', '', '| name | unit | default | range | meaning | source | '
+                  'Table 1 initial / bounds / estimate / scale |', '|---|---|---|---|---|---|---|']
+        for s in specs:
+            rng = ', '.join(s.choices) if s.is_choice else f'[{s.lo:g}, {s.hi:g}]'
+            t1 = ''
+            if s.scale is not None:
+                t1 = (f'{s.initial:g} / [{s.est_lo:g}, {s.est_hi:g}] / {s.estimated:g} / '
+                      f'{s.scale:g}')
+            default = s.default if s.is_choice else f'{s.default:g}'
+            lines.append(f'| `{s.name}` | {s.unit} | {default} | {rng} | {s.meaning} | '
+                         f'{s.source} | {t1} |')
+        lines.append('')
+    return '\n'.join(lines)
 
 
 def save_yaml(path: str | Path, params: Mapping[str, object], node_name: str = '/**',

@@ -6,7 +6,7 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="${EHS_VENV:-$root/.venv}"
 py="${PYTHON:-python3}"
 stamp="$venv/.ros_ehs_setup"
-want="$(cat "$root/requirements.txt" "$root/constraints.txt" "$root/setup.py" | sha256sum | cut -c1-16)"
+want="$(cat "$root/requirements.txt" "$root/constraints.txt" "$root/setup.py" "$root/scripts/setup.sh" | sha256sum | cut -c1-16)"
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
   exit 0
 fi

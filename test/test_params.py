@@ -69,6 +69,13 @@ def test_params_are_immutable_and_replace_validates():
         p.replace(c_c=-5.0)
 
 
+def test_parameter_doc_is_generated_from_the_table():
+    from pathlib import Path
+    from ros_ehs.params import markdown_table
+    doc = Path(__file__).resolve().parents[1] / 'docs' / 'parameters.md'
+    assert doc.read_text() == markdown_table() + '\n', 'run: ehs_sim params-doc'
+
+
 def test_yaml_round_trip_writes_doubles_as_doubles(tmp_path):
     p = preset('table1_initial', p_t=0.0)
     f = save_yaml(tmp_path / 'p.yaml', p, node_name='controller')

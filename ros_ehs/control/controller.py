@@ -83,6 +83,6 @@ class Controller:
             return self.pid.update(math.nan, dt if dt > 0 else self.dt)
         ff = 0.0
         if self.ff_enabled and dt > 0:
-            ff = self.ff.update(v_ref, self.pid.last_u)
+            ff = self.ff.update(v_ref, self.pid.last_u) + self.ff.velocity_current(v_ref)
         self.last_ff = ff
         return self.pid.update(z_ref - z, dt, ff)

@@ -107,6 +107,7 @@ class Feedforward:
         self.renormalised = params['friction_law'] == 'renormalised'
         self.leak_tau = params['ff_leak_tau']
         self.i_max = params['ff_max']
+        self.k_vel = params['ff_velocity']
         self.delay = DelayLine(params['tau_delay'], self.dt)
         self.reset()
 
@@ -115,6 +116,10 @@ class Feedforward:
         self.f_p = 0.0
         self.g_prev: float | None = None
         self.v_d = 0.0
+
+    def velocity_current(self, v_ref: float) -> float:
+        """Return ``ff_velocity * A v_ref / (K_q K_x)`` [A]: the flow the motion needs."""
+        return self.k_vel * self.i_per_speed * v_ref
 
     def update(self, v_ref: float, i_prev: float) -> float:
         """Return i_sc [A] for reference velocity ``v_ref`` [m/s] (eq. 20)."""
