@@ -37,8 +37,10 @@ def _console_scripts():
 
 def test_pip_install_puts_working_console_scripts_on_path(tmp_path):
     prefix = tmp_path / 'prefix'
+    # --ignore-installed: never uninstall the developer's own (editable) copy
     res = subprocess.run([sys.executable, '-m', 'pip', 'install', '-q', '--no-deps',
-                          '--no-build-isolation', '--prefix', str(prefix), str(ROOT)],
+                          '--ignore-installed', '--no-build-isolation', '--prefix', str(prefix),
+                          str(ROOT)],
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     site = next(prefix.glob('lib/python*/site-packages'))
