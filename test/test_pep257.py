@@ -13,12 +13,21 @@
 # limitations under the License.
 """ament_pep257 docstring rules."""
 
+from pathlib import Path
+
 from ament_pep257.main import main
 import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _paths():
+    names = ('ros_ehs', 'ros_ehs_msgs_py', 'test', 'launch_scripts')
+    return [str(ROOT / n) for n in names if (ROOT / n).is_dir()]
 
 
 @pytest.mark.linter
 @pytest.mark.pep257
 def test_pep257():
-    rc = main(argv=['ros_ehs', 'ros_ehs_msgs_py', 'test', 'launch_scripts'])
+    rc = main(argv=_paths())
     assert rc == 0, 'Found code style errors / warnings'
