@@ -16,7 +16,8 @@
 import subprocess
 import sys
 
-CORE = ['ros_ehs_msgs_py', 'ros_ehs.params', 'ros_ehs.model', 'ros_ehs.control', 'ros_ehs.closed_loop',
+CORE = ['ros_ehs_msgs_py', 'ros_ehs.params', 'ros_ehs.model', 'ros_ehs.control',
+        'ros_ehs.closed_loop',
         'ros_ehs.reference', 'ros_ehs.metrics', 'ros_ehs.cli']
 
 
