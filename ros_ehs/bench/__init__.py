@@ -12,3 +12,14 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """Benchmarks a user can run on their own machine: ``python -m ros_ehs.bench <name>``."""
+
+import json
+
+
+def report(figures: dict) -> int:
+    """Print ``figures`` one per line, then all of them as one JSON object on the last line."""
+    width = max(map(len, figures)) + 2
+    for k, v in figures.items():
+        print(f'{k:>{width}}: {v}')
+    print(json.dumps(figures))
+    return 0

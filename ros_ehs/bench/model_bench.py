@@ -26,11 +26,11 @@ All figures come from one run on this machine, side by side:
   Radau (rtol 1e-10) reference stepper.
 """
 
-import json
 import time
 
 import numpy as np
 
+from ros_ehs.bench import report
 from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.model.plant import DEFAULT_H, Plant
 from ros_ehs.params import preset
@@ -89,8 +89,4 @@ def run(duration_err: float = 1.0, duration_rtf: float = 4.0) -> dict:
 
 def main(argv=None) -> int:
     """Print the figures; the last line is one JSON object."""
-    res = run()
-    for k, v in res.items():
-        print(f'{k:>32}: {v}')
-    print(json.dumps(res))
-    return 0
+    return report(run())

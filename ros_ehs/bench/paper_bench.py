@@ -20,9 +20,9 @@ printed (tau 0.016 s), ``*_ffpid_paper_tau_*`` with tau = the measured PID loop 
 ``controller_step_us`` is the mean cost of one ``Controller.step`` (PID + feedforward).
 """
 
-import json
 import time
 
+from ros_ehs.bench import report
 from ros_ehs.control import Controller
 from ros_ehs.experiments import paper_runs
 from ros_ehs.params import preset
@@ -58,8 +58,4 @@ def run(duration: float = 4.0) -> dict:
 
 def main(argv=None) -> int:
     """Print the figures; the last line is one JSON object."""
-    res = run()
-    for k, v in res.items():
-        print(f'{k:>34}: {v}')
-    print(json.dumps(res))
-    return 0
+    return report(run())

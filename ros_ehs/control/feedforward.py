@@ -36,6 +36,7 @@ import math
 
 from ros_ehs.errors import InputError
 from ros_ehs.model.coefficients import ff_force_gain, flow_gain_kq
+from ros_ehs.model.kernels import smooth_clip
 
 __all__ = ['DelayLine', 'Feedforward', 'psc_force', 'stribeck_estimate', 'xi_blend']
 
@@ -48,11 +49,6 @@ def xi_blend(v: float, v_c: float, renormalised: bool = True) -> float:
     return (xi - _XI0) / (1.0 - _XI0) if renormalised else xi
 
 
-def _soft_sat(f: float, lim: float) -> float:
-    d = 0.01 * lim + 1e-9
-    return 0.5 * (math.sqrt((f + lim) ** 2 + d * d) - math.sqrt((f - lim) ** 2 + d * d))
-
-
 def stribeck_estimate(v: float, f_oc: float, f_cc: float, f_sc: float, v_c: float,
                       eps_v: float, renormalised: bool = True) -> float:
     """
@@ -61,7 +57,7 @@ def stribeck_estimate(v: float, f_oc: float, f_cc: float, f_sc: float, v_c: floa
     ``sign`` is ``tanh(v / eps_v)`` and ``sat`` a soft saturation (smooth, bounded slope).
     """
     xi = xi_blend(v, v_c, renormalised)
-    return -((1.0 - xi) * _soft_sat(f_oc, f_sc) + xi * math.tanh(v / eps_v) * f_cc)
+    return -((1.0 - xi) * smooth_clip(f_oc, f_sc) + xi * math.tanh(v / eps_v) * f_cc)
 
 
 def psc_force(v: float, f_p: float, f_cc: float, f_sc: float, v_c: float, eps_v: float,

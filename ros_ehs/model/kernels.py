@@ -45,6 +45,20 @@ N_SIMPLIFIED = 4
 _JIT = {'cache': True, 'nogil': True, 'fastmath': True, 'error_model': 'numpy'}
 
 
+def smooth_clip(f, lim):
+    """
+    Saturate ``f`` to +-``lim`` smoothly (corner width 1 % of ``lim``).
+
+    Plain Python, so the controller calls it without numba's dispatch cost; the kernels use
+    the compiled twin ``_smooth_clip`` of this same function.
+    """
+    d = 0.01 * lim + 1e-9
+    return 0.5 * (math.sqrt((f + lim) ** 2 + d * d) - math.sqrt((f - lim) ** 2 + d * d))
+
+
+_smooth_clip = njit(**_JIT)(smooth_clip)
+
+
 # --- valve opening law --------------------------------------------------------------------
 @njit(**_JIT)
 def edge_gap(x, clr, rc):
@@ -84,10 +98,10 @@ def _sabs(v, eps, smooth):
 
 
 @njit(**_JIT)
-def _sat(f, lim, smooth):
+def soft_clip(f, lim, smooth):
+    """Clip ``f`` to +-``lim``; smooth (see :func:`smooth_clip`) when ``smooth`` > 0.5."""
     if smooth > 0.5:
-        d = 0.01 * lim + 1e-9
-        return 0.5 * (math.sqrt((f + lim) ** 2 + d * d) - math.sqrt((f - lim) ** 2 + d * d))
+        return _smooth_clip(f, lim)
     return min(max(f, -lim), lim)
 
 
@@ -136,7 +150,7 @@ def friction(v, f_oc, c):
         xi0 = c[C_XI0]
         xi = (xi - xi0) / (1.0 - xi0)
         f_hold = f_oc + c[C_MP] * v / c[C_TAUST]
-    return -((1.0 - xi) * _sat(f_hold, c[C_FSC], sm) + xi * _sign(v, eps, sm) * c[C_FCC])
+    return -((1.0 - xi) * soft_clip(f_hold, c[C_FSC], sm) + xi * _sign(v, eps, sm) * c[C_FCC])
 
 
 @njit(**_JIT)
