@@ -25,6 +25,8 @@ import numpy as np
 
 from ros_ehs.errors import EhsError
 
+ESTIMATED_DEFAULT = ('d_c', 'r_c', 'x_bias', 'F_cc', 'F_sc', 'l_iac', 'c_c')
+
 
 def _cmd_main(args) -> int:
     from ros_ehs.closed_loop import run_closed_loop
@@ -65,6 +67,55 @@ def _cmd_params_doc(args) -> int:
     return 0
 
 
+def _print_identification(result, files, held) -> None:
+    print(f'identification ({result.model} model, {result.cost_kind.upper()}): '
+          f'{result.message} after {result.iterations} iterations, {result.nfev} evaluations, '
+          f'{result.wall_s:.1f} s')
+    for n in result.free:
+        v, se, v0 = result.x[n], result.stderr[n], result.x0[n]
+        print(f'  {n:>7} = {v:12.6g} +- {se:9.3g}  (start {v0:g})')
+    for name, sig in result.metrics.items():
+        fits = [f'{k} R2 {m["r2"]:.5f} NRMSE {m["nrmse"]:.4f}' for k, m in sig.items()]
+        print(f'  {name}: ' + ', '.join(fits))
+    for w in result.warnings:
+        print(f'  warning: {w}')
+    for k, p in files.items():
+        print(f'wrote {p}')
+
+
+def _cmd_identify(args) -> int:
+    from ros_ehs.identify.run import run_identification
+
+    def progress(e):
+        print(f'  iteration {e["iteration"]:3d}  cost {e["cost"]:.6g}', flush=True)
+
+    result, files, held = run_identification(
+        args.bags, args.out, free=[f for f in args.free.split(',') if f], model=args.model,
+        cost=args.cost, holdout=args.holdout or (), initial=args.initial,
+        state_topic=args.state_topic, command_topic=args.command_topic,
+        pressure_topics=None if args.no_pressures else (args.pressure_p, args.pressure_t),
+        workers=args.workers, figures=not args.no_figures,
+        progress=None if args.quiet else progress)
+    _print_identification(result, files, held)
+    return 0 if result.success else 1
+
+
+def _cmd_record(args) -> int:
+    from ros_ehs.params import preset
+    from ros_ehs.reference import Sine
+    from ros_ehs.synthetic import record_experiment, SensorNoise
+
+    noise = SensorNoise() if args.noise else SensorNoise(0.0, 0.0, 0.0)
+    s = record_experiment(args.out, plant_params=preset(args.plant),
+                          controller_params=preset(args.controller),
+                          reference=Sine(args.amplitude, args.frequency),
+                          duration=args.duration, model=args.model, noise=noise,
+                          seed=args.seed)
+    print(f'recorded {args.out}: {int(s["samples"])} samples, {args.model} plant '
+          f'({args.plant}), rms tracking error {s["rms_error_m"] * 1e3:.3f} mm (synthetic)')
+    return 0
+
+
 def main(argv=None) -> int:
     """Parse arguments and run; core errors become one clear line and exit code 2."""
     ap = argparse.ArgumentParser(prog='ehs_sim', description=__doc__.strip().splitlines()[0])
@@ -84,6 +135,36 @@ def main(argv=None) -> int:
     d = sub.add_parser('params-doc', help='write docs/parameters.md from the parameter table')
     d.add_argument('--out', default='docs/parameters.md')
     d.set_defaults(func=_cmd_params_doc)
+    r = sub.add_parser('record', help='in-process bench run (plant + controller + sensor '
+                       'noise) recorded to a rosbag2 MCAP bag: a synthetic experiment')
+    r.add_argument('--out', required=True, help='bag directory to create')
+    r.add_argument('--plant', default='table1_estimated', help='plant parameter preset')
+    r.add_argument('--controller', default='table1_initial', help='controller preset')
+    r.add_argument('--model', choices=['full', 'simplified'], default='simplified')
+    r.add_argument('--duration', type=float, default=10.0)
+    r.add_argument('--amplitude', type=float, default=0.04)
+    r.add_argument('--frequency', type=float, default=1.0)
+    r.add_argument('--seed', type=int, default=0)
+    r.add_argument('--no-noise', dest='noise', action='store_false')
+    r.set_defaults(func=_cmd_record)
+    i = sub.add_parser('identify', help="refit Table 1's parameters from bags (report folder)")
+    i.add_argument('bags', nargs='+', help='bag directories or .mcap files, fitted jointly')
+    i.add_argument('--out', default='out/identification', help='report folder')
+    i.add_argument('--free', default=','.join(ESTIMATED_DEFAULT),
+                   help='comma-separated free parameters')
+    i.add_argument('--model', choices=['full', 'simplified'], default='simplified')
+    i.add_argument('--cost', choices=['sae', 'sse'], default='sae')
+    i.add_argument('--holdout', nargs='*', help='bags scored with the fitted parameters')
+    i.add_argument('--initial', help='parameters YAML to start from (default Table 1 initial)')
+    i.add_argument('--state-topic', default='state')
+    i.add_argument('--command-topic', default='servo_current')
+    i.add_argument('--pressure-p', default='pressure/chamber_p')
+    i.add_argument('--pressure-t', default='pressure/chamber_t')
+    i.add_argument('--no-pressures', action='store_true', help='fit without pressures')
+    i.add_argument('--workers', type=int, default=2)
+    i.add_argument('--no-figures', action='store_true')
+    i.add_argument('--quiet', action='store_true')
+    i.set_defaults(func=_cmd_identify)
     args = ap.parse_args(argv)
     try:
         return args.func(args)

@@ -18,7 +18,9 @@ import sys
 
 CORE = ['ros_ehs_msgs_py', 'ros_ehs.params', 'ros_ehs.model', 'ros_ehs.control',
         'ros_ehs.closed_loop',
-        'ros_ehs.reference', 'ros_ehs.metrics', 'ros_ehs.cli']
+        'ros_ehs.reference', 'ros_ehs.metrics', 'ros_ehs.cli', 'ros_ehs.bag',
+        'ros_ehs.bag.experiment', 'ros_ehs.identify', 'ros_ehs.identify.run',
+        'ros_ehs.identify.report', 'ros_ehs.synthetic']
 
 
 def test_core_modules_import_without_rclpy():

@@ -1,0 +1,191 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Extract an identification experiment (arrays on one time grid) from a bag's contract topics.
+
+The time base is the ``state`` topic's header stamps. The servo current of each period is the
+latest ``servo_current`` command stamped at or before the state sample (the controller
+stamps its answer with the state it answered, and the plant holds it for the period).
+Chamber pressures are used when the bag has them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import os
+
+import numpy as np
+
+from ros_ehs.bag.reader import Bag, open_bag
+from ros_ehs.errors import BagError, DataError
+import ros_ehs_msgs_py as contract
+
+__all__ = ['Experiment', 'MIN_SAMPLES', 'experiment_from_arrays', 'load_experiment',
+           'resolve_topic']
+
+#: Fewer state samples than this is "too little data" for a 7-parameter fit.
+MIN_SAMPLES = 500
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One recorded run on a uniform grid: ``t`` [s], ``i`` [A], ``z`` [m], ``v`` [m/s], ..."""
+
+    name: str
+    t: np.ndarray
+    i: np.ndarray
+    z: np.ndarray
+    v: np.ndarray
+    p_a: np.ndarray | None = None
+    p_b: np.ndarray | None = None
+
+    @property
+    def dt(self) -> float:
+        """Sample period [s]."""
+        return float(self.t[1] - self.t[0])
+
+    @property
+    def duration(self) -> float:
+        """Length of the record [s]."""
+        return float(self.t[-1] - self.t[0])
+
+    def signals(self) -> dict[str, np.ndarray]:
+        """Measured outputs by name: ``z_dot``, ``z`` and, when recorded, ``p_CP``, ``p_CT``."""
+        out = {'z_dot': self.v, 'z': self.z}
+        if self.p_a is not None and self.p_b is not None:
+            out['p_CP'] = self.p_a
+            out['p_CT'] = self.p_b
+        return out
+
+
+def resolve_topic(bag: Bag, name: str) -> str:
+    """Find contract topic ``name`` in ``bag``, in any namespace (``/axis1/state``)."""
+    if name in bag.topics:
+        return name
+    rel = name.lstrip('/')
+    hits = [t for t in bag.topics if t == '/' + rel or t.endswith('/' + rel)]
+    if len(hits) == 1:
+        return hits[0]
+    if not hits:
+        raise BagError(f'bag {str(bag.path)!r} has no topic {name!r}; it has: '
+                       f'{bag.describe() or "no topics"}')
+    raise BagError(f'topic {name!r} is ambiguous in {str(bag.path)!r}: {hits} '
+                   '(pass the full name)')
+
+
+def _check_type(bag: Bag, topic: str, expected: str) -> None:
+    got = bag.topics[topic].msg_type
+    if got != expected:
+        raise BagError(f'topic {topic!r} in {str(bag.path)!r} has type {got}, '
+                       f'expected {expected}')
+
+
+def _series(bag: Bag, topic: str, read) -> tuple[np.ndarray, np.ndarray]:
+    ts, vs = [], []
+    for m, msg in bag.decoded([topic]):
+        try:
+            rec = read(msg)
+        except (ValueError, AttributeError, KeyError, IndexError) as e:
+            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {e}') \
+                from None
+        ts.append(rec[0])
+        vs.append(rec[1:])
+    return np.asarray(ts, dtype=np.int64), np.asarray(vs, dtype=float)
+
+
+def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experiment:
+    """Build and check an :class:`Experiment` from arrays (``t`` uniform, seconds)."""
+    t = np.asarray(t, dtype=float)
+    arrs = {k: np.asarray(a, dtype=float) for k, a in
+            (('i', i), ('z', z), ('v', v)) if a is not None}
+    for k, a in arrs.items():
+        if a.shape != t.shape:
+            raise DataError(f'{name}: `{k}` has shape {a.shape}, `t` has {t.shape}')
+    n = t.size
+    if n < MIN_SAMPLES:
+        raise DataError(f'{name}: too little data: {n} samples (need at least {MIN_SAMPLES}, '
+                        f'e.g. {MIN_SAMPLES / 1000:g} s at 1 kHz)')
+    dts = np.diff(t)
+    dt = float(np.median(dts))
+    if not dt > 0 or np.max(np.abs(dts - dt)) > 0.25 * dt:
+        k = int(np.argmax(np.abs(dts - dt)))
+        raise DataError(f'{name}: samples are not on a uniform grid (period {dt:g} s, but '
+                        f'{dts[k]:g} s between t = {t[k]:g} and {t[k + 1]:g} s)')
+    for k, a in arrs.items():
+        if not np.all(np.isfinite(a)):
+            j = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise DataError(f'{name}: `{k}` is not finite at t = {t[j]:g} s')
+    if np.ptp(arrs['i']) < 1e-5 or np.ptp(arrs['z']) < 1e-4:
+        raise DataError(f'{name}: no excitation: the current spans {np.ptp(arrs["i"]):.3g} A '
+                        f'and the piston {np.ptp(arrs["z"]):.3g} m (need a moving piston, '
+                        'e.g. a 1 Hz sine of a few cm)')
+    pa = None if p_a is None else np.asarray(p_a, dtype=float)
+    pb = None if p_b is None else np.asarray(p_b, dtype=float)
+    return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], pa, pb)
+
+
+def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name,
+                    command: str = contract.COMMAND.name,
+                    pressure_p: str | None = contract.PRESSURE_P.name,
+                    pressure_t: str | None = contract.PRESSURE_T.name,
+                    bag: Bag | None = None) -> Experiment:
+    """
+    Read an experiment from the bag at ``path`` using the contract topic names.
+
+    Pressures are optional (pass None to ignore them); a bag without them gives an
+    experiment without pressures. Raises :class:`BagError` / :class:`DataError` naming the
+    problem (missing topics with the topics the bag has, wrong types, too little data, no
+    excitation).
+    """
+    bag = bag or open_bag(path)
+    name = os.path.basename(os.path.normpath(str(path)))
+    st = resolve_topic(bag, state)
+    cm = resolve_topic(bag, command)
+    _check_type(bag, st, contract.STATE.msg_type)
+    _check_type(bag, cm, contract.COMMAND.msg_type)
+    ts, sv = _series(bag, st, lambda m: (lambda s: (s.stamp_ns, s.z, s.z_dot))(
+        contract.state_from_msg(m)))
+    tc, cv = _series(bag, cm, lambda m: tuple(contract.command_from_msg(m)))
+    if ts.size == 0 or tc.size == 0:
+        raise DataError(f'{name}: too little data: {ts.size} state and {tc.size} command '
+                        'messages')
+    order = np.argsort(ts, kind='stable')
+    ts, sv = ts[order], sv[order]
+    keep = np.concatenate([[True], np.diff(ts) > 0])
+    ts, sv = ts[keep], sv[keep]
+    oc = np.argsort(tc, kind='stable')
+    tc, cv = tc[oc], cv[oc]
+    k = np.searchsorted(tc, ts, side='right') - 1
+    ok = k >= 0
+    ts, sv, k = ts[ok], sv[ok], k[ok]
+    cur = cv[k, 0]
+    pa = pb = None
+    have = [resolve_topic(bag, p) if p and any(
+        t.endswith('/' + p.lstrip('/')) or t == p for t in bag.topics) else None
+        for p in (pressure_p, pressure_t)]
+    if have[0] and have[1]:
+        for top in have:
+            _check_type(bag, top, contract.PRESSURE_P.msg_type)
+        series = [_series(bag, top, lambda m: tuple(contract.pressure_from_msg(m)))
+                  for top in have]
+        vals = []
+        for tp, pv in series:
+            o = np.argsort(tp, kind='stable')
+            tp, pv = tp[o], pv[o, 0]
+            j = np.clip(np.searchsorted(tp, ts, side='right') - 1, 0, tp.size - 1)
+            vals.append(pv[j])
+        pa, pb = vals
+    if bag.truncated:
+        name += ' (truncated)'
+    return experiment_from_arrays(name, (ts - ts[0]) * 1e-9, cur, sv[:, 0], sv[:, 1], pa, pb)

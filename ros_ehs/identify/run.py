@@ -1,0 +1,75 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""One identification job, from bag paths to a report folder (the command and node)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable, Sequence
+import warnings
+
+from ros_ehs.bag.experiment import load_experiment
+from ros_ehs.errors import IdentificationWarning, InputError
+from ros_ehs.identify.estimator import IdentificationResult, identify, score, SIGNALS
+from ros_ehs.identify.report import write_report
+from ros_ehs.params import ESTIMATED, load_yaml, preset
+import ros_ehs_msgs_py as contract
+
+__all__ = ['run_identification']
+
+
+def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike, *,
+                       free: Sequence[str] = ESTIMATED, model: str = 'simplified',
+                       cost: str = 'sae', signals: Sequence[str] = SIGNALS,
+                       holdout: Sequence[str | os.PathLike] = (),
+                       initial: str | os.PathLike | None = None,
+                       state_topic: str = contract.STATE.name,
+                       command_topic: str = contract.COMMAND.name,
+                       pressure_topics: tuple[str, str] | None = (
+                           contract.PRESSURE_P.name, contract.PRESSURE_T.name),
+                       segment: float | None = 1.0, workers: int = 2, max_nfev: int = 100,
+                       figures: bool = True,
+                       progress: Callable[[dict], None] | None = None
+                       ) -> tuple[IdentificationResult, dict[str, Path], dict]:
+    """
+    Load ``bags``, fit them jointly, score ``holdout`` bags and write the report to ``out``.
+
+    ``initial``: a parameters YAML for the starting point (default Table 1's initial values).
+    Returns the result, the written files and the hold-out metrics.
+    """
+    if not bags:
+        raise InputError('`bags`: give at least one bag to identify from')
+    pp, pt = pressure_topics or (None, None)
+
+    def load(b):
+        return load_experiment(b, state=state_topic, command=command_topic, pressure_p=pp,
+                               pressure_t=pt)
+
+    exps = [load(b) for b in bags]
+    held = [load(b) for b in holdout]
+    base = load_yaml(initial, preset('table1_initial')) if initial else preset('table1_initial')
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)   # kept in result.warnings
+        result = identify(exps, free=free, model=model, cost=cost, signals=signals,
+                          base=base, segment=segment, workers=workers, max_nfev=max_nfev,
+                          progress=progress)
+    held_metrics = {}
+    if held and result.params is not None:
+        held_metrics = score(result.params, held, model=model, signals=signals,
+                             segment=segment)
+        result.metrics.update({f'held-out {k}': v for k, v in held_metrics.items()})
+    files = write_report(result, exps, out, segment=segment, signals=signals,
+                         figures=figures)
+    return result, files, held_metrics
