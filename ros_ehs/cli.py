@@ -161,7 +161,7 @@ def main(argv=None) -> int:
     i.add_argument('--pressure-p', default='pressure/chamber_p')
     i.add_argument('--pressure-t', default='pressure/chamber_t')
     i.add_argument('--no-pressures', action='store_true', help='fit without pressures')
-    i.add_argument('--workers', type=int, default=2)
+    i.add_argument('--workers', type=int, default=1)
     i.add_argument('--no-figures', action='store_true')
     i.add_argument('--quiet', action='store_true')
     i.set_defaults(func=_cmd_identify)

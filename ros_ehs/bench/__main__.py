@@ -16,7 +16,7 @@
 import importlib
 import sys
 
-BENCHES = {'model': 'model_bench', 'paper': 'paper_bench'}
+BENCHES = {'model': 'model_bench', 'paper': 'paper_bench', 'identify': 'identify_bench'}
 
 
 def main(argv=None) -> int:

@@ -125,6 +125,7 @@ class Problem:
         self.nsub = [max(1, int(math.ceil(ex.dt / plant.h - 1e-9))) for ex in self.exps]
         self.m = sum(ex.y.shape[0] * ex.measured.size for ex in self.exps)
         self.nfev = 0
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
 
     def values(self, theta: np.ndarray) -> dict[str, float]:
         """Scaled vector -> parameter values."""
@@ -175,8 +176,12 @@ class Problem:
 
     def residual(self, theta: np.ndarray) -> np.ndarray:
         """All normalised residuals as one vector (the fast, unchecked path)."""
+        if self._last is not None and np.array_equal(self._last[0], theta):
+            return self._last[1]          # the Jacobian reuses the step's simulation
         self.nfev += 1
-        return np.concatenate([p.ravel() for p in self.residual_parts(theta)])
+        r = np.concatenate([p.ravel() for p in self.residual_parts(theta)])
+        self._last = (np.array(theta, dtype=float), r)
+        return r
 
 
 # -- parallel Jacobian ---------------------------------------------------------------------
@@ -326,7 +331,7 @@ def _bounds(free, base):
 def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simplified',
              signals: Sequence[str] = SIGNALS, cost: str = 'sae', base: Params | None = None,
              x0: dict[str, float] | None = None, segment: float | None = 1.0,
-             h: float | None = None, workers: int = 2, max_nfev: int = 100,
+             h: float | None = None, workers: int = 1, max_nfev: int = 100,
              progress: Callable[[dict], None] | None = None) -> IdentificationResult:
     """
     Fit the ``free`` parameters of ``model`` to ``experiments`` (jointly).
@@ -353,7 +358,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     h : float, optional
         Integration step [s] (default: the plant's for ``model``).
     workers : int
-        Processes for the Jacobian columns (1: serial).
+        Processes for the Jacobian columns (default 1: on the 2-core bench machine the
+        parallel columns measured no faster, see ``python -m ros_ehs.bench identify``).
     max_nfev : int
         Limit on residual evaluations (not counting Jacobian columns).
     progress : callable, optional
@@ -372,6 +378,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     history: list[dict] = []
     njev = [0]
     last_jac: list[np.ndarray] = []
+    problem.residual(theta0)   # compile/warm the kernels before forking the workers
     pool = None
     if workers > 1 and len(free) > 1:
         pool = mp.get_context('fork').Pool(min(workers, len(free)), _init_worker, (problem,))
@@ -423,7 +430,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     xv = problem.values(theta)
     for n, v in xv.items():
         k = free.index(n)
-        if v != 0 and se[k] / abs(v) > 0.5:
+        if v != 0 and math.isfinite(se[k]) and se[k] / abs(v) > 0.5:
             notes.append(f'{n} is not identifiable from these data: standard error '
                          f'{se[k]:.3g} {spec(n).unit} is {100 * se[k] / abs(v):.0f} % of '
                          'its value')
@@ -460,6 +467,11 @@ def _covariance(J, r, n, cost, free, theta):
     s2 = float(np.sum(r ** 2)) / max(m - n, 1)
     if cost == 'sae':
         s2 *= math.pi / 2.0   # L1 estimator variance under Gaussian noise (efficiency 2/pi)
+    norms = np.linalg.norm(J, axis=0)
+    dead = norms <= 1e-9 * max(float(norms.max()), 1e-300)
+    for k in np.flatnonzero(dead):
+        notes.append(f'{free[k]} is not identifiable: it has no effect on the fitted '
+                     'signals with this model and data')
     JtJ = J.T @ J
     try:
         cov = np.linalg.inv(JtJ) * s2
@@ -469,8 +481,13 @@ def _covariance(J, r, n, cost, free, theta):
         cov = np.linalg.pinv(JtJ) * s2
         notes.append('the Jacobian is singular: some parameters have no effect on the fitted '
                      'signals')
+    cov[dead, :] = np.nan
+    cov[:, dead] = np.nan
+    cov[dead, dead] = np.inf
     d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-    corr = cov / np.outer(d, d)
+    with np.errstate(invalid='ignore'):
+        corr = cov / np.outer(d, d)
+    corr[dead, dead] = 1.0
     for a in range(n):
         for b in range(a + 1, n):
             if abs(corr[a, b]) > 0.99:

@@ -39,7 +39,7 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
                        command_topic: str = contract.COMMAND.name,
                        pressure_topics: tuple[str, str] | None = (
                            contract.PRESSURE_P.name, contract.PRESSURE_T.name),
-                       segment: float | None = 1.0, workers: int = 2, max_nfev: int = 100,
+                       segment: float | None = 1.0, workers: int = 1, max_nfev: int = 100,
                        figures: bool = True,
                        progress: Callable[[dict], None] | None = None
                        ) -> tuple[IdentificationResult, dict[str, Path], dict]:

@@ -1,0 +1,70 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Identification benchmark: refit Table 1 from a 10 s, 1 kHz synthetic bag.
+
+Records a fresh noisy bag (simplified plant, Table 1 estimated values, 1 Hz / 0.04 m sine),
+then refits the seven parameters from Table 1's initial values, once with the Jacobian
+columns on 2 processes and once serially, side by side. Prints the figures and, last, one
+JSON line with ``wall_s``, ``iterations``, ``nfev`` and each parameter's relative error.
+Targets (issue #5): ``wall_s`` <= 10 s, ``iterations`` <= 24.
+"""
+
+import tempfile
+import time
+import warnings
+
+from ros_ehs.bag.experiment import load_experiment
+from ros_ehs.bench import report
+from ros_ehs.errors import IdentificationWarning
+from ros_ehs.identify import identify
+from ros_ehs.params import ESTIMATED, preset
+from ros_ehs.synthetic import record_experiment
+
+
+def main(argv=None) -> int:
+    """Run the benchmark and print its figures."""
+    true = preset('table1_estimated')
+    with tempfile.TemporaryDirectory() as d:
+        t0 = time.perf_counter()
+        record_experiment(f'{d}/bench', seed=7)
+        t_rec = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        exp = load_experiment(f'{d}/bench')
+        t_load = time.perf_counter() - t0
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)
+        t0 = time.perf_counter()
+        r = identify(exp, workers=2)
+        t_fit = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        r1 = identify(exp, workers=1)
+        t_serial = time.perf_counter() - t0
+    figures = {
+        'wall_s': round(t_load + t_fit, 3),
+        'bag_read_s': round(t_load, 3),
+        'fit_s': round(t_fit, 3),
+        'fit_serial_s': round(t_serial, 3),
+        'parallel_speedup': round(t_serial / t_fit, 2),
+        'record_10s_bag_s': round(t_rec, 3),
+        'iterations': r.iterations,
+        'nfev': r.nfev,
+        'status': r.status,
+        'same_result_serial': all(abs(r.x[n] - r1.x[n]) <= 1e-9 * abs(r.x[n]) + 1e-18
+                                  for n in ESTIMATED),
+    }
+    for n in ESTIMATED:
+        figures[f'rel_err_{n}'] = round((r.x[n] - true[n]) / true[n], 5)
+        figures[f'z_{n}'] = round((r.x[n] - true[n]) / r.stderr[n], 2)
+    return report(figures)

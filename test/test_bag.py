@@ -1,0 +1,217 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Bag writer and reader: rosbag2 conventions, external readers, fixtures, crashes."""
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from ros_ehs.bag import BagWriter, full_definition, open_bag, type_hash
+from ros_ehs.bag.experiment import load_experiment
+from ros_ehs.errors import BagError, DataError
+import ros_ehs_msgs_py as c
+import yaml
+
+FIXTURES = Path(__file__).resolve().parents[2] / 'shared' / 'fixtures' / 'rosbag2'
+N = 300
+
+
+def _write(path, n=N, pressures=True, dz=0.001):
+    with BagWriter(path) as w:
+        tops = [c.STATE, c.COMMAND] + ([c.PRESSURE_P] if pressures else [])
+        for tp in tops:
+            w.add_topic('/' + tp.name, tp.msg_type, tp.qos)
+        for k in range(n):
+            ns = 1_000_000_000 + k * 1_000_000
+            w.write_msg('/state', c.fill_state(c.empty_msg(c.STATE.msg_type),
+                                               c.AxisState(ns, dz * k, 0.5, 10.0, 1e-5)),
+                        ns)
+            w.write_msg('/servo_current', c.fill_command(c.empty_msg(c.COMMAND.msg_type),
+                                                         c.Command(ns, 0.001 * (k % 7))), ns)
+            if pressures:
+                w.write_msg('/pressure/chamber_p', c.fill_pressure(
+                    c.empty_msg(c.PRESSURE_P.msg_type), c.Pressure(ns, 1e7 + k)), ns)
+    return path
+
+
+def test_layout_and_rosbag2_conventions(tmp_path):
+    bag = _write(tmp_path / 'run1')
+    assert sorted(os.listdir(bag)) == ['metadata.yaml', 'run1_0.mcap']
+    from mcap.reader import make_reader
+    with open(bag / 'run1_0.mcap', 'rb') as f:
+        r = make_reader(f)
+        assert r.get_header().profile == 'ros2'
+        s = r.get_summary()
+        ch = {x.topic: x for x in s.channels.values()}
+        st = ch['/state']
+        assert st.message_encoding == 'cdr'
+        schema = s.schemas[st.schema_id]
+        assert schema.name == 'sensor_msgs/msg/JointState' and schema.encoding == 'ros2msg'
+        text = schema.data.decode()
+        assert text.startswith(full_definition('sensor_msgs/msg/JointState')[:40])
+        assert '\nMSG: std_msgs/Header\n' in text and '\nMSG: builtin_interfaces/Time\n' in text
+        assert st.metadata['topic_type_hash'] == type_hash('sensor_msgs/msg/JointState')
+        assert st.metadata['topic_type_hash'].startswith('RIHS01_')
+        qos = yaml.safe_load(st.metadata['offered_qos_profiles'])
+        assert qos[0]['reliability'] == 'best_effort' and qos[0]['depth'] == 1
+        meta = {m.name: m.metadata for m in r.iter_metadata()}
+        assert yaml.safe_load(meta['rosbag2']['serialized_metadata'])['message_count'] == 3 * N
+        assert s.statistics.message_count == 3 * N
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['version'] == 9 and info['storage_identifier'] == 'mcap'
+    assert info['relative_file_paths'] == ['run1_0.mcap']
+    counts = {t['topic_metadata']['name']: t['message_count']
+              for t in info['topics_with_message_count']}
+    assert counts == {'/state': N, '/servo_current': N, '/pressure/chamber_p': N}
+    assert info['duration']['nanoseconds'] == (N - 1) * 1_000_000
+    assert '&id' not in (bag / 'metadata.yaml').read_text()   # no YAML anchors
+
+
+def test_full_definition_matches_a_real_rosbag2_schema():
+    from mcap.reader import make_reader
+    with open(FIXTURES / 'talker.mcap', 'rb') as f:
+        s = make_reader(f).get_summary()
+    real = {x.name: x.data.decode() for x in s.schemas.values()}
+    ours = full_definition('rcl_interfaces/msg/Log')
+    blocks = [ln for ln in real['rcl_interfaces/msg/Log'].splitlines() if ln.startswith('MSG:')]
+    assert blocks == [ln for ln in ours.splitlines() if ln.startswith('MSG:')]
+
+
+def test_external_readers_see_types_counts_times_and_qos(tmp_path):
+    bag = _write(tmp_path / 'ext')
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as r:
+        assert r.message_count == 3 * N
+        conns = {x.topic: x for x in r.connections}
+        assert conns['/state'].msgtype == 'sensor_msgs/msg/JointState'
+        assert conns['/state'].ext.offered_qos_profiles[0].depth == 1
+        times, zs = [], []
+        for conn, t, raw in r.messages(connections=[conns['/state']]):
+            times.append(t)
+            zs.append(ts.deserialize_cdr(raw, conn.msgtype).position[0])
+    assert len(times) == N and times[0] == 1_000_000_000
+    np.testing.assert_allclose(zs, 0.001 * np.arange(N))
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', DeprecationWarning)
+        from mcap_ros2.reader import read_ros2_messages
+        ms = list(read_ros2_messages(str(bag / 'ext_0.mcap'), topics=['/servo_current']))
+    assert len(ms) == N
+    assert ms[3].ros_msg.effort[0] == pytest.approx(0.003)
+    assert ms[3].log_time_ns == 1_003_000_000
+
+
+def test_round_trip_through_our_reader(tmp_path):
+    bag = open_bag(_write(tmp_path / 'rt'))
+    assert not bag.truncated
+    assert {t: i.count for t, i in bag.topics.items()} == {
+        '/state': N, '/servo_current': N, '/pressure/chamber_p': N}
+    states = [c.state_from_msg(m) for _, m in bag.decoded(['/state'])]
+    assert states[10] == c.AxisState(1_010_000_000, 0.01, 0.5, 10.0, 1e-5)
+
+
+@pytest.mark.parametrize('name', ['talker.mcap', 'cdr_test_0.mcap', 'only_topics.mcap',
+                                  'bag_with_topics_and_service_events.mcap'])
+def test_reads_real_rosbag2_fixtures(name):
+    bag = open_bag(FIXTURES / name)
+    assert not bag.truncated and bag.topics
+    for info in bag.topics.values():
+        assert info.encoding == 'cdr' and '/msg/' in info.msg_type or '/srv/' in info.msg_type
+    topics = [t for t, i in bag.topics.items() if '/msg/' in i.msg_type and i.count]
+    decoded = list(bag.decoded(topics))
+    assert len(decoded) == sum(bag.topics[t].count for t in topics) > 0
+
+
+def test_fixture_without_our_topics_says_which_it_has():
+    with pytest.raises(BagError, match=r"no topic 'state'.*/topic \(std_msgs/msg/String"):
+        load_experiment(FIXTURES / 'talker.mcap')
+
+
+def test_foreign_and_missing_files(tmp_path):
+    with pytest.raises(BagError, match='no bag at'):
+        open_bag(tmp_path / 'nope')
+    (tmp_path / 'x.mcap').write_bytes(b'not an mcap file at all')
+    with pytest.raises(BagError, match='not an MCAP file'):
+        open_bag(tmp_path / 'x.mcap')
+    with pytest.raises(BagError, match='already exists'):
+        _write(tmp_path)
+
+
+def test_truncated_file_is_read_up_to_the_cut(tmp_path):
+    bag = _write(tmp_path / 'cut', n=3000)
+    f = bag / 'cut_0.mcap'
+    data = f.read_bytes()
+    f.write_bytes(data[:len(data) * 2 // 3])
+    b = open_bag(bag)
+    assert b.truncated and b.problem
+    assert 0 < b.topics['/state'].count < 3000
+
+
+_KILL_SCRIPT = textwrap.dedent("""
+    import sys, time
+    from ros_ehs.bag import BagWriter
+    import ros_ehs_msgs_py as c
+    w = BagWriter(sys.argv[1], flush_period=0.05)
+    w.add_topic('/state', c.STATE.msg_type, c.STATE.qos)
+    k = 0
+    while True:
+        ns = time.time_ns()
+        w.write_msg('/state', c.fill_state(c.empty_msg(c.STATE.msg_type),
+                    c.AxisState(ns, 0.0, 0.0)), ns)
+        k += 1
+        if k == 1:
+            print('started', flush=True)
+        time.sleep(0.001)
+""")
+
+
+def test_sigkill_loses_at_most_100_ms(tmp_path):
+    bag = tmp_path / 'killed'
+    p = subprocess.Popen([sys.executable, '-c', _KILL_SCRIPT, str(bag)],
+                         stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == 'started'
+    import time
+    time.sleep(1.5)
+    kill_ns = time.time_ns()
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    b = open_bag(bag)
+    assert b.truncated
+    assert b.topics['/state'].count > 500
+    last = max(m.log_time_ns for m in b.messages(['/state']))
+    lost_s = (kill_ns - last) * 1e-9
+    assert 0 <= lost_s <= 0.1, f'lost the last {lost_s * 1e3:.0f} ms'
+
+
+def test_experiment_needs_data_and_excitation(tmp_path):
+    with pytest.raises(DataError, match='too little data'):
+        load_experiment(_write(tmp_path / 'short', n=100))
+    with pytest.raises(DataError, match='no excitation'):
+        load_experiment(_write(tmp_path / 'still', n=N * 2, dz=0.0))
+
+
+def test_wrong_message_type_is_named(tmp_path):
+    with BagWriter(tmp_path / 'wrong') as w:
+        w.add_topic('/state', 'sensor_msgs/msg/FluidPressure')
+        w.add_topic('/servo_current', c.COMMAND.msg_type)
+    with pytest.raises(BagError, match="'/state'.*FluidPressure, expected "
+                                       'sensor_msgs/msg/JointState'):
+        load_experiment(tmp_path / 'wrong')
