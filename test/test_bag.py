@@ -28,7 +28,7 @@ from ros_ehs.errors import BagError, DataError
 import ros_ehs_msgs_py as c
 import yaml
 
-FIXTURES = Path(__file__).resolve().parents[2] / 'shared' / 'fixtures' / 'rosbag2'
+FIXTURES = Path(__file__).resolve().parent / 'fixtures' / 'rosbag2'
 N = 300
 
 

@@ -28,7 +28,7 @@ from ros_ehs.synthetic import record_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / 'bags' / 'sample_sine_1hz'
-FIXTURES = ROOT.parent / 'shared' / 'fixtures' / 'rosbag2'
+FIXTURES = ROOT / 'test' / 'fixtures' / 'rosbag2'
 TRUE = preset('table1_estimated')
 TOL = {'d_c': 0.02, 'F_cc': 0.02, 'F_sc': 0.02, 'l_iac': 0.02, 'c_c': 0.02, 'r_c': 0.10}
 
