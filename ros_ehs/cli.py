@@ -24,8 +24,7 @@ import sys
 import numpy as np
 
 from ros_ehs.errors import EhsError
-
-ESTIMATED_DEFAULT = ('d_c', 'r_c', 'x_bias', 'F_cc', 'F_sc', 'l_iac', 'c_c')
+from ros_ehs.params import ESTIMATED
 
 
 def _cmd_main(args) -> int:
@@ -150,7 +149,7 @@ def main(argv=None) -> int:
     i = sub.add_parser('identify', help="refit Table 1's parameters from bags (report folder)")
     i.add_argument('bags', nargs='+', help='bag directories or .mcap files, fitted jointly')
     i.add_argument('--out', default='out/identification', help='report folder')
-    i.add_argument('--free', default=','.join(ESTIMATED_DEFAULT),
+    i.add_argument('--free', default=','.join(ESTIMATED),
                    help='comma-separated free parameters')
     i.add_argument('--model', choices=['full', 'simplified'], default='simplified')
     i.add_argument('--cost', choices=['sae', 'sse'], default='sae')

@@ -69,8 +69,13 @@ class Experiment:
         return out
 
 
-def resolve_topic(bag: Bag, name: str) -> str:
-    """Find contract topic ``name`` in ``bag``, in any namespace (``/axis1/state``)."""
+def resolve_topic(bag: Bag, name: str, required: bool = True) -> str | None:
+    """
+    Find contract topic ``name`` in ``bag``, in any namespace (``/axis1/state``).
+
+    A missing topic raises :class:`BagError` listing the bag's topics, or gives None when
+    not ``required``; an ambiguous one always raises.
+    """
     if name in bag.topics:
         return name
     rel = name.lstrip('/')
@@ -78,6 +83,8 @@ def resolve_topic(bag: Bag, name: str) -> str:
     if len(hits) == 1:
         return hits[0]
     if not hits:
+        if not required:
+            return None
         raise BagError(f'bag {str(bag.path)!r} has no topic {name!r}; it has: '
                        f'{bag.describe() or "no topics"}')
     raise BagError(f'topic {name!r} is ambiguous in {str(bag.path)!r}: {hits} '
@@ -107,8 +114,8 @@ def _series(bag: Bag, topic: str, read) -> tuple[np.ndarray, np.ndarray]:
 def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experiment:
     """Build and check an :class:`Experiment` from arrays (``t`` uniform, seconds)."""
     t = np.asarray(t, dtype=float)
-    arrs = {k: np.asarray(a, dtype=float) for k, a in
-            (('i', i), ('z', z), ('v', v)) if a is not None}
+    arrs = {'i': np.asarray(i, dtype=float), 'z': np.asarray(z, dtype=float),
+            'v': np.asarray(v, dtype=float)}
     for k, a in arrs.items():
         if a.shape != t.shape:
             raise DataError(f'{name}: `{k}` has shape {a.shape}, `t` has {t.shape}')
@@ -171,12 +178,11 @@ def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name
     ts, sv, k = ts[ok], sv[ok], k[ok]
     cur = cv[k, 0]
     pa = pb = None
-    have = [resolve_topic(bag, p) if p and any(
-        t.endswith('/' + p.lstrip('/')) or t == p for t in bag.topics) else None
-        for p in (pressure_p, pressure_t)]
+    have = [resolve_topic(bag, p, required=False) if p else None
+            for p in (pressure_p, pressure_t)]
     if have[0] and have[1]:
-        for top in have:
-            _check_type(bag, top, contract.PRESSURE_P.msg_type)
+        for top, tp in zip(have, (contract.PRESSURE_P, contract.PRESSURE_T)):
+            _check_type(bag, top, tp.msg_type)
         series = [_series(bag, top, lambda m: tuple(contract.pressure_from_msg(m)))
                   for top in have]
         vals = []

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from mcap.exceptions import McapError
-from mcap.records import Channel, Message, Metadata, Schema
+from mcap.records import Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from ros_ehs.errors import BagError
 import yaml
@@ -113,9 +113,9 @@ class Bag:
         self.problem = ''
         self.profile = ''
         self._msgs: list[BagMessage] = []
-        self._read()
         self._decoders: dict[str, Any] = {}
-        self._schema_text: dict[str, str] = {}
+        self._read()
+        self._msgs.sort(key=lambda m: m.log_time_ns)   # once: every query is in time order
 
     def _read(self) -> None:
         data = self.file.read_bytes()
@@ -152,7 +152,7 @@ class Bag:
                             s.encoding if s else '')
                 elif isinstance(rec, Metadata):
                     self.metadata[rec.name] = dict(rec.metadata)
-                elif type(rec).__name__ == 'Header':
+                elif isinstance(rec, Header):
                     self.profile = rec.profile
         except (McapError, EOFError, ValueError, KeyError, IndexError) as e:
             self.truncated = True
@@ -169,13 +169,13 @@ class Bag:
 
     @property
     def start_ns(self) -> int:
-        """Earliest log time [ns]."""
-        return min((m.log_time_ns for m in self._msgs), default=0)
+        """Earliest log time [ns] (0 for an empty bag)."""
+        return self._msgs[0].log_time_ns if self._msgs else 0
 
     @property
     def end_ns(self) -> int:
-        """Latest log time [ns]."""
-        return max((m.log_time_ns for m in self._msgs), default=0)
+        """Latest log time [ns] (0 for an empty bag)."""
+        return self._msgs[-1].log_time_ns if self._msgs else 0
 
     def describe(self) -> str:
         """One line per topic: ``name (type, count)``."""
@@ -189,9 +189,7 @@ class Bag:
                 raise BagError(f'bag {str(self.path)!r} has no topic {missing}; it has: '
                                f'{self.describe() or "no topics"}')
         want = None if topics is None else set(topics)
-        sel = [m for m in self._msgs if want is None or m.topic in want]
-        sel.sort(key=lambda m: m.log_time_ns)
-        return iter(sel)
+        return (m for m in self._msgs if want is None or m.topic in want)
 
     def decoder(self, msg_type: str):
         """Return a function CDR bytes -> decoded message (attribute access) for a type."""

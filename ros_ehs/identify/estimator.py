@@ -83,9 +83,19 @@ class _Exp:
     y: np.ndarray                # (N+1, n_state) measurements placed at state indices
     measured: np.ndarray         # state indices measured and fitted
     sigma: np.ndarray            # per measured index
-    starts: list[int]
+    edges: list[int]             # segment k covers samples edges[k] .. edges[k+1] - 1
     dt: float
     x0: np.ndarray               # full initial state (unmeasured from equilibrium)
+
+    def segments(self):
+        """Yield (first, end) sample indices of each replay segment; the last ends at N+1."""
+        return zip(self.edges[:-1], self.edges[1:])
+
+    def offset_free(self, e: np.ndarray) -> np.ndarray:
+        """Remove the mean of ``e`` (a position error) per segment, in place."""
+        for a, b in self.segments():
+            e[a:b] -= e[a:b].mean()
+        return e
 
 
 class Problem:
@@ -119,11 +129,10 @@ class Problem:
             x0 = plant.equilibrium(z=float(e.z[0]), i=float(e.i[0]))
             x0[measured] = y[0, measured]
             seg = max(1, int(round(segment / e.dt))) if segment else e.t.size
+            edges = list(range(0, e.t.size - 1, seg)) + [e.t.size]
             self.exps.append(_Exp(e.name, np.column_stack([e.i[:-1], np.zeros(e.t.size - 1)]),
-                                  y, measured, sigma, list(range(0, e.t.size - 1, seg)),
-                                  e.dt, x0))
+                                  y, measured, sigma, edges, e.dt, x0))
         self.nsub = [max(1, int(math.ceil(ex.dt / plant.h - 1e-9))) for ex in self.exps]
-        self.m = sum(ex.y.shape[0] * ex.measured.size for ex in self.exps)
         self.nfev = 0
         self._last: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -141,8 +150,8 @@ class Problem:
             n = ex.u.shape[0]
             o = np.empty((n + 1, len(self.names)))
             x = ex.x0.copy()
-            for k0 in ex.starts:
-                k1 = min(n, k0 + (ex.starts[1] - ex.starts[0] if len(ex.starts) > 1 else n))
+            for k0, end in ex.segments():
+                k1 = min(n, end)
                 x[ex.measured] = ex.y[k0, ex.measured]
                 buf = o[k0:k1 + 1]
                 ok = K.simulate(self.mid, x.copy(), ex.u[k0:k1], c, ex.dt, nsub, self.xscale,
@@ -164,10 +173,7 @@ class Problem:
             cols = list(ex.measured)
             if iz in cols:
                 j = cols.index(iz)
-                bounds = ex.starts + [o.shape[0] - 1]
-                for a, b in zip(bounds[:-1], bounds[1:]):
-                    r[a:b, j] -= r[a:b, j].mean()
-                r[-1, j] = r[-2, j]
+                r[:, j] = ex.offset_free(r[:, j])
             bad = ~np.isfinite(r)
             if bad.any():
                 r[bad] = 1e3     # diverged: a large, finite penalty keeps TRF going
@@ -198,6 +204,18 @@ def _column(args) -> np.ndarray:
     t = theta.copy()
     t[k] += hk
     return (_WORKER.residual(t) - r0) / hk
+
+
+def _fd_jacobian(problem: Problem, theta: np.ndarray, hi: np.ndarray, pool) -> np.ndarray:
+    """Forward-difference Jacobian in scaled units (steps turn back at an upper bound)."""
+    r0 = problem.residual(theta)
+    steps = [_FD_STEP * max(1.0, abs(t)) for t in theta]
+    steps = [-h if t + h > b else h for t, h, b in zip(theta, steps, hi)]
+    tasks = [(theta, k, h, r0) for k, h in enumerate(steps)]
+    if pool is not None:
+        return np.column_stack(pool.map(_column, tasks))
+    _init_worker(problem)
+    return np.column_stack([_column(t) for t in tasks])
 
 
 @dataclass
@@ -255,9 +273,7 @@ def _metrics(problem: Problem, theta: np.ndarray) -> dict[str, dict[str, dict[st
             y, f = ex.y[:, j], o[:, j]
             e = f - y
             if name == 'z':
-                bounds = ex.starts + [y.size]
-                for a, b in zip(bounds[:-1], bounds[1:]):
-                    e[a:b] -= e[a:b].mean()
+                ex.offset_free(e)
             sst = float(np.sum((y - y.mean()) ** 2))
             sse = float(np.sum(e ** 2))
             m[name] = {'nrmse': math.sqrt(sse / y.size) / (float(np.std(y)) or 1.0),
@@ -384,22 +400,11 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         pool = mp.get_context('fork').Pool(min(workers, len(free)), _init_worker, (problem,))
 
     def jac(theta: np.ndarray) -> np.ndarray:
-        r0 = problem.residual(theta)
-        steps = []
-        for k in range(len(theta)):
-            hk = _FD_STEP * max(1.0, abs(theta[k]))
-            if theta[k] + hk > hi_s[k]:
-                hk = -hk
-            steps.append(hk)
-        if pool is not None:
-            cols = pool.map(_column, [(theta, k, steps[k], r0) for k in range(len(theta))])
-        else:
-            _init_worker(problem)
-            cols = [_column((theta, k, steps[k], r0)) for k in range(len(theta))]
-        J = np.column_stack(cols)
+        J = _fd_jacobian(problem, theta, hi_s, pool)
         njev[0] += 1
         last_jac[:] = [J, theta.copy()]
-        entry = {'iteration': njev[0], 'cost': _loss(r0, cost), 'x': problem.values(theta)}
+        entry = {'iteration': njev[0], 'cost': _loss(problem.residual(theta), cost),
+                 'x': problem.values(theta)}
         history.append(entry)
         if progress:
             progress(entry)
@@ -416,12 +421,10 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
             pool.join()
     theta = sol.x
     r = sol.fun
-    J = last_jac[0] if last_jac and np.array_equal(last_jac[1], theta) else None
-    if J is None:
-        _init_worker(problem)
-        r0 = problem.residual(theta)
-        J = np.column_stack([_column((theta, k, _FD_STEP * max(1.0, abs(theta[k])), r0))
-                             for k in range(len(theta))])
+    if last_jac and np.array_equal(last_jac[1], theta):
+        J = last_jac[0]
+    else:
+        J = _fd_jacobian(problem, theta, hi_s, None)
     final = {'iteration': njev[0] + 1, 'cost': _loss(r, cost), 'x': problem.values(theta)}
     if not history or history[-1]['x'] != final['x']:
         history.append(final)
@@ -437,13 +440,13 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         if np.isclose(theta[k], lo_s[k]) or np.isclose(theta[k], hi_s[k]):
             notes.append(f'{n} = {v:.6g} {spec(n).unit} ended on a bound; the data push it '
                          "beyond Table 1's range")
-    for note in notes:
-        warnings.warn(note, IdentificationWarning, stacklevel=2)
     try:
         params = base.replace(**xv)
     except ParameterError as e:
         params = None
         notes.append(f'the fitted set is not a valid parameter set: {e}')
+    for note in notes:
+        warnings.warn(note, IdentificationWarning, stacklevel=2)
     return IdentificationResult(
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
         sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),

@@ -73,10 +73,8 @@ def write_report(result: IdentificationResult, experiments, out: str | os.PathLi
         iz, iv = prob.names.index('z'), prob.names.index('z_dot')
         for ex, e, o in zip(prob.exps, exps, sims):
             fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-            z_fit = o[:, iz].copy()
-            bounds = ex.starts + [z_fit.size]
-            for a, b in zip(bounds[:-1], bounds[1:]):   # position up to an offset per segment
-                z_fit[a:b] += np.mean(e.z[a:b] - z_fit[a:b])
+            # position is fitted up to an offset per segment: show it with the fit's offsets
+            z_fit = e.z + ex.offset_free(o[:, iz] - e.z)
             ax[0].plot(e.t, e.z * 1e3, lw=0.8, label='measured')
             ax[0].plot(e.t, z_fit * 1e3, lw=0.8, ls='--', label='fitted model')
             ax[0].set_ylabel('position z [mm]')
