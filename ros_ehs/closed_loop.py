@@ -44,6 +44,7 @@ class ClosedLoopResult:
     x: np.ndarray
     i: np.ndarray
     state_names: tuple[str, ...]
+    z_meas: np.ndarray | None = None   #: the position the controller saw (with z_noise)
 
     def signal(self, name: str) -> np.ndarray:
         """Return state ``name`` at the control instants."""
@@ -75,19 +76,26 @@ def reference_step(plant: Plant, x, u, dt: float, rtol: float = 1e-10) -> np.nda
 def run_closed_loop(plant_params: Params, reference, duration: float, *,
                     model: str = 'full', controller_params: Params | None = None,
                     dt: float = 1e-3, stepper: str = 'fast', h: float | None = None,
-                    x0=None) -> ClosedLoopResult:
+                    x0=None, z_noise=None) -> ClosedLoopResult:
     """
     Simulate the position loop for ``duration`` s: ``reference(t) -> (z_ref, v_ref)``.
 
     ``plant_params`` sets the plant (e.g. Table 1 estimated); ``controller_params`` the
     controller (defaults to the same set). The controller samples the position at the start
     of each period and its command is held for the period (zero-order hold), as on the bench.
+    ``z_noise`` (one value [m] per period) is added to the sampled position: sensor noise the
+    controller sees; the result's ``z_meas`` is that measured position.
     """
     if stepper not in ('fast', 'reference'):
         raise InputError(f'`stepper` = {stepper!r} is not one of [fast, reference]')
     n = int(round(duration / dt))
     if n < 1:
         raise InputError(f'`duration` = {duration!r} s is shorter than one period {dt} s')
+    if z_noise is not None:
+        z_noise = np.asarray(z_noise, dtype=float)
+        if z_noise.shape != (n,) or not np.all(np.isfinite(z_noise)):
+            raise InputError(f'`z_noise` must be {n} finite values [m], got shape '
+                             f'{z_noise.shape}')
     plant = Plant(plant_params, model, h=h)
     ctrl = Controller(controller_params or plant_params, dt)
     t = np.arange(n + 1) * dt
@@ -98,10 +106,12 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     iz = plant.state_names.index('z')
     xs[0] = x
     u = np.zeros(2)
+    z_meas = np.empty(n)
     for k in range(n):
-        u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(x[iz]))
+        z_meas[k] = x[iz] + (z_noise[k] if z_noise is not None else 0.0)
+        u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]))
         cur[k] = u[0]
         x = plant.step(x, u, dt) if stepper == 'fast' else reference_step(plant, x, u, dt)
         xs[k + 1] = x
     cur[n] = cur[n - 1]
-    return ClosedLoopResult(t, z_ref, v_ref, xs, cur, plant.state_names)
+    return ClosedLoopResult(t, z_ref, v_ref, xs, cur, plant.state_names, z_meas)

@@ -17,8 +17,9 @@ Synthetic experiments: an in-process bench run recorded to a rosbag2 bag.
 Plant + controller + reference, with sensor noise, on the contract topics.
 
 This is what the sample bag in ``bags/`` is made from, and what the identification tests and
-benchmark fit. The controller sees the noisy position, as on a real bench; the plant is
-stepped with the held current, as a plant node would. The README labels such bags synthetic.
+benchmark fit. The loop is :func:`ros_ehs.closed_loop.run_closed_loop`: the controller sees
+the noisy position, as on a real bench; the plant is stepped with the held current. The
+README labels such bags synthetic.
 """
 
 from __future__ import annotations
@@ -29,9 +30,8 @@ import os
 import numpy as np
 
 from ros_ehs.bag.writer import BagWriter
-from ros_ehs.control.controller import Controller
+from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.errors import InputError
-from ros_ehs.model.plant import Plant
 from ros_ehs.params import Params, preset
 from ros_ehs.reference import Sine
 import ros_ehs_msgs_py as contract
@@ -73,43 +73,38 @@ def record_experiment(out: str | os.PathLike, *, plant_params: Params | None = N
     n = int(round(duration / dt))
     if n < 1:
         raise InputError(f'`duration` = {duration!r} s is shorter than one period {dt} s')
-    rng = np.random.default_rng(seed)
     noise = noise or SensorNoise(0.0, 0.0, 0.0)
-    plant = Plant(plant_params, model)
-    ctrl = Controller(controller_params, dt)
-    names = plant.state_names
-    iz, iv, ipa, ipb = (names.index(s) for s in ('z', 'z_dot', 'p_CP', 'p_CT'))
-    ix = names.index('x') if 'x' in names else None
-    x = plant.equilibrium()
-    t = np.arange(n) * dt
-    z_ref, v_ref = reference(t)
-    u = np.zeros(2)
-    err2 = 0.0
+    # per period: position, velocity[, chamber P, chamber T] noise, in that order
+    w = np.random.default_rng(seed).standard_normal((n, 4 if pressures else 2))
+    run = run_closed_loop(plant_params, reference, n * dt, model=model,
+                          controller_params=controller_params, dt=dt, z_noise=noise.z * w[:, 0])
+    x = run.x[:n]
+    names = run.state_names
+    v_meas = x[:, names.index('z_dot')] + noise.v * w[:, 1]
+    p_a, p_b = x[:, names.index('p_CP')], x[:, names.index('p_CT')]
+    force = plant_params['A_p'] * (p_a - p_b)
+    # spool: the full model's state, else the static valve at the command being held
+    held = np.concatenate([[0.0], run.i[:n - 1]])
+    spool = x[:, names.index('x')] if 'x' in names else plant_params['K_x'] * held
     topics = [contract.REFERENCE, contract.STATE, contract.COMMAND]
     if pressures:
         topics += [contract.PRESSURE_P, contract.PRESSURE_T]
+        p_meas = (p_a + noise.p * w[:, 2], p_b + noise.p * w[:, 3])
     msg = {tp.name: contract.empty_msg(tp.msg_type) for tp in topics}
-    with BagWriter(out) as w:
+    with BagWriter(out) as bag:
         for tp in topics:
-            w.add_topic('/' + tp.name, tp.msg_type, tp.qos)
+            bag.add_topic('/' + tp.name, tp.msg_type, tp.qos)
         for k in range(n):
-            ns = T0_NS + int(round(t[k] * 1e9))
-            zm = x[iz] + noise.z * rng.standard_normal()
-            vm = x[iv] + noise.v * rng.standard_normal()
-            xs = float(x[ix]) if ix is not None else float(plant_params['K_x'] * u[0])
-            w.write_msg('/reference', contract.fill_reference(
-                msg['reference'], contract.Reference(ns, z_ref[k], v_ref[k])), ns)
-            w.write_msg('/state', contract.fill_state(
-                msg['state'], contract.AxisState(ns, zm, vm, float(
-                    plant_params['A_p'] * (x[ipa] - x[ipb])), xs)), ns)
+            ns = T0_NS + int(round(run.t[k] * 1e9))
+            bag.write_msg('/reference', contract.fill_reference(
+                msg['reference'], contract.Reference(ns, run.z_ref[k], run.v_ref[k])), ns)
+            bag.write_msg('/state', contract.fill_state(msg['state'], contract.AxisState(
+                ns, run.z_meas[k], v_meas[k], float(force[k]), float(spool[k]))), ns)
             if pressures:
-                for tp, j in ((contract.PRESSURE_P, ipa), (contract.PRESSURE_T, ipb)):
-                    w.write_msg('/' + tp.name, contract.fill_pressure(
-                        msg[tp.name], contract.Pressure(
-                            ns, x[j] + noise.p * rng.standard_normal())), ns)
-            u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(zm))
-            w.write_msg('/servo_current', contract.fill_command(
-                msg['servo_current'], contract.Command(ns, u[0])), ns)
-            err2 += (z_ref[k] - x[iz]) ** 2
-            x = plant.step(x, u, dt)
-    return {'samples': float(n), 'rms_error_m': float(np.sqrt(err2 / n))}
+                for tp, p in zip((contract.PRESSURE_P, contract.PRESSURE_T), p_meas):
+                    bag.write_msg('/' + tp.name, contract.fill_pressure(
+                        msg[tp.name], contract.Pressure(ns, p[k])), ns)
+            bag.write_msg('/servo_current', contract.fill_command(
+                msg['servo_current'], contract.Command(ns, run.i[k])), ns)
+    err = run.z_ref[:n] - x[:, names.index('z')]
+    return {'samples': float(n), 'rms_error_m': float(np.sqrt(np.mean(err ** 2)))}

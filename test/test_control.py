@@ -159,3 +159,19 @@ def test_paper_experiments_reproduce_dead_zone_and_feedforward_gain():
     # the printed law with the measured delay helps the dead zone, not the lag-bound RMS
     assert m['ffpid_paper_tau'].deadzone_s < m['pid'].deadzone_s
     assert m['ffpid_paper_tau'].rms_err_m > 0.95 * m['pid'].rms_err_m
+
+
+def test_closed_loop_position_noise_reaches_the_controller_and_is_checked():
+    from ros_ehs.closed_loop import run_closed_loop
+    from ros_ehs.reference import Sine
+    p = preset('table1_estimated')
+    noise = np.full(200, 1e-3)
+    r = run_closed_loop(p, Sine(0.04, 1.0), 0.2, model='simplified', z_noise=noise)
+    np.testing.assert_allclose(r.z_meas, r.z[:200] + 1e-3)
+    clean = run_closed_loop(p, Sine(0.04, 1.0), 0.2, model='simplified')
+    assert not np.allclose(r.i, clean.i)          # a 1 mm offset changes the command
+    with pytest.raises(InputError, match='`z_noise`'):
+        run_closed_loop(p, Sine(0.04, 1.0), 0.2, model='simplified', z_noise=noise[:10])
+    with pytest.raises(InputError, match='`z_noise`'):
+        run_closed_loop(p, Sine(0.04, 1.0), 0.2, model='simplified',
+                        z_noise=np.full(200, np.nan))
