@@ -215,3 +215,41 @@ def test_wrong_message_type_is_named(tmp_path):
     with pytest.raises(BagError, match="'/state'.*FluidPressure, expected "
                                        'sensor_msgs/msg/JointState'):
         load_experiment(tmp_path / 'wrong')
+
+
+def test_writer_rejects_bad_input_without_losing_what_is_written(tmp_path):
+    w = BagWriter(tmp_path / 'bad')
+    w.add_topic('/state', c.STATE.msg_type, c.STATE.qos)
+    msg = c.fill_state(c.empty_msg(c.STATE.msg_type), c.AxisState(5, 0.0, 0.0))
+    w.write_msg('/state', msg, 5)
+    with pytest.raises(BagError, match='negative log time'):
+        w.write_msg('/state', msg, -1)
+    with pytest.raises(BagError, match="'/nope' is not registered"):
+        w.write_msg('/nope', msg, 6)
+    with pytest.raises(BagError, match='already registered as sensor_msgs/msg/JointState'):
+        w.add_topic('/state', c.PRESSURE_P.msg_type)
+    with pytest.raises(BagError, match='not a ROS message type'):
+        w.add_topic('/x', 'JointState')
+    with pytest.raises(BagError, match='flush_period'):
+        BagWriter(tmp_path / 'other', flush_period=0.0)
+    w.close()
+    with pytest.raises(BagError, match='is closed'):
+        w.add_topic('/later', c.STATE.msg_type)
+    assert open_bag(tmp_path / 'bad').topics['/state'].count == 1
+
+
+def test_experiment_rejects_non_finite_and_irregular_samples():
+    from ros_ehs.bag.experiment import experiment_from_arrays
+    t = np.arange(1000) * 1e-3
+    i = 1e-3 * np.sin(t * 6.28)
+    z = 0.04 * np.sin(t * 6.28)
+    v = np.gradient(z, t)
+    v_nan = v.copy()
+    v_nan[500] = np.nan
+    with pytest.raises(DataError, match=r'`v` is not finite at t = 0.5 s'):
+        experiment_from_arrays('x', t, i, z, v_nan)
+    t_gap = t.copy()
+    t_gap[600:] += 0.05
+    with pytest.raises(DataError, match='not on a uniform grid'):
+        experiment_from_arrays('x', t_gap, i, z, v)
+    assert experiment_from_arrays('x', t, i, z, v).dt == pytest.approx(1e-3)
