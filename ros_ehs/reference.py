@@ -25,9 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ros_ehs.errors import DataError, InputError
+from ros_ehs.errors import DataError, InputError, ParameterError
+from ros_ehs.params import ParamSpec
 
-__all__ = ['Chirp', 'CsvTrajectory', 'Sine', 'Step']
+__all__ = ['Chirp', 'CsvTrajectory', 'KINDS', 'REFERENCE_SPECS', 'Sine', 'Step', 'make']
 
 
 def _finite(name: str, value: float) -> float:
@@ -140,3 +141,37 @@ class CsvTrajectory:
         """Return (z_ref, v_ref) at times ``t``."""
         t = np.asarray(t, dtype=float)
         return np.interp(t, self.t, self.z), np.interp(t, self.t, self.v)
+
+
+KINDS = ('sine', 'step', 'chirp', 'csv')
+
+#: The reference generator's parameters, declared once (the reference node declares these).
+REFERENCE_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec('kind', '', 'sine', meaning='trajectory: sine, step, chirp or csv (file)',
+              group='reference', choices=KINDS),
+    ParamSpec('amplitude', 'm', 0.04, -2.0, 2.0, 'amplitude (sine, chirp) or height (step)',
+              'reference'),
+    ParamSpec('frequency', 'Hz', 1.0, 1.0e-3, 500.0, 'sine frequency', 'reference'),
+    ParamSpec('offset', 'm', 0.0, -2.0, 2.0, 'sine offset', 'reference'),
+    ParamSpec('step_time', 's', 0.1, 0.0, 1.0e6, 'time of the step', 'reference'),
+    ParamSpec('rise', 's', 0.0, 0.0, 100.0, 'step rise time (cosine ramp; 0: sharp)',
+              'reference'),
+    ParamSpec('f0', 'Hz', 0.5, 1.0e-3, 500.0, 'chirp start frequency', 'reference'),
+    ParamSpec('f1', 'Hz', 20.0, 1.0e-3, 500.0, 'chirp end frequency', 'reference'),
+    ParamSpec('chirp_duration', 's', 10.0, 1.0e-3, 1.0e6, 'chirp sweep time', 'reference'),
+)
+
+
+def make(values: dict, csv_path: str = ''):
+    """Return the trajectory that ``values`` (REFERENCE_SPECS names) describe, checked."""
+    v = {s.name: s.check(values.get(s.name, s.default)) for s in REFERENCE_SPECS}
+    kind = v['kind']
+    if kind == 'sine':
+        return Sine(v['amplitude'], v['frequency'], v['offset'])
+    if kind == 'step':
+        return Step(v['amplitude'], v['step_time'], v['rise'])
+    if kind == 'chirp':
+        return Chirp(v['amplitude'], v['f0'], v['f1'], v['chirp_duration'])
+    if not csv_path:
+        raise ParameterError('reference `kind` = csv needs `csv_path` (a file with columns t, z)')
+    return CsvTrajectory(csv_path)

@@ -30,8 +30,9 @@ from typing import Any, NamedTuple
 
 __all__ = [
     'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'JOINT_PISTON',
-    'JOINT_SPOOL', 'JOINT_VALVE', 'LOOP_QOS', 'PRESSURE_P', 'PRESSURE_T', 'Pressure',
-    'QosSpec', 'RECORD_QOS', 'REFERENCE', 'Reference', 'STATE', 'TOPICS', 'Topic', 'by_name',
+    'JOINT_SPOOL', 'JOINT_VALVE', 'LOOP_QOS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P',
+    'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS', 'REFERENCE', 'Reference', 'STATE',
+    'TOPICS', 'Topic', 'by_name',
     'command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',
     'fill_state', 'pressure_from_msg', 'reference_from_msg', 'stamp_ns', 'state_from_msg',
 ]
@@ -79,7 +80,8 @@ class Topic(NamedTuple):
 REFERENCE = Topic('reference', 'sensor_msgs/msg/JointState',
                   'joint `piston`: position z_ref [m], velocity [m/s]')
 STATE = Topic('state', 'sensor_msgs/msg/JointState',
-              '`piston`: z [m], z_dot [m/s], effort = hydraulic force [N]; `spool`: x [m]')
+              '`piston`: z [m], z_dot [m/s], effort = hydraulic force [N]; `spool`: x [m]; '
+              '`servo_valve` (plant node): effort = current applied over the period [A]')
 PRESSURE_P = Topic('pressure/chamber_p', 'sensor_msgs/msg/FluidPressure',
                    'chamber P pressure [Pa]')
 PRESSURE_T = Topic('pressure/chamber_t', 'sensor_msgs/msg/FluidPressure',
@@ -92,6 +94,22 @@ CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock',
               'published by the plant in lock-step mode', CLOCK_QOS)
 
 TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, CLOCK)
+
+
+class NodeTopics(NamedTuple):
+    """The contract topics a node publishes and subscribes (its part of the contract)."""
+
+    publishes: tuple[Topic, ...]
+    subscribes: tuple[Topic, ...]
+
+
+#: What each loop node creates in its default (real-time) mode. In lock-step the plant also
+#: publishes CLOCK, and under ``use_sim_time`` the reference subscribes to it.
+NODE_TOPICS = {
+    'plant': NodeTopics((STATE, PRESSURE_P, PRESSURE_T, DIAGNOSTICS), (COMMAND,)),
+    'controller': NodeTopics((COMMAND, DIAGNOSTICS), (STATE, REFERENCE)),
+    'reference': NodeTopics((REFERENCE, DIAGNOSTICS), ()),
+}
 
 
 def by_name(name: str) -> Topic:
@@ -111,6 +129,7 @@ class AxisState(NamedTuple):
     z_dot: float
     force: float = math.nan
     x_spool: float = math.nan
+    i: float = math.nan     #: current [A] applied over the period that ended here (if known)
 
 
 class Reference(NamedTuple):
@@ -189,12 +208,18 @@ def _field(msg: Any, field: str, k: int, topic: str) -> float:
 
 
 def fill_state(msg: Any, s: AxisState) -> Any:
-    """Write ``s`` into a JointState (joints ``piston`` and ``spool``)."""
+    """Write ``s`` into a JointState (``piston``, ``spool``, and ``servo_valve`` if ``s.i``)."""
     _set_header(msg, s.stamp_ns)
-    _set(msg, 'name', [JOINT_PISTON, JOINT_SPOOL])
-    _set(msg, 'position', [float(s.z), float(s.x_spool)])
-    _set(msg, 'velocity', [float(s.z_dot), math.nan])
-    _set(msg, 'effort', [float(s.force), math.nan])
+    if math.isnan(s.i):
+        _set(msg, 'name', [JOINT_PISTON, JOINT_SPOOL])
+        _set(msg, 'position', [float(s.z), float(s.x_spool)])
+        _set(msg, 'velocity', [float(s.z_dot), math.nan])
+        _set(msg, 'effort', [float(s.force), math.nan])
+        return msg
+    _set(msg, 'name', [JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE])
+    _set(msg, 'position', [float(s.z), float(s.x_spool), math.nan])
+    _set(msg, 'velocity', [float(s.z_dot), math.nan, math.nan])
+    _set(msg, 'effort', [float(s.force), math.nan, float(s.i)])
     return msg
 
 
@@ -203,13 +228,17 @@ def state_from_msg(msg: Any) -> AxisState:
     k = _joint(msg, JOINT_PISTON, 'state')
     eff = _get(msg, 'effort')
     force = float(eff[k]) if len(eff) > k else math.nan
-    x = math.nan
-    if JOINT_SPOOL in list(_get(msg, 'name')):
-        j = _joint(msg, JOINT_SPOOL, 'state')
+    x = i = math.nan
+    names = list(_get(msg, 'name'))
+    if JOINT_SPOOL in names:
+        j = names.index(JOINT_SPOOL)
         pos = _get(msg, 'position')
         x = float(pos[j]) if len(pos) > j else math.nan
+    if JOINT_VALVE in names:
+        j = names.index(JOINT_VALVE)
+        i = float(eff[j]) if len(eff) > j else math.nan
     return AxisState(stamp_ns(_get(msg, 'header')), _field(msg, 'position', k, 'state'),
-                     _field(msg, 'velocity', k, 'state'), force, x)
+                     _field(msg, 'velocity', k, 'state'), force, x, i)
 
 
 def fill_reference(msg: Any, r: Reference) -> Any:

@@ -14,10 +14,12 @@
 """
 Extract an identification experiment (arrays on one time grid) from a bag's contract topics.
 
-The time base is the ``state`` topic's header stamps. The servo current of each period is the
-latest ``servo_current`` command stamped at or before the state sample (the controller
-stamps its answer with the state it answered, and the plant holds it for the period).
-Chamber pressures are used when the bag has them.
+The time base is the ``state`` topic's header stamps. The servo current of each period is,
+when the plant reports it, the current it applied (joint ``servo_valve`` of ``state``: what
+the valve really got, watchdog and late commands included). Otherwise it is the latest
+``servo_current`` command stamped at or before the state sample (the controller stamps its
+answer with the state it answered, and the plant holds it for the period). Chamber pressures
+are used when the bag has them.
 """
 
 from __future__ import annotations
@@ -161,7 +163,7 @@ def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name
     cm = resolve_topic(bag, command)
     _check_type(bag, st, contract.STATE.msg_type)
     _check_type(bag, cm, contract.COMMAND.msg_type)
-    ts, sv = _series(bag, st, lambda m: (lambda s: (s.stamp_ns, s.z, s.z_dot))(
+    ts, sv = _series(bag, st, lambda m: (lambda s: (s.stamp_ns, s.z, s.z_dot, s.i))(
         contract.state_from_msg(m)))
     tc, cv = _series(bag, cm, lambda m: tuple(contract.command_from_msg(m)))
     if ts.size == 0 or tc.size == 0:
@@ -177,6 +179,10 @@ def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name
     ok = k >= 0
     ts, sv, k = ts[ok], sv[ok], k[ok]
     cur = cv[k, 0]
+    applied = sv[:, 2]
+    if applied.size > 1 and np.all(np.isfinite(applied)):
+        # state k reports the current of the period that ended at it: shift by one
+        cur = np.append(applied[1:], applied[-1])
     pa = pb = None
     have = [resolve_topic(bag, p, required=False) if p else None
             for p in (pressure_p, pressure_t)]

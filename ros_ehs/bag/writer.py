@@ -140,6 +140,11 @@ class BagWriter:
         """Return the registered topics: name -> type."""
         return {k: v['type'] for k, v in self._topics.items()}
 
+    @property
+    def counts(self) -> dict[str, int]:
+        """Return the messages written so far per topic."""
+        return {k: v['count'] for k, v in self._topics.items()}
+
     # -- messages ----------------------------------------------------------------------------
     def write(self, topic: str, data: bytes, log_time_ns: int,
               publish_time_ns: int | None = None) -> None:

@@ -38,7 +38,12 @@ from ros_ehs.errors import InputError
 from ros_ehs.model.coefficients import ff_force_gain, flow_gain_kq
 from ros_ehs.model.kernels import smooth_clip
 
-__all__ = ['DelayLine', 'Feedforward', 'psc_force', 'stribeck_estimate', 'xi_blend']
+__all__ = ['DelayLine', 'Feedforward', 'MODEL_PARAMS', 'psc_force', 'stribeck_estimate',
+           'xi_blend']
+
+#: The plant parameters the feedforward reads (the controller node declares them too).
+MODEL_PARAMS = ('A_p', 'K_x', 'C_d', 'd_s', 'd_c', 'p_s', 'p_t', 'rho', 'beta_e', 'l_iac',
+                'F_cc', 'F_sc', 'c_c', 'v_c', 'eps_v', 'friction_law')
 
 _XI0 = 0.5 * (math.tanh(-1.0) + 1.0)
 

@@ -1,0 +1,106 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+``python -m ros_ehs.bench loop``: the plant and controller nodes at 1 kHz over DDS.
+
+Runs plant and controller as separate processes in real time for ``--seconds`` (default 20)
+after the loop closes, then, in the same run, a bare rclpy ping-pong with the same executor,
+QoS and message size. Prints the plant's loop figures, the CPU share of each process and the
+round-trip ratio to the bare ping-pong; the last line is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from domain_coordinator import domain_id
+import psutil
+from ros_ehs.bench import report
+from ros_ehs.nodes.launch import Launch
+
+
+def _cpu(pid: int) -> float:
+    t = psutil.Process(pid).cpu_times()
+    return t.user + t.system
+
+
+def _figures(log: str) -> dict:
+    for line in reversed(log.splitlines()):
+        if line.startswith('figures '):
+            return json.loads(line[len('figures '):])
+    raise RuntimeError('no figures in the log:\n' + log[-2000:])
+
+
+def _measure(launch: Launch, names: tuple[str, str], ready: tuple[str, str],
+             seconds: float) -> tuple[dict, dict]:
+    if not launch.wait_for_log(*ready, timeout=60):
+        raise RuntimeError(f'{ready[0]} did not start:\n' + launch[ready[0]].output()[-2000:])
+    c0 = {n: _cpu(launch[n].pid) for n in names}
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    wall = time.monotonic() - t0
+    cpu = {n: (_cpu(launch[n].pid) - c0[n]) / wall for n in names}
+    launch.stop()
+    return cpu, _figures(launch[names[0]].output())
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; print figures, the last line JSON."""
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench loop')
+    ap.add_argument('--seconds', type=float, default=20.0)
+    ap.add_argument('--model', default='simplified', choices=('simplified', 'full'))
+    a = ap.parse_args(argv)
+    with domain_id() as dom:
+        with Launch(dom) as launch:
+            launch.start('plant', {'model': a.model})
+            launch.start('controller')
+            cpu, f = _measure(launch, ('plant', 'controller'),
+                              ('plant', 'watchdog armed'), a.seconds)
+        with Launch(dom) as bare:
+            bare.start('pong', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', 'pong'])
+            bare.start('ping', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', 'ping'])
+            time.sleep(2.0)
+            c0 = {n: _cpu(bare[n].pid) for n in ('ping', 'pong')}
+            t0 = time.monotonic()
+            time.sleep(a.seconds)
+            wall = time.monotonic() - t0
+            cpu_bare = {n: (_cpu(bare[n].pid) - c0[n]) / wall for n in ('ping', 'pong')}
+            bare.stop(['ping', 'pong'])
+            b = json.loads(bare['ping'].output().strip().splitlines()[-1])
+    figures = {
+        'model': a.model, 'seconds': a.seconds, 'rate_hz': 1000,
+        'fresh_cycle_fraction': round(f['fresh_cycle_fraction'], 5),
+        'cycles': f['cycles'], 'watchdog_trips': f['watchdog_trips'],
+        'period_p50_ms': round(f['period_p50_ms'], 4),
+        'period_p99_ms': round(f['period_p99_ms'], 4),
+        'period_max_ms': round(f['period_max_ms'], 3),
+        'rtt_p50_ms': round(f['rtt_p50_ms'], 4), 'rtt_p99_ms': round(f['rtt_p99_ms'], 4),
+        'rtt_max_ms': round(f['rtt_max_ms'], 3),
+        'bare_rtt_p50_ms': round(b['rtt_p50_ms'], 4),
+        'bare_rtt_p99_ms': round(b['rtt_p99_ms'], 4),
+        'bare_fresh_cycle_fraction': round(b['fresh_cycle_fraction'], 5),
+        'rtt_ratio_vs_bare_p50': round(f['rtt_p50_ms'] / b['rtt_p50_ms'], 3),
+        'cpu_plant_frac': round(cpu['plant'], 4),
+        'cpu_controller_frac': round(cpu['controller'], 4),
+        'cpu_bare_ping_frac': round(cpu_bare['ping'], 4),
+        'cpu_bare_pong_frac': round(cpu_bare['pong'], 4),
+    }
+    return report(figures)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,21 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Thin rclpy wrappers over the core: plant, controller, reference, recorder, player, identify.
+
+Each module has a ``main(args=None)`` that ``ros2 run ros_ehs <node>`` calls. The shared
+rclpy plumbing (QoS conversion, parameter declaration from the one table, the run loop with
+clean SIGINT/SIGTERM shutdown, diagnostics) is in :mod:`ros_ehs.nodes.ros_common`; loop timing
+statistics, which need no ROS, are in :mod:`ros_ehs.nodes.loop_stats`.
+"""

@@ -1,0 +1,266 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The controller node: PID + damping/Stribeck feedforward (:class:`ros_ehs.control.Controller`).
+
+It answers every ``state`` message with one ``servo_current`` command stamped with that
+state's stamp (so the plant measures the round trip and lock-step stays exact). Gains and
+feedforward parameters are ROS parameters declared from the one table with their ranges;
+a live change is validated as a whole and rejected with the reason.
+
+Edge-case policy (tested in ``test/test_nodes.py``):
+
+* non-finite state or reference: 0 A and ``fault`` (the PID's policy), until a finite one;
+* malformed message (no ``piston`` joint, empty arrays): ignored and counted;
+* a repeated stamp (lock-step resend): the same command again, no PID update;
+* an older stamp than the last answered: ignored and counted;
+* a state older than ``stale_timeout`` on arrival: not used; the held command is repeated;
+* no state for ``LOST_FACTOR * stale_timeout`` (checked every 10 ms, real time only): 0 A is
+  published once, and the PID restarts from rest when states return. (A plain late state
+  is only held: a non-real-time kernel has 5-20 ms hiccups that must not reset the PID.);
+* before the first reference: hold the first measured position; a reference older than
+  ``reference_timeout``: hold its position with zero velocity;
+* ``sync_reference`` (lock-step): a state is answered only with the reference of the same
+  stamp, waiting for it if needed, so the loop is deterministic.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+import math
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from ros_ehs.control.controller import Controller
+from ros_ehs.control.feedforward import MODEL_PARAMS
+from ros_ehs.nodes.loop_stats import Window
+from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, ERROR,
+                                      node_params, OK, Option, qos_profile, run,
+                                      steady_clock, validate_changes, WARN)
+from ros_ehs.params import CONTROL_SPECS, Params, spec
+import ros_ehs_msgs_py as contract
+from sensor_msgs.msg import JointState
+
+__all__ = ['OPTIONS', 'ControllerNode', 'SPECS', 'main']
+
+#: States missing for this many ``stale_timeout`` mean the plant is gone (see the policy).
+LOST_FACTOR = 10
+
+#: The parameters the controller declares: its own and the plant values its feedforward uses.
+SPECS = CONTROL_SPECS + tuple(spec(n) for n in MODEL_PARAMS)
+
+OPTIONS = (
+    Option('rate_hz', 1000.0, 'control period rate [Hz]; must match the plant', 10.0, 5000.0),
+    Option('sync_reference', False, 'lock-step: answer a state only with the reference of '
+           'the same stamp'),
+    Option('reference_timeout', 0.1, 'a reference older than this is held at zero velocity '
+           '[s]', 1.0e-3, 100.0, read_only=False),
+    Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
+)
+
+
+class ControllerNode(Node):
+    """Position controller on the contract topics (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('controller', **kwargs)
+        self.opt = declare_options(self, OPTIONS)
+        declare_specs(self, SPECS, Params())
+        self.params = node_params(self, Params(), SPECS)
+        self.dt = 1.0 / float(self.opt['rate_hz'])
+        self.ctrl = Controller(self.params, self.dt)
+        self.sync = bool(self.opt['sync_reference'])
+        # staleness is a wall-clock notion: off under sim time and in lock-step (where the
+        # plant waits for us, so nothing can be stale)
+        self.wall = not (self.get_parameter('use_sim_time').value or self.sync)
+        self._pending: Params | None = None
+        self._refs: dict[int, tuple[float, float]] = {}
+        self._ref_keys: deque[int] = deque()
+        self._ref = None                 # latest (z_ref, v_ref, rx time)
+        self._hold_z: float | None = None
+        self._waiting = None             # a state parked until its reference comes
+        self._last_stamp = -1
+        self._lost = False
+        self.counts = dict.fromkeys(('answered', 'bad', 'nonfinite', 'stale', 'out_of_order',
+                                     'repeated', 'state_lost_events', 'param_rejects'), 0)
+        self.err = Window(2000)
+        self.compute = Window(2000)
+        self._cmd = JointState()
+        self._cmd_rec = contract.Command(0, 0.0)
+
+        self.pub_cmd = self.create_publisher(JointState, contract.COMMAND.name,
+                                             qos_profile(contract.COMMAND.qos))
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              qos_profile(contract.DIAGNOSTICS.qos))
+        self.create_subscription(JointState, contract.STATE.name, self._on_state,
+                                 qos_profile(contract.STATE.qos))
+        self._last_rx = time.monotonic()
+        if self.wall:     # a timer, not a QoS deadline: that would need every
+            # state publisher (a rig, a bag player) to offer a deadline too
+            self.create_timer(0.01, self._check_lost, clock=steady_clock())
+        self.create_subscription(JointState, contract.REFERENCE.name, self._on_reference,
+                                 qos_profile(contract.REFERENCE.qos, depth=64 if self.sync
+                                             else None))
+        self.add_on_set_parameters_callback(self._check_params)
+        self.add_post_set_parameters_callback(self._apply_params)
+        self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
+                          clock=steady_clock())
+        self.get_logger().info(f'PID + feedforward at {self.opt["rate_hz"]:g} Hz'
+                               f'{", reference-synchronised (lock-step)" if self.sync else ""}')
+
+    # -- references --------------------------------------------------------------------------
+    def _on_reference(self, msg: JointState) -> None:
+        try:
+            r = contract.reference_from_msg(msg)
+        except (ValueError, IndexError, AttributeError) as err:
+            self.counts['bad'] += 1
+            self.get_logger().warning(f'ignored a malformed reference: {err}',
+                                      throttle_duration_sec=1.0)
+            return
+        self._ref = (r.z_ref, r.v_ref, time.monotonic())
+        if self.sync:
+            self._refs[r.stamp_ns] = (r.z_ref, r.v_ref)
+            self._ref_keys.append(r.stamp_ns)
+            while len(self._ref_keys) > 256:
+                self._refs.pop(self._ref_keys.popleft(), None)
+            w = self._waiting
+            if w is not None and w.stamp_ns == r.stamp_ns:
+                self._waiting = None
+                self._answer(w, r.z_ref, r.v_ref)
+
+    def _reference_for(self, s: contract.AxisState):
+        if self.sync:
+            return self._refs.get(s.stamp_ns)
+        if self._ref is None:
+            if self._hold_z is None and math.isfinite(s.z):
+                self._hold_z = s.z
+            return (self._hold_z if self._hold_z is not None else math.nan), 0.0
+        z, v, rx = self._ref
+        if time.monotonic() - rx > float(self.opt['reference_timeout']):
+            return z, 0.0
+        return z, v
+
+    # -- states ------------------------------------------------------------------------------
+    def _on_state(self, msg: JointState) -> None:
+        self._last_rx = time.monotonic()
+        try:
+            s = contract.state_from_msg(msg)
+        except (ValueError, IndexError, AttributeError) as err:
+            self.counts['bad'] += 1
+            self.get_logger().warning(f'ignored a malformed state: {err}',
+                                      throttle_duration_sec=1.0)
+            return
+        if s.stamp_ns == self._last_stamp:
+            self.counts['repeated'] += 1
+            self._publish(s.stamp_ns, self.ctrl.output)
+            return
+        if s.stamp_ns < self._last_stamp:
+            self.counts['out_of_order'] += 1
+            return
+        if self.wall:
+            age = self.get_clock().now().nanoseconds - s.stamp_ns
+            if age > self.params['stale_timeout'] * 1e9:
+                self.counts['stale'] += 1
+                self._last_stamp = s.stamp_ns
+                self._publish(s.stamp_ns, self.ctrl.output)
+                return
+        ref = self._reference_for(s)
+        if ref is None:
+            self._waiting = s
+            return
+        self._answer(s, *ref)
+
+    def _answer(self, s: contract.AxisState, z_ref: float, v_ref: float) -> None:
+        t0 = time.perf_counter()
+        if self._lost:
+            self._lost = False
+            self.ctrl.reset()
+            self.get_logger().info('states are back; PID restarted from rest')
+        if not (math.isfinite(s.z) and math.isfinite(z_ref) and math.isfinite(v_ref)):
+            self.counts['nonfinite'] += 1
+            self.get_logger().warning('non-finite state or reference: command 0 A',
+                                      throttle_duration_sec=1.0)
+        i = self.ctrl.step(z_ref, v_ref, s.z)
+        self._last_stamp = s.stamp_ns
+        self.counts['answered'] += 1
+        self._publish(s.stamp_ns, i)
+        if math.isfinite(s.z) and math.isfinite(z_ref):
+            self.err.add(z_ref - s.z)
+        self.compute.add(time.perf_counter() - t0)
+
+    def _publish(self, stamp_ns: int, i: float) -> None:
+        contract.fill_command(self._cmd, self._cmd_rec._replace(stamp_ns=stamp_ns, i=i))
+        self.pub_cmd.publish(self._cmd)
+
+    def _check_lost(self) -> None:
+        limit = LOST_FACTOR * float(self.params['stale_timeout'])
+        if self._last_stamp < 0 or self._lost or time.monotonic() - self._last_rx < limit:
+            return
+        self._lost = True
+        self.counts['state_lost_events'] += 1
+        self.ctrl.pid.last_u = 0.0
+        self._publish(self.get_clock().now().nanoseconds, 0.0)
+        ms = LOST_FACTOR * self.params['stale_timeout'] * 1e3
+        self.get_logger().warning(f'no state for {ms:g} ms: command 0 A')
+
+    # -- parameters and diagnostics ----------------------------------------------------------
+    def _check_params(self, changes):
+        res, self._pending = validate_changes(self.params, changes, SPECS, OPTIONS)
+        if not res.successful:
+            self.counts['param_rejects'] += 1
+            self.get_logger().warning(f'parameter change rejected: {res.reason}')
+        return res
+
+    def _apply_params(self, changes) -> None:
+        new, self._pending = self._pending, None
+        if new is not None and new != self.params:
+            self.params = new
+            self.ctrl.set_params(new)
+            self.get_logger().info('parameters changed: ' + ', '.join(
+                f'{p.name}={p.value}' for p in changes))
+        for p in changes:
+            if p.name == 'reference_timeout':
+                self.opt['reference_timeout'] = p.value
+
+    def figures(self) -> dict:
+        """Return the figures the diagnostics report."""
+        e = self.err.values()
+        f = dict(self.counts)
+        f.update(tracking_rms_m=float(math.sqrt((e * e).mean())) if e.size else math.nan,
+                 tracking_max_m=float(abs(e).max()) if e.size else math.nan,
+                 command_a=float(self.ctrl.output), fault=self.ctrl.fault,
+                 saturated=self.ctrl.pid.saturated, feedforward_a=float(self.ctrl.last_ff),
+                 compute_p99_us=self.compute.pct(99) * 1e6, state_lost=self._lost)
+        return f
+
+    def _diagnose(self) -> None:
+        level, msg = OK, 'running'
+        if self.ctrl.fault:
+            level, msg = ERROR, 'non-finite input: command 0 A'
+        elif self._lost:
+            level, msg = WARN, 'no state: command 0 A'
+        elif self.counts['answered'] == 0:
+            level, msg = WARN, 'waiting for states'
+        self.pub_diag.publish(diagnostics(self, 'ros_ehs/controller', level, msg,
+                                          self.figures()))
+
+
+def main(args=None) -> int:
+    """Entry point of ``ros2 run ros_ehs controller``."""
+    return run(ControllerNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,183 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Start ros_ehs nodes as processes and stop them cleanly (no ROS import; no ``launch`` here).
+
+:class:`Launch` is what ``launch_scripts/``, the benchmarks and the integration tests use:
+each node runs as ``python -m ros_ehs.nodes.<node> --ros-args ...`` (the same code
+``ros2 run ros_ehs <node>`` runs), with its own log file, on one ``ROS_DOMAIN_ID``. Stopping
+sends SIGINT in the given order, waits, and only then escalates to SIGTERM and SIGKILL, so a
+recorder closes its bag.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any, Iterable
+
+__all__ = ['Launch', 'NodeProcess', 'node_command', 'NODES']
+
+#: The node executables of the package (``ros2 run ros_ehs <name>``).
+NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify')
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return 'true' if v else 'false'
+    if isinstance(v, float):
+        return repr(v)      # always a double to rclpy: '1.0', '1e-05'
+    if isinstance(v, (list, tuple)):
+        return '[' + ','.join(_value(x) for x in v) + ']'
+    return str(v)
+
+
+def node_command(node: str, params: dict[str, Any] | None = None,
+                 params_file: str | os.PathLike | None = None,
+                 extra: Iterable[str] = ()) -> list[str]:
+    """Return the command line that runs ``node`` with ``params`` (``-p name:=value``)."""
+    if node not in NODES:
+        raise ValueError(f'unknown node {node!r}; nodes: {list(NODES)}')
+    cmd = [sys.executable, '-m', f'ros_ehs.nodes.{node}', '--ros-args']
+    if params_file:
+        cmd += ['--params-file', str(params_file)]
+    for k, v in (params or {}).items():
+        cmd += ['-p', f'{k}:={_value(v)}']
+    return cmd + list(extra)
+
+
+@dataclass
+class NodeProcess:
+    """One running node: its name, Popen and log file."""
+
+    name: str
+    popen: subprocess.Popen
+    log: Path
+    cmd: list[str] = field(default_factory=list)
+
+    @property
+    def pid(self) -> int:
+        """Process id."""
+        return self.popen.pid
+
+    def alive(self) -> bool:
+        """Return True while the process runs."""
+        return self.popen.poll() is None
+
+    def output(self) -> str:
+        """Return what the node has logged so far."""
+        try:
+            return self.log.read_text(errors='replace')
+        except OSError:
+            return ''
+
+
+class Launch:
+    """
+    A set of node processes on one ROS domain; a context manager that stops them all.
+
+    ``domain_id`` defaults to the environment's ``ROS_DOMAIN_ID``; ``log_dir`` to a new
+    temporary directory. Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE``
+    LOCALHOST unless set).
+    """
+
+    def __init__(self, domain_id: int | None = None, log_dir: str | os.PathLike | None = None,
+                 env: dict[str, str] | None = None) -> None:
+        self.env = dict(os.environ)
+        self.env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        self.env['PYTHONUNBUFFERED'] = '1'
+        self.env['RCUTILS_LOGGING_BUFFERED_STREAM'] = '0'
+        if domain_id is not None:
+            self.env['ROS_DOMAIN_ID'] = str(int(domain_id))
+        self.env.update(env or {})
+        self.log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix='ehs_logs_'))
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.procs: dict[str, NodeProcess] = {}
+
+    def start(self, node: str, params: dict[str, Any] | None = None, *,
+              name: str | None = None, params_file: str | os.PathLike | None = None,
+              extra: Iterable[str] = (), cmd: list[str] | None = None) -> NodeProcess:
+        """Start ``node`` (or an explicit ``cmd``) as process ``name`` (default the node)."""
+        name = name or node
+        if name in self.procs and self.procs[name].alive():
+            raise ValueError(f'process {name!r} is already running')
+        cmd = cmd or node_command(node, params, params_file, extra)
+        log = self.log_dir / f'{name}.log'
+        fh = open(log, 'wb')
+        p = subprocess.Popen(cmd, env=self.env, stdout=fh, stderr=subprocess.STDOUT,
+                             stdin=subprocess.DEVNULL)
+        fh.close()
+        self.procs[name] = NodeProcess(name, p, log, cmd)
+        return self.procs[name]
+
+    def __getitem__(self, name: str) -> NodeProcess:
+        """Return process ``name``."""
+        return self.procs[name]
+
+    def kill(self, name: str) -> None:
+        """SIGKILL process ``name`` (a crash, for the robustness tests)."""
+        p = self.procs[name].popen
+        if p.poll() is None:
+            p.send_signal(signal.SIGKILL)
+            p.wait()
+
+    def stop(self, names: Iterable[str] | None = None, timeout: float = 10.0) -> dict[str, int]:
+        """
+        Stop processes in the order given (default: reverse start order) with SIGINT.
+
+        Each gets ``timeout`` seconds to exit, then SIGTERM, then SIGKILL. Returns the exit
+        codes (negative: killed by that signal).
+        """
+        order = list(names) if names is not None else list(reversed(list(self.procs)))
+        codes = {}
+        for n in order:
+            p = self.procs[n].popen
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                try:
+                    p.wait(timeout)
+                except subprocess.TimeoutExpired:
+                    p.terminate()
+                    try:
+                        p.wait(3.0)
+                    except subprocess.TimeoutExpired:
+                        p.kill()
+                        p.wait()
+            codes[n] = p.returncode
+        return codes
+
+    def wait_for_log(self, name: str, text: str, timeout: float = 30.0) -> bool:
+        """Wait until process ``name`` has logged ``text``; False on timeout or exit."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if text in self.procs[name].output():
+                return True
+            if not self.procs[name].alive():
+                return text in self.procs[name].output()
+            time.sleep(0.05)
+        return False
+
+    def __enter__(self) -> 'Launch':
+        """Return self."""
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """Stop everything still running."""
+        self.stop()

@@ -1,0 +1,89 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Loop timing statistics for the nodes' diagnostics and the benchmarks (no ROS import).
+
+:class:`Window` keeps the last ``n`` samples in a ring and answers percentiles;
+:class:`LoopStats` counts periods, fresh cycles and round-trip times of a control loop.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ['LoopStats', 'Window']
+
+
+class Window:
+    """The last ``n`` float samples (a ring buffer) with percentiles."""
+
+    def __init__(self, n: int = 10000) -> None:
+        self._a = np.zeros(int(n))
+        self._k = 0
+        self.total = 0
+
+    def add(self, value: float) -> None:
+        """Append one sample."""
+        self._a[self._k] = value
+        self._k = (self._k + 1) % self._a.size
+        self.total += 1
+
+    def values(self) -> np.ndarray:
+        """Return the samples held (oldest first is not guaranteed)."""
+        return self._a[:min(self.total, self._a.size)]
+
+    def pct(self, q: float) -> float:
+        """Return the ``q``-th percentile, NaN when empty."""
+        v = self.values()
+        return float(np.percentile(v, q)) if v.size else float('nan')
+
+    def peak(self) -> float:
+        """Return the largest sample held, NaN when empty."""
+        v = self.values()
+        return float(v.max()) if v.size else float('nan')
+
+
+class LoopStats:
+    """Periods [s], round-trip times [s] and the fraction of cycles with a fresh command."""
+
+    def __init__(self, n: int = 20000) -> None:
+        self.period = Window(n)
+        self.rtt = Window(n)
+        self.cycles = 0
+        self.fresh = 0
+        self._last: float | None = None
+
+    def tick(self, now_s: float, fresh: bool) -> None:
+        """Count one cycle at time ``now_s`` [s]; ``fresh`` if a new command came since."""
+        if self._last is not None:
+            self.period.add(now_s - self._last)
+        self._last = now_s
+        self.cycles += 1
+        self.fresh += bool(fresh)
+
+    @property
+    def fresh_fraction(self) -> float:
+        """Return the fraction of cycles that had a fresh command (NaN before any)."""
+        return self.fresh / self.cycles if self.cycles else float('nan')
+
+    def as_dict(self) -> dict[str, float]:
+        """Return the figures in milliseconds, for diagnostics and benchmarks."""
+        ms = 1e3
+        return {'cycles': self.cycles, 'fresh_cycles': self.fresh,
+                'fresh_cycle_fraction': self.fresh_fraction,
+                'period_p50_ms': self.period.pct(50) * ms,
+                'period_p99_ms': self.period.pct(99) * ms,
+                'period_max_ms': self.period.peak() * ms,
+                'rtt_p50_ms': self.rtt.pct(50) * ms, 'rtt_p99_ms': self.rtt.pct(99) * ms,
+                'rtt_max_ms': self.rtt.peak() * ms}

@@ -1,0 +1,335 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The plant node: the servo valve and cylinder model on the bench network.
+
+``mode: realtime`` steps the model on a steady timer at ``rate_hz`` (zero-order hold of the
+latest command). States are stamped on the sim grid ``t0 + k / rate_hz``: a late tick steps
+(and publishes) every period it missed, so sim time stays locked to wall time and a bag has
+no gaps. A watchdog counts periods without a fresh command; after ``watchdog_periods`` of them
+the valve current is zero (the hydraulic fail-safe: spool to null) until commands return.
+
+``mode: lockstep`` publishes ``/clock`` and the state, then waits for the command stamped with
+that state's stamp and steps exactly one period: a closed loop over DDS that is deterministic
+and runs as fast as the messages go. A lost message is recovered by republishing the state
+after ``resend_period`` of silence (the controller answers a repeated stamp with the same
+command).
+
+Every state message also carries the current applied over the period that ended at its stamp
+(joint ``servo_valve``), so a bag shows exactly what the valve got.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+from rclpy.node import Node
+from ros_ehs.errors import EhsError
+from ros_ehs.model.plant import Plant
+from ros_ehs.nodes.loop_stats import LoopStats
+from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, ERROR,
+                                      node_params, OK, Option, qos_profile, run,
+                                      steady_clock, validate_changes, WARN)
+from ros_ehs.params import Params, PLANT_SPECS
+import ros_ehs_msgs_py as contract
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import FluidPressure, JointState
+
+__all__ = ['OPTIONS', 'PlantNode', 'main']
+
+OPTIONS = (
+    Option('model', 'simplified', 'plant model: full (10 states) or simplified (4 states)',
+           choices=('full', 'simplified')),
+    Option('mode', 'realtime', 'realtime: step on a timer; lockstep: one step per command, '
+           'publish /clock', choices=('realtime', 'lockstep')),
+    Option('rate_hz', 1000.0, 'control period rate [Hz]', 10.0, 5000.0),
+    Option('watchdog_periods', 3, 'periods without a fresh command after which the valve '
+           'current is zero', 1, 10000, read_only=False),
+    Option('initial_z', 0.0, 'initial piston position [m]', -2.0, 2.0),
+    Option('start_time', 0.0, 'lock-step: sim time of the first state [s]', 0.0, 1.0e9),
+    Option('duration', 0.0, 'lock-step: stop advancing at this sim time after start [s] '
+           '(0: never)', 0.0, 1.0e9),
+    Option('resend_period', 0.05, 'lock-step: republish the state after this much silence '
+           '[s]', 1.0e-3, 10.0),
+    Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
+)
+
+_MAX_CATCHUP = 50      # periods a late tick may step before the loop is resynchronised
+_RING = 1024           # send times kept for round-trip measurement
+
+
+class PlantNode(Node):
+    """The model behind the contract topics (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('plant', **kwargs)
+        self.opt = declare_options(self, OPTIONS)
+        declare_specs(self, PLANT_SPECS, Params())
+        self.params = node_params(self, Params(), PLANT_SPECS)
+        self.plant = Plant(self.params, self.opt['model'])
+        self.x = self.plant.equilibrium(z=float(self.opt['initial_z']))
+        # compile the kernels now, on a throw-away copy (the loop's plant starts fresh)
+        Plant(self.params, self.opt['model']).step(self.x, np.zeros(2), 1e-3)
+        self._iz = self.plant.state_names.index('z')
+        self._iv = self.plant.state_names.index('z_dot')
+        self._ipa, self._ipb = (self.plant.state_names.index(s) for s in ('p_CP', 'p_CT'))
+        self._ixv = self.plant.state_names.index('x') if 'x' in self.plant.state_names else -1
+        self.dt = 1.0 / float(self.opt['rate_hz'])
+        self._dt_ns = int(round(self.dt * 1e9))
+        self.lockstep = self.opt['mode'] == 'lockstep'
+        self.i_limit = 2.0 * float(self.params['i_rated'])
+        self.u = np.zeros(2)
+        self.i_cmd = 0.0
+        self.applied = 0.0       # current applied over the last period [A]
+        self.k = 0
+        self.armed = False       # a first command has come
+        self.tripped = False
+        self.missed = 0
+        self.trips = 0
+        self.trip_latency_ms = math.nan
+        self.bad_commands = 0
+        self.stale_commands = 0
+        self.faults = 0
+        self.overruns = 0
+        self.resends = 0
+        self.finished = False
+        self._t_first = self._t_last = math.nan
+        self._fresh = False
+        self._last_cmd_stamp = -1
+        self._last_rx = 0.0
+        self._sent_stamp = np.full(_RING, -1, dtype=np.int64)
+        self._sent_time = np.zeros(_RING)
+        self.stats = LoopStats()
+        self._pending: Params | None = None
+
+        self._msg = JointState()
+        self._pmsg = (FluidPressure(), FluidPressure())
+        self._cmsg = Clock()
+        self.pub_state = self.create_publisher(JointState, contract.STATE.name,
+                                               qos_profile(contract.STATE.qos))
+        self.pub_p = self.create_publisher(FluidPressure, contract.PRESSURE_P.name,
+                                           qos_profile(contract.PRESSURE_P.qos))
+        self.pub_t = self.create_publisher(FluidPressure, contract.PRESSURE_T.name,
+                                           qos_profile(contract.PRESSURE_T.qos))
+        self.pub_diag = self.create_publisher(
+            DiagnosticArray, contract.DIAGNOSTICS.name,
+            qos_profile(contract.DIAGNOSTICS.qos))
+        self.pub_clock = None
+        if self.lockstep:
+            self.pub_clock = self.create_publisher(Clock, contract.CLOCK.name,
+                                                   qos_profile(contract.CLOCK.qos))
+        self.create_subscription(JointState, contract.COMMAND.name, self._on_command,
+                                 qos_profile(contract.COMMAND.qos))
+        self.add_on_set_parameters_callback(self._check_params)
+        self.add_post_set_parameters_callback(self._apply_params)
+        clock = steady_clock()
+        if self.lockstep:
+            self.t0_ns = int(round(float(self.opt['start_time']) * 1e9))
+            self._last_progress = time.monotonic()
+            self._publish(time.monotonic())
+            self.create_timer(float(self.opt['resend_period']), self._resend, clock=clock)
+        else:
+            self.t0_ns = self.get_clock().now().nanoseconds
+            self._t0_wall = time.monotonic_ns()
+            self.create_timer(self.dt, self._tick, clock=clock)
+        self.create_timer(float(self.opt['diagnostics_period']), self._diagnose, clock=clock)
+        self.get_logger().info(
+            f'{self.opt["model"]} model, {self.opt["mode"]} at {self.opt["rate_hz"]:g} Hz, '
+            f'watchdog {self.opt["watchdog_periods"]} periods')
+
+    # -- time --------------------------------------------------------------------------------
+    def stamp_ns(self, k: int | None = None) -> int:
+        """Return the stamp of period ``k`` (default: the current one) [ns]."""
+        return self.t0_ns + (self.k if k is None else k) * self._dt_ns
+
+    # -- commands ----------------------------------------------------------------------------
+    def _on_command(self, msg: JointState) -> None:
+        try:
+            c = contract.command_from_msg(msg)
+        except (ValueError, IndexError, AttributeError) as err:
+            self.bad_commands += 1
+            self.get_logger().warning(f'ignored a malformed command: {err}',
+                                      throttle_duration_sec=1.0)
+            return
+        if not math.isfinite(c.i):
+            self.bad_commands += 1
+            self.get_logger().warning(f'ignored a non-finite command i = {c.i!r} A',
+                                      throttle_duration_sec=1.0)
+            return
+        if c.stamp_ns <= self._last_cmd_stamp:
+            self.stale_commands += 1
+            return
+        now = time.monotonic()
+        j = (c.stamp_ns - self.t0_ns) // self._dt_ns % _RING
+        if self._sent_stamp[j] == c.stamp_ns:
+            self.stats.rtt.add(now - self._sent_time[j])
+        if self.lockstep:
+            if c.stamp_ns != self.stamp_ns() or self.finished:
+                self.stale_commands += 1
+                return
+            self._last_cmd_stamp = c.stamp_ns
+            self.i_cmd = min(max(c.i, -self.i_limit), self.i_limit)
+            if not self.armed:
+                self.armed = True
+                self._t_first = now
+                self.get_logger().info('first command received; lock-step running')
+            self.stats.tick(now, True)
+            self._step(self.i_cmd)
+            self._last_progress = now
+            self._publish(now)
+            if self.finished:
+                self._t_last = now
+                self.get_logger().info(f'lock-step run complete: {self.k} steps, '
+                                       f'{self.figures()["steps_per_s"]:.0f} steps/s')
+            return
+        self._last_cmd_stamp = c.stamp_ns
+        self.i_cmd = min(max(c.i, -self.i_limit), self.i_limit)
+        self._fresh = True
+        self._last_rx = now
+        if not self.armed:
+            self.armed = True
+            self.get_logger().info('first command received; watchdog armed')
+
+    # -- stepping ----------------------------------------------------------------------------
+    def _step(self, i: float) -> None:
+        self.u[0] = self.applied = i
+        try:
+            self.x = self.plant.step(self.x, self.u, self.dt)
+        except EhsError as err:      # diverged or left the cylinder: keep the last state
+            self.faults += 1
+            self.i_cmd = 0.0
+            self.get_logger().error(f'model step failed, state held: {err}',
+                                    throttle_duration_sec=1.0)
+        self.k += 1
+        if self.lockstep and self.opt['duration'] > 0:
+            self.finished = self.k * self.dt >= self.opt['duration'] - 1e-12
+
+    def _tick(self) -> None:
+        now_ns = time.monotonic_ns()
+        n = (now_ns - self._t0_wall) // self._dt_ns - self.k
+        if n <= 0:
+            return
+        if n > _MAX_CATCHUP:      # far behind: resynchronise (a gap in the stamps)
+            self.overruns += 1
+            self._t0_wall += (n - 1) * self._dt_ns
+            self.t0_ns += (n - 1) * self._dt_ns
+            n = 1
+        now = now_ns * 1e-9
+        fresh = self._fresh
+        self._fresh = False
+        if self.armed:
+            self.stats.tick(now, fresh)
+        # misses count per tick: a late tick's catch-up periods had no state out to answer
+        self.missed = 0 if fresh else self.missed + 1
+        for _ in range(int(n)):
+            i = self.i_cmd
+            if not self.armed:
+                i = 0.0
+            elif self.missed >= self.opt['watchdog_periods']:
+                i = 0.0
+                if not self.tripped:
+                    self.tripped = True
+                    self.trips += 1
+                    self.trip_latency_ms = (now - self._last_rx) * 1e3
+                    self.get_logger().warning(
+                        f'watchdog: no fresh command for {self.missed} periods, valve current '
+                        f'zeroed ({self.trip_latency_ms:.2f} ms after the last command)')
+            elif self.tripped:
+                self.tripped = False
+                self.get_logger().info('watchdog: commands are back')
+            self._step(i)
+            self._publish(now)
+
+    def _resend(self) -> None:
+        if time.monotonic() - self._last_progress >= float(self.opt['resend_period']):
+            self.resends += 1
+            self._publish(time.monotonic())
+
+    # -- publishing --------------------------------------------------------------------------
+    def _publish(self, now: float) -> None:
+        st = self.stamp_ns()
+        x = self.x
+        if self.pub_clock is not None:
+            self._cmsg.clock.sec, self._cmsg.clock.nanosec = divmod(st, 1_000_000_000)
+            self.pub_clock.publish(self._cmsg)
+        xv = float(x[self._ixv]) if self._ixv >= 0 else math.nan
+        contract.fill_state(self._msg, contract.AxisState(
+            st, float(x[self._iz]), float(x[self._iv]),
+            float(self.params['A_p'] * (x[self._ipa] - x[self._ipb])), xv, self.applied))
+        j = (st - self.t0_ns) // self._dt_ns % _RING
+        self._sent_stamp[j] = st
+        self._sent_time[j] = now
+        self.pub_state.publish(self._msg)
+        contract.fill_pressure(self._pmsg[0], contract.Pressure(st, float(x[self._ipa])))
+        contract.fill_pressure(self._pmsg[1], contract.Pressure(st, float(x[self._ipb])))
+        self.pub_p.publish(self._pmsg[0])
+        self.pub_t.publish(self._pmsg[1])
+
+    # -- parameters and diagnostics ----------------------------------------------------------
+    def _check_params(self, changes):
+        res, self._pending = validate_changes(self.params, changes, PLANT_SPECS, OPTIONS)
+        return res
+
+    def _apply_params(self, changes) -> None:
+        new, self._pending = self._pending, None
+        if new is not None and new != self.params:
+            self.params = new
+            self.plant = Plant(new, self.opt['model'])
+            self.i_limit = 2.0 * float(new['i_rated'])
+            self.get_logger().info('plant parameters changed; model rebuilt, state kept')
+        for p in changes:
+            if p.name == 'watchdog_periods':
+                self.opt['watchdog_periods'] = p.value
+
+    def figures(self) -> dict:
+        """Return the loop and watchdog figures the diagnostics report."""
+        f = self.stats.as_dict()
+        f.update(steps=self.k, sim_time_s=self.k * self.dt,
+                 watchdog=('tripped' if self.tripped else 'ok' if self.armed else 'waiting'),
+                 watchdog_trips=self.trips, watchdog_latency_ms=self.trip_latency_ms,
+                 current_a=float(self.u[0]), bad_commands=self.bad_commands,
+                 stale_commands=self.stale_commands, model_faults=self.faults,
+                 overruns=self.overruns, resends=self.resends, finished=self.finished)
+        if self.lockstep:
+            end = self._t_last if self.finished else time.monotonic()
+            f['steps_per_s'] = (self.k - 1) / (end - self._t_first) if self.k > 1 else math.nan
+        return f
+
+    def close(self) -> None:
+        """Log the loop figures once at shutdown (one JSON line after ``figures``)."""
+        print('figures ' + json.dumps(self.figures()), flush=True)
+
+    def _diagnose(self) -> None:
+        f = self.figures()
+        level, msg = OK, 'running'
+        if self.faults:
+            level, msg = ERROR, f'{self.faults} model step failures'
+        elif self.tripped:
+            level, msg = WARN, 'watchdog tripped: valve current zero'
+        elif not self.armed and not self.lockstep:
+            level, msg = WARN, 'waiting for the first command'
+        self.pub_diag.publish(diagnostics(self, 'ros_ehs/plant', level, msg, f))
+
+
+def main(args=None) -> int:
+    """Entry point of ``ros2 run ros_ehs plant``."""
+    return run(PlantNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,148 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The recorder node: topics into a rosbag2-style MCAP bag (:class:`ros_ehs.bag.BagWriter`).
+
+Subscriptions are raw (the CDR bytes go to the file without a decode). ``topics`` defaults
+to every contract topic of this namespace; other topics named there are subscribed when
+they appear on the graph (their type is discovered). The subscription QoS follows rosbag2:
+reliable if every publisher offers reliable, else best effort; depth ``depth``. The
+``offered_qos_profiles`` stored are the publishers' (the contract's for contract topics).
+
+Crash safety is the writer's: the open chunk is closed and flushed every ``flush_period``
+(default 50 ms, also on a timer when traffic stops), so SIGKILL loses at most that much.
+SIGINT/SIGTERM close the bag properly (summary, metadata.yaml).
+"""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+
+from rclpy.node import Node
+from rclpy.qos import ReliabilityPolicy
+from ros_ehs.bag.writer import BagWriter
+from ros_ehs.nodes.ros_common import (declare_options, msg_class, Option, qos_profile, run,
+                                      steady_clock)
+import ros_ehs_msgs_py as contract
+
+__all__ = ['OPTIONS', 'RecorderNode', 'main', 'default_bag_path']
+
+OPTIONS = (
+    Option('out', '', 'bag directory to create (default bags/ehs_<UTC time>)'),
+    Option('topics', [], 'topics to record (default: every contract topic)'),
+    Option('flush_period', 0.05, 'close the open chunk and flush at least this often [s]: '
+           'the most a crash can lose', 0.005, 10.0),
+    Option('fsync', False, 'also fsync on every flush (survives power loss)'),
+    Option('depth', 1000, 'subscription queue depth', 1, 100000),
+    Option('discovery_period', 0.5, 'how often to look for listed topics not yet seen [s]',
+           0.05, 60.0),
+)
+
+
+def default_bag_path() -> Path:
+    """Return ``bags/ehs_<UTC time>`` (rosbag2's ``rosbag2_<time>`` convention)."""
+    return Path('bags') / datetime.now(timezone.utc).strftime('ehs_%Y_%m_%d-%H_%M_%S')
+
+
+def _qos_record(p) -> dict:
+    """Return a rosbag2 offered-QoS entry for an rclpy QoSProfile."""
+    rel = 'reliable' if p.reliability == ReliabilityPolicy.RELIABLE else 'best_effort'
+    dur = 'transient_local' if p.durability.value == 1 else 'volatile'
+    return contract.QosSpec(rel, max(1, int(p.depth)), dur).as_rosbag2()
+
+
+class RecorderNode(Node):
+    """Record topics to a bag (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('recorder', **kwargs)
+        self.opt = declare_options(self, OPTIONS)
+        out = Path(self.opt['out'] or default_bag_path())
+        self.writer = BagWriter(out, flush_period=float(self.opt['flush_period']),
+                                fsync=bool(self.opt['fsync']))
+        self.path = out
+        self._subs = {}
+        self._dirty = False
+        wanted = list(self.opt['topics']) or [t.name for t in contract.TOPICS]
+        self._wanted = {self.resolve_topic_name(n): n for n in wanted}
+        for full, name in self._wanted.items():
+            try:
+                t = contract.by_name(name)
+            except KeyError:
+                continue
+            self._subscribe(full, t.msg_type, [t.qos.as_rosbag2()], t.qos.reliability)
+        self._discover()
+        self.create_timer(float(self.opt['discovery_period']), self._discover,
+                          clock=steady_clock())
+        self.create_timer(float(self.opt['flush_period']), self._flush, clock=steady_clock())
+        self.get_logger().info(f'recording {sorted(self._wanted)} to {out}')
+
+    def _subscribe(self, full: str, msg_type: str, offered: list, reliability: str) -> None:
+        try:
+            cls = msg_class(msg_type)
+        except KeyError as err:
+            self.get_logger().warning(f'not recording {full}: {err}')
+            self._subs[full] = None
+            return
+        self.writer.add_topic(full, msg_type, offered)
+        qos = qos_profile(contract.QosSpec(reliability, int(self.opt['depth'])))
+        clock = self.get_clock()
+        write = self.writer.write
+
+        def on_msg(data: bytes, topic=full) -> None:
+            write(topic, data, clock.now().nanoseconds)
+            self._dirty = True
+
+        self._subs[full] = self.create_subscription(cls, full, on_msg, qos, raw=True)
+
+    def _discover(self) -> None:
+        missing = [t for t in self._wanted if t not in self._subs]
+        if not missing:
+            return
+        types = dict(self.get_topic_names_and_types())
+        for full in missing:
+            if full not in types:
+                continue
+            pubs = self.get_publishers_info_by_topic(full)
+            if not pubs:
+                continue
+            offered = [_qos_record(p.qos_profile) for p in pubs]
+            rel = ('reliable' if all(q['reliability'] == 'reliable' for q in offered)
+                   else 'best_effort')
+            self._subscribe(full, types[full][0], offered, rel)
+            self.get_logger().info(f'recording {full} ({types[full][0]}, {rel})')
+
+    def _flush(self) -> None:
+        if self._dirty:
+            self._dirty = False
+            self.writer.flush()
+
+    def close(self) -> None:
+        """Close the bag (summary and metadata.yaml) and log what it holds."""
+        if self.writer.closed:
+            return
+        self.writer.close()
+        counts = ', '.join(f'{k} {n}' for k, n in self.writer.counts.items())
+        print(f'[recorder] closed {self.path}: {self.writer.count} messages ({counts})',
+              flush=True)
+
+
+def main(args=None) -> int:
+    """Entry point of ``ros2 run ros_ehs recorder``."""
+    return run(RecorderNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,137 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The reference node: publishes z_ref [m] and v_ref [m/s] on ``reference``.
+
+Trajectories (``kind``): sine (default 0.04 m at 1 Hz, the paper's test), step, chirp, or a
+CSV file (``csv_path``, columns ``t`` [s] and ``z`` [m]). Time zero is the first tick. In real
+time it ticks on a steady timer at ``rate_hz``; under ``use_sim_time`` it publishes once per
+``/clock`` message, stamped with that time (what a lock-step loop needs). After ``duration``
+(0: never) it holds the last position with zero velocity.
+"""
+
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from ros_ehs.errors import ParameterError
+from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, OK,
+                                      Option, qos_profile, run, steady_clock)
+from ros_ehs.reference import make, REFERENCE_SPECS
+import ros_ehs_msgs_py as contract
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+__all__ = ['OPTIONS', 'ReferenceNode', 'main']
+
+OPTIONS = (
+    Option('rate_hz', 1000.0, 'publication rate in real time; under use_sim_time the '
+           'period of the reference published one tick ahead [Hz]', 1.0, 5000.0),
+    Option('duration', 0.0, 'hold the last position after this time [s] (0: never)', 0.0,
+           1.0e9),
+    Option('csv_path', '', 'trajectory file for kind = csv (columns t [s], z [m])'),
+    Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
+)
+
+
+class ReferenceNode(Node):
+    """Reference generator (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('reference', **kwargs)
+        self.opt = declare_options(self, OPTIONS)
+        declare_specs(self, REFERENCE_SPECS, {s.name: s.default for s in REFERENCE_SPECS})
+        values = {s.name: self.get_parameter(s.name).value for s in REFERENCE_SPECS}
+        self.traj = make(values, self.opt['csv_path'])
+        self.values = values
+        self.t_first: int | None = None
+        self.last_ns = -1
+        self.count = 0
+        self._msg = JointState()
+        self.pub = self.create_publisher(JointState, contract.REFERENCE.name,
+                                         qos_profile(contract.REFERENCE.qos))
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              qos_profile(contract.DIAGNOSTICS.qos))
+        self.sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._dt_ns = int(round(1e9 / float(self.opt['rate_hz'])))
+        if self.sim_time:
+            self.create_subscription(Clock, contract.CLOCK.name, self._on_clock,
+                                     qos_profile(contract.CLOCK.qos, depth=10))
+        else:
+            self._t0_wall = None
+            self.create_timer(1.0 / float(self.opt['rate_hz']), self._tick,
+                              clock=steady_clock())
+        self.add_on_set_parameters_callback(self._check)
+        self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
+                          clock=steady_clock())
+        how = 'on /clock' if self.sim_time else f'{self.opt["rate_hz"]:g} Hz'
+        self.get_logger().info(f'{values["kind"]} reference, {how}')
+
+    def _check(self, changes):
+        new = dict(self.values)
+        new.update({p.name: p.value for p in changes if p.name in new})
+        try:
+            traj = make(new, self.opt['csv_path'])
+        except (ParameterError, ValueError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        self.traj, self.values = traj, new
+        return SetParametersResult(successful=True)
+
+    def _on_clock(self, msg: Clock) -> None:
+        # Publish the reference for this tick and, one period ahead, for the next: a
+        # lock-step plant cannot pass t + dt without it, and the controller then rarely
+        # waits for the reference (it keeps a buffer of stamped references).
+        t = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        if self.t_first is None or t < self.t_first:
+            self.t_first = t
+        if t <= self.last_ns - self._dt_ns:
+            if t == self.last_ns - self._dt_ns:     # a repeated clock (resend)
+                self._publish(t)
+                self._publish(t + self._dt_ns)
+            return
+        if t > self.last_ns:
+            self._publish(t)
+        self._publish(t + self._dt_ns)
+
+    def _tick(self) -> None:
+        self._publish(self.get_clock().now().nanoseconds)
+
+    def _publish(self, stamp_ns: int) -> None:
+        if self.t_first is None:
+            self.t_first = stamp_ns
+        t = (stamp_ns - self.t_first) * 1e-9
+        dur = float(self.opt['duration'])
+        hold = dur > 0 and t > dur
+        z, v = self.traj(np.array([min(t, dur) if hold else t]))
+        contract.fill_reference(self._msg, contract.Reference(
+            stamp_ns, float(z[0]), 0.0 if hold else float(v[0])))
+        self.pub.publish(self._msg)
+        self.last_ns = stamp_ns
+        self.count += 1
+
+    def _diagnose(self) -> None:
+        t = 0.0 if self.t_first is None else (self.last_ns - self.t_first) * 1e-9
+        self.pub_diag.publish(diagnostics(self, 'ros_ehs/reference', OK, self.values['kind'],
+                                          {'published': self.count, 'time_s': t}))
+
+
+def main(args=None) -> int:
+    """Entry point of ``ros2 run ros_ehs reference``."""
+    return run(ReferenceNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

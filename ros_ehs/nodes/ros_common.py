@@ -1,0 +1,278 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The rclpy plumbing every ros_ehs node shares.
+
+* :func:`qos_profile` turns a contract :class:`~ros_ehs_msgs_py.QosSpec` into a QoSProfile;
+* :func:`declare_specs` declares parameters from the one table (:mod:`ros_ehs.params`) with
+  their unit, meaning and range, and :class:`Option` declares a node's own settings;
+* :func:`validate_changes` turns a rejected live change into ``SetParametersResult`` with the
+  reason;
+* :func:`run` is every node's ``main``: ``--params-file`` handling, the EventsExecutor, and a
+  clean shutdown on SIGINT/SIGTERM (the node's ``close()`` runs, so a bag is closed properly);
+* :func:`diagnostics` builds the ``diagnostics`` message.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import signal
+import sys
+from typing import Any, Callable, Iterable, NamedTuple, Sequence
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
+from ros_ehs.errors import EhsError, ParameterError
+from ros_ehs.params import Params, ParamSpec
+
+__all__ = ['OK', 'WARN', 'ERROR', 'Option', 'declare_options', 'declare_specs', 'diagnostics',
+           'msg_class', 'qos_profile', 'ros_args', 'run', 'steady_clock', 'validate_changes']
+
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+
+def qos_profile(spec: Any, depth: int | None = None) -> QoSProfile:
+    """Return the rclpy QoSProfile of a contract QosSpec (``depth`` overrides its depth)."""
+    rel = {'reliable': ReliabilityPolicy.RELIABLE,
+           'best_effort': ReliabilityPolicy.BEST_EFFORT}[spec.reliability]
+    dur = {'volatile': DurabilityPolicy.VOLATILE,
+           'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}[spec.durability]
+    hist = {'keep_last': HistoryPolicy.KEEP_LAST, 'keep_all': HistoryPolicy.KEEP_ALL}[spec.history]
+    return QoSProfile(history=hist, depth=int(depth or spec.depth), reliability=rel,
+                      durability=dur)
+
+
+def msg_class(msg_type: str):
+    """Return the Python class of ``pkg/msg/Name`` (KeyError naming the type if unknown)."""
+    try:
+        pkg, kind, name = msg_type.split('/')
+        return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
+    except (ValueError, ImportError, AttributeError):
+        raise KeyError(f'message type {msg_type!r} is not installed') from None
+
+
+def steady_clock() -> Clock:
+    """Return a steady (monotonic) clock for wall-time loops and watchdogs."""
+    return Clock(clock_type=ClockType.STEADY_TIME)
+
+
+# -- parameters --------------------------------------------------------------------------------
+class Option(NamedTuple):
+    """A node's own setting (not a model or controller parameter): declared once here."""
+
+    name: str
+    default: Any
+    description: str
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple[str, ...] = ()
+    read_only: bool = True
+
+
+def _descriptor(description: str, read_only: bool, lo=None, hi=None, integer=False,
+                choices=()) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=description, read_only=read_only)
+    if choices:
+        d.additional_constraints = f'one of {list(choices)}'
+    if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
+        if integer:
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi), step=0.0)]
+    return d
+
+
+def _coerce_int_overrides(node: Node, names: Iterable[str]) -> None:
+    """Let ``kp: 1`` in a params file mean 1.0 (rclpy rejects integers for doubles)."""
+    ov = getattr(node, '_parameter_overrides', None)
+    if not isinstance(ov, dict):
+        return
+    for n in names:
+        p = ov.get(n)
+        if p is not None and p.type_ == Parameter.Type.INTEGER:
+            ov[n] = Parameter(n, Parameter.Type.DOUBLE, float(p.value))
+
+
+def declare_specs(node: Node, specs: Sequence[ParamSpec], values: Params,
+                  read_only: bool = False) -> None:
+    """Declare each spec as a ROS parameter: value from ``values``, unit/meaning, range."""
+    _coerce_int_overrides(node, [s.name for s in specs if not s.is_choice])
+    for s in specs:
+        d = _descriptor(f'{s.meaning} [{s.unit}]' if s.unit else s.meaning, read_only,
+                        s.lo, s.hi, choices=s.choices)
+        v = values[s.name]
+        node.declare_parameter(s.name, v if s.is_choice else float(v), d)
+
+
+def declare_options(node: Node, options: Sequence[Option]) -> dict[str, Any]:
+    """Declare a node's options; return their values by name (checked against choices)."""
+    _coerce_int_overrides(node, [o.name for o in options if isinstance(o.default, float)])
+    out = {}
+    for o in options:
+        integer = isinstance(o.default, int) and not isinstance(o.default, bool)
+        d = _descriptor(o.description, o.read_only, o.lo, o.hi, integer, o.choices)
+        if isinstance(o.default, list) and not o.default:
+            ptype = Parameter.Type.STRING_ARRAY
+            v = node.declare_parameter(o.name, ptype, d).value or []
+        else:
+            v = node.declare_parameter(o.name, o.default, d).value
+        if o.choices and v not in o.choices:
+            raise ParameterError(f'parameter `{o.name}` = {v!r} is not one of '
+                                 f'{list(o.choices)}')
+        out[o.name] = v
+    return out
+
+
+def node_params(node: Node, base: Params, specs: Sequence[ParamSpec]) -> Params:
+    """Return ``base`` with the values of ``specs`` as the node now holds them (validated)."""
+    return base.replace(**{s.name: node.get_parameter(s.name).value for s in specs})
+
+
+def validate_changes(current: Params, changes: Sequence[Parameter],
+                     specs: Sequence[ParamSpec], options: Sequence[Option] = ()
+                     ) -> tuple[SetParametersResult, Params | None]:
+    """
+    Check a live parameter change: return the result for rclpy and the new Params.
+
+    The new set is validated as a whole (ranges and cross-relations such as F_cc <= F_sc),
+    so the reason names the offending parameter.
+    """
+    names = {s.name for s in specs}
+    opts = {o.name: o for o in options}
+    upd = {}
+    for p in changes:
+        if p.name in names:
+            upd[p.name] = p.value
+        elif p.name in opts and opts[p.name].choices and p.value not in opts[p.name].choices:
+            return SetParametersResult(successful=False, reason=(
+                f'parameter `{p.name}` = {p.value!r} is not one of '
+                f'{list(opts[p.name].choices)}')), None
+    if not upd:
+        return SetParametersResult(successful=True), None
+    try:
+        new = current.replace(**upd)
+    except ParameterError as err:
+        return SetParametersResult(successful=False, reason=str(err)), None
+    return SetParametersResult(successful=True), new
+
+
+# -- diagnostics ------------------------------------------------------------------------------
+def diagnostics(node: Node, name: str, level: int, message: str,
+                values: dict[str, Any]) -> DiagnosticArray:
+    """Return a DiagnosticArray with one status ``name`` (values as strings, floats %.6g)."""
+    arr = DiagnosticArray()
+    arr.header.stamp = node.get_clock().now().to_msg()
+    st = DiagnosticStatus(level=bytes([level]), name=name, message=message,
+                          hardware_id=node.get_namespace().strip('/') or 'axis')
+    st.values = [KeyValue(key=k, value=(f'{v:.6g}' if isinstance(v, float) else str(v)))
+                 for k, v in values.items()]
+    arr.status = [st]
+    return arr
+
+
+# -- running ----------------------------------------------------------------------------------
+def ros_args(argv: Sequence[str]) -> list[str]:
+    """
+    Return ``argv`` with a bare ``--params-file FILE`` moved inside ``--ros-args``.
+
+    ``ros2 run ros_ehs plant --params-file f.yaml`` then works as
+    ``... --ros-args --params-file f.yaml`` does.
+    """
+    argv = list(argv)
+    out, extra, k = [], [], 0
+    in_ros = False
+    while k < len(argv):
+        a = argv[k]
+        if a == '--ros-args':
+            in_ros = True
+        elif a == '--':
+            in_ros = False
+        if not in_ros and a == '--params-file' and k + 1 < len(argv):
+            extra += ['--params-file', argv[k + 1]]
+            k += 2
+            continue
+        out.append(a)
+        k += 1
+    if extra:
+        out += ['--ros-args'] + extra
+    return out
+
+
+def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
+        executor: str = 'events') -> int:
+    """
+    Create the node from ``factory`` and spin it until SIGINT/SIGTERM or until it is done.
+
+    A node may define ``done`` (an rclpy Future: spin until it completes) and ``close()``
+    (called once, after spinning, even after a signal). A configuration error (bad parameter,
+    missing bag) is printed as one line and gives exit code 2, never a traceback.
+    """
+    argv = ros_args(sys.argv if args is None else args)
+    # Our own SIGINT/SIGTERM handling: leave the spin loop first, then close the node (a bag
+    # gets its summary), then shut rclpy down. With rclpy's handler the context dies while
+    # callbacks still publish.
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    stop = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: stop.append(signum))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    node = None
+    rc = 0
+    try:
+        node = factory()
+        if executor == 'events':
+            from rclpy.experimental import EventsExecutor
+            exe = EventsExecutor()
+        else:
+            exe = SingleThreadedExecutor()
+        exe.add_node(node)
+        done = getattr(node, 'done', None) or Future()
+        # Spin in slices of 0.1 s so our signal flag is seen; the wheel's
+        # EventsExecutor.spin() busy-loops after a shutdown, and spin_once per event costs
+        # more CPU at 1 kHz.
+        while not stop and rclpy.ok() and not done.done():
+            exe.spin_until_future_complete(done, timeout_sec=0.1)
+        if done.done():
+            rc = int(done.result() or 0)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (EhsError, KeyError, ValueError, OSError) as err:
+        name = getattr(factory, '__name__', 'node')
+        print(f'[{name}] error: {err}', file=sys.stderr)
+        rc = 2
+    except ParameterException as err:
+        print(f'[{getattr(factory, "__name__", "node")}] parameter error: {err}',
+              file=sys.stderr)
+        rc = 2
+    finally:
+        if node is not None:
+            close = getattr(node, 'close', None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return rc
