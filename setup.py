@@ -24,6 +24,12 @@ setup(
     entry_points={
         'console_scripts': [
             'ehs_sim = ros_ehs.cli:main',
+            'plant = ros_ehs.nodes.plant:main',
+            'controller = ros_ehs.nodes.controller:main',
+            'reference = ros_ehs.nodes.reference:main',
+            'recorder = ros_ehs.nodes.recorder:main',
+            'player = ros_ehs.nodes.player:main',
+            'identify = ros_ehs.nodes.identify:main',
         ],
     },
 )

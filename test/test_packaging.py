@@ -79,3 +79,20 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
             "print(get_package_prefix('ros_ehs'))")
     found = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True)
     assert found.stdout.strip() == str(install), found.stderr
+
+    # the colcon-built executables start and talk (what `ros2 run ros_ehs plant` starts)
+    from domain_coordinator import domain_id
+    from ros_ehs.nodes.launch import Launch
+    site = next(install.glob('lib/python*/site-packages'))
+    with domain_id() as dom:
+        with Launch(dom, tmp_path / 'logs', env={'PYTHONPATH': str(site),
+                                                  'AMENT_PREFIX_PATH': prefix_path}) as launch:
+            launch.start('plant', cmd=[str(lib / 'plant')])
+            launch.start('controller', cmd=[str(lib / 'controller')])
+            ok = launch.wait_for_log('plant', 'watchdog armed', 60)
+            codes = launch.stop(['controller', 'plant'])
+    assert ok, launch['plant'].output()[-2000:] + launch['controller'].output()[-2000:]
+    assert codes == {'controller': 0, 'plant': 0}
+    where = subprocess.run([str(lib / 'identify'), '--ros-args', '-p', 'bags:=[nope]'],
+                           env=dict(env, PYTHONPATH=str(site)), capture_output=True, text=True)
+    assert where.returncode == 2 and 'no bag at' in where.stderr, where.stderr

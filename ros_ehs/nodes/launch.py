@@ -174,6 +174,14 @@ class Launch:
             time.sleep(0.05)
         return False
 
+    def wait_for_logs(self, name: str, texts: Iterable[str], timeout: float = 30.0) -> bool:
+        """Wait until process ``name`` has logged every one of ``texts``."""
+        end = time.monotonic() + timeout
+        for text in texts:
+            if not self.wait_for_log(name, text, max(0.0, end - time.monotonic())):
+                return False
+        return True
+
     def __enter__(self) -> 'Launch':
         """Return self."""
         return self

@@ -17,8 +17,11 @@ The plant node: the servo valve and cylinder model on the bench network.
 ``mode: realtime`` steps the model on a steady timer at ``rate_hz`` (zero-order hold of the
 latest command). States are stamped on the sim grid ``t0 + k / rate_hz``: a late tick steps
 (and publishes) every period it missed, so sim time stays locked to wall time and a bag has
-no gaps. A watchdog counts periods without a fresh command; after ``watchdog_periods`` of them
-the valve current is zero (the hydraulic fail-safe: spool to null) until commands return.
+no gaps. The watchdog never applies a command over a period that ends more than
+``watchdog_periods`` periods after the command arrived: from the tick where that would
+happen the valve current is zero (the hydraulic fail-safe: spool to null) until fresh
+commands return. So the valve is at zero within ``watchdog_periods`` periods of the last fresh
+command (plus the lateness of that tick).
 
 ``mode: lockstep`` publishes ``/clock`` and the state, then waits for the command stamped with
 that state's stamp and steps exactly one period: a closed loop over DDS that is deterministic
@@ -34,6 +37,7 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -58,12 +62,18 @@ OPTIONS = (
     Option('mode', 'realtime', 'realtime: step on a timer; lockstep: one step per command, '
            'publish /clock', choices=('realtime', 'lockstep')),
     Option('rate_hz', 1000.0, 'control period rate [Hz]', 10.0, 5000.0),
+    Option('timing', 'thread', 'real time: a thread sleeping to each period (less CPU) or '
+           'an executor timer', choices=('thread', 'timer')),
     Option('watchdog_periods', 3, 'periods without a fresh command after which the valve '
            'current is zero', 1, 10000, read_only=False),
     Option('initial_z', 0.0, 'initial piston position [m]', -2.0, 2.0),
     Option('start_time', 0.0, 'lock-step: sim time of the first state [s]', 0.0, 1.0e9),
     Option('duration', 0.0, 'lock-step: stop advancing at this sim time after start [s] '
            '(0: never)', 0.0, 1.0e9),
+    Option('wait_subscribers', 1, 'lock-step: start when `state` has this many subscribers '
+           '(2 with a recorder)', 0, 100),
+    Option('start_delay', 0.5, 'lock-step: then wait this long, so every node has matched '
+           'every other before the first step [s]', 0.0, 60.0),
     Option('resend_period', 0.05, 'lock-step: republish the state after this much silence '
            '[s]', 1.0e-3, 10.0),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
@@ -99,7 +109,6 @@ class PlantNode(Node):
         self.k = 0
         self.armed = False       # a first command has come
         self.tripped = False
-        self.missed = 0
         self.trips = 0
         self.trip_latency_ms = math.nan
         self.bad_commands = 0
@@ -130,6 +139,7 @@ class PlantNode(Node):
             DiagnosticArray, contract.DIAGNOSTICS.name,
             qos_profile(contract.DIAGNOSTICS.qos))
         self.pub_clock = None
+        self._loop: threading.Thread | None = None
         if self.lockstep:
             self.pub_clock = self.create_publisher(Clock, contract.CLOCK.name,
                                                    qos_profile(contract.CLOCK.qos))
@@ -141,12 +151,18 @@ class PlantNode(Node):
         if self.lockstep:
             self.t0_ns = int(round(float(self.opt['start_time']) * 1e9))
             self._last_progress = time.monotonic()
-            self._publish(time.monotonic())
+            self._first_due: float | None = None     # when the first state goes out
+            self._sent_first = False
             self.create_timer(float(self.opt['resend_period']), self._resend, clock=clock)
         else:
             self.t0_ns = self.get_clock().now().nanoseconds
             self._t0_wall = time.monotonic_ns()
-            self.create_timer(self.dt, self._tick, clock=clock)
+            if self.opt['timing'] == 'thread':
+                self._stop = threading.Event()
+                self._loop = threading.Thread(target=self._run_loop, daemon=True)
+                self._loop.start()
+            else:
+                self.create_timer(self.dt, self._tick, clock=clock)
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose, clock=clock)
         self.get_logger().info(
             f'{self.opt["model"]} model, {self.opt["mode"]} at {self.opt["rate_hz"]:g} Hz, '
@@ -229,36 +245,60 @@ class PlantNode(Node):
             self._t0_wall += (n - 1) * self._dt_ns
             self.t0_ns += (n - 1) * self._dt_ns
             n = 1
-        now = now_ns * 1e-9
+        now = now_ns * 1e-9     # the same clock as time.monotonic()
         fresh = self._fresh
         self._fresh = False
         if self.armed:
             self.stats.tick(now, fresh)
-        # misses count per tick: a late tick's catch-up periods had no state out to answer
-        self.missed = 0 if fresh else self.missed + 1
+        # the command would be this old at the end of the coming period
+        age = now + self.dt - self._last_rx
+        i = self.i_cmd
+        if not self.armed:
+            i = 0.0
+        elif age > self.opt['watchdog_periods'] * self.dt:
+            i = 0.0
+            if not self.tripped:
+                self.tripped = True
+                self.trips += 1
+                self.trip_latency_ms = (now - self._last_rx) * 1e3
+                self.get_logger().warning(
+                    f'watchdog: no fresh command for {self.trip_latency_ms:.2f} ms, valve '
+                    'current zeroed')
+        elif self.tripped:
+            self.tripped = False
+            self.get_logger().info('watchdog: commands are back')
         for _ in range(int(n)):
-            i = self.i_cmd
-            if not self.armed:
-                i = 0.0
-            elif self.missed >= self.opt['watchdog_periods']:
-                i = 0.0
-                if not self.tripped:
-                    self.tripped = True
-                    self.trips += 1
-                    self.trip_latency_ms = (now - self._last_rx) * 1e3
-                    self.get_logger().warning(
-                        f'watchdog: no fresh command for {self.missed} periods, valve current '
-                        f'zeroed ({self.trip_latency_ms:.2f} ms after the last command)')
-            elif self.tripped:
-                self.tripped = False
-                self.get_logger().info('watchdog: commands are back')
             self._step(i)
             self._publish(now)
 
+    def _run_loop(self) -> None:
+        nxt = time.monotonic_ns()
+        while not self._stop.is_set():
+            nxt += self._dt_ns
+            d = nxt - time.monotonic_ns()
+            if d > 0:
+                time.sleep(d * 1e-9)
+            else:
+                nxt = time.monotonic_ns()
+            self._tick()
+
     def _resend(self) -> None:
-        if time.monotonic() - self._last_progress >= float(self.opt['resend_period']):
+        """Lock-step housekeeping: wait for subscribers, send the first state, resend."""
+        now = time.monotonic()
+        if self._first_due is None:
+            if self.pub_state.get_subscription_count() >= self.opt['wait_subscribers']:
+                self._first_due = now + float(self.opt['start_delay'])
+                self.get_logger().info('subscribers matched; lock-step starts in '
+                                       f'{self.opt["start_delay"]:g} s')
+        elif not self._sent_first:
+            if now >= self._first_due:
+                self._sent_first = True
+                self._last_progress = now
+                self._publish(now)
+        elif now - self._last_progress >= float(self.opt['resend_period']) and \
+                not self.finished:
             self.resends += 1
-            self._publish(time.monotonic())
+            self._publish(now)
 
     # -- publishing --------------------------------------------------------------------------
     def _publish(self, now: float) -> None:
@@ -311,7 +351,10 @@ class PlantNode(Node):
         return f
 
     def close(self) -> None:
-        """Log the loop figures once at shutdown (one JSON line after ``figures``)."""
+        """Stop the loop thread; log the figures once (one JSON line after ``figures``)."""
+        if self._loop is not None:
+            self._stop.set()
+            self._loop.join(timeout=1.0)
         print('figures ' + json.dumps(self.figures()), flush=True)
 
     def _diagnose(self) -> None:

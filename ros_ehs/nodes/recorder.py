@@ -74,6 +74,7 @@ class RecorderNode(Node):
                                 fsync=bool(self.opt['fsync']))
         self.path = out
         self._subs = {}
+        self._seen: set[str] = set()
         self._dirty = False
         wanted = list(self.opt['topics']) or [t.name for t in contract.TOPICS]
         self._wanted = {self.resolve_topic_name(n): n for n in wanted}
@@ -108,6 +109,10 @@ class RecorderNode(Node):
         self._subs[full] = self.create_subscription(cls, full, on_msg, qos, raw=True)
 
     def _discover(self) -> None:
+        for t, sub in self._subs.items():
+            if sub is not None and t not in self._seen and self.count_publishers(t) > 0:
+                self._seen.add(t)
+                self.get_logger().info(f'publisher of {t} discovered')
         missing = [t for t in self._wanted if t not in self._subs]
         if not missing:
             return

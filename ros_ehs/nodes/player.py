@@ -1,0 +1,167 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The player node: replays a bag with its recorded timing.
+
+``bag`` is a bag directory or ``.mcap`` file (ours or rosbag2's). ``rate`` scales time (2.0
+plays twice as fast); ``topics`` selects topics (default all); ``loop`` starts over at the
+end; ``clock`` publishes ``/clock`` with the bag's time (every ``1 / clock_hz`` of bag time and
+before each message) so ``use_sim_time`` nodes follow the replay. Each topic is re-offered
+with the QoS it was recorded with. Topics whose message type is not installed are skipped
+with a warning naming them. The node exits when the bag is done (unless ``loop``).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from rclpy.node import Node
+from rclpy.task import Future
+from ros_ehs.bag.reader import open_bag
+from ros_ehs.errors import BagError
+from ros_ehs.nodes.ros_common import declare_options, msg_class, Option, qos_profile, run
+import ros_ehs_msgs_py as contract
+from rosgraph_msgs.msg import Clock
+
+__all__ = ['OPTIONS', 'PlayerNode', 'main']
+
+OPTIONS = (
+    Option('bag', '', 'bag directory or .mcap file to replay'),
+    Option('rate', 1.0, 'playback speed factor', 0.01, 1000.0),
+    Option('topics', [], 'topics to replay (default: all)'),
+    Option('loop', False, 'start over at the end'),
+    Option('clock', True, 'publish /clock with the bag time'),
+    Option('clock_hz', 100.0, '/clock rate in bag time, besides one before each message [Hz]',
+           1.0, 10000.0),
+    Option('start_delay', 0.5, 'wait this long for subscribers before the first message [s]',
+           0.0, 60.0),
+)
+
+
+_REL = {1: 'reliable', 2: 'best_effort', 'reliable': 'reliable', 'best_effort': 'best_effort'}
+_DUR = {1: 'transient_local', 2: 'volatile', 'transient_local': 'transient_local',
+        'volatile': 'volatile'}
+
+
+def _qos(offered: list) -> contract.QosSpec:
+    """Return the recorded QoS (names or rosbag2's older enum numbers; 0 = default)."""
+    if not offered:
+        return contract.RECORD_QOS
+    q = offered[0]
+    return contract.QosSpec(_REL.get(q.get('reliability'), 'reliable'),
+                            int(q.get('depth') or 10),
+                            _DUR.get(q.get('durability'), 'volatile'))
+
+
+class PlayerNode(Node):
+    """Replay a bag (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('player', **kwargs)
+        self.opt = declare_options(self, OPTIONS)
+        if not self.opt['bag']:
+            raise BagError('parameter `bag` is empty: give the bag to replay '
+                           '(-p bag:=bags/sample_sine_1hz)')
+        self.bag = open_bag(self.opt['bag'])
+        if self.bag.truncated:
+            self.get_logger().warning(f'bag is truncated ({self.bag.problem}); replaying what '
+                                      'it holds')
+        wanted = list(self.opt['topics']) or list(self.bag.topics)
+        missing = [t for t in wanted if t not in self.bag.topics]
+        if missing:
+            raise BagError(f'bag {self.opt["bag"]!r} has no topic {missing}; it has: '
+                           f'{self.bag.describe()}')
+        self.pubs = {}
+        for name in wanted:
+            info = self.bag.topics[name]
+            try:
+                cls = msg_class(info.msg_type)
+            except KeyError as err:
+                self.get_logger().warning(f'skipping {name}: {err}')
+                continue
+            self.pubs[name] = self.create_publisher(cls, name, qos_profile(_qos(info.qos)))
+        if not self.pubs:
+            raise BagError(f'nothing to replay: no topic of {wanted} has an installed type')
+        self.pub_clock = None
+        if self.opt['clock'] and contract.CLOCK.name not in self.pubs:
+            self.pub_clock = self.create_publisher(Clock, contract.CLOCK.name,
+                                                   qos_profile(contract.CLOCK.qos))
+        self.published = dict.fromkeys(self.pubs, 0)
+        self.done = Future()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._play, daemon=True)
+        self._thread.start()
+        self.get_logger().info(f'replaying {sorted(self.pubs)} from {self.opt["bag"]} at '
+                               f'rate {self.opt["rate"]:g}')
+
+    def _tick_clock(self, t_ns: int) -> None:
+        if self.pub_clock is not None:
+            m = Clock()
+            m.clock.sec, m.clock.nanosec = divmod(int(t_ns), 1_000_000_000)
+            self.pub_clock.publish(m)
+
+    def _play(self) -> None:
+        try:
+            self._replay()
+        except Exception as err:  # noqa: B902 - a thread must report, not vanish
+            self.get_logger().error(f'replay failed: {err}')
+            self.done.set_result(1)
+
+    def _replay(self) -> None:
+        msgs = list(self.bag.messages(list(self.pubs)))
+        rate = float(self.opt['rate'])
+        clock_step = int(1e9 / float(self.opt['clock_hz']))
+        if self._stop.wait(float(self.opt['start_delay'])):
+            return
+        while msgs and not self._stop.is_set():
+            t0_bag = msgs[0].log_time_ns
+            t0 = time.monotonic()
+            next_clock = t0_bag
+            for m in msgs:
+                # /clock ticks up to this message, then the message itself, on time
+                while self.pub_clock is not None and next_clock < m.log_time_ns:
+                    if self._wait(t0 + (next_clock - t0_bag) * 1e-9 / rate):
+                        return
+                    self._tick_clock(next_clock)
+                    next_clock += clock_step
+                if self._wait(t0 + (m.log_time_ns - t0_bag) * 1e-9 / rate):
+                    return
+                self._tick_clock(m.log_time_ns)
+                self.pubs[m.topic].publish(m.data)
+                self.published[m.topic] += 1
+            if not self.opt['loop']:
+                break
+        self.get_logger().info('replay done: ' + ', '.join(
+            f'{k} {v}' for k, v in self.published.items()))
+        self.done.set_result(0)
+
+    def _wait(self, due: float) -> bool:
+        """Sleep until ``due`` (monotonic); True if asked to stop."""
+        dt = due - time.monotonic()
+        return self._stop.wait(dt) if dt > 0 else self._stop.is_set()
+
+    def close(self) -> None:
+        """Stop the replay thread."""
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+def main(args=None) -> int:
+    """Entry point of ``ros2 run ros_ehs player``."""
+    return run(PlayerNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,385 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The nodes over real DDS: each test on its own ROS_DOMAIN_ID, nodes as separate processes.
+
+Lock-step vs the in-process loop, recorder crash safety and external readers, the plant's
+watchdog, bad messages, live parameters, the contract, the player, the identify node.
+"""
+
+import json
+import math
+import os
+from pathlib import Path
+import time
+
+from domain_coordinator import domain_id
+import numpy as np
+import pytest
+from ros_ehs.bag import open_bag
+from ros_ehs.closed_loop import run_closed_loop
+from ros_ehs.nodes.launch import Launch, node_command
+from ros_ehs.params import Params
+from ros_ehs.reference import Sine
+import ros_ehs_msgs_py as c
+
+pytestmark = pytest.mark.ros
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURES = Path(__file__).resolve().parent / 'fixtures' / 'rosbag2'
+
+
+@pytest.fixture
+def dom():
+    with domain_id() as d:
+        yield d
+
+
+@pytest.fixture
+def ros(dom):
+    """An rclpy node of the test itself on the test's domain, with a spin helper."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    node = rclpy.create_node('ehs_test', context=ctx)
+    exe = SingleThreadedExecutor(context=ctx)
+    exe.add_node(node)
+
+    def spin(seconds=0.0, until=None, timeout=30.0):
+        end = time.monotonic() + (timeout if until else seconds)
+        while time.monotonic() < end:
+            exe.spin_once(timeout_sec=0.02)
+            if until is not None and until():
+                return True
+        return until is None
+
+    node.spin = spin
+    yield node
+    exe.shutdown()
+    node.destroy_node()
+    rclpy.shutdown(context=ctx)
+
+
+def _figures(proc) -> dict:
+    for line in reversed(proc.output().splitlines()):
+        if line.startswith('figures '):
+            return json.loads(line[len('figures '):])
+    raise AssertionError('no figures in the log:\n' + proc.output()[-3000:])
+
+
+def _states(bag_path):
+    """Return (stamps [ns], z, current) of the recorded states, one per stamp."""
+    bag = open_bag(bag_path)
+    seen = {}
+    for _, msg in bag.decoded(['/state']):
+        s = c.state_from_msg(msg)
+        seen[s.stamp_ns] = s
+    ks = sorted(seen)
+    return (np.array(ks), np.array([seen[k].z for k in ks]), np.array([seen[k].i for k in ks]))
+
+
+# -- lock-step ---------------------------------------------------------------------------------
+def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
+    """
+    Tolerance: 1e-9 m on the position and 1e-9 A on the current, at every period.
+
+    The arithmetic is the same; only the reference's time differs in the last bits (the node
+    computes it from stamps in ns, the in-process loop as k * dt).
+    """
+    duration = 2.0
+    bag = tmp_path / 'lockstep'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start('recorder', {'out': str(bag), 'use_sim_time': True})
+        assert launch.wait_for_log('recorder', 'recording')
+        launch.start('plant', {'mode': 'lockstep', 'duration': duration, 'wait_subscribers': 2})
+        launch.start('controller', {'sync_reference': True})
+        launch.start('reference', {'use_sim_time': True})
+        assert launch.wait_for_log('plant', 'lock-step run complete', 120), \
+            launch['plant'].output()[-3000:]
+        time.sleep(0.5)
+        codes = launch.stop(['recorder', 'reference', 'controller', 'plant'])
+    assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}
+    t, z, i = _states(bag)
+    n = int(round(duration * 1000))
+    assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
+    ref = run_closed_loop(Params(), Sine(0.04, 1.0), duration, model='simplified', dt=1e-3)
+    np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
+    # state k reports the current applied over the period that ended at it
+    np.testing.assert_allclose(i[1:], ref.i[:-1], rtol=0, atol=1e-9)
+    assert np.ptp(z) > 0.07          # the loop really tracked the 0.04 m sine
+    f = _figures(launch['plant'])
+    assert f['steps'] == n and f['model_faults'] == 0
+
+
+# -- recording ----------------------------------------------------------------------------------
+def _realtime_bench(launch, bag, reference=True):
+    launch.start('recorder', {'out': str(bag)})
+    assert launch.wait_for_log('recorder', 'recording')
+    launch.start('plant')
+    launch.start('controller')
+    topics = [c.STATE, c.COMMAND, c.PRESSURE_P, c.PRESSURE_T]
+    if reference:
+        launch.start('reference')
+        topics.append(c.REFERENCE)
+    assert launch.wait_for_log('plant', 'watchdog armed', 60), launch['plant'].output()
+    # DDS discovery between processes started together can take seconds: measure after it
+    assert launch.wait_for_logs('recorder', [f'publisher of /{t.name} discovered'
+                                             for t in topics], 30), launch['recorder'].output()
+
+
+def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
+    bag = tmp_path / 'bench'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        _realtime_bench(launch, bag)
+        time.sleep(2.0)
+        assert launch.stop(['recorder'])['recorder'] == 0
+    ours = open_bag(bag)
+    assert not ours.truncated
+    counts = {k: v.count for k, v in ours.topics.items()}
+    assert counts['/state'] > 1000 and counts['/servo_current'] > 900
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as r:
+        conns = {x.topic: x for x in r.connections}
+        assert conns['/state'].msgtype == 'sensor_msgs/msg/JointState'
+        assert conns['/diagnostics'].msgtype == 'diagnostic_msgs/msg/DiagnosticArray'
+        qos = conns['/state'].ext.offered_qos_profiles[0]
+        assert qos.depth == 1 and qos.reliability.name.lower() == 'best_effort'
+        n_state = 0
+        for conn, t, raw in r.messages(connections=[conns['/state']]):
+            m = ts.deserialize_cdr(raw, conn.msgtype)
+            assert list(m.name) == ['piston', 'spool', 'servo_valve']
+            assert abs(t - (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)) < 10**9
+            n_state += 1
+        assert n_state == counts['/state'] == r.message_count - sum(
+            v for k, v in counts.items() if k != '/state')
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', DeprecationWarning)
+        from mcap_ros2.reader import read_ros2_messages
+        ms = list(read_ros2_messages(str(next(bag.glob('*.mcap'))),
+                                     topics=['/pressure/chamber_p']))
+    assert len(ms) == counts['/pressure/chamber_p']
+    assert all(1e5 < m.ros_msg.fluid_pressure < 3e7 for m in ms)
+
+
+def test_recorder_sigkill_loses_at_most_100_ms(dom, tmp_path):
+    bag = tmp_path / 'killed'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        _realtime_bench(launch, bag)
+        time.sleep(2.0)
+        kill_ns = time.time_ns()
+        launch.kill('recorder')
+    b = open_bag(bag)
+    assert b.truncated and b.message_count > 3000, b.problem
+    lost_ms = (kill_ns - b.end_ns) / 1e6
+    assert lost_ms <= 100.0, f'{lost_ms:.1f} ms lost'
+
+
+# -- safety -------------------------------------------------------------------------------------
+def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_path):
+    bag = tmp_path / 'wd'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        _realtime_bench(launch, bag, reference=False)    # the controller holds position
+        time.sleep(1.5)
+        launch.kill('controller')
+        assert launch.wait_for_log('plant', 'valve current zeroed', 5)
+        time.sleep(1.0)
+        launch.stop(['recorder', 'plant'])
+        f = _figures(launch['plant'])
+    assert f['watchdog'] == 'tripped'
+    # the zeroing tick came at most 3 periods after the last fresh command arrived (the
+    # allowance is for that tick's own timer lateness, reported separately)
+    assert f['watchdog_latency_ms'] <= 3.0 + max(0.0, f['period_p99_ms'] - 1.0), f
+    t, z, i = _states(bag)
+    bagr = open_bag(bag)
+    last_cmd = max(c.command_from_msg(m).stamp_ns for _, m in bagr.decoded(['/servo_current']))
+    after = t > last_cmd
+    assert np.all(np.isfinite(z))
+    zero_from = t[after][np.argmax(i[after] == 0.0)] - 1_000_000   # period start
+    assert np.all(i[t >= zero_from + 1_000_000] == 0.0)
+    assert (zero_from - last_cmd) / 1e6 <= 3 + 1, 'valve not at zero within 3 periods'
+
+
+def test_bad_messages_crash_nothing(dom, tmp_path, ros):
+    from sensor_msgs.msg import JointState
+    from ros_ehs.nodes.ros_common import qos_profile
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start('plant')
+        launch.start('controller')
+        assert launch.wait_for_log('plant', 'watchdog armed', 60), launch['plant'].output()
+        states = []
+        ros.create_subscription(JointState, 'state', states.append,
+                                qos_profile(c.STATE.qos, depth=100))
+        pub_cmd = ros.create_publisher(JointState, 'servo_current', qos_profile(c.LOOP_QOS))
+        pub_state = ros.create_publisher(JointState, 'state', qos_profile(c.LOOP_QOS))
+        now = time.time_ns() + 10**9
+
+        def jmsg(names, eff=(), pos=(), vel=(), stamp=now):
+            m = JointState(name=list(names), effort=list(eff), position=list(pos),
+                           velocity=list(vel))
+            m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp, 10**9)
+            return m
+
+        bad_cmds = [jmsg(['servo_valve'], [math.nan]), jmsg(['servo_valve'], [math.inf]),
+                    jmsg(['servo_valve'], [-math.inf]), jmsg([]), jmsg(['servo_valve']),
+                    jmsg(['wrong_name'], [0.01]), jmsg(['servo_valve'], [1e308])]
+        bad_states = [jmsg(['piston'], [0.0], [math.nan], [0.0]), jmsg([]),
+                      jmsg(['piston'], [], [0.1], []), jmsg(['x'], [1.0], [1.0], [1.0]),
+                      jmsg(['piston'], [0.0], [math.inf], [math.nan])]
+        assert ros.spin(until=lambda: pub_cmd.get_subscription_count() >= 1
+                        and pub_state.get_subscription_count() >= 1 and len(states) > 10,
+                        timeout=30)
+        for _ in range(20):
+            for m in bad_cmds:
+                pub_cmd.publish(m)
+            for m in bad_states:
+                pub_state.publish(m)
+            ros.spin(0.02)
+        ros.spin(1.0)
+        assert launch['plant'].alive() and launch['controller'].alive()
+        launch.stop(['controller', 'plant'])
+    f = _figures(launch['plant'])
+    assert f['bad_commands'] > 0
+    ours = [c.state_from_msg(m) for m in states if 'spool' in m.name]
+    assert len(ours) > 500
+    assert all(math.isfinite(s.z) and math.isfinite(s.z_dot) and math.isfinite(s.force)
+               for s in ours)
+    assert all(abs(s.i) <= 2 * Params()['i_rated'] for s in ours)   # 1e308 was clamped
+    log = launch['controller'].output()
+    assert 'Traceback' not in log and 'Traceback' not in launch['plant'].output()
+    assert 'ignored a malformed state' in log
+
+
+# -- parameters ---------------------------------------------------------------------------------
+def test_controller_parameters_from_file_and_live_with_reasons(dom, tmp_path, ros):
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    pf = tmp_path / 'ctrl.yaml'
+    pf.write_text('controller:\n  ros__parameters:\n    kp: 2\n    F_cc: 500.0\n')
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start('controller', cmd=node_command('controller')[:-1] + ['--params-file',
+                                                                           str(pf)])
+        assert launch.wait_for_log('controller', 'PID'), launch['controller'].output()
+        cli = AsyncParameterClient(ros, 'controller')
+        assert ros.spin(until=lambda: cli.services_are_ready(), timeout=20)
+
+        def call(fut):
+            ros.spin(until=fut.done, timeout=10)
+            return fut.result()
+
+        got = call(cli.get_parameters(['kp', 'F_cc', 'ki']))
+        assert [v.double_value for v in got.values] == [2.0, 500.0, 0.051]
+        ok = call(cli.set_parameters([Parameter('kp', Parameter.Type.DOUBLE, 1.5)]))
+        assert ok.results[0].successful
+        neg = call(cli.set_parameters([Parameter('kp', Parameter.Type.DOUBLE, -1.0)]))
+        assert not neg.results[0].successful
+        cross = call(cli.set_parameters_atomically(
+            [Parameter('F_cc', Parameter.Type.DOUBLE, 5000.0)]))
+        assert not cross.result.successful and 'must not exceed' in cross.result.reason
+        got = call(cli.get_parameters(['kp', 'F_cc']))
+        assert [v.double_value for v in got.values] == [1.5, 500.0]
+        launch.stop()
+    assert 'parameter change rejected' in launch['controller'].output()
+
+
+def test_bad_configuration_is_one_clear_line(dom, tmp_path):
+    with Launch(dom, tmp_path / 'logs') as launch:
+        p = launch.start('player', {'bag': str(tmp_path / 'nope')})
+        assert p.popen.wait(60) == 2
+        assert 'no bag at' in p.output() and 'Traceback' not in p.output()
+        q = launch.start('plant', {'p_s': -5.0}, name='bad_plant')
+        assert q.popen.wait(60) == 2
+        assert 'p_s' in q.output() and 'Traceback' not in q.output()
+
+
+# -- contract -------------------------------------------------------------------------------
+def test_nodes_create_exactly_the_contract_topics(dom, tmp_path, ros):
+    infra = {'/rosout', '/parameter_events'}
+    with Launch(dom, tmp_path / 'logs') as launch:
+        for n in c.NODE_TOPICS:
+            launch.start(n)
+        for n in c.NODE_TOPICS:
+            assert launch.wait_for_log(n, 'Hz' if n != 'plant' else 'model', 60)
+
+        def graph(name):
+            try:
+                pubs = ros.get_publisher_names_and_types_by_node(name, '/')
+                subs = ros.get_subscriber_names_and_types_by_node(name, '/')
+            except Exception:  # noqa: B902 - not discovered yet
+                return None
+            return ({(t, ty[0]) for t, ty in pubs if t not in infra},
+                    {(t, ty[0]) for t, ty in subs if t not in infra})
+
+        for name, want in c.NODE_TOPICS.items():
+            exp = ({('/' + t.name, t.msg_type) for t in want.publishes},
+                   {('/' + t.name, t.msg_type) for t in want.subscribes})
+            assert ros.spin(until=lambda: graph(name) == exp, timeout=20), \
+                (name, graph(name), exp)
+
+
+# -- replay ---------------------------------------------------------------------------------
+def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import String
+    got, clocks = [], []
+    ros.create_subscription(String, '/topic', got.append, 100)
+    from ros_ehs.nodes.ros_common import qos_profile
+    ros.create_subscription(Clock, '/clock', clocks.append, qos_profile(c.CLOCK_QOS, 100))
+    with Launch(dom, tmp_path / 'logs') as launch:
+        p = launch.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 4.0,
+                                    'topics': ['/topic'], 'start_delay': 1.5})
+        ros.spin(until=lambda: p.popen.poll() is not None, timeout=60)
+        ros.spin(0.3)
+        assert p.popen.returncode == 0, p.output()
+    bag = open_bag(FIXTURES / 'talker.mcap')
+    want = [m.data for _, m in bag.decoded(['/topic'])]
+    assert [m.data for m in got] == want and len(want) == 10
+    t = [m.clock.sec * 10**9 + m.clock.nanosec for m in clocks]
+    assert t == sorted(t) and bag.start_ns <= t[0] and t[-1] <= bag.end_ns
+
+
+# -- identification node ----------------------------------------------------------------------
+def test_identify_node_pushes_the_fit_to_a_running_controller(dom, tmp_path, ros):
+    from rclpy.parameter_client import AsyncParameterClient
+    out = tmp_path / 'id'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start('controller')
+        assert launch.wait_for_log('controller', 'PID')
+        p = launch.start('identify', {'bags': [str(ROOT / 'bags' / 'sample_sine_1hz')],
+                                      'out': str(out), 'figures': False, 'push': True})
+        assert p.popen.wait(300) == 0, p.output()[-3000:]
+        assert 'iteration' in p.output() and 'pushed to `controller`' in p.output()
+        fit = json.loads((out / 'summary.json').read_text())['parameters']
+        cli = AsyncParameterClient(ros, 'controller')
+        assert ros.spin(until=lambda: cli.services_are_ready(), timeout=20)
+        fut = cli.get_parameters(['F_cc', 'F_sc', 'c_c'])
+        ros.spin(until=fut.done, timeout=10)
+        vals = [v.double_value for v in fut.result().values]
+        assert vals == pytest.approx([fit[n]['value'] for n in ('F_cc', 'F_sc', 'c_c')])
+        assert vals[0] == pytest.approx(1046.9, rel=0.02)
+        bad = launch.start('identify', {'bags': [str(FIXTURES / 'talker.mcap')],
+                                        'out': str(tmp_path / 'x')}, name='bad')
+        assert bad.popen.wait(120) == 2
+        assert "has no topic 'state'" in bad.output() and '/topic' in bad.output()
+        assert 'Traceback' not in bad.output()
+
+
+def test_domain_isolation_env_is_respected(dom):
+    """The launcher's children see the test's domain (so parallel tests never mix)."""
+    launch = Launch(dom)
+    assert launch.env['ROS_DOMAIN_ID'] == str(dom)
+    assert launch.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] in ('LOCALHOST', os.environ.get(
+        'ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'))
