@@ -47,7 +47,7 @@ def dom():
 
 @pytest.fixture
 def ros(dom):
-    """An rclpy node of the test itself on the test's domain, with a spin helper."""
+    """Give the test its own rclpy node on the test's domain, with a spin helper."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     ctx = rclpy.Context()
@@ -270,8 +270,8 @@ def test_controller_parameters_from_file_and_live_with_reasons(dom, tmp_path, ro
     pf = tmp_path / 'ctrl.yaml'
     pf.write_text('controller:\n  ros__parameters:\n    kp: 2\n    F_cc: 500.0\n')
     with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start('controller', cmd=node_command('controller')[:-1] + ['--params-file',
-                                                                           str(pf)])
+        bare = node_command('controller')[:-1]          # without --ros-args: the bare form
+        launch.start('controller', cmd=bare + ['--params-file', str(pf)])
         assert launch.wait_for_log('controller', 'PID'), launch['controller'].output()
         cli = AsyncParameterClient(ros, 'controller')
         assert ros.spin(until=lambda: cli.services_are_ready(), timeout=20)

@@ -85,8 +85,8 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     from ros_ehs.nodes.launch import Launch
     site = next(install.glob('lib/python*/site-packages'))
     with domain_id() as dom:
-        with Launch(dom, tmp_path / 'logs', env={'PYTHONPATH': str(site),
-                                                  'AMENT_PREFIX_PATH': prefix_path}) as launch:
+        built = {'PYTHONPATH': str(site), 'AMENT_PREFIX_PATH': prefix_path}
+        with Launch(dom, tmp_path / 'logs', env=built) as launch:
             launch.start('plant', cmd=[str(lib / 'plant')])
             launch.start('controller', cmd=[str(lib / 'controller')])
             ok = launch.wait_for_log('plant', 'watchdog armed', 60)
