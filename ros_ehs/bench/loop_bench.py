@@ -39,6 +39,7 @@ def _cpu(pid: int) -> float:
 
 
 def _figures(log: str) -> dict:
+    """Return the JSON figures a plant logs at shutdown."""
     for line in reversed(log.splitlines()):
         if line.startswith('figures '):
             return json.loads(line[len('figures '):])

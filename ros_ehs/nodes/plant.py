@@ -315,10 +315,12 @@ class PlantNode(Node):
         self._sent_stamp[j] = st
         self._sent_time[j] = now
         self.pub_state.publish(self._msg)
-        contract.fill_pressure(self._pmsg[0], contract.Pressure(st, float(x[self._ipa])))
-        contract.fill_pressure(self._pmsg[1], contract.Pressure(st, float(x[self._ipb])))
-        self.pub_p.publish(self._pmsg[0])
-        self.pub_t.publish(self._pmsg[1])
+        if self.pub_p.get_subscription_count():       # only when someone listens
+            contract.fill_pressure(self._pmsg[0], contract.Pressure(st, float(x[self._ipa])))
+            self.pub_p.publish(self._pmsg[0])
+        if self.pub_t.get_subscription_count():
+            contract.fill_pressure(self._pmsg[1], contract.Pressure(st, float(x[self._ipb])))
+            self.pub_t.publish(self._pmsg[1])
 
     # -- parameters and diagnostics ----------------------------------------------------------
     def _check_params(self, changes):

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from datetime import datetime, timezone
 from pathlib import Path
+import time
 
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
@@ -99,11 +100,17 @@ class RecorderNode(Node):
             return
         self.writer.add_topic(full, msg_type, offered)
         qos = qos_profile(contract.QosSpec(reliability, int(self.opt['depth'])))
-        clock = self.get_clock()
         write = self.writer.write
+        if self.get_parameter('use_sim_time').value:
+            clock = self.get_clock()
+
+            def now() -> int:
+                return clock.now().nanoseconds
+        else:
+            now = time.time_ns      # the same system time, without a Time object
 
         def on_msg(data: bytes, topic=full) -> None:
-            write(topic, data, clock.now().nanoseconds)
+            write(topic, data, now())
             self._dirty = True
 
         self._subs[full] = self.create_subscription(cls, full, on_msg, qos, raw=True)

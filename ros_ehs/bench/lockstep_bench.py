@@ -1,0 +1,67 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+``python -m ros_ehs.bench lockstep``: the lock-step closed loop over DDS.
+
+Plant (lock-step), controller (reference-synchronised) and reference (on ``/clock``) run as
+separate processes for ``--seconds`` of sim time; the plant reports how many steps per
+second of wall time the loop made. In the same run, the in-process loop (no DDS,
+:func:`ros_ehs.closed_loop.run_closed_loop`) gives the yardstick. Last line: one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from domain_coordinator import domain_id
+from ros_ehs.bench import report
+from ros_ehs.bench.loop_bench import _figures
+from ros_ehs.closed_loop import run_closed_loop
+from ros_ehs.nodes.launch import Launch
+from ros_ehs.params import Params
+from ros_ehs.reference import Sine
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; print figures, the last line JSON."""
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench lockstep')
+    ap.add_argument('--seconds', type=float, default=5.0, help='sim seconds')
+    ap.add_argument('--model', default='simplified', choices=('simplified', 'full'))
+    a = ap.parse_args(argv)
+    with domain_id() as dom:
+        with Launch(dom) as launch:
+            launch.start('plant', {'mode': 'lockstep', 'duration': a.seconds,
+                                   'model': a.model, 'start_delay': 1.0})
+            launch.start('controller', {'sync_reference': True})
+            launch.start('reference', {'use_sim_time': True})
+            if not launch.wait_for_log('plant', 'lock-step run complete', 600):
+                raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
+            launch.stop(['reference', 'controller', 'plant'])
+            f = _figures(launch['plant'].output())
+    t0 = time.perf_counter()
+    run_closed_loop(Params(), Sine(), a.seconds, model=a.model)
+    inproc = a.seconds * 1000 / (time.perf_counter() - t0)
+    return report({'model': a.model, 'sim_seconds': a.seconds, 'steps': f['steps'],
+                   'steps_per_s': round(f['steps_per_s'], 1),
+                   'realtime_factor': round(f['steps_per_s'] / 1000.0, 3),
+                   'resends': f['resends'], 'step_p50_ms': round(f['period_p50_ms'], 4),
+                   'step_p99_ms': round(f['period_p99_ms'], 4),
+                   'in_process_steps_per_s': round(inproc, 1),
+                   'dds_vs_in_process': round(f['steps_per_s'] / inproc, 4)})
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,127 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+``python -m ros_ehs.bench record``: how many messages per second the recorder node keeps.
+
+A publisher process sends numbered JointState messages (the size of a ``state`` message) on
+a reliable topic at a set rate for ``--seconds``; the recorder node records them; the bench
+then counts what the bag holds and which numbers are missing. Rates are tried from
+``--rates`` in order; ``msgs_per_s`` is the highest rate recorded without loss. In the same
+run, the raw write speed of :class:`ros_ehs.bag.BagWriter` (no DDS) is the yardstick. Last
+line: one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+
+from domain_coordinator import domain_id
+import numpy as np
+import psutil
+from ros_ehs.bag import BagWriter, open_bag
+from ros_ehs.bench import report
+from ros_ehs.nodes.launch import Launch
+import ros_ehs_msgs_py as contract
+
+TOPIC = '/bench/blast'
+
+_PUBLISHER = """
+import sys, time, rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+import ros_ehs_msgs_py as c
+rate, seconds = float(sys.argv[1]), float(sys.argv[2])
+rclpy.init()
+node = rclpy.create_node('blaster')
+pub = node.create_publisher(JointState, '{topic}', QoSProfile(
+    depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+t_end = time.monotonic() + 20
+while pub.get_subscription_count() < 1 and time.monotonic() < t_end:
+    time.sleep(0.05)
+time.sleep(1.0)
+m = JointState()
+n = int(rate * seconds)
+t0 = time.monotonic()
+for k in range(1, n + 1):
+    c.fill_state(m, c.AxisState(k, 0.01, 0.02, 3.0, 4e-5, 0.001))
+    pub.publish(m)
+    if k % 20 == 0:
+        d = t0 + k / rate - time.monotonic()
+        if d > 0:
+            time.sleep(d)
+print('sent', n, n / (time.monotonic() - t0), flush=True)
+time.sleep(1.0)
+""".format(topic=TOPIC)
+
+
+def _one(dom: int, rate: float, seconds: float, out: str) -> dict:
+    with Launch(dom) as launch:
+        rec = launch.start('recorder', {'out': out, 'topics': [TOPIC], 'depth': 10000})
+        assert launch.wait_for_log('recorder', 'recording')
+        pub = launch.start('pub', cmd=[sys.executable, '-c', _PUBLISHER, str(rate),
+                                       str(seconds)])
+        assert launch.wait_for_log('recorder', f'recording {TOPIC}', 30), rec.output()
+        proc = psutil.Process(rec.pid)
+        c0 = sum(proc.cpu_times()[:2])
+        t0 = time.monotonic()
+        pub.popen.wait(seconds * 10 + 60)
+        cpu = (sum(proc.cpu_times()[:2]) - c0) / (time.monotonic() - t0)
+        launch.stop(['recorder'])
+        sent_line = [x for x in pub.output().splitlines() if x.startswith('sent')][-1]
+    n, achieved = int(sent_line.split()[1]), float(sent_line.split()[2])
+    bag = open_bag(out)
+    seqs = np.array([contract.state_from_msg(m).stamp_ns for _, m in bag.decoded([TOPIC])])
+    lost = n - len(np.unique(seqs))
+    return {'rate': rate, 'sent': n, 'achieved_rate': round(achieved, 1),
+            'recorded': int(seqs.size), 'lost': int(lost), 'recorder_cpu_frac': round(cpu, 3)}
+
+
+def _raw_writer_rate(n: int = 100000) -> float:
+    m = contract.fill_state(contract.empty_msg(contract.STATE.msg_type),
+                            contract.AxisState(1, 0.01, 0.02, 3.0, 4e-5, 0.001))
+    with tempfile.TemporaryDirectory() as d:
+        w = BagWriter(f'{d}/raw')
+        w.add_topic(TOPIC, contract.STATE.msg_type, contract.RECORD_QOS)
+        w.write_msg(TOPIC, m, 1)
+        data = bytes(w._encoders[contract.STATE.msg_type](m))
+        t0 = time.perf_counter()
+        for k in range(n):
+            w.write(TOPIC, data, k + 2)
+        w.close()
+        return n / (time.perf_counter() - t0)
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; print figures, the last line JSON."""
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench record')
+    ap.add_argument('--seconds', type=float, default=5.0)
+    ap.add_argument('--rates', default='20000,25000,30000')
+    a = ap.parse_args(argv)
+    runs = []
+    with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
+        for k, r in enumerate(float(x) for x in a.rates.split(',')):
+            res = _one(dom, r, a.seconds, f'{tmp}/bag{k}')
+            print(f'  rate {r:>8.0f}/s: {res}', flush=True)
+            runs.append(res)
+    ok = [x['achieved_rate'] for x in runs if x['lost'] == 0]
+    fig = {'msgs_per_s': max(ok) if ok else 0.0, 'seconds_per_rate': a.seconds,
+           'runs': runs, 'raw_writer_msgs_per_s': round(_raw_writer_rate(), 1)}
+    return report(fig)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
