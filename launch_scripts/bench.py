@@ -39,6 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checko
 
 from ros_ehs.nodes.launch import Launch  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
+from ros_ehs.synthetic import SensorNoise  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -49,6 +50,8 @@ def main(argv=None) -> int:
     ap.add_argument('--mode', choices=('realtime', 'lockstep'), default='realtime')
     ap.add_argument('--model', choices=('simplified', 'full'), default='simplified')
     ap.add_argument('--reference', choices=('sine', 'step', 'chirp', 'csv'), default='sine')
+    ap.add_argument('--no-noise', action='store_true',
+                    help='publish exact states (default: 5 um, 1 mm/s, 0.2 bar sensor noise)')
     ap.add_argument('--params-file', default=None, help='ROS 2 parameters YAML for all nodes')
     ap.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID')
     a = ap.parse_args(argv)
@@ -69,11 +72,17 @@ def main(argv=None) -> int:
                   file=sys.stderr)
             return 1
         plant = {'model': a.model, 'mode': a.mode}
+        if not a.no_noise:
+            noise = SensorNoise()
+            plant.update(noise_z=noise.z, noise_v=noise.v, noise_p=noise.p)
         if lock:      # start when controller and recorder listen
             plant.update(duration=float(a.duration), wait_subscribers=2)
         launch.start('plant', plant, params_file=pf)
         launch.start('controller', {'sync_reference': lock}, params_file=pf)
-        launch.start('reference', {'kind': a.reference, 'use_sim_time': lock}, params_file=pf)
+        # in real time the reference runs at 250 Hz (the controller extrapolates it with its
+        # velocity): a 1 kHz reference costs a quarter of a core for nothing
+        launch.start('reference', {'kind': a.reference, 'use_sim_time': lock,
+                                   'rate_hz': 1000.0 if lock else 250.0}, params_file=pf)
         ready = 'lock-step running' if lock else 'watchdog armed'
         if not launch.wait_for_log('plant', ready, 60):
             print('bench: the loop did not close; plant log:\n' + launch['plant'].output(),

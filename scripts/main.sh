@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# The main job: set up (if needed), record a bench run to a bag, then identify on that bag.
+# The main job: set up (if needed), run a bench over DDS (plant, controller, reference and
+# recorder nodes, 10 s in real time) recording a bag, then identify on that bag.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/scripts/setup.sh"
 source "$root/scripts/env.sh"
 cd "$root"
 rm -rf out/bench_run
-ehs_sim record --out out/bench_run --duration 10
+python launch_scripts/bench.py --duration 10 --out out/bench_run
 exec ehs_sim identify out/bench_run --out out/identification "$@"

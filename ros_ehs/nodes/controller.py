@@ -29,8 +29,9 @@ Edge-case policy (tested in ``test/test_nodes.py``):
 * no state for ``LOST_FACTOR * stale_timeout`` (checked every 10 ms, real time only): 0 A is
   published once, and the PID restarts from rest when states return. (A plain late state
   is only held: a non-real-time kernel has 5-20 ms hiccups that must not reset the PID.);
-* before the first reference: hold the first measured position; a reference older than
-  ``reference_timeout``: hold its position with zero velocity;
+* before the first reference: hold the first measured position; between references,
+  first-order hold (``z_ref + v_ref * age``, so the reference may run slower than the loop);
+  a reference older than ``reference_timeout``: hold its position with zero velocity;
 * ``sync_reference`` (lock-step): a state is answered only with the reference of the same
   stamp, waiting for it if needed, so the loop is deterministic.
 """
@@ -129,7 +130,7 @@ class ControllerNode(Node):
             self.get_logger().warning(f'ignored a malformed reference: {err}',
                                       throttle_duration_sec=1.0)
             return
-        self._ref = (r.z_ref, r.v_ref, time.monotonic())
+        self._ref = (r.z_ref, r.v_ref, time.monotonic(), r.stamp_ns)
         if self.sync:
             self._refs[r.stamp_ns] = (r.z_ref, r.v_ref)
             self._ref_keys.append(r.stamp_ns)
@@ -147,10 +148,13 @@ class ControllerNode(Node):
             if self._hold_z is None and math.isfinite(s.z):
                 self._hold_z = s.z
             return (self._hold_z if self._hold_z is not None else math.nan), 0.0
-        z, v, rx = self._ref
+        z, v, rx, stamp = self._ref
         if time.monotonic() - rx > float(self.opt['reference_timeout']):
             return z, 0.0
-        return z, v
+        # first-order hold: a reference slower than the loop is extrapolated with its
+        # velocity to the state's instant (at most one reference_timeout ahead)
+        ahead = min(max((s.stamp_ns - stamp) * 1e-9, 0.0), float(self.opt['reference_timeout']))
+        return z + v * ahead, v
 
     # -- states ------------------------------------------------------------------------------
     def _on_state(self, msg: JointState) -> None:

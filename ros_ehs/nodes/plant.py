@@ -30,7 +30,8 @@ after ``resend_period`` of silence (the controller answers a repeated stamp with
 command).
 
 Every state message also carries the current applied over the period that ended at its stamp
-(joint ``servo_valve``), so a bag shows exactly what the valve got.
+(joint ``servo_valve``), so a bag shows exactly what the valve got. ``noise_*`` add white
+sensor noise to what is published (the model's own state stays exact).
 """
 
 from __future__ import annotations
@@ -76,11 +77,17 @@ OPTIONS = (
            'every other before the first step [s]', 0.0, 60.0),
     Option('resend_period', 0.05, 'lock-step: republish the state after this much silence '
            '[s]', 1.0e-3, 10.0),
+    Option('noise_z', 0.0, 'white noise (1 sigma) on the published position [m]; the bench '
+           'sets 5e-6', 0.0, 0.01),
+    Option('noise_v', 0.0, 'white noise on the published velocity [m/s]', 0.0, 1.0),
+    Option('noise_p', 0.0, 'white noise on the published chamber pressures [Pa]', 0.0, 1.0e6),
+    Option('seed', 0, 'seed of the sensor noise', 0, 2**31 - 1),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
 )
 
 _MAX_CATCHUP = 50      # periods a late tick may step before the loop is resynchronised
 _RING = 1024           # send times kept for round-trip measurement
+_ZEROS = np.zeros(4)
 
 
 class PlantNode(Node):
@@ -124,6 +131,8 @@ class PlantNode(Node):
         self._sent_stamp = np.full(_RING, -1, dtype=np.int64)
         self._sent_time = np.zeros(_RING)
         self.stats = LoopStats()
+        self._rng = np.random.default_rng(int(self.opt['seed']))
+        self._noise = tuple(float(self.opt[k]) for k in ('noise_z', 'noise_v', 'noise_p'))
         self._pending: Params | None = None
 
         self._msg = JointState()
@@ -308,18 +317,20 @@ class PlantNode(Node):
             self._cmsg.clock.sec, self._cmsg.clock.nanosec = divmod(st, 1_000_000_000)
             self.pub_clock.publish(self._cmsg)
         xv = float(x[self._ixv]) if self._ixv >= 0 else math.nan
+        nz, nv, npr = self._noise
+        e = self._rng.standard_normal(4) if (nz or nv or npr) else _ZEROS
         contract.fill_state(self._msg, contract.AxisState(
-            st, float(x[self._iz]), float(x[self._iv]),
+            st, float(x[self._iz] + nz * e[0]), float(x[self._iv] + nv * e[1]),
             float(self.params['A_p'] * (x[self._ipa] - x[self._ipb])), xv, self.applied))
         j = (st - self.t0_ns) // self._dt_ns % _RING
         self._sent_stamp[j] = st
         self._sent_time[j] = now
         self.pub_state.publish(self._msg)
         if self.pub_p.get_subscription_count():       # only when someone listens
-            contract.fill_pressure(self._pmsg[0], contract.Pressure(st, float(x[self._ipa])))
+            contract.fill_pressure(self._pmsg[0], contract.Pressure(st, float(x[self._ipa] + npr * e[2])))
             self.pub_p.publish(self._pmsg[0])
         if self.pub_t.get_subscription_count():
-            contract.fill_pressure(self._pmsg[1], contract.Pressure(st, float(x[self._ipb])))
+            contract.fill_pressure(self._pmsg[1], contract.Pressure(st, float(x[self._ipb] + npr * e[3])))
             self.pub_t.publish(self._pmsg[1])
 
     # -- parameters and diagnostics ----------------------------------------------------------
