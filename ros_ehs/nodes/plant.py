@@ -65,8 +65,9 @@ OPTIONS = (
     Option('rate_hz', 1000.0, 'control period rate [Hz]', 10.0, 5000.0),
     Option('timing', 'thread', 'real time: a thread sleeping to each period (less CPU) or '
            'an executor timer', choices=('thread', 'timer')),
-    Option('watchdog_periods', 3, 'periods without a fresh command after which the valve '
-           'current is zero', 1, 10000, read_only=False),
+    Option('watchdog_periods', 3, 'a command is never applied over a period ending more '
+           'than this many periods after it arrived: then the valve current is zero', 1, 10000,
+           read_only=False),
     Option('initial_z', 0.0, 'initial piston position [m]', -2.0, 2.0),
     Option('start_time', 0.0, 'lock-step: sim time of the first state [s]', 0.0, 1.0e9),
     Option('duration', 0.0, 'lock-step: stop advancing at this sim time after start [s] '

@@ -1,0 +1,148 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The node layer's pure parts, without DDS: arguments, options, statistics, contract pieces."""
+
+import math
+
+import numpy as np
+import pytest
+from ros_ehs.bag import BagWriter
+from ros_ehs.bag.experiment import load_experiment
+from ros_ehs.control.controller import Controller
+from ros_ehs.control.feedforward import MODEL_PARAMS
+from ros_ehs.errors import ParameterError
+from ros_ehs.nodes.launch import node_command
+from ros_ehs.nodes.loop_stats import LoopStats, Window
+from ros_ehs.params import CONTROL_SPECS, Params
+from ros_ehs.reference import make, REFERENCE_SPECS, Sine, Step
+import ros_ehs_msgs_py as c
+
+
+def test_bare_params_file_moves_inside_ros_args():
+    from ros_ehs.nodes.ros_common import ros_args
+    assert ros_args(['plant', '--params-file', 'a.yaml']) == \
+        ['plant', '--ros-args', '--params-file', 'a.yaml']
+    same = ['plant', '--ros-args', '--params-file', 'a.yaml', '-p', 'x:=1']
+    assert ros_args(same) == same
+    assert ros_args(['p', '--params-file', 'a.yaml', '--ros-args', '-p', 'x:=1']) == \
+        ['p', '--ros-args', '-p', 'x:=1', '--ros-args', '--params-file', 'a.yaml']
+
+
+def test_node_command_writes_doubles_as_doubles():
+    cmd = node_command('plant', {'rate_hz': 1000.0, 'mode': 'lockstep', 'k': 3, 'on': True,
+                                 'topics': ['/a', '/b']})
+    assert cmd[cmd.index('-m') + 1] == 'ros_ehs.nodes.plant'
+    assert 'rate_hz:=1000.0' in cmd and 'k:=3' in cmd and 'on:=true' in cmd
+    assert 'topics:=[/a,/b]' in cmd
+    with pytest.raises(ValueError, match='unknown node'):
+        node_command('plantt')
+
+
+def test_loop_stats_count_fresh_cycles_and_percentiles():
+    s = LoopStats(n=100)
+    for k in range(10):
+        s.tick(k * 1e-3, fresh=k % 5 != 0)
+    assert s.cycles == 10 and s.fresh == 8 and s.fresh_fraction == pytest.approx(0.8)
+    assert s.period.pct(50) == pytest.approx(1e-3)
+    w = Window(3)
+    for v in (1.0, 2.0, 3.0, 4.0):
+        w.add(v)
+    assert sorted(w.values()) == [2.0, 3.0, 4.0] and w.peak() == 4.0 and w.total == 4
+    assert math.isnan(Window(3).pct(50))
+
+
+def test_live_changes_are_validated_as_a_whole_with_a_reason():
+    from rclpy.parameter import Parameter
+    from ros_ehs.nodes.controller import SPECS
+    from ros_ehs.nodes.ros_common import validate_changes
+    cur = Params()
+    res, new = validate_changes(cur, [Parameter('kp', value=1.5)], SPECS)
+    assert res.successful and new['kp'] == 1.5
+    res, new = validate_changes(cur, [Parameter('F_cc', value=cur['F_sc'] + 1.0)], SPECS)
+    assert not res.successful and new is None and 'must not exceed' in res.reason
+    res, _ = validate_changes(cur, [Parameter('u_max', value=5.0)], SPECS)
+    assert not res.successful and 'u_max' in res.reason and 'outside' in res.reason
+    res, new = validate_changes(cur, [Parameter('use_sim_time', value=True)], SPECS)
+    assert res.successful and new is None          # not ours: nothing to rebuild
+
+
+def test_controller_declares_every_value_its_feedforward_reads():
+    names = {s.name for s in CONTROL_SPECS} | set(MODEL_PARAMS)
+    p = Params()
+
+    class Only(dict):
+        def __getitem__(self, k):
+            if k not in names:
+                raise KeyError(f'the controller does not declare {k}')
+            return dict.__getitem__(self, k)
+
+    ctrl = Controller(Only(p.items()), 1e-3)       # raises if MODEL_PARAMS misses one
+    assert math.isfinite(ctrl.step(0.01, 0.0, 0.0))
+
+
+def test_reference_specs_build_each_kind_and_reject_bad_values(tmp_path):
+    assert isinstance(make({}), Sine) and make({}).amplitude == 0.04
+    assert isinstance(make({'kind': 'step', 'amplitude': 0.01}), Step)
+    assert make({'kind': 'chirp'})(np.array([0.0]))[0][0] == 0.0
+    csv = tmp_path / 't.csv'
+    csv.write_text('t,z\n0,0\n1,0.01\n')
+    assert make({'kind': 'csv'}, str(csv))(np.array([0.5]))[0][0] == pytest.approx(0.005)
+    with pytest.raises(ParameterError, match='csv_path'):
+        make({'kind': 'csv'})
+    with pytest.raises(ParameterError, match='frequency'):
+        make({'frequency': -1.0})
+    assert {s.name for s in REFERENCE_SPECS} >= {'kind', 'amplitude', 'frequency'}
+
+
+def test_contract_node_topics_are_contract_topics():
+    for node, t in c.NODE_TOPICS.items():
+        for topic in t.publishes + t.subscribes:
+            assert topic in c.TOPICS, (node, topic)
+            assert not topic.name.startswith('/') or topic is c.CLOCK   # relative names
+    assert c.COMMAND in c.NODE_TOPICS['plant'].subscribes
+    assert c.COMMAND in c.NODE_TOPICS['controller'].publishes
+
+
+def test_state_carries_the_applied_current_and_old_states_still_read():
+    m = c.fill_state(c.empty_msg(c.STATE.msg_type), c.AxisState(5, 0.1, 0.2, 3.0, 1e-5, 0.004))
+    assert m['name'] == ['piston', 'spool', 'servo_valve']
+    s = c.state_from_msg(m)
+    assert s.i == 0.004 and s.z == 0.1 and s.x_spool == 1e-5
+    old = c.fill_state(c.empty_msg(c.STATE.msg_type), c.AxisState(5, 0.1, 0.2, 3.0, 1e-5))
+    assert old['name'] == ['piston', 'spool'] and math.isnan(c.state_from_msg(old).i)
+
+
+def test_identification_prefers_the_applied_current_over_the_command(tmp_path):
+    """A watchdog zeroing shows in the applied current, not in the command topic."""
+    n = 600
+    applied = 0.002 * np.sin(np.arange(n) * 0.05)
+    applied[300:310] = 0.0                       # the valve was zeroed here
+    with BagWriter(tmp_path / 'b') as w:
+        for tp in (c.STATE, c.COMMAND):
+            w.add_topic('/' + tp.name, tp.msg_type, tp.qos)
+        for k in range(n):
+            ns = 10**9 + k * 10**6
+            w.write_msg('/state', c.fill_state(c.empty_msg(c.STATE.msg_type), c.AxisState(
+                ns, 0.001 * k, 0.1, 0.0, 0.0, float(applied[k]))), ns)
+            w.write_msg('/servo_current', c.fill_command(
+                c.empty_msg(c.COMMAND.msg_type), c.Command(ns, 0.005)), ns)
+    e = load_experiment(tmp_path / 'b')
+    np.testing.assert_array_equal(e.i[:-1], applied[1:])   # period k: reported at k + 1
+    assert np.all(e.i[299:309] == 0.0)
+
+
+def test_nodes_doc_is_generated_from_the_options():
+    from ros_ehs.nodes.docs import DOC, render
+    text = DOC.read_text()
+    assert render(text) == text, 'docs/nodes.md is stale: run python -m ros_ehs.nodes.docs'
