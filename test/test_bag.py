@@ -165,6 +165,22 @@ def test_truncated_file_is_read_up_to_the_cut(tmp_path):
     assert 0 < b.topics['/state'].count < 3000
 
 
+def test_a_cut_anywhere_gives_a_truncated_bag_or_a_bag_error(tmp_path):
+    bag = _write(tmp_path / 'cuts', n=200)
+    f = bag / 'cuts_0.mcap'
+    data = f.read_bytes()
+    counts = []
+    for cut in range(8, len(data), 211):       # every record kind gets cut somewhere
+        f.write_bytes(data[:cut])
+        try:
+            b = open_bag(bag)
+        except BagError:
+            continue
+        assert b.truncated and b.problem
+        counts.append(b.message_count)
+    assert counts and counts == sorted(counts) and counts[-1] > 0
+
+
 _KILL_SCRIPT = textwrap.dedent("""
     import sys, time
     from ros_ehs.bag import BagWriter

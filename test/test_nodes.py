@@ -239,8 +239,9 @@ def test_bad_messages_crash_nothing(dom, tmp_path, ros):
         bad_states = [jmsg(['piston'], [0.0], [math.nan], [0.0]), jmsg([]),
                       jmsg(['piston'], [], [0.1], []), jmsg(['x'], [1.0], [1.0], [1.0]),
                       jmsg(['piston'], [0.0], [math.inf], [math.nan])]
+        # the plant hears our commands; the controller and we ourselves hear our states
         assert ros.spin(until=lambda: pub_cmd.get_subscription_count() >= 1
-                        and pub_state.get_subscription_count() >= 1 and len(states) > 10,
+                        and pub_state.get_subscription_count() >= 2 and len(states) > 10,
                         timeout=30)
         for _ in range(20):
             for m in bad_cmds:

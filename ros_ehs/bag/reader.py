@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import io
 import os
 from pathlib import Path
+import struct
 from typing import Any, Iterator
 
 from mcap.exceptions import McapError
@@ -154,7 +155,7 @@ class Bag:
                     self.metadata[rec.name] = dict(rec.metadata)
                 elif isinstance(rec, Header):
                     self.profile = rec.profile
-        except (McapError, EOFError, ValueError, KeyError, IndexError) as e:
+        except (McapError, EOFError, ValueError, KeyError, IndexError, struct.error) as e:
             self.truncated = True
             self.problem = f'{type(e).__name__}: {e}'.strip()
         if not self.topics and self.truncated and not self._msgs:

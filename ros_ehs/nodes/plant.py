@@ -327,12 +327,10 @@ class PlantNode(Node):
         self._sent_stamp[j] = st
         self._sent_time[j] = now
         self.pub_state.publish(self._msg)
-        if self.pub_p.get_subscription_count():       # only when someone listens
-            contract.fill_pressure(self._pmsg[0], contract.Pressure(st, float(x[self._ipa] + npr * e[2])))
-            self.pub_p.publish(self._pmsg[0])
-        if self.pub_t.get_subscription_count():
-            contract.fill_pressure(self._pmsg[1], contract.Pressure(st, float(x[self._ipb] + npr * e[3])))
-            self.pub_t.publish(self._pmsg[1])
+        for k, pub in ((0, self.pub_p), (1, self.pub_t)):
+            if pub.get_subscription_count():       # only when someone listens
+                p = float(x[(self._ipa, self._ipb)[k]] + npr * e[2 + k])
+                pub.publish(contract.fill_pressure(self._pmsg[k], contract.Pressure(st, p)))
 
     # -- parameters and diagnostics ----------------------------------------------------------
     def _check_params(self, changes):
