@@ -48,7 +48,7 @@ _XSCALE = {'theta_dot': 1.0, 'theta': 1e-3, 'p_tL': 1e6, 'p_tR': 1e6, 'x_dot': 0
 DEFAULT_H = {'full': 50e-6, 'simplified': 1e-3}
 #: Jacobian refresh period, in calls of ``step`` (or samples of ``simulate``). ROS2 keeps
 #: order 2 with a stale Jacobian, so reuse costs little accuracy (docs/model.md).
-DEFAULT_JAC_EVERY = {'full': 4, 'simplified': 10}
+DEFAULT_JAC_EVERY = {'full': 4, 'simplified': 1}
 
 
 @dataclass(frozen=True)
