@@ -16,13 +16,16 @@
 
 Plant (lock-step), controller (reference-synchronised) and reference (on ``/clock``) run as
 separate processes for ``--seconds`` of sim time; the plant reports how many steps per
-second of wall time the loop made. In the same run, the in-process loop (no DDS,
-:func:`ros_ehs.closed_loop.run_closed_loop`) gives the yardstick. Last line: one JSON object.
+second of wall time the loop made. In the same run, two yardsticks: the in-process loop (no
+DDS, :func:`ros_ehs.closed_loop.run_closed_loop`), and a bare rclpy ping-pong sending each
+message as soon as the last echo is back (the most round trips per second rclpy makes on this
+machine: no lock-step over rclpy can be faster). Last line: one JSON object.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 
@@ -51,6 +54,13 @@ def main(argv=None) -> int:
                 raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
             launch.stop(['reference', 'controller', 'plant'])
             f = _figures(launch['plant'].output())
+        with Launch(dom) as bare:     # the ceiling: a bare rclpy ping-pong, back to back
+            bare.start('pong', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', 'pong'])
+            bare.start('volley', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong',
+                                      'volley'])
+            time.sleep(2.0 + a.seconds)
+            bare.stop(['volley', 'pong'])
+            v = json.loads(bare['volley'].output().strip().splitlines()[-1])
     t0 = time.perf_counter()
     run_closed_loop(Params(), Sine(), a.seconds, model=a.model)
     inproc = a.seconds * 1000 / (time.perf_counter() - t0)
@@ -60,7 +70,9 @@ def main(argv=None) -> int:
                    'resends': f['resends'], 'step_p50_ms': round(f['period_p50_ms'], 4),
                    'step_p99_ms': round(f['period_p99_ms'], 4),
                    'in_process_steps_per_s': round(inproc, 1),
-                   'dds_vs_in_process': round(f['steps_per_s'] / inproc, 4)})
+                   'dds_vs_in_process': round(f['steps_per_s'] / inproc, 4),
+                   'bare_pingpong_round_trips_per_s': round(v['volleys_per_s'], 1),
+                   'lockstep_vs_bare_pingpong': round(f['steps_per_s'] / v['volleys_per_s'], 3)})
 
 
 if __name__ == '__main__':

@@ -69,6 +69,42 @@ class Ping(Node):
         print(json.dumps(self.stats.as_dict()), flush=True)
 
 
+class Volley(Ping):
+    """Send the next ping as soon as the echo of the last one is back (a bare lock-step)."""
+
+    def __init__(self) -> None:
+        Node.__init__(self, 'ping')
+        self.stats = LoopStats()
+        self.k = 0
+        self.fresh = False
+        self.sent: dict[int, float] = {}
+        self.msg = JointState()
+        self.pub = self.create_publisher(JointState, 'ping', qos_profile(contract.LOOP_QOS))
+        self.create_subscription(JointState, 'pong', self.on_pong,
+                                 qos_profile(contract.LOOP_QOS))
+        self.t0 = None
+        self.create_timer(0.05, self.kick, clock=steady_clock())
+
+    def kick(self) -> None:
+        if self.pub.get_subscription_count() and (self.k == 0 or
+                                                  time.monotonic() - self.sent[self.k] > 0.05):
+            self.tick()           # start, or restart after a lost message
+
+    def on_pong(self, msg: JointState) -> None:
+        super().on_pong(msg)
+        if contract.stamp_ns(msg.header) == self.k:
+            if self.t0 is None:
+                self.t0 = time.monotonic()
+            self.tick()
+
+    def close(self) -> None:
+        """Print the volleys per second."""
+        n = self.stats.rtt.total
+        dt = time.monotonic() - (self.t0 or time.monotonic())
+        print(json.dumps({'volleys': n, 'volleys_per_s': n / dt if dt > 0 else 0.0}),
+              flush=True)
+
+
 class Pong(Node):
     """Echo every ping as a command."""
 
@@ -88,7 +124,8 @@ class Pong(Node):
 def main(argv=None) -> int:
     """Run ``ping`` or ``pong``."""
     argv = sys.argv[1:] if argv is None else argv
-    return run({'ping': Ping, 'pong': Pong}[argv[0]], [sys.argv[0]] + argv[1:])
+    return run({'ping': Ping, 'pong': Pong, 'volley': Volley}[argv[0]],
+               [sys.argv[0]] + argv[1:])
 
 
 if __name__ == '__main__':
