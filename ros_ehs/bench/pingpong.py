@@ -35,7 +35,7 @@ from sensor_msgs.msg import JointState
 class Ping(Node):
     """Publish at 1 kHz, measure the echo's round trip."""
 
-    def __init__(self) -> None:
+    def __init__(self, timer: bool = True) -> None:
         super().__init__('ping')
         self.stats = LoopStats()
         self.k = 0
@@ -45,7 +45,8 @@ class Ping(Node):
         self.pub = self.create_publisher(JointState, 'ping', qos_profile(contract.LOOP_QOS))
         self.create_subscription(JointState, 'pong', self.on_pong,
                                  qos_profile(contract.LOOP_QOS))
-        self.create_timer(1e-3, self.tick, clock=steady_clock())
+        if timer:
+            self.create_timer(1e-3, self.tick, clock=steady_clock())
 
     def tick(self) -> None:
         now = time.monotonic()
@@ -73,15 +74,7 @@ class Volley(Ping):
     """Send the next ping as soon as the echo of the last one is back (a bare lock-step)."""
 
     def __init__(self) -> None:
-        Node.__init__(self, 'ping')
-        self.stats = LoopStats()
-        self.k = 0
-        self.fresh = False
-        self.sent: dict[int, float] = {}
-        self.msg = JointState()
-        self.pub = self.create_publisher(JointState, 'ping', qos_profile(contract.LOOP_QOS))
-        self.create_subscription(JointState, 'pong', self.on_pong,
-                                 qos_profile(contract.LOOP_QOS))
+        super().__init__(timer=False)
         self.t0 = None
         self.create_timer(0.05, self.kick, clock=steady_clock())
 

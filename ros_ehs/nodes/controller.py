@@ -122,13 +122,19 @@ class ControllerNode(Node):
                                f'{", reference-synchronised (lock-step)" if self.sync else ""}')
 
     # -- references --------------------------------------------------------------------------
-    def _on_reference(self, msg: JointState) -> None:
+    def _read(self, convert, msg: JointState, what: str):
+        """Return ``convert(msg)``, or None (counted, logged) for a malformed message."""
         try:
-            r = contract.reference_from_msg(msg)
+            return convert(msg)
         except (ValueError, IndexError, AttributeError) as err:
             self.counts['bad'] += 1
-            self.get_logger().warning(f'ignored a malformed reference: {err}',
+            self.get_logger().warning(f'ignored a malformed {what}: {err}',
                                       throttle_duration_sec=1.0)
+            return None
+
+    def _on_reference(self, msg: JointState) -> None:
+        r = self._read(contract.reference_from_msg, msg, 'reference')
+        if r is None:
             return
         self._ref = (r.z_ref, r.v_ref, time.monotonic(), r.stamp_ns)
         if self.sync:
@@ -159,12 +165,8 @@ class ControllerNode(Node):
     # -- states ------------------------------------------------------------------------------
     def _on_state(self, msg: JointState) -> None:
         self._last_rx = time.monotonic()
-        try:
-            s = contract.state_from_msg(msg)
-        except (ValueError, IndexError, AttributeError) as err:
-            self.counts['bad'] += 1
-            self.get_logger().warning(f'ignored a malformed state: {err}',
-                                      throttle_duration_sec=1.0)
+        s = self._read(contract.state_from_msg, msg, 'state')
+        if s is None:
             return
         if s.stamp_ns == self._last_stamp:
             self.counts['repeated'] += 1
