@@ -61,13 +61,18 @@ class ClosedLoopResult:
         return self.signal('z_dot')
 
 
-def reference_step(plant: Plant, x, u, dt: float, rtol: float = 1e-10) -> np.ndarray:
-    """Advance ``x`` by ``dt`` with ``solve_ivp`` (Radau, tight tolerances): the reference."""
+def reference_step(plant: Plant, x, u, dt: float, rtol: float = 1e-10,
+                   method: str = 'Radau', atol_scale: float = 1e-9) -> np.ndarray:
+    """
+    Advance ``x`` by ``dt`` with ``solve_ivp`` restarted from ``x``.
+
+    The defaults (Radau, tight tolerances) make it the accuracy reference; the model
+    benchmark also times it with LSODA at everyday tolerances.
+    """
     from scipy.integrate import solve_ivp
 
-    atol = plant._xscale * 1e-9
-    sol = solve_ivp(lambda t, y: plant.rhs_unchecked(t, y, u), (0.0, dt), x, method='Radau',
-                    rtol=rtol, atol=atol)
+    sol = solve_ivp(lambda t, y: plant.rhs_unchecked(t, y, u), (0.0, dt), x, method=method,
+                    rtol=rtol, atol=plant._xscale * atol_scale)
     if not sol.success:
         raise InputError(f'reference solver failed: {sol.message}')
     return sol.y[:, -1]
