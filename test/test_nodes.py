@@ -384,3 +384,34 @@ def test_domain_isolation_env_is_respected(dom):
     assert launch.env['ROS_DOMAIN_ID'] == str(dom)
     assert launch.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] in ('LOCALHOST', os.environ.get(
         'ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'))
+
+
+# -- launch scripts -----------------------------------------------------------------------------
+def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tmp_path):
+    import subprocess
+    import sys
+    out = tmp_path / 'bench'
+    res = subprocess.run([sys.executable, str(ROOT / 'launch_scripts' / 'bench.py'),
+                          '--mode', 'lockstep', '--duration', '1.0', '--out', str(out),
+                          '--domain-id', str(dom), '--no-noise'],
+                         capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert 'bench: done' in res.stdout and 'closed' in res.stdout
+    t, z, i = _states(out)
+    assert len(t) == 1001 and np.all(np.diff(t) == 1_000_000)
+    ref = run_closed_loop(Params(), Sine(0.04, 1.0), 1.0, model='simplified', dt=1e-3)
+    np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
+    logs = tmp_path / 'out' / 'logs' / 'bench'
+    assert sorted(p.name for p in logs.iterdir()) == ['controller.log', 'plant.log',
+                                                      'recorder.log', 'reference.log']
+
+
+def test_replay_launch_script_plays_a_bag_and_exits(dom, tmp_path):
+    import subprocess
+    import sys
+    env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+    res = subprocess.run([sys.executable, str(ROOT / 'launch_scripts' / 'replay.py'),
+                          str(FIXTURES / 'talker.mcap'), '--rate', '10', '--topics', '/topic'],
+                         capture_output=True, text=True, env=env, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert 'replay done: /topic 10' in res.stderr + res.stdout
