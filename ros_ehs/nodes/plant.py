@@ -119,6 +119,7 @@ class PlantNode(Node):
         self.tripped = False
         self.trips = 0
         self.trip_latency_ms = math.nan
+        self.trip_tick_late_ms = math.nan
         self.bad_commands = 0
         self.stale_commands = 0
         self.faults = 0
@@ -250,6 +251,7 @@ class PlantNode(Node):
         n = (now_ns - self._t0_wall) // self._dt_ns - self.k
         if n <= 0:
             return
+        late_ms = (now_ns - self._t0_wall - (self.k + 1) * self._dt_ns) * 1e-6
         if n > _MAX_CATCHUP:      # far behind: resynchronise (a gap in the stamps)
             self.overruns += 1
             self._t0_wall += (n - 1) * self._dt_ns
@@ -271,12 +273,13 @@ class PlantNode(Node):
                 self.tripped = True
                 self.trips += 1
                 self.trip_latency_ms = (now - self._last_rx) * 1e3
+                self.trip_tick_late_ms = late_ms      # how late this tick itself came
                 self.get_logger().warning(
                     f'watchdog: no fresh command for {self.trip_latency_ms:.2f} ms, valve '
-                    'current zeroed')
+                    f'current zeroed ({self.trips} trips so far)', throttle_duration_sec=1.0)
         elif self.tripped:
             self.tripped = False
-            self.get_logger().info('watchdog: commands are back')
+            self.get_logger().debug('watchdog: commands are back')
         for _ in range(int(n)):
             self._step(i)
             self._publish(now)
@@ -354,6 +357,7 @@ class PlantNode(Node):
         f.update(steps=self.k, sim_time_s=self.k * self.dt,
                  watchdog=('tripped' if self.tripped else 'ok' if self.armed else 'waiting'),
                  watchdog_trips=self.trips, watchdog_latency_ms=self.trip_latency_ms,
+                 watchdog_tick_late_ms=self.trip_tick_late_ms,
                  current_a=float(self.u[0]), bad_commands=self.bad_commands,
                  stale_commands=self.stale_commands, model_faults=self.faults,
                  overruns=self.overruns, resends=self.resends, finished=self.finished)

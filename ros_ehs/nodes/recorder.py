@@ -67,6 +67,9 @@ def _qos_record(p) -> dict:
 class RecorderNode(Node):
     """Record topics to a bag (see the module docstring)."""
 
+    #: after SIGINT, keep taking in the messages DDS has already queued for this long [s]
+    drain_period = 0.3
+
     def __init__(self, **kwargs) -> None:
         super().__init__('recorder', **kwargs)
         self.opt = declare_options(self, OPTIONS)

@@ -226,7 +226,8 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     """
     Create the node from ``factory`` and spin it until SIGINT/SIGTERM or until it is done.
 
-    A node may define ``done`` (an rclpy Future: spin until it completes) and ``close()``
+    A node may define ``done`` (an rclpy Future: spin until it completes), ``drain_period``
+    (seconds to keep spinning after a signal, to take in what is queued) and ``close()``
     (called once, after spinning, even after a signal). A configuration error (bad parameter,
     missing bag) is printed as one line and gives exit code 2, never a traceback.
     """
@@ -254,6 +255,9 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         # more CPU at 1 kHz.
         while not stop and rclpy.ok() and not done.done():
             exe.spin_until_future_complete(done, timeout_sec=0.1)
+        drain = float(getattr(node, 'drain_period', 0.0))
+        if stop and drain > 0 and rclpy.ok():      # take in what is already queued
+            exe.spin_until_future_complete(Future(), timeout_sec=drain)
         if done.done():
             rc = int(done.result() or 0)
     except (KeyboardInterrupt, ExternalShutdownException):
