@@ -37,7 +37,7 @@ import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checkout works too
 
-from ros_ehs.nodes.launch import Launch  # noqa: E402
+from ros_ehs.nodes.launch import FIGURES, Launch  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.synthetic import SensorNoise  # noqa: E402
 
@@ -107,7 +107,7 @@ def main(argv=None) -> int:
         if line.startswith('[recorder] closed'):
             print('bench: ' + line[len('[recorder] '):])
     for line in launch['plant'].output().splitlines():
-        if line.startswith('figures '):
+        if line.startswith(FIGURES):
             print('bench: plant ' + line)
     bad = {n: c for n, c in codes.items() if c != 0}
     if died or bad:

@@ -59,6 +59,23 @@ class QosSpec(NamedTuple):
                 'liveliness_lease_duration': dict(inf),
                 'avoid_ros_namespace_conventions': False}
 
+    @classmethod
+    def from_rosbag2(cls, entry: dict[str, Any] | None) -> 'QosSpec':
+        """
+        Return the profile of an ``offered_qos_profiles`` entry (the inverse of the above).
+
+        Reads names and rosbag2's older enum numbers (reliability 1 reliable, 2 best effort;
+        durability 1 transient local, 2 volatile); anything else (0, system default) gives
+        the default. ``None`` gives the default profile.
+        """
+        q, d = entry or {}, cls._field_defaults
+        rel, dur = q.get('reliability'), q.get('durability')
+        rel = {1: 'reliable', 2: 'best_effort'}.get(rel, rel)
+        dur = {1: 'transient_local', 2: 'volatile'}.get(dur, dur)
+        return cls(rel if rel in ('reliable', 'best_effort') else d['reliability'],
+                   int(q.get('depth') or d['depth']),
+                   dur if dur in ('volatile', 'transient_local') else d['durability'])
+
 
 #: Loop topics: best effort, keep last 1 (what ros2_control uses for commands).
 LOOP_QOS = QosSpec('best_effort', 1)

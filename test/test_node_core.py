@@ -146,3 +146,23 @@ def test_nodes_doc_is_generated_from_the_options():
     from ros_ehs.nodes.docs import DOC, render
     text = DOC.read_text()
     assert render(text) == text, 'docs/nodes.md is stale: run python -m ros_ehs.nodes.docs'
+
+
+def test_qos_round_trips_through_rosbag2_entries_old_and_new():
+    for q in (c.LOOP_QOS, c.RECORD_QOS, c.QosSpec('reliable', 5, 'transient_local')):
+        assert c.QosSpec.from_rosbag2(q.as_rosbag2()) == q
+    # rosbag2's older numeric enums; 0 (system default) and a missing entry give defaults
+    assert c.QosSpec.from_rosbag2({'reliability': 2, 'durability': 1, 'depth': 3}) == \
+        c.QosSpec('best_effort', 3, 'transient_local')
+    assert c.QosSpec.from_rosbag2({'reliability': 0, 'depth': 0}) == c.QosSpec()
+    assert c.QosSpec.from_rosbag2(None) == c.RECORD_QOS
+
+
+def test_live_options_follow_accepted_changes_read_only_ones_do_not():
+    from rclpy.parameter import Parameter
+    from ros_ehs.nodes.plant import OPTIONS
+    from ros_ehs.nodes.ros_common import update_options
+    opt = {o.name: o.default for o in OPTIONS}
+    update_options(opt, [Parameter('watchdog_periods', value=5),
+                         Parameter('rate_hz', value=500.0)], OPTIONS)
+    assert opt['watchdog_periods'] == 5 and opt['rate_hz'] == 1000.0

@@ -71,13 +71,6 @@ def ros(dom):
     rclpy.shutdown(context=ctx)
 
 
-def _figures(proc) -> dict:
-    for line in reversed(proc.output().splitlines()):
-        if line.startswith('figures '):
-            return json.loads(line[len('figures '):])
-    raise AssertionError('no figures in the log:\n' + proc.output()[-3000:])
-
-
 def _states(bag_path):
     """Return (stamps [ns], z, current) of the recorded states, one per stamp."""
     bag = open_bag(bag_path)
@@ -118,7 +111,7 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     # state k reports the current applied over the period that ended at it
     np.testing.assert_allclose(i[1:], ref.i[:-1], rtol=0, atol=1e-9)
     assert np.ptp(z) > 0.07          # the loop really tracked the 0.04 m sine
-    f = _figures(launch['plant'])
+    f = launch['plant'].figures()
     assert f['steps'] == n and f['model_faults'] == 0
 
 
@@ -197,7 +190,7 @@ def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_pat
         launch.kill('controller')
         time.sleep(2.5)       # the trip log is throttled: the figures below tell
         launch.stop(['recorder', 'plant'])
-        f = _figures(launch['plant'])
+        f = launch['plant'].figures()
     assert f['watchdog'] == 'tripped'
     # the zeroing tick came at most 3 periods after the last fresh command arrived, plus
     # that tick's own lateness (a busy 2-core machine delays a thread by ms at times)
@@ -254,7 +247,7 @@ def test_bad_messages_crash_nothing(dom, tmp_path, ros):
         ros.spin(1.0)
         assert launch['plant'].alive() and launch['controller'].alive()
         launch.stop(['controller', 'plant'])
-    f = _figures(launch['plant'])
+    f = launch['plant'].figures()
     assert f['bad_commands'] > 0
     ours = [c.state_from_msg(m) for m in states if 'spool' in m.name]
     assert len(ours) > 500

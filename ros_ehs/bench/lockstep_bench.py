@@ -31,7 +31,6 @@ import time
 
 from domain_coordinator import domain_id
 from ros_ehs.bench import report
-from ros_ehs.bench.loop_bench import _figures
 from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.nodes.launch import Launch
 from ros_ehs.params import Params
@@ -53,7 +52,7 @@ def main(argv=None) -> int:
             if not launch.wait_for_log('plant', 'lock-step run complete', 600):
                 raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
             launch.stop(['reference', 'controller', 'plant'])
-            f = _figures(launch['plant'].output())
+            f = launch['plant'].figures()
         with Launch(dom) as bare:     # the ceiling: a bare rclpy ping-pong, back to back
             bare.start('pong', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', 'pong'])
             bare.start('volley', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong',

@@ -38,14 +38,6 @@ def _cpu(pid: int) -> float:
     return t.user + t.system
 
 
-def _figures(log: str) -> dict:
-    """Return the JSON figures a plant logs at shutdown."""
-    for line in reversed(log.splitlines()):
-        if line.startswith('figures '):
-            return json.loads(line[len('figures '):])
-    raise RuntimeError('no figures in the log:\n' + log[-2000:])
-
-
 def _measure(launch: Launch, names: tuple[str, str], ready: tuple[str, str],
              seconds: float) -> tuple[dict, dict]:
     if not launch.wait_for_log(*ready, timeout=60):
@@ -56,7 +48,7 @@ def _measure(launch: Launch, names: tuple[str, str], ready: tuple[str, str],
     wall = time.monotonic() - t0
     cpu = {n: (_cpu(launch[n].pid) - c0[n]) / wall for n in names}
     launch.stop()
-    return cpu, _figures(launch[names[0]].output())
+    return cpu, launch[names[0]].figures()
 
 
 def main(argv=None) -> int:

@@ -48,8 +48,9 @@ from ros_ehs.control.controller import Controller
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.nodes.loop_stats import Window
 from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, ERROR,
-                                      node_params, OK, Option, qos_profile, run,
-                                      steady_clock, validate_changes, WARN)
+                                      node_params, OK, Option, qos_profile, read_msg, run,
+                                      steady_clock, update_options, validate_changes,
+                                      WARN)
 from ros_ehs.params import CONTROL_SPECS, Params, spec
 import ros_ehs_msgs_py as contract
 from sensor_msgs.msg import JointState
@@ -122,19 +123,10 @@ class ControllerNode(Node):
                                f'{", reference-synchronised (lock-step)" if self.sync else ""}')
 
     # -- references --------------------------------------------------------------------------
-    def _read(self, convert, msg: JointState, what: str):
-        """Return ``convert(msg)``, or None (counted, logged) for a malformed message."""
-        try:
-            return convert(msg)
-        except (ValueError, IndexError, AttributeError) as err:
-            self.counts['bad'] += 1
-            self.get_logger().warning(f'ignored a malformed {what}: {err}',
-                                      throttle_duration_sec=1.0)
-            return None
-
     def _on_reference(self, msg: JointState) -> None:
-        r = self._read(contract.reference_from_msg, msg, 'reference')
+        r = read_msg(self, contract.reference_from_msg, msg, 'reference')
         if r is None:
+            self.counts['bad'] += 1
             return
         self._ref = (r.z_ref, r.v_ref, time.monotonic(), r.stamp_ns)
         if self.sync:
@@ -165,8 +157,9 @@ class ControllerNode(Node):
     # -- states ------------------------------------------------------------------------------
     def _on_state(self, msg: JointState) -> None:
         self._last_rx = time.monotonic()
-        s = self._read(contract.state_from_msg, msg, 'state')
+        s = read_msg(self, contract.state_from_msg, msg, 'state')
         if s is None:
+            self.counts['bad'] += 1
             return
         if s.stamp_ns == self._last_stamp:
             self.counts['repeated'] += 1
@@ -236,9 +229,7 @@ class ControllerNode(Node):
             self.ctrl.set_params(new)
             self.get_logger().info('parameters changed: ' + ', '.join(
                 f'{p.name}={p.value}' for p in changes))
-        for p in changes:
-            if p.name == 'reference_timeout':
-                self.opt['reference_timeout'] = p.value
+        update_options(self.opt, changes, OPTIONS)
 
     def figures(self) -> dict:
         """Return the figures the diagnostics report."""

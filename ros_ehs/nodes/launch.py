@@ -24,6 +24,7 @@ recorder closes its bag.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import json
 import os
 from pathlib import Path
 import signal
@@ -33,7 +34,10 @@ import tempfile
 import time
 from typing import Any, Iterable
 
-__all__ = ['Launch', 'NodeProcess', 'node_command', 'NODES']
+__all__ = ['FIGURES', 'Launch', 'NodeProcess', 'node_command', 'NODES']
+
+#: What the plant prints before its JSON figures at shutdown (one line).
+FIGURES = 'figures '
 
 #: The node executables of the package (``ros2 run ros_ehs <name>``).
 NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify')
@@ -87,6 +91,14 @@ class NodeProcess:
             return self.log.read_text(errors='replace')
         except OSError:
             return ''
+
+    def figures(self) -> dict:
+        """Return the JSON a plant prints after ``figures`` at shutdown (the last one)."""
+        log = self.output()
+        for line in reversed(log.splitlines()):
+            if line.startswith(FIGURES):
+                return json.loads(line[len(FIGURES):])
+        raise RuntimeError(f'no figures in the log of {self.name}:\n' + log[-3000:])
 
 
 class Launch:

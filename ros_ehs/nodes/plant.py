@@ -46,10 +46,12 @@ import numpy as np
 from rclpy.node import Node
 from ros_ehs.errors import EhsError
 from ros_ehs.model.plant import Plant
+from ros_ehs.nodes.launch import FIGURES
 from ros_ehs.nodes.loop_stats import LoopStats
 from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, ERROR,
-                                      node_params, OK, Option, qos_profile, run,
-                                      steady_clock, validate_changes, WARN)
+                                      node_params, OK, Option, qos_profile, read_msg, run,
+                                      steady_clock, update_options, validate_changes,
+                                      WARN)
 from ros_ehs.params import Params, PLANT_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
@@ -186,12 +188,9 @@ class PlantNode(Node):
 
     # -- commands ----------------------------------------------------------------------------
     def _on_command(self, msg: JointState) -> None:
-        try:
-            c = contract.command_from_msg(msg)
-        except (ValueError, IndexError, AttributeError) as err:
+        c = read_msg(self, contract.command_from_msg, msg, 'command')
+        if c is None:
             self.bad_commands += 1
-            self.get_logger().warning(f'ignored a malformed command: {err}',
-                                      throttle_duration_sec=1.0)
             return
         if not math.isfinite(c.i):
             self.bad_commands += 1
@@ -251,7 +250,7 @@ class PlantNode(Node):
         n = (now_ns - self._t0_wall) // self._dt_ns - self.k
         if n <= 0:
             return
-        late_ms = (now_ns - self._t0_wall - (self.k + 1) * self._dt_ns) * 1e-6
+        due_ns = self._t0_wall + (self.k + 1) * self._dt_ns     # before any resync below
         if n > _MAX_CATCHUP:      # far behind: resynchronise (a gap in the stamps)
             self.overruns += 1
             self._t0_wall += (n - 1) * self._dt_ns
@@ -273,7 +272,7 @@ class PlantNode(Node):
                 self.tripped = True
                 self.trips += 1
                 self.trip_latency_ms = (now - self._last_rx) * 1e3
-                self.trip_tick_late_ms = late_ms      # how late this tick itself came
+                self.trip_tick_late_ms = (now_ns - due_ns) * 1e-6   # this tick's lateness
                 self.get_logger().warning(
                     f'watchdog: no fresh command for {self.trip_latency_ms:.2f} ms, valve '
                     f'current zeroed ({self.trips} trips so far)', throttle_duration_sec=1.0)
@@ -347,9 +346,7 @@ class PlantNode(Node):
             self.plant = Plant(new, self.opt['model'])
             self.i_limit = 2.0 * float(new['i_rated'])
             self.get_logger().info('plant parameters changed; model rebuilt, state kept')
-        for p in changes:
-            if p.name == 'watchdog_periods':
-                self.opt['watchdog_periods'] = p.value
+        update_options(self.opt, changes, OPTIONS)
 
     def figures(self) -> dict:
         """Return the loop and watchdog figures the diagnostics report."""
@@ -371,7 +368,7 @@ class PlantNode(Node):
         if self._loop is not None:
             self._stop.set()
             self._loop.join(timeout=1.0)
-        print('figures ' + json.dumps(self.figures()), flush=True)
+        print(FIGURES + json.dumps(self.figures()), flush=True)
 
     def _diagnose(self) -> None:
         f = self.figures()

@@ -50,21 +50,6 @@ OPTIONS = (
 )
 
 
-_REL = {1: 'reliable', 2: 'best_effort', 'reliable': 'reliable', 'best_effort': 'best_effort'}
-_DUR = {1: 'transient_local', 2: 'volatile', 'transient_local': 'transient_local',
-        'volatile': 'volatile'}
-
-
-def _qos(offered: list) -> contract.QosSpec:
-    """Return the recorded QoS (names or rosbag2's older enum numbers; 0 = default)."""
-    if not offered:
-        return contract.RECORD_QOS
-    q = offered[0]
-    return contract.QosSpec(_REL.get(q.get('reliability'), 'reliable'),
-                            int(q.get('depth') or 10),
-                            _DUR.get(q.get('durability'), 'volatile'))
-
-
 class PlayerNode(Node):
     """Replay a bag (see the module docstring)."""
 
@@ -91,7 +76,8 @@ class PlayerNode(Node):
             except KeyError as err:
                 self.get_logger().warning(f'skipping {name}: {err}')
                 continue
-            self.pubs[name] = self.create_publisher(cls, name, qos_profile(_qos(info.qos)))
+            offered = contract.QosSpec.from_rosbag2(info.qos[0] if info.qos else None)
+            self.pubs[name] = self.create_publisher(cls, name, qos_profile(offered))
         if not self.pubs:
             raise BagError(f'nothing to replay: no topic of {wanted} has an installed type')
         self.pub_clock = None

@@ -48,7 +48,8 @@ from ros_ehs.errors import EhsError, ParameterError
 from ros_ehs.params import Params, ParamSpec
 
 __all__ = ['OK', 'WARN', 'ERROR', 'Option', 'declare_options', 'declare_specs', 'diagnostics',
-           'msg_class', 'qos_profile', 'ros_args', 'run', 'steady_clock', 'validate_changes']
+           'msg_class', 'qos_profile', 'read_msg', 'ros_args', 'run', 'steady_clock',
+           'update_options', 'validate_changes']
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
@@ -146,6 +147,15 @@ def declare_options(node: Node, options: Sequence[Option]) -> dict[str, Any]:
     return out
 
 
+def update_options(values: dict[str, Any], changes: Sequence[Parameter],
+                   options: Sequence[Option]) -> None:
+    """Apply accepted live changes of ``options`` to a node's option ``values``."""
+    live = {o.name for o in options if not o.read_only}
+    for p in changes:
+        if p.name in live:
+            values[p.name] = p.value
+
+
 def node_params(node: Node, base: Params, specs: Sequence[ParamSpec]) -> Params:
     """Return ``base`` with the values of ``specs`` as the node now holds them (validated)."""
     return base.replace(**{s.name: node.get_parameter(s.name).value for s in specs})
@@ -177,6 +187,22 @@ def validate_changes(current: Params, changes: Sequence[Parameter],
     except ParameterError as err:
         return SetParametersResult(successful=False, reason=str(err)), None
     return SetParametersResult(successful=True), new
+
+
+# -- messages ---------------------------------------------------------------------------------
+def read_msg(node: Node, convert: Callable[[Any], Any], msg: Any, what: str) -> Any:
+    """
+    Return ``convert(msg)`` (a contract ``*_from_msg``), or None for a malformed message.
+
+    A malformed message (missing joint, short arrays) is logged, throttled to once a second;
+    the caller counts it.
+    """
+    try:
+        return convert(msg)
+    except (ValueError, IndexError, AttributeError) as err:
+        node.get_logger().warning(f'ignored a malformed {what}: {err}',
+                                  throttle_duration_sec=1.0)
+        return None
 
 
 # -- diagnostics ------------------------------------------------------------------------------
