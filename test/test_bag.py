@@ -269,3 +269,36 @@ def test_experiment_rejects_non_finite_and_irregular_samples():
     with pytest.raises(DataError, match='not on a uniform grid'):
         experiment_from_arrays('x', t_gap, i, z, v)
     assert experiment_from_arrays('x', t, i, z, v).dt == pytest.approx(1e-3)
+
+
+def test_missing_samples_split_the_record_into_runs(tmp_path):
+    from ros_ehs.bag.experiment import load_experiments, MIN_SAMPLES
+    bag = _write(tmp_path / 'gappy', n=2000)
+    # rewrite without states 700..849 (a recorder that missed 150 ms)
+    b = open_bag(bag)
+    out = tmp_path / 'holed'
+    with BagWriter(out) as w:
+        for name, info in b.topics.items():
+            w.add_topic(name, info.msg_type, info.qos)
+        for m in b.messages():
+            k = (m.log_time_ns - 1_000_000_000) // 1_000_000
+            if not (m.topic == '/state' and 700 <= k < 850):
+                w.write(m.topic, m.data, m.log_time_ns)
+    with pytest.raises(DataError, match='not on a uniform grid'):
+        load_experiment(out)
+    runs = load_experiments(out)
+    assert [r.name for r in runs] == ['holed [1/2]', 'holed [2/2]']
+    assert [r.t.size for r in runs] == [700, 1150]
+    assert runs[1].z[0] == pytest.approx(0.001 * 850)         # starts after the gap
+    # runs shorter than MIN_SAMPLES are dropped; none left is a clear error
+    assert MIN_SAMPLES > 100
+    short = tmp_path / 'short'
+    with BagWriter(short) as w:
+        for name, info in b.topics.items():
+            w.add_topic(name, info.msg_type, info.qos)
+        for m in b.messages():
+            k = (m.log_time_ns - 1_000_000_000) // 1_000_000
+            if not (m.topic == '/state' and k % 400 == 0):
+                w.write(m.topic, m.data, m.log_time_ns)
+    with pytest.raises(DataError, match='longest run without missing samples has 399'):
+        load_experiments(short)

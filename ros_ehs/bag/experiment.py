@@ -34,7 +34,7 @@ from ros_ehs.errors import BagError, DataError
 import ros_ehs_msgs_py as contract
 
 __all__ = ['Experiment', 'MIN_SAMPLES', 'experiment_from_arrays', 'load_experiment',
-           'resolve_topic']
+           'load_experiments', 'resolve_topic']
 
 #: Fewer state samples than this is "too little data" for a 7-parameter fit.
 MIN_SAMPLES = 500
@@ -144,19 +144,8 @@ def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experim
     return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], pa, pb)
 
 
-def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name,
-                    command: str = contract.COMMAND.name,
-                    pressure_p: str | None = contract.PRESSURE_P.name,
-                    pressure_t: str | None = contract.PRESSURE_T.name,
-                    bag: Bag | None = None) -> Experiment:
-    """
-    Read an experiment from the bag at ``path`` using the contract topic names.
-
-    Pressures are optional (pass None to ignore them); a bag without them gives an
-    experiment without pressures. Raises :class:`BagError` / :class:`DataError` naming the
-    problem (missing topics with the topics the bag has, wrong types, too little data, no
-    excitation).
-    """
+def _read(path, state, command, pressure_p, pressure_t, bag):
+    """Return the bag's series on the state stamps: name, ts [ns], command, state, pressures."""
     bag = bag or open_bag(path)
     name = os.path.basename(os.path.normpath(str(path)))
     st = resolve_topic(bag, state)
@@ -179,10 +168,6 @@ def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name
     ok = k >= 0
     ts, sv, k = ts[ok], sv[ok], k[ok]
     cur = cv[k, 0]
-    applied = sv[:, 2]
-    if applied.size > 1 and np.all(np.isfinite(applied)):
-        # state k reports the current of the period that ended at it: shift by one
-        cur = np.append(applied[1:], applied[-1])
     pa = pb = None
     have = [resolve_topic(bag, p, required=False) if p else None
             for p in (pressure_p, pressure_t)]
@@ -200,4 +185,62 @@ def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name
         pa, pb = vals
     if bag.truncated:
         name += ' (truncated)'
-    return experiment_from_arrays(name, (ts - ts[0]) * 1e-9, cur, sv[:, 0], sv[:, 1], pa, pb)
+    return name, ts, cur, sv, pa, pb
+
+
+def _experiment(name, ts, cur, sv, pa, pb, a: int, b: int) -> Experiment:
+    """Build the experiment of samples ``a:b`` (one contiguous run)."""
+    c = cur[a:b]
+    applied = sv[a:b, 2]
+    if applied.size > 1 and np.all(np.isfinite(applied)):
+        # state k reports the current of the period that ended at it: shift by one
+        c = np.append(applied[1:], applied[-1])
+    return experiment_from_arrays(name, (ts[a:b] - ts[a]) * 1e-9, c, sv[a:b, 0], sv[a:b, 1],
+                                  None if pa is None else pa[a:b],
+                                  None if pb is None else pb[a:b])
+
+
+def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name,
+                    command: str = contract.COMMAND.name,
+                    pressure_p: str | None = contract.PRESSURE_P.name,
+                    pressure_t: str | None = contract.PRESSURE_T.name,
+                    bag: Bag | None = None) -> Experiment:
+    """
+    Read an experiment from the bag at ``path`` using the contract topic names.
+
+    Pressures are optional (pass None to ignore them); a bag without them gives an
+    experiment without pressures. Raises :class:`BagError` / :class:`DataError` naming the
+    problem (missing topics with the topics the bag has, wrong types, too little data, no
+    excitation, samples missing from the grid: see :func:`load_experiments` for those).
+    """
+    data = _read(path, state, command, pressure_p, pressure_t, bag)
+    return _experiment(*data, 0, data[1].size)
+
+
+def load_experiments(path: str | os.PathLike, *, state: str = contract.STATE.name,
+                     command: str = contract.COMMAND.name,
+                     pressure_p: str | None = contract.PRESSURE_P.name,
+                     pressure_t: str | None = contract.PRESSURE_T.name,
+                     bag: Bag | None = None) -> list[Experiment]:
+    """
+    Read the contiguous runs of the bag at ``path``: one experiment per run.
+
+    A best-effort recorder can miss states (a busy machine, a full queue), which leaves a gap
+    in the sample grid; each gap splits the record, and runs shorter than
+    :data:`MIN_SAMPLES` are dropped. Names get ``[k/n]`` when there is more than one run.
+    Irregular timing that is not a gap still raises, as :func:`load_experiment` does.
+    """
+    name, ts, cur, sv, pa, pb = _read(path, state, command, pressure_p, pressure_t, bag)
+    d = np.diff(ts)
+    cuts = np.flatnonzero(d > 1.5 * np.median(d)) + 1 if d.size else np.array([], int)
+    edges = [0, *cuts.tolist(), ts.size]
+    runs = [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b - a >= MIN_SAMPLES]
+    if not runs:
+        longest = max(b - a for a, b in zip(edges[:-1], edges[1:]))
+        raise DataError(f'{name}: too little data: the longest run without missing samples '
+                        f'has {longest} samples (need at least {MIN_SAMPLES}); '
+                        f'{len(cuts)} gaps')
+    if len(runs) == 1:
+        return [_experiment(name, ts, cur, sv, pa, pb, *runs[0])]
+    return [_experiment(f'{name} [{k + 1}/{len(runs)}]', ts, cur, sv, pa, pb, a, b)
+            for k, (a, b) in enumerate(runs)]

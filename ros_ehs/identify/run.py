@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 import warnings
 
-from ros_ehs.bag.experiment import load_experiment
+from ros_ehs.bag.experiment import load_experiments
 from ros_ehs.errors import IdentificationWarning, InputError
 from ros_ehs.identify.estimator import IdentificationResult, identify, score, SIGNALS
 from ros_ehs.identify.report import write_report
@@ -54,11 +54,11 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
     pp, pt = pressure_topics or (None, None)
 
     def load(b):
-        return load_experiment(b, state=state_topic, command=command_topic, pressure_p=pp,
-                               pressure_t=pt)
+        return load_experiments(b, state=state_topic, command=command_topic, pressure_p=pp,
+                                pressure_t=pt)
 
-    exps = [load(b) for b in bags]
-    held = [load(b) for b in holdout]
+    exps = [e for b in bags for e in load(b)]      # a bag with gaps gives several runs
+    held = [e for b in holdout for e in load(b)]
     base = load_yaml(initial, preset('table1_initial')) if initial else preset('table1_initial')
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', IdentificationWarning)   # kept in result.warnings
