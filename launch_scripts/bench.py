@@ -37,7 +37,7 @@ import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checkout works too
 
-from ros_ehs.nodes.launch import FIGURES, Launch  # noqa: E402
+from ros_ehs.nodes.launch import FIGURES, Launch, LaunchError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.synthetic import SensorNoise  # noqa: E402
 
@@ -66,32 +66,21 @@ def main(argv=None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     pf = a.params_file
     with Launch(a.domain_id, logs) as launch:
-        launch.start('recorder', {'out': str(out), 'use_sim_time': lock}, params_file=pf)
-        if not launch.wait_for_log('recorder', 'recording', 30):
-            print('bench: the recorder did not start:\n' + launch['recorder'].output(),
-                  file=sys.stderr)
-            return 1
-        plant = {'model': a.model, 'mode': a.mode}
+        plant = {'model': a.model}
         if not a.no_noise:
             noise = SensorNoise()
             plant.update(noise_z=noise.z, noise_v=noise.v, noise_p=noise.p)
-        if lock:      # start when controller and recorder listen
-            plant.update(duration=float(a.duration), wait_subscribers=2)
-        launch.start('plant', plant, params_file=pf)
-        launch.start('controller', {'sync_reference': lock}, params_file=pf)
+        if lock:
+            plant['duration'] = float(a.duration)
         # in real time the reference runs at 250 Hz (the controller extrapolates it with its
         # velocity): a 1 kHz reference costs a quarter of a core for nothing
-        launch.start('reference', {'kind': a.reference, 'use_sim_time': lock,
-                                   'rate_hz': 1000.0 if lock else 250.0}, params_file=pf)
-        ready = 'lock-step running' if lock else 'watchdog armed'
-        if not launch.wait_for_log('plant', ready, 60):
-            print('bench: the loop did not close; plant log:\n' + launch['plant'].output(),
-                  file=sys.stderr)
+        try:
+            launch.start_loop(a.mode, bag=out, plant=plant, params_file=pf,
+                              reference={'kind': a.reference,
+                                         'rate_hz': 1000.0 if lock else 250.0})
+        except LaunchError as err:
+            print(f'bench: {err}', file=sys.stderr)
             return 1
-        # DDS discovery among processes started together can take a few seconds: the
-        # duration counts from when the recorder hears every loop topic
-        launch.wait_for_logs('recorder', [f'publisher of /{t} discovered' for t in (
-            'state', 'servo_current', 'reference')], 30)
         print(f'bench: {a.mode} loop running ({a.model} model); recording to {out}',
               flush=True)
         t0 = time.monotonic()

@@ -30,9 +30,9 @@ from typing import Any, NamedTuple
 
 __all__ = [
     'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'JOINT_PISTON',
-    'JOINT_SPOOL', 'JOINT_VALVE', 'LOOP_QOS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P',
-    'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS', 'REFERENCE', 'Reference', 'STATE',
-    'TOPICS', 'Topic', 'by_name',
+    'JOINT_SPOOL', 'JOINT_VALVE', 'LOCKSTEP_QOS', 'LOOP_QOS', 'NODE_TOPICS', 'NodeTopics',
+    'PRESSURE_P', 'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS', 'REFERENCE', 'Reference',
+    'STATE', 'TOPICS', 'Topic', 'by_name',
     'command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',
     'fill_state', 'pressure_from_msg', 'reference_from_msg', 'stamp_ns', 'state_from_msg',
 ]
@@ -83,6 +83,11 @@ LOOP_QOS = QosSpec('best_effort', 1)
 RECORD_QOS = QosSpec('reliable', 10)
 #: ``/clock``, as rclcpp's ClockQoS.
 CLOCK_QOS = QosSpec('best_effort', 1)
+#: Loop topics and ``/clock`` in lock-step: reliable, keep last 1000. Nothing waits for the
+#: recorder in lock-step, and a best-effort recorder that the OS pauses for 0.3 s loses
+#: ~100 states; a reliable writer holds up to 1000 samples (1 s at 1 kHz) until each
+#: reliable reader has them. Best-effort readers (rclpy's /clock) still match.
+LOCKSTEP_QOS = QosSpec('reliable', 1000)
 
 
 class Topic(NamedTuple):
@@ -92,6 +97,12 @@ class Topic(NamedTuple):
     msg_type: str
     content: str
     qos: QosSpec = LOOP_QOS
+
+    def qos_in(self, lockstep: bool) -> QosSpec:
+        """Return this topic's QoS in real time or lock-step (best-effort topics turn reliable)."""
+        if lockstep and self.qos.reliability == 'best_effort':
+            return LOCKSTEP_QOS
+        return self.qos
 
 
 REFERENCE = Topic('reference', 'sensor_msgs/msg/JointState',

@@ -158,6 +158,17 @@ def test_qos_round_trips_through_rosbag2_entries_old_and_new():
     assert c.QosSpec.from_rosbag2(None) == c.RECORD_QOS
 
 
+def test_lockstep_turns_the_best_effort_loop_topics_reliable_and_nothing_else():
+    for t in c.TOPICS:
+        assert t.qos_in(False) == t.qos
+        lock = t.qos_in(True)
+        if t.qos.reliability == 'best_effort':
+            assert lock == c.LOCKSTEP_QOS and lock.reliability == 'reliable' and lock.depth >= 1000
+        else:
+            assert lock == t.qos
+    assert c.STATE.qos_in(True) == c.CLOCK.qos_in(True) == c.LOCKSTEP_QOS
+
+
 def test_live_options_follow_accepted_changes_read_only_ones_do_not():
     from rclpy.parameter import Parameter
     from ros_ehs.nodes.plant import OPTIONS

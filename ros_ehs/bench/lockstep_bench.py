@@ -45,10 +45,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     with domain_id() as dom:
         with Launch(dom) as launch:
-            launch.start('plant', {'mode': 'lockstep', 'duration': a.seconds,
-                                   'model': a.model, 'start_delay': 1.0})
-            launch.start('controller', {'sync_reference': True})
-            launch.start('reference', {'use_sim_time': True})
+            launch.start_loop('lockstep', plant={'duration': a.seconds, 'model': a.model,
+                                                 'start_delay': 1.0})
             if not launch.wait_for_log('plant', 'lock-step run complete', 600):
                 raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
             launch.stop(['reference', 'controller', 'plant'])

@@ -32,8 +32,9 @@ Edge-case policy (tested in ``test/test_nodes.py``):
 * before the first reference: hold the first measured position; between references,
   first-order hold (``z_ref + v_ref * age``, so the reference may run slower than the loop);
   a reference older than ``reference_timeout``: hold its position with zero velocity;
-* ``sync_reference`` (lock-step): a state is answered only with the reference of the same
-  stamp, waiting for it if needed, so the loop is deterministic.
+* ``lockstep``: a state is answered only with the reference of the same stamp, waiting for
+  it if needed, so the loop is deterministic; commands go out over the contract's
+  ``LOCKSTEP_QOS`` (reliable) so a recorder gets every one.
 """
 
 from __future__ import annotations
@@ -65,8 +66,8 @@ SPECS = CONTROL_SPECS + tuple(spec(n) for n in MODEL_PARAMS)
 
 OPTIONS = (
     Option('rate_hz', 1000.0, 'control period rate [Hz]; must match the plant', 10.0, 5000.0),
-    Option('sync_reference', False, 'lock-step: answer a state only with the reference of '
-           'the same stamp'),
+    Option('lockstep', False, 'lock-step bench: answer a state only with the reference of '
+           'the same stamp; commands over reliable QoS'),
     Option('reference_timeout', 0.1, 'a reference older than this is held at zero velocity '
            '[s]', 1.0e-3, 100.0, read_only=False),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
@@ -83,7 +84,7 @@ class ControllerNode(Node):
         self.params = node_params(self, Params(), SPECS)
         self.dt = 1.0 / float(self.opt['rate_hz'])
         self.ctrl = Controller(self.params, self.dt)
-        self.sync = bool(self.opt['sync_reference'])
+        self.sync = bool(self.opt['lockstep'])
         # staleness is a wall-clock notion: off under sim time and in lock-step (where the
         # plant waits for us, so nothing can be stale)
         self.wall = not (self.get_parameter('use_sim_time').value or self.sync)
@@ -103,7 +104,7 @@ class ControllerNode(Node):
         self._cmd_rec = contract.Command(0, 0.0)
 
         self.pub_cmd = self.create_publisher(JointState, contract.COMMAND.name,
-                                             qos_profile(contract.COMMAND.qos))
+                                             qos_profile(contract.COMMAND.qos_in(self.sync)))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               qos_profile(contract.DIAGNOSTICS.qos))
         self.create_subscription(JointState, contract.STATE.name, self._on_state,

@@ -34,7 +34,9 @@ import tempfile
 import time
 from typing import Any, Iterable
 
-__all__ = ['FIGURES', 'Launch', 'NodeProcess', 'node_command', 'NODES']
+from ros_ehs.errors import EhsError
+
+__all__ = ['FIGURES', 'Launch', 'LaunchError', 'NodeProcess', 'node_command', 'NODES']
 
 #: What the plant prints before its JSON figures at shutdown (one line).
 FIGURES = 'figures '
@@ -99,6 +101,10 @@ class NodeProcess:
             if line.startswith(FIGURES):
                 return json.loads(line[len(FIGURES):])
         raise RuntimeError(f'no figures in the log of {self.name}:\n' + log[-3000:])
+
+
+class LaunchError(EhsError, RuntimeError):
+    """A node did not start or did not reach the state a launch waits for (its log attached)."""
 
 
 class Launch:
@@ -193,6 +199,58 @@ class Launch:
             if not self.wait_for_log(name, text, max(0.0, end - time.monotonic())):
                 return False
         return True
+
+    def start_loop(self, mode: str = 'realtime', *, bag: str | os.PathLike | None = None,
+                   plant: dict[str, Any] | None = None,
+                   controller: dict[str, Any] | None = None,
+                   reference: dict[str, Any] | bool = True,
+                   params_file: str | os.PathLike | None = None,
+                   timeout: float = 60.0) -> None:
+        """
+        Start the bench loop (recorder if ``bag``, controller, reference, plant) in order.
+
+        The order makes sure a recorder loses nothing to discovery, which takes seconds
+        between processes started together: the recorder first, then the controller and
+        the reference; once the recorder records their topics, the plant. In lock-step the
+        plant starts stepping only when the controller (and the recorder) listen to
+        ``state``; in real time this returns when the plant's watchdog is armed and the
+        recorder records the plant's topics. ``plant``, ``controller``, ``reference``: extra
+        parameters (``reference=False``: no reference node). Raises :class:`LaunchError`
+        naming the step that did not happen, with that node's log.
+        """
+        if mode not in ('realtime', 'lockstep'):
+            raise ValueError(f"mode: expected 'realtime' or 'lockstep', got {mode!r}")
+        lock = mode == 'lockstep'
+        pf = params_file
+        plant_topics = ['/state', '/pressure/chamber_p', '/pressure/chamber_t']
+        if bag is not None:
+            self.start('recorder', {'out': str(bag), 'use_sim_time': lock}, params_file=pf)
+            self._expect('recorder', ['recording'], timeout, 'the recorder did not start')
+        self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
+        loop_topics = ['/servo_current']
+        if reference is not False:
+            ref = {'use_sim_time': lock, **({} if reference is True else reference)}
+            self.start('reference', ref, params_file=pf)
+            loop_topics.append('/reference')
+        if bag is not None:
+            self._expect('recorder', [f'recording {t} (' for t in loop_topics], timeout,
+                         'the recorder did not discover the controller and reference')
+        pl = {'mode': mode, **(plant or {})}
+        if lock:
+            pl.setdefault('wait_subscribers', 2 if bag is not None else 1)
+        self.start('plant', pl, params_file=pf)
+        self._expect('plant', ['lock-step running' if lock else 'watchdog armed'], timeout,
+                     'the loop did not close')
+        if bag is not None:
+            more = plant_topics + (['/clock'] if lock else [])
+            self._expect('recorder', [f'recording {t} (' for t in more], timeout,
+                         "the recorder did not discover the plant's topics")
+
+    def _expect(self, name: str, texts: list[str], timeout: float, what: str) -> None:
+        if not self.wait_for_logs(name, texts, timeout):
+            missing = [t for t in texts if t not in self.procs[name].output()]
+            raise LaunchError(f'{what} (no {missing!r} from {name} in {timeout:g} s); '
+                              f'{name} log:\n' + self.procs[name].output()[-3000:])
 
     def __enter__(self) -> 'Launch':
         """Return self."""

@@ -27,7 +27,9 @@ command (plus the lateness of that tick).
 that state's stamp and steps exactly one period: a closed loop over DDS that is deterministic
 and runs as fast as the messages go. A lost message is recovered by republishing the state
 after ``resend_period`` of silence (the controller answers a repeated stamp with the same
-command).
+command). Its topics go out over the contract's ``LOCKSTEP_QOS`` (reliable, depth 1000), so a
+recorder that the OS pauses still gets every sample; the subscriptions stay best effort and
+match any publisher.
 
 Every state message also carries the current applied over the period that ended at its stamp
 (joint ``servo_valve``), so a bag shows exactly what the valve got. ``noise_*`` add white
@@ -142,20 +144,23 @@ class PlantNode(Node):
         self._msg = JointState()
         self._pmsg = (FluidPressure(), FluidPressure())
         self._cmsg = Clock()
+
+        def out(t):      # lock-step: the loop topics go out reliable (see LOCKSTEP_QOS)
+            return qos_profile(t.qos_in(self.lockstep))
+
         self.pub_state = self.create_publisher(JointState, contract.STATE.name,
-                                               qos_profile(contract.STATE.qos))
+                                               out(contract.STATE))
         self.pub_p = self.create_publisher(FluidPressure, contract.PRESSURE_P.name,
-                                           qos_profile(contract.PRESSURE_P.qos))
+                                           out(contract.PRESSURE_P))
         self.pub_t = self.create_publisher(FluidPressure, contract.PRESSURE_T.name,
-                                           qos_profile(contract.PRESSURE_T.qos))
+                                           out(contract.PRESSURE_T))
         self.pub_diag = self.create_publisher(
             DiagnosticArray, contract.DIAGNOSTICS.name,
             qos_profile(contract.DIAGNOSTICS.qos))
         self.pub_clock = None
         self._loop: threading.Thread | None = None
         if self.lockstep:
-            self.pub_clock = self.create_publisher(Clock, contract.CLOCK.name,
-                                                   qos_profile(contract.CLOCK.qos))
+            self.pub_clock = self.create_publisher(Clock, contract.CLOCK.name, out(contract.CLOCK))
         self.create_subscription(JointState, contract.COMMAND.name, self._on_command,
                                  qos_profile(contract.COMMAND.qos))
         self.add_on_set_parameters_callback(self._check_params)

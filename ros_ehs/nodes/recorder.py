@@ -16,9 +16,11 @@ The recorder node: topics into a rosbag2-style MCAP bag (:class:`ros_ehs.bag.Bag
 
 Subscriptions are raw (the CDR bytes go to the file without a decode). ``topics`` defaults
 to every contract topic of this namespace; other topics named there are subscribed when
-they appear on the graph (their type is discovered). The subscription QoS follows rosbag2:
-reliable if every publisher offers reliable, else best effort; depth ``depth``. The
-``offered_qos_profiles`` stored are the publishers' (the contract's for contract topics).
+they appear on the graph (their type is discovered). As in rosbag2, a topic is subscribed
+when its first publisher is discovered, with QoS adapted to the publishers: reliable if every
+one offers reliable (the loop topics in lock-step), else best effort; depth ``depth``. The
+log line ``recording <topic> (<type>, <reliability>)`` says when. The
+``offered_qos_profiles`` stored are the publishers'.
 
 Crash safety is the writer's: the open chunk is closed and flushed every ``flush_period``
 (default 50 ms, also on a timer when traffic stops), so SIGKILL loses at most that much.
@@ -47,7 +49,7 @@ OPTIONS = (
            'the most a crash can lose', 0.005, 10.0),
     Option('fsync', False, 'also fsync on every flush (survives power loss)'),
     Option('depth', 1000, 'subscription queue depth', 1, 100000),
-    Option('discovery_period', 0.5, 'how often to look for listed topics not yet seen [s]',
+    Option('discovery_period', 0.2, 'how often to look for listed topics not yet seen [s]',
            0.05, 60.0),
 )
 
@@ -78,16 +80,9 @@ class RecorderNode(Node):
                                 fsync=bool(self.opt['fsync']))
         self.path = out
         self._subs = {}
-        self._seen: set[str] = set()
         self._dirty = False
         wanted = list(self.opt['topics']) or [t.name for t in contract.TOPICS]
         self._wanted = {self.resolve_topic_name(n): n for n in wanted}
-        for full, name in self._wanted.items():
-            try:
-                t = contract.by_name(name)
-            except KeyError:
-                continue
-            self._subscribe(full, t.msg_type, [t.qos.as_rosbag2()], t.qos.reliability)
         self._discover()
         self.create_timer(float(self.opt['discovery_period']), self._discover,
                           clock=steady_clock())
@@ -119,25 +114,27 @@ class RecorderNode(Node):
         self._subs[full] = self.create_subscription(cls, full, on_msg, qos, raw=True)
 
     def _discover(self) -> None:
-        for t, sub in self._subs.items():
-            if sub is not None and t not in self._seen and self.count_publishers(t) > 0:
-                self._seen.add(t)
-                self.get_logger().info(f'publisher of {t} discovered')
         missing = [t for t in self._wanted if t not in self._subs]
         if not missing:
             return
-        types = dict(self.get_topic_names_and_types())
+        types = None
         for full in missing:
-            if full not in types:
-                continue
             pubs = self.get_publishers_info_by_topic(full)
             if not pubs:
                 continue
+            if types is None:
+                types = dict(self.get_topic_names_and_types())
+            try:
+                msg_type = contract.by_name(self._wanted[full]).msg_type
+            except KeyError:
+                if full not in types:
+                    continue
+                msg_type = types[full][0]
             offered = [_qos_record(p.qos_profile) for p in pubs]
             rel = ('reliable' if all(q['reliability'] == 'reliable' for q in offered)
                    else 'best_effort')
-            self._subscribe(full, types[full][0], offered, rel)
-            self.get_logger().info(f'recording {full} ({types[full][0]}, {rel})')
+            self._subscribe(full, msg_type, offered, rel)
+            self.get_logger().info(f'recording {full} ({msg_type}, {rel})')
 
     def _flush(self) -> None:
         if self._dirty:

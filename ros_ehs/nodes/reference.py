@@ -61,11 +61,13 @@ class ReferenceNode(Node):
         self.last_ns = -1
         self.count = 0
         self._msg = JointState()
+        self.sim_time = bool(self.get_parameter('use_sim_time').value)
+        # under sim time the reference follows /clock tick by tick (lock-step): every sample
+        # counts, so it goes out over the lock-step QoS
         self.pub = self.create_publisher(JointState, contract.REFERENCE.name,
-                                         qos_profile(contract.REFERENCE.qos))
+                                         qos_profile(contract.REFERENCE.qos_in(self.sim_time)))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               qos_profile(contract.DIAGNOSTICS.qos))
-        self.sim_time = bool(self.get_parameter('use_sim_time').value)
         self._dt_ns = int(round(1e9 / float(self.opt['rate_hz'])))
         if self.sim_time:
             self.create_subscription(Clock, contract.CLOCK.name, self._on_clock,
