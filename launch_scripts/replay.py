@@ -18,7 +18,8 @@ Replay a bag on the bench network (the player node in the foreground).
     python launch_scripts/replay.py bags/sample_sine_1hz --rate 2 --topics /state,/servo_current
 
 Options map onto the player's parameters: ``--rate``, ``--topics``, ``--loop``,
-``--no-clock``. Ctrl-C stops it; it exits by itself at the end of the bag (unless ``--loop``).
+``--no-clock``, ``--wait-subscribers N`` (hold the first message until every replayed topic
+has N subscribers). Ctrl-C stops it; it exits by itself at the end of the bag (unless ``--loop``).
 """
 
 from __future__ import annotations
@@ -41,8 +42,10 @@ def main(argv=None) -> int:
     ap.add_argument('--topics', default='', help='comma-separated (default: all)')
     ap.add_argument('--loop', action='store_true')
     ap.add_argument('--no-clock', action='store_true')
+    ap.add_argument('--wait-subscribers', type=int, default=0)
     a = ap.parse_args(argv)
-    params = {'bag': a.bag, 'rate': float(a.rate), 'loop': a.loop, 'clock': not a.no_clock}
+    params = {'bag': a.bag, 'rate': float(a.rate), 'loop': a.loop, 'clock': not a.no_clock,
+              'wait_subscribers': a.wait_subscribers}
     topics = [t for t in a.topics.split(',') if t]
     if topics:
         params['topics'] = topics

@@ -161,7 +161,10 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
         ms = list(read_ros2_messages(str(next(bag.glob('*.mcap'))),
                                      topics=['/pressure/chamber_p']))
     assert len(ms) == counts['/pressure/chamber_p']
-    assert all(1e5 < m.ros_msg.fluid_pressure < 3e7 for m in ms)
+    # mcap_ros2 decodes exactly what our reader does, and the values are live pressures
+    theirs = [m.ros_msg.fluid_pressure for m in ms]
+    assert theirs == [m.fluid_pressure for _, m in ours.decoded(['/pressure/chamber_p'])]
+    assert np.all(np.isfinite(theirs)) and np.ptp(theirs) > 1e5
 
 
 def test_recorder_sigkill_loses_at_most_100_ms(dom, tmp_path):
@@ -192,16 +195,20 @@ def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_pat
     # that tick's own lateness (a busy 2-core machine delays a thread by ms at times)
     assert f['watchdog_latency_ms'] - max(0.0, f['watchdog_tick_late_ms']) <= 3.0 + 1e-3, f
     # in the bag: the applied current is zero from the trip to the end (>= 1 s), the state
-    # stays finite, and the valve was zeroed soon after the last recorded command (the
-    # recorder is best effort and the loop has ms of jitter: the exact figure is above)
+    # stays finite, and the valve was zeroed soon after the stamp of the command it applied
+    # last (found by its value: the best-effort recorder may miss the last few commands
+    # on a loaded machine; the loop has ms of jitter: the exact figure is above)
     t, z, i = _states(bag)
     assert np.all(np.isfinite(z))
-    last_nonzero = t[np.flatnonzero(i != 0.0)[-1]]
+    k = np.flatnonzero(i != 0.0)[-1]
+    last_nonzero = t[k]
     assert (t[-1] - last_nonzero) / 1e9 >= 1.0
     bagr = open_bag(bag)
     cmds = [c.command_from_msg(m) for _, m in bagr.decoded(['/servo_current'])]
-    last_cmd = max(x.stamp_ns for x in cmds if x.i != 0.0)   # the controller's own 0 A aside
-    assert abs(last_nonzero - last_cmd) / 1e6 <= 20
+    applied = [x.stamp_ns for x in cmds if x.i == i[k]]
+    last_cmd = max(applied) if applied else max(x.stamp_ns for x in cmds if x.i != 0.0)
+    assert 0 <= (last_nonzero - last_cmd) / 1e6 <= 20, (
+        (last_nonzero - last_cmd) / 1e6, len(applied), f)
 
 
 def test_bad_messages_crash_nothing(dom, tmp_path, ros):
@@ -332,7 +339,7 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     ros.create_subscription(Clock, '/clock', clocks.append, qos_profile(c.CLOCK_QOS, 100))
     with Launch(dom, tmp_path / 'logs') as launch:
         p = launch.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 4.0,
-                                    'topics': ['/topic'], 'start_delay': 1.5})
+                                    'topics': ['/topic'], 'wait_subscribers': 1})
         ros.spin(until=lambda: p.popen.poll() is not None, timeout=60)
         ros.spin(0.3)
         assert p.popen.returncode == 0, p.output()
@@ -345,7 +352,8 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     got.clear()
     with Launch(dom, tmp_path / 'logs2') as launch:
         p = launch.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 20.0,
-                                    'topics': ['/topic'], 'loop': True, 'start_delay': 1.5})
+                                    'topics': ['/topic'], 'loop': True,
+                                    'wait_subscribers': 1})
         assert ros.spin(until=lambda: len(got) >= 25, timeout=60), len(got)
         assert p.alive()
         assert launch.stop(['player'])['player'] == 0

@@ -17,7 +17,9 @@ The player node: replays a bag with its recorded timing.
 ``bag`` is a bag directory or ``.mcap`` file (ours or rosbag2's). ``rate`` scales time (2.0
 plays twice as fast); ``topics`` selects topics (default all); ``loop`` starts over at the
 end; ``clock`` publishes ``/clock`` with the bag's time (every ``1 / clock_hz`` of bag time and
-before each message) so ``use_sim_time`` nodes follow the replay. Each topic is re-offered
+before each message) so ``use_sim_time`` nodes follow the replay. Discovery between
+processes takes up to seconds: ``wait_subscribers`` holds the first message until every
+replayed topic has that many subscribers, then ``start_delay`` passes. Each topic is re-offered
 with the QoS it was recorded with. Topics whose message type is not installed are skipped
 with a warning naming them. The node exits when the bag is done (unless ``loop``).
 """
@@ -45,7 +47,9 @@ OPTIONS = (
     Option('clock', True, 'publish /clock with the bag time'),
     Option('clock_hz', 100.0, '/clock rate in bag time, besides one before each message [Hz]',
            1.0, 10000.0),
-    Option('start_delay', 0.5, 'wait this long for subscribers before the first message [s]',
+    Option('wait_subscribers', 0, 'before the first message, wait until every replayed '
+           'topic has this many subscribers', 0, 1000),
+    Option('start_delay', 0.5, 'then wait this long, so the subscribers have matched too [s]',
            0.0, 60.0),
 )
 
@@ -109,6 +113,13 @@ class PlayerNode(Node):
         msgs = list(self.bag.messages(list(self.pubs)))
         rate = float(self.opt['rate'])
         clock_step = int(1e9 / float(self.opt['clock_hz']))
+        need = int(self.opt['wait_subscribers'])
+        if need:
+            self.get_logger().info(f'waiting for {need} subscriber(s) on each of '
+                                   f'{sorted(self.pubs)}')
+            while min(p.get_subscription_count() for p in self.pubs.values()) < need:
+                if self._stop.wait(0.01):
+                    return
         if self._stop.wait(float(self.opt['start_delay'])):
             return
         while msgs and not self._stop.is_set():
