@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The main job: set up (if needed), run a bench over DDS (plant, controller, reference and
-# recorder nodes, 10 s in real time) recording a bag, then identify on that bag.
+# recorder nodes, 10 s in real time) recording a bag, then identify on that bag jointly with
+# the synthetic sample bag in bags/.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/scripts/setup.sh"
@@ -8,4 +9,4 @@ source "$root/scripts/env.sh"
 cd "$root"
 rm -rf out/bench_run
 python launch_scripts/bench.py --duration 10 --out out/bench_run
-exec ehs_sim identify out/bench_run --out out/identification "$@"
+exec ehs_sim identify out/bench_run bags/sample_sine_1hz --out out/identification "$@"
