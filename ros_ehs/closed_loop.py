@@ -28,14 +28,14 @@ import numpy as np
 
 from ros_ehs.control.controller import Controller
 from ros_ehs.errors import InputError
-from ros_ehs.model.plant import Plant
+from ros_ehs.model.plant import Plant, StateSeries
 from ros_ehs.params import Params
 
 __all__ = ['ClosedLoopResult', 'reference_step', 'run_closed_loop']
 
 
 @dataclass(frozen=True)
-class ClosedLoopResult:
+class ClosedLoopResult(StateSeries):
     """Time [s], reference z/v, plant states, commanded current [A] per period."""
 
     t: np.ndarray
@@ -45,20 +45,6 @@ class ClosedLoopResult:
     i: np.ndarray
     state_names: tuple[str, ...]
     z_meas: np.ndarray | None = None   #: the position the controller saw (with z_noise)
-
-    def signal(self, name: str) -> np.ndarray:
-        """Return state ``name`` at the control instants."""
-        return self.x[:, self.state_names.index(name)]
-
-    @property
-    def z(self) -> np.ndarray:
-        """Piston position [m]."""
-        return self.signal('z')
-
-    @property
-    def z_dot(self) -> np.ndarray:
-        """Piston velocity [m/s]."""
-        return self.signal('z_dot')
 
 
 def reference_step(plant: Plant, x, u, dt: float, rtol: float = 1e-10,

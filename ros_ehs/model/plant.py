@@ -31,7 +31,8 @@ from ros_ehs.model import kernels as K
 from ros_ehs.model.coefficients import pack
 from ros_ehs.params import Params
 
-__all__ = ['FULL_STATES', 'MODELS', 'Plant', 'SIMPLIFIED_STATES', 'SimResult', 'rhs']
+__all__ = ['FULL_STATES', 'MODELS', 'Plant', 'SIMPLIFIED_STATES', 'SimResult', 'StateSeries',
+           'rhs']
 
 FULL_STATES = ('theta_dot', 'theta', 'p_tL', 'p_tR', 'x_dot', 'x', 'p_CP', 'p_CT', 'z_dot',
                'z')
@@ -51,22 +52,14 @@ DEFAULT_H = {'full': 50e-6, 'simplified': 1e-3}
 DEFAULT_JAC_EVERY = {'full': 4, 'simplified': 1}
 
 
-@dataclass(frozen=True)
-class SimResult:
-    """
-    A simulated run: time ``t`` (N+1,) [s], states ``x`` (N+1, n), inputs ``u`` (N, 2).
+class StateSeries:
+    """Named state signals of a result with ``x`` (N, n) and ``state_names``, in SI units."""
 
-    ``u[k]`` is held over ``[t[k], t[k+1])``. Named signals are properties in SI units.
-    """
-
-    t: np.ndarray
     x: np.ndarray
-    u: np.ndarray
     state_names: tuple[str, ...]
-    params: Params
 
     def signal(self, name: str) -> np.ndarray:
-        """Return state ``name`` over time."""
+        """Return state ``name`` at every sample."""
         return self.x[:, self.state_names.index(name)]
 
     @property
@@ -88,6 +81,21 @@ class SimResult:
     def p_b(self) -> np.ndarray:
         """Pressure in chamber T [Pa]."""
         return self.signal('p_CT')
+
+
+@dataclass(frozen=True)
+class SimResult(StateSeries):
+    """
+    A simulated run: time ``t`` (N+1,) [s], states ``x`` (N+1, n), inputs ``u`` (N, 2).
+
+    ``u[k]`` is held over ``[t[k], t[k+1])``. Named signals are properties in SI units.
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    state_names: tuple[str, ...]
+    params: Params
 
     @property
     def force(self) -> np.ndarray:
