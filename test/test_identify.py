@@ -110,6 +110,24 @@ def test_joint_fit_of_two_bags_and_sse_option(fits):
         assert r.x[n] == pytest.approx(TRUE[n], rel=0.01), n
 
 
+def test_result_carries_the_fitted_traces_keyed_by_unique_names(fits):
+    e0 = fits[0][0]
+    r = identify([e0, e0], free=('c_c',), base=TRUE, workers=1, max_nfev=3)
+    names = ['sample_sine_1hz', 'sample_sine_1hz #2']
+    assert list(r.metrics) == list(r.fitted) == names
+    for n in names:
+        fit = r.fitted[n]
+        assert fit['z_dot'].shape == fit['z'].shape == e0.t.shape
+        # the traces are the ones the metrics were computed on
+        sse = float(np.sum((fit['z_dot'] - e0.v) ** 2))
+        sst = float(np.sum((e0.v - e0.v.mean()) ** 2))
+        assert 1.0 - sse / sst == pytest.approx(r.metrics[n]['z_dot']['r2'], rel=1e-12)
+        # position: fitted up to one offset per 1 s segment, so each segment's mean matches
+        for a in range(0, e0.t.size - 1000, 1000):
+            assert abs(np.mean(fit['z'][a:a + 1000] - e0.z[a:a + 1000])) < 1e-12
+    assert 'fitted' not in r.summary()
+
+
 def test_unidentifiable_parameter_is_warned(fits):
     e = fits[0][0]
     # B_a (torque-motor damping) exists only in the full model

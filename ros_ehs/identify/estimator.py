@@ -118,7 +118,11 @@ class Problem:
         self.xscale = plant._xscale
         self.jac_every = DEFAULT_JAC_EVERY[model]
         self.exps: list[_Exp] = []
+        names: list[str] = []
         for e in experiments:
+            # results are keyed by name: two bags called alike get '#2', '#3'
+            name = e.name if e.name not in names else f'{e.name} #{names.count(e.name) + 1}'
+            names.append(e.name)
             sig = e.signals()
             use = [s for s in signals if s in sig]
             measured = np.array([self.names.index(s) for s in use])
@@ -130,7 +134,7 @@ class Problem:
             x0[measured] = y[0, measured]
             seg = max(1, int(round(segment / e.dt))) if segment else e.t.size
             edges = list(range(0, e.t.size - 1, seg)) + [e.t.size]
-            self.exps.append(_Exp(e.name, np.column_stack([e.i[:-1], np.zeros(e.t.size - 1)]),
+            self.exps.append(_Exp(name, np.column_stack([e.i[:-1], np.zeros(e.t.size - 1)]),
                                   y, measured, sigma, edges, e.dt, x0))
         self.nsub = [max(1, int(math.ceil(ex.dt / plant.h - 1e-9))) for ex in self.exps]
         self.nfev = 0
@@ -241,6 +245,9 @@ class IdentificationResult:
     metrics: dict[str, dict[str, dict[str, float]]]
     sigma: dict[str, dict[str, float]]
     warnings: list[str] = field(default_factory=list)
+    #: the fitted model's signals per experiment (``z`` with the per-segment offsets the fit
+    #: allows), on the experiment's samples; for plots, not in the summary
+    fitted: dict[str, dict[str, np.ndarray]] = field(default_factory=dict, repr=False)
     wall_s: float = 0.0
     model: str = 'simplified'
     cost_kind: str = 'sae'
@@ -264,7 +271,9 @@ class IdentificationResult:
         }
 
 
-def _metrics(problem: Problem, theta: np.ndarray) -> dict[str, dict[str, dict[str, float]]]:
+def _metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
+             ) -> dict[str, dict[str, dict[str, float]]]:
+    """Fit metrics per experiment and signal; ``fitted`` (if given) gets the model traces."""
     out = {}
     for ex, o in zip(problem.exps, problem.simulate(theta)):
         m = {}
@@ -279,7 +288,12 @@ def _metrics(problem: Problem, theta: np.ndarray) -> dict[str, dict[str, dict[st
             m[name] = {'nrmse': math.sqrt(sse / y.size) / (float(np.std(y)) or 1.0),
                        'r2': 1.0 - sse / sst if sst > 0 else math.nan,
                        'rms': math.sqrt(sse / y.size)}
+            if fitted is not None and name == 'z':
+                o[:, j] = y + e     # position is fitted up to an offset per segment
         out[ex.name] = m
+        if fitted is not None:
+            fitted[ex.name] = {n: o[:, problem.names.index(n)] for n in SIGNALS
+                               if n in problem.names}
     return out
 
 
@@ -458,13 +472,15 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         notes.append(f'the fitted set is not a valid parameter set: {e}')
     for note in notes:
         warnings.warn(note, IdentificationWarning, stacklevel=2)
+    fitted: dict[str, dict[str, np.ndarray]] = {}
+    metrics = _metrics(problem, theta, fitted)
     return IdentificationResult(
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
         sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),
         message=str(sol.message), success=bool(sol.success), nfev=int(sol.nfev),
         njev=njev[0], iterations=njev[0], history=history,
         stderr={n: float(s) for n, s in zip(free, se)}, correlation=corr, free=free,
-        metrics=_metrics(problem, theta),
+        metrics=metrics, fitted=fitted,
         sigma={ex.name: {problem.names[j]: float(s) for j, s in zip(ex.measured, ex.sigma)}
                for ex in problem.exps},
         warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost)

@@ -17,7 +17,8 @@ The identification report: parameters YAML, JSON summary and PNG figures in one 
 * ``identified_params.yaml``: a ROS 2 parameters file (``/**: ros__parameters:``) with the
   fitted values, which plant and controller load with ``--params-file``;
 * ``summary.json``: values, standard errors, correlation, fit metrics, history, warnings;
-* ``fit_<experiment>.png``: measured vs fitted position and velocity;
+* ``fit_<experiment>.png``: measured vs fitted position and velocity, and the velocity
+  residual beside the estimated sensor noise;
 * ``history.png``: cost and parameters per iteration (the paper's Fig. 3);
 * ``correlation.png``: the parameter correlation matrix.
 """
@@ -30,9 +31,7 @@ import os
 from pathlib import Path
 import re
 
-import numpy as np
-
-from ros_ehs.identify.estimator import IdentificationResult, Problem
+from ros_ehs.identify.estimator import IdentificationResult
 from ros_ehs.params import save_yaml
 
 __all__ = ['write_report']
@@ -43,9 +42,12 @@ def _safe(name: str) -> str:
 
 
 def write_report(result: IdentificationResult, experiments, out: str | os.PathLike, *,
-                 segment: float | None = 1.0, signals=('z_dot', 'z', 'p_CP', 'p_CT'),
                  figures: bool = True) -> dict[str, Path]:
-    """Write the report of ``result`` on ``experiments`` into folder ``out``."""
+    """
+    Write the report of ``result`` on ``experiments`` (the ones it was fitted on) to ``out``.
+
+    The fit figures plot ``result.fitted``, the model traces the fit itself computed.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
@@ -65,35 +67,34 @@ def write_report(result: IdentificationResult, experiments, out: str | os.PathLi
         exps = list(experiments)
     else:
         exps = [experiments]
-    base = result.params if result.params is not None else None
-    if base is not None:
-        prob = Problem(exps, base, result.free, result.model, signals, segment, None)
-        theta = np.array([result.x[n] for n in result.free]) / prob.scale
-        sims = prob.simulate(theta)
-        iz, iv = prob.names.index('z'), prob.names.index('z_dot')
-        for ex, e, o in zip(prob.exps, exps, sims):
-            fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-            # position is fitted up to an offset per segment: show it with the fit's offsets
-            z_fit = e.z + ex.offset_free(o[:, iz] - e.z)
-            ax[0].plot(e.t, e.z * 1e3, lw=0.8, label='measured')
-            ax[0].plot(e.t, z_fit * 1e3, lw=0.8, ls='--', label='fitted model')
-            ax[0].set_ylabel('position z [mm]')
-            ax[1].plot(e.t, e.v, lw=0.6, label='measured')
-            ax[1].plot(e.t, o[:, iv], lw=0.8, ls='--', label='fitted model')
-            ax[1].set_ylabel('velocity [m/s]')
-            ax[1].set_xlabel('time [s]')
-            m = result.metrics.get(ex.name, {})
-            title = ', '.join(f'{k}: R2 {v["r2"]:.4f}' for k, v in m.items()
-                              if k in ('z_dot', 'z'))
-            ax[0].set_title(f'{ex.name}: {title}')
-            for a in ax:
-                a.grid(True, alpha=0.3)
-                a.legend(loc='upper right')
-            fig.tight_layout()
-            p = out / f'fit_{_safe(ex.name)}.png'
-            fig.savefig(p, dpi=100)
-            plt.close(fig)
-            files[f'fit_{ex.name}'] = p
+    for e, (name, fit) in zip(exps, result.fitted.items()):
+        fig, ax = plt.subplots(3, 1, figsize=(9, 8), sharex=True,
+                               gridspec_kw={'height_ratios': [3, 3, 2]})
+        ax[0].plot(e.t, e.z * 1e3, lw=0.8, label='measured')
+        ax[0].plot(e.t, fit['z'] * 1e3, lw=0.8, ls='--', label='fitted model')
+        ax[0].set_ylabel('position z [mm]')
+        ax[1].plot(e.t, e.v, lw=0.6, label='measured')
+        ax[1].plot(e.t, fit['z_dot'], lw=0.8, ls='--', label='fitted model')
+        ax[1].set_ylabel('velocity [m/s]')
+        # the residual beside the sensor noise the fit estimated: an honest fit stays in it
+        # except at the stick-slip reversals
+        ax[2].plot(e.t, (fit['z_dot'] - e.v) * 1e3, lw=0.6, color='C3', label='fit - measured')
+        sig = result.sigma.get(name, {}).get('z_dot')
+        if sig:
+            ax[2].axhspan(-2e3 * sig, 2e3 * sig, color='0.85', label='+-2 sigma sensor noise')
+        ax[2].set_ylabel('residual [mm/s]')
+        ax[2].set_xlabel('time [s]')
+        m = result.metrics.get(name, {})
+        title = ', '.join(f'{k}: R2 {v["r2"]:.4f}' for k, v in m.items() if k in ('z_dot', 'z'))
+        ax[0].set_title(f'{name}: {title}')
+        for a in ax:
+            a.grid(True, alpha=0.3)
+            a.legend(loc='upper right')
+        fig.tight_layout()
+        p = out / f'fit_{_safe(name)}.png'
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        files[f'fit_{name}'] = p
     h = result.history
     if h:
         names = list(result.free)

@@ -70,6 +70,5 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
         held_metrics = score(result.params, held, model=model, signals=signals,
                              segment=segment)
         result.metrics.update({f'held-out {k}': v for k, v in held_metrics.items()})
-    files = write_report(result, exps, out, segment=segment, signals=signals,
-                         figures=figures)
+    files = write_report(result, exps, out, figures=figures)
     return result, files, held_metrics
