@@ -158,6 +158,14 @@ def test_qos_round_trips_through_rosbag2_entries_old_and_new():
     assert c.QosSpec.from_rosbag2(None) == c.RECORD_QOS
 
 
+def test_qos_spec_inverts_qos_profile():
+    from ros_ehs.nodes.ros_common import qos_profile, qos_spec
+    for q in (c.LOOP_QOS, c.RECORD_QOS, c.LOCKSTEP_QOS,
+              c.QosSpec('reliable', 5, 'transient_local'),
+              c.QosSpec('best_effort', 3, history='keep_all')):
+        assert qos_spec(qos_profile(q)) == q
+
+
 def test_lockstep_turns_the_best_effort_loop_topics_reliable_and_nothing_else():
     for t in c.TOPICS:
         assert t.qos_in(False) == t.qos

@@ -84,10 +84,10 @@ class ControllerNode(Node):
         self.params = node_params(self, Params(), SPECS)
         self.dt = 1.0 / float(self.opt['rate_hz'])
         self.ctrl = Controller(self.params, self.dt)
-        self.sync = bool(self.opt['lockstep'])
+        self.lockstep = bool(self.opt['lockstep'])
         # staleness is a wall-clock notion: off under sim time and in lock-step (where the
         # plant waits for us, so nothing can be stale)
-        self.wall = not (self.get_parameter('use_sim_time').value or self.sync)
+        self.wall = not (self.get_parameter('use_sim_time').value or self.lockstep)
         self._pending: Params | None = None
         self._refs: dict[int, tuple[float, float]] = {}
         self._ref_keys: deque[int] = deque()
@@ -103,8 +103,8 @@ class ControllerNode(Node):
         self._cmd = JointState()
         self._cmd_rec = contract.Command(0, 0.0)
 
-        self.pub_cmd = self.create_publisher(JointState, contract.COMMAND.name,
-                                             qos_profile(contract.COMMAND.qos_in(self.sync)))
+        cmd_qos = qos_profile(contract.COMMAND.qos_in(self.lockstep))
+        self.pub_cmd = self.create_publisher(JointState, contract.COMMAND.name, cmd_qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               qos_profile(contract.DIAGNOSTICS.qos))
         self.create_subscription(JointState, contract.STATE.name, self._on_state,
@@ -114,14 +114,14 @@ class ControllerNode(Node):
             # state publisher (a rig, a bag player) to offer a deadline too
             self.create_timer(0.01, self._check_lost, clock=steady_clock())
         self.create_subscription(JointState, contract.REFERENCE.name, self._on_reference,
-                                 qos_profile(contract.REFERENCE.qos, depth=64 if self.sync
-                                             else None))
+                                 qos_profile(contract.REFERENCE.qos,
+                                             depth=64 if self.lockstep else None))
         self.add_on_set_parameters_callback(self._check_params)
         self.add_post_set_parameters_callback(self._apply_params)
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
                           clock=steady_clock())
-        self.get_logger().info(f'PID + feedforward at {self.opt["rate_hz"]:g} Hz'
-                               f'{", reference-synchronised (lock-step)" if self.sync else ""}')
+        sync = ', reference-synchronised (lock-step)' if self.lockstep else ''
+        self.get_logger().info(f'PID + feedforward at {self.opt["rate_hz"]:g} Hz{sync}')
 
     # -- references --------------------------------------------------------------------------
     def _on_reference(self, msg: JointState) -> None:
@@ -130,7 +130,7 @@ class ControllerNode(Node):
             self.counts['bad'] += 1
             return
         self._ref = (r.z_ref, r.v_ref, time.monotonic(), r.stamp_ns)
-        if self.sync:
+        if self.lockstep:
             self._refs[r.stamp_ns] = (r.z_ref, r.v_ref)
             self._ref_keys.append(r.stamp_ns)
             while len(self._ref_keys) > 256:
@@ -141,7 +141,7 @@ class ControllerNode(Node):
                 self._answer(w, r.z_ref, r.v_ref)
 
     def _reference_for(self, s: contract.AxisState):
-        if self.sync:
+        if self.lockstep:
             return self._refs.get(s.stamp_ns)
         if self._ref is None:
             if self._hold_z is None and math.isfinite(s.z):

@@ -35,6 +35,7 @@ import time
 from typing import Any, Iterable
 
 from ros_ehs.errors import EhsError
+import ros_ehs_msgs_py as contract
 
 __all__ = ['FIGURES', 'Launch', 'LaunchError', 'NodeProcess', 'node_command', 'NODES']
 
@@ -222,18 +223,20 @@ class Launch:
             raise ValueError(f"mode: expected 'realtime' or 'lockstep', got {mode!r}")
         lock = mode == 'lockstep'
         pf = params_file
-        plant_topics = ['/state', '/pressure/chamber_p', '/pressure/chamber_t']
+
+        def recording(*topics):      # the recorder's line for each (absolute) topic
+            return [f"recording {'/' + t.name.lstrip('/')} (" for t in topics]
         if bag is not None:
             self.start('recorder', {'out': str(bag), 'use_sim_time': lock}, params_file=pf)
             self._expect('recorder', ['recording'], timeout, 'the recorder did not start')
         self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
-        loop_topics = ['/servo_current']
+        loop_topics = [contract.COMMAND]
         if reference is not False:
             ref = {'use_sim_time': lock, **({} if reference is True else reference)}
             self.start('reference', ref, params_file=pf)
-            loop_topics.append('/reference')
+            loop_topics.append(contract.REFERENCE)
         if bag is not None:
-            self._expect('recorder', [f'recording {t} (' for t in loop_topics], timeout,
+            self._expect('recorder', recording(*loop_topics), timeout,
                          'the recorder did not discover the controller and reference')
         pl = {'mode': mode, **(plant or {})}
         if lock:
@@ -242,9 +245,9 @@ class Launch:
         self._expect('plant', ['lock-step running' if lock else 'watchdog armed'], timeout,
                      'the loop did not close')
         if bag is not None:
-            more = plant_topics + (['/clock'] if lock else [])
-            self._expect('recorder', [f'recording {t} (' for t in more], timeout,
-                         "the recorder did not discover the plant's topics")
+            plant_topics = (contract.STATE, contract.PRESSURE_P, contract.PRESSURE_T)
+            self._expect('recorder', recording(*plant_topics, *([contract.CLOCK] * lock)),
+                         timeout, "the recorder did not discover the plant's topics")
 
     def _expect(self, name: str, texts: list[str], timeout: float, what: str) -> None:
         if not self.wait_for_logs(name, texts, timeout):

@@ -209,16 +209,17 @@ class PlantNode(Node):
         j = (c.stamp_ns - self.t0_ns) // self._dt_ns % _RING
         if self._sent_stamp[j] == c.stamp_ns:
             self.stats.rtt.add(now - self._sent_time[j])
+        if self.lockstep and (c.stamp_ns != self.stamp_ns() or self.finished):
+            self.stale_commands += 1       # lock-step: only the answer to this state counts
+            return
+        self._last_cmd_stamp = c.stamp_ns
+        self.i_cmd = min(max(c.i, -self.i_limit), self.i_limit)
+        if not self.armed:
+            self.armed = True
+            self._t_first = now
+            what = 'lock-step running' if self.lockstep else 'watchdog armed'
+            self.get_logger().info(f'first command received; {what}')
         if self.lockstep:
-            if c.stamp_ns != self.stamp_ns() or self.finished:
-                self.stale_commands += 1
-                return
-            self._last_cmd_stamp = c.stamp_ns
-            self.i_cmd = min(max(c.i, -self.i_limit), self.i_limit)
-            if not self.armed:
-                self.armed = True
-                self._t_first = now
-                self.get_logger().info('first command received; lock-step running')
             self.stats.tick(now, True)
             self._step(self.i_cmd)
             self._last_progress = now
@@ -228,13 +229,8 @@ class PlantNode(Node):
                 self.get_logger().info(f'lock-step run complete: {self.k} steps, '
                                        f'{self.figures()["steps_per_s"]:.0f} steps/s')
             return
-        self._last_cmd_stamp = c.stamp_ns
-        self.i_cmd = min(max(c.i, -self.i_limit), self.i_limit)
         self._fresh = True
         self._last_rx = now
-        if not self.armed:
-            self.armed = True
-            self.get_logger().info('first command received; watchdog armed')
 
     # -- stepping ----------------------------------------------------------------------------
     def _step(self, i: float) -> None:

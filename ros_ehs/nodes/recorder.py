@@ -34,10 +34,9 @@ from pathlib import Path
 import time
 
 from rclpy.node import Node
-from rclpy.qos import ReliabilityPolicy
 from ros_ehs.bag.writer import BagWriter
-from ros_ehs.nodes.ros_common import (declare_options, msg_class, Option, qos_profile, run,
-                                      steady_clock)
+from ros_ehs.nodes.ros_common import (declare_options, msg_class, Option, qos_profile,
+                                      qos_spec, run, steady_clock)
 import ros_ehs_msgs_py as contract
 
 __all__ = ['OPTIONS', 'RecorderNode', 'main', 'default_bag_path']
@@ -57,13 +56,6 @@ OPTIONS = (
 def default_bag_path() -> Path:
     """Return ``bags/ehs_<UTC time>`` (rosbag2's ``rosbag2_<time>`` convention)."""
     return Path('bags') / datetime.now(timezone.utc).strftime('ehs_%Y_%m_%d-%H_%M_%S')
-
-
-def _qos_record(p) -> dict:
-    """Return a rosbag2 offered-QoS entry for an rclpy QoSProfile."""
-    rel = 'reliable' if p.reliability == ReliabilityPolicy.RELIABLE else 'best_effort'
-    dur = 'transient_local' if p.durability.value == 1 else 'volatile'
-    return contract.QosSpec(rel, max(1, int(p.depth)), dur).as_rosbag2()
 
 
 class RecorderNode(Node):
@@ -90,6 +82,7 @@ class RecorderNode(Node):
         self.get_logger().info(f'recording {sorted(self._wanted)} to {out}')
 
     def _subscribe(self, full: str, msg_type: str, offered: list, reliability: str) -> None:
+        """Subscribe raw to ``full`` and add it to the bag (a type not installed: warn)."""
         try:
             cls = msg_class(msg_type)
         except KeyError as err:
@@ -112,6 +105,7 @@ class RecorderNode(Node):
             self._dirty = True
 
         self._subs[full] = self.create_subscription(cls, full, on_msg, qos, raw=True)
+        self.get_logger().info(f'recording {full} ({msg_type}, {reliability})')
 
     def _discover(self) -> None:
         missing = [t for t in self._wanted if t not in self._subs]
@@ -130,11 +124,10 @@ class RecorderNode(Node):
                 if full not in types:
                     continue
                 msg_type = types[full][0]
-            offered = [_qos_record(p.qos_profile) for p in pubs]
-            rel = ('reliable' if all(q['reliability'] == 'reliable' for q in offered)
+            specs = [qos_spec(p.qos_profile) for p in pubs]
+            rel = ('reliable' if all(q.reliability == 'reliable' for q in specs)
                    else 'best_effort')
-            self._subscribe(full, msg_type, offered, rel)
-            self.get_logger().info(f'recording {full} ({msg_type}, {rel})')
+            self._subscribe(full, msg_type, [q.as_rosbag2() for q in specs], rel)
 
     def _flush(self) -> None:
         if self._dirty:

@@ -73,7 +73,6 @@ class ReferenceNode(Node):
             self.create_subscription(Clock, contract.CLOCK.name, self._on_clock,
                                      qos_profile(contract.CLOCK.qos, depth=10))
         else:
-            self._t0_wall = None
             self.create_timer(1.0 / float(self.opt['rate_hz']), self._tick,
                               clock=steady_clock())
         self.add_on_set_parameters_callback(self._check)

@@ -14,7 +14,8 @@
 """
 The rclpy plumbing every ros_ehs node shares.
 
-* :func:`qos_profile` turns a contract :class:`~ros_ehs_msgs_py.QosSpec` into a QoSProfile;
+* :func:`qos_profile` turns a contract :class:`~ros_ehs_msgs_py.QosSpec` into a QoSProfile,
+  :func:`qos_spec` back;
 * :func:`declare_specs` declares parameters from the one table (:mod:`ros_ehs.params`) with
   their unit, meaning and range, and :class:`Option` declares a node's own settings;
 * :func:`validate_changes` turns a rejected live change into ``SetParametersResult`` with the
@@ -46,12 +47,13 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from ros_ehs.errors import EhsError, ParameterError
 from ros_ehs.params import Params, ParamSpec
+import ros_ehs_msgs_py as contract
 
 __all__ = ['OK', 'WARN', 'ERROR', 'Option', 'declare_options', 'declare_specs', 'diagnostics',
-           'msg_class', 'qos_profile', 'read_msg', 'ros_args', 'run', 'steady_clock',
+           'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock',
            'update_options', 'validate_changes']
 
-OK, WARN, ERROR, STALE = 0, 1, 2, 3
+OK, WARN, ERROR = 0, 1, 2
 
 
 def qos_profile(spec: Any, depth: int | None = None) -> QoSProfile:
@@ -63,6 +65,16 @@ def qos_profile(spec: Any, depth: int | None = None) -> QoSProfile:
     hist = {'keep_last': HistoryPolicy.KEEP_LAST, 'keep_all': HistoryPolicy.KEEP_ALL}[spec.history]
     return QoSProfile(history=hist, depth=int(depth or spec.depth), reliability=rel,
                       durability=dur)
+
+
+def qos_spec(profile: Any) -> contract.QosSpec:
+    """Return the contract QosSpec of an rclpy QoSProfile (the inverse of qos_profile)."""
+    return contract.QosSpec(
+        'reliable' if profile.reliability == ReliabilityPolicy.RELIABLE else 'best_effort',
+        max(1, int(profile.depth)),
+        'transient_local' if profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        else 'volatile',
+        'keep_all' if profile.history == HistoryPolicy.KEEP_ALL else 'keep_last')
 
 
 def msg_class(msg_type: str):
