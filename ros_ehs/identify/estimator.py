@@ -276,6 +276,7 @@ def _metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
     """Fit metrics per experiment and signal; ``fitted`` (if given) gets the model traces."""
     out = {}
     for ex, o in zip(problem.exps, problem.simulate(theta)):
+        fit = {n: o[:, problem.names.index(n)] for n in SIGNALS if n in problem.names}
         m = {}
         for j in ex.measured:
             name = problem.names[j]
@@ -283,17 +284,15 @@ def _metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
             e = f - y
             if name == 'z':
                 ex.offset_free(e)
+                fit['z'] = y + e     # position is fitted up to an offset per segment
             sst = float(np.sum((y - y.mean()) ** 2))
             sse = float(np.sum(e ** 2))
             m[name] = {'nrmse': math.sqrt(sse / y.size) / (float(np.std(y)) or 1.0),
                        'r2': 1.0 - sse / sst if sst > 0 else math.nan,
                        'rms': math.sqrt(sse / y.size)}
-            if fitted is not None and name == 'z':
-                o[:, j] = y + e     # position is fitted up to an offset per segment
         out[ex.name] = m
         if fitted is not None:
-            fitted[ex.name] = {n: o[:, problem.names.index(n)] for n in SIGNALS
-                               if n in problem.names}
+            fitted[ex.name] = fit
     return out
 
 
