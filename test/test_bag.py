@@ -271,19 +271,24 @@ def test_experiment_rejects_non_finite_and_irregular_samples():
     assert experiment_from_arrays('x', t, i, z, v).dt == pytest.approx(1e-3)
 
 
+def _without_states(bag, out, drop):
+    """Copy ``bag`` (1 kHz from t = 1 s) to ``out`` without the states k where drop(k)."""
+    with BagWriter(out) as w:
+        for name, info in bag.topics.items():
+            w.add_topic(name, info.msg_type, info.qos)
+        for m in bag.messages():
+            k = (m.log_time_ns - 1_000_000_000) // 1_000_000
+            if not (m.topic == '/state' and drop(k)):
+                w.write(m.topic, m.data, m.log_time_ns)
+    return out
+
+
 def test_missing_samples_split_the_record_into_runs(tmp_path):
     from ros_ehs.bag.experiment import load_experiments, MIN_SAMPLES
     bag = _write(tmp_path / 'gappy', n=2000)
     # rewrite without states 700..849 (a recorder that missed 150 ms)
     b = open_bag(bag)
-    out = tmp_path / 'holed'
-    with BagWriter(out) as w:
-        for name, info in b.topics.items():
-            w.add_topic(name, info.msg_type, info.qos)
-        for m in b.messages():
-            k = (m.log_time_ns - 1_000_000_000) // 1_000_000
-            if not (m.topic == '/state' and 700 <= k < 850):
-                w.write(m.topic, m.data, m.log_time_ns)
+    out = _without_states(b, tmp_path / 'holed', lambda k: 700 <= k < 850)
     with pytest.raises(DataError, match='not on a uniform grid'):
         load_experiment(out)
     runs = load_experiments(out)
@@ -292,13 +297,6 @@ def test_missing_samples_split_the_record_into_runs(tmp_path):
     assert runs[1].z[0] == pytest.approx(0.001 * 850)         # starts after the gap
     # runs shorter than MIN_SAMPLES are dropped; none left is a clear error
     assert MIN_SAMPLES > 100
-    short = tmp_path / 'short'
-    with BagWriter(short) as w:
-        for name, info in b.topics.items():
-            w.add_topic(name, info.msg_type, info.qos)
-        for m in b.messages():
-            k = (m.log_time_ns - 1_000_000_000) // 1_000_000
-            if not (m.topic == '/state' and k % 400 == 0):
-                w.write(m.topic, m.data, m.log_time_ns)
+    short = _without_states(b, tmp_path / 'short', lambda k: k % 400 == 0)
     with pytest.raises(DataError, match='longest run without missing samples has 399'):
         load_experiments(short)
