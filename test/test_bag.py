@@ -187,34 +187,34 @@ _KILL_SCRIPT = textwrap.dedent("""
     import ros_ehs_msgs_py as c
     w = BagWriter(sys.argv[1], flush_period=0.05)
     w.add_topic('/state', c.STATE.msg_type, c.STATE.qos)
-    k = 0
     while True:
         ns = time.time_ns()
         w.write_msg('/state', c.fill_state(c.empty_msg(c.STATE.msg_type),
                     c.AxisState(ns, 0.0, 0.0)), ns)
-        k += 1
-        if k == 1:
-            print('started', flush=True)
+        print(ns, flush=True)  # written: the parent knows what the bag should hold
         time.sleep(0.001)
 """)
 
 
 def test_sigkill_loses_at_most_100_ms(tmp_path):
+    # Judged on what the writer had written, not on wall-clock sleeps: a loaded machine may
+    # stall the writer, but whatever it wrote more than flush_period before its last write
+    # must be in the bag after SIGKILL.
     bag = tmp_path / 'killed'
     p = subprocess.Popen([sys.executable, '-c', _KILL_SCRIPT, str(bag)],
                          stdout=subprocess.PIPE, text=True)
-    assert p.stdout.readline().strip() == 'started'
-    import time
-    time.sleep(1.5)
-    kill_ns = time.time_ns()
+    written = [int(p.stdout.readline()) for _ in range(600)]
     p.send_signal(signal.SIGKILL)
+    written += [int(line) for line in p.stdout.read().split()]
     p.wait()
     b = open_bag(bag)
     assert b.truncated
-    assert b.topics['/state'].count > 500
-    last = max(m.log_time_ns for m in b.messages(['/state']))
-    lost_s = (kill_ns - last) * 1e-9
-    assert 0 <= lost_s <= 0.1, f'lost the last {lost_s * 1e3:.0f} ms'
+    kept = {m.log_time_ns for m in b.messages(['/state'])}
+    assert kept <= set(written) | {max(kept)}  # at most one written but not yet printed
+    lost = [ns for ns in written if ns not in kept]
+    assert len(kept) >= 500
+    span_s = (written[-1] - min(lost, default=written[-1])) * 1e-9
+    assert span_s <= 0.1, f'lost {len(lost)} messages spanning the last {span_s * 1e3:.0f} ms'
 
 
 def test_experiment_needs_data_and_excitation(tmp_path):
