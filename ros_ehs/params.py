@@ -198,8 +198,14 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'pid', 'D'),
     _p('u_max', 'A', 0.015, 1.0e-4, 0.1, 'output limit |i| (the valve rated current)', 'pid',
        'K'),
-    _p('tracking_tau', 's', 0.0, 0.0, 100.0, 'back-calculation anti-windup time constant '
-       '(0: sqrt(kd/ki), or kp/ki when kd = 0)', 'pid', 'D'),
+    _p('tracking_tau', 's', 0.0, 0.0, 100.0, 'time constant of antiwindup = '
+       'back_calculation (0: sqrt(kd/ki), or kp/ki when kd = 0)', 'pid', 'D'),
+    ParamSpec('antiwindup', '', 'conditional_integration', meaning='anti-windup strategy '
+              '(control_toolbox names): conditional_integration stops integrating while the '
+              'output is limited and the error pushes further into the limit; '
+              'back_calculation bleeds the excess (u_sat - u)/tracking_tau into the '
+              'integrator; none', group='pid', source='D',
+              choices=('conditional_integration', 'back_calculation', 'none')),
     _p('ff_enable', '1', 1.0, 0.0, 1.0, 'feedforward on (1) or off (0)', 'feedforward', 'D'),
     _p('tau_delay', 's', 0.0, 0.0, 0.5, 'signal-to-response delay tau of eq. (17): the '
        'measured loop delay (paper: 0.016 s under PID; ~0 with velocity feedforward)',

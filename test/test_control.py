@@ -63,18 +63,58 @@ def test_non_finite_error_gives_zero_current_and_fault_then_recovers(bad):
     assert pid.update(0.01, 1e-3) != 0.0 and not pid.fault
 
 
-def test_output_limit_and_back_calculation_stop_windup():
-    g = PidGains(kp=1.0, ki=100.0, kd=0.0, u_max=0.01)
-    pid, free = Pid(g), Pid(PidGains(kp=1.0, ki=100.0, kd=0.0, u_max=0.1))
+@pytest.mark.parametrize('antiwindup', ['conditional_integration', 'back_calculation'])
+def test_output_limit_and_antiwindup_stop_windup(antiwindup):
+    g = PidGains(kp=1.0, ki=100.0, kd=0.0, u_max=0.01, antiwindup=antiwindup)
+    pid, none = Pid(g), Pid(PidGains(kp=1.0, ki=100.0, kd=0.0, u_max=0.01, antiwindup='none'))
     for _ in range(2000):                       # 2 s saturated by a large error
         u = pid.update(0.05, 1e-3)
-        free.update(0.05, 1e-3)
+        none.update(0.05, 1e-3)
     assert u == 0.01 and pid.saturated
-    assert pid.i_term < 0.02 < free.i_term      # the limited integrator did not wind up
+    assert none.i_term == pytest.approx(2.0 * 100.0 * 0.05)     # plain integration winds up
+    assert pid.i_term < 0.02                    # the limited integrator did not wind up
     steps = 0                                   # and it leaves saturation at once on reversal
     while pid.update(-0.005, 1e-3) >= 0.0:
         steps += 1
     assert steps < 50
+
+
+def test_conditional_integration_integrates_out_of_the_limit_only():
+    pid = Pid(PidGains(kp=1.0, ki=100.0, kd=0.0, d_filter_tau=0.0, u_max=0.01))
+    pid.update(0.05, 1e-3)
+    assert pid.saturated and pid.i_term == 0.0      # pushing into the limit: frozen
+    pid.reset(i_term=0.02)
+    pid.update(-0.001, 1e-3)                        # limited, but the error unwinds it
+    assert pid.saturated and pid.i_term == pytest.approx(0.02 - 1e-4)
+    pid.reset()
+    pid.update(0.001, 1e-3)                         # not limited: plain integration
+    assert not pid.saturated and pid.i_term == pytest.approx(1e-4)
+
+
+def test_a_start_mid_stroke_leaves_no_offset_with_the_default_antiwindup():
+    """
+    The bench starts the plant at rest while the 0.04 m sine is at its peak (a 40 mm error).
+
+    The paper's gains saturate the valve on P alone; back-calculation then drives the
+    integrator to several mA of the wrong sign, which ki = 0.051 A/(m s) unwinds over ~15 s.
+    Conditional integration (the default) is back on the sine within the first second.
+    """
+    from ros_ehs.closed_loop import run_closed_loop
+    from ros_ehs.params import Params
+    from ros_ehs.reference import Sine
+    sine = Sine(0.04, 1.0)
+
+    def peak_first(t):
+        return sine(np.asarray(t) + 0.25)
+
+    err = {}
+    for aw in ('conditional_integration', 'back_calculation'):
+        p = Params().replace(antiwindup=aw)
+        r = run_closed_loop(p, peak_first, 3.0, model='simplified', dt=1e-3)
+        late = r.t >= 1.0
+        err[aw] = abs(np.mean(peak_first(r.t[late])[0] - r.z[late]))
+    assert Params()['antiwindup'] == 'conditional_integration'
+    assert err['conditional_integration'] < 2e-4 and err['back_calculation'] > 1e-3, err
 
 
 def test_derivative_filter_limits_the_kick_of_a_step():

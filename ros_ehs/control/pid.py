@@ -14,16 +14,28 @@
 """
 Discrete PID of eq. (19) with derivative filter, output limit and back-calculation anti-windup.
 
-Edge-case policy (each branch is tested in ``test/test_pid.py``):
+Edge-case policy (each branch is tested in ``test/test_control.py``):
 
 * ``dt == 0``: return the previous command; no state changes.
 * ``dt < 0`` or non-finite ``dt``: raise :class:`~ros_ehs.errors.InputError`.
 * non-finite error: return **0 A** (valve to null, the hydraulic fail-safe), set
   ``fault``, keep the integrator and filter states unchanged. The next finite sample clears
   ``fault``.
-* windup: back-calculation, ``I += dt * (ki e + (u_sat - u) / T_t)``, with
-  ``T_t = tracking_tau`` or ``sqrt(kd / ki)`` (``kp / ki`` if kd = 0), as control_toolbox.
-  ``u_sat`` is the *total* command (PID + feedforward) after the +-u_max limit.
+* windup (``antiwindup``, control_toolbox's strategy names; ``u_sat`` is the *total*
+  command, PID + feedforward, after the +-u_max limit, ``u`` the same before it):
+
+  - ``conditional_integration`` (default): ``I += dt * ki e`` unless the output is limited
+    and the error pushes further into the limit (``u_sat != u`` and ``e u > 0``);
+  - ``back_calculation``: ``I += dt * (ki e + (u_sat - u) / T_t)``, with
+    ``T_t = tracking_tau`` or ``sqrt(kd / ki)`` (``kp / ki`` if kd = 0);
+  - ``none``: ``I += dt * ki e``.
+
+  Why conditional integration is the default here: the paper's gains put nearly all the
+  authority in P (``kp / ki`` = 15 s). A 40 mm error saturates the valve on P alone, and
+  back-calculation then drives the integrator towards ``u_sat - kp e``, i.e. -15 mA: the loop
+  leaves saturation with an integrator of several mA of the wrong sign, which ``ki`` takes
+  ~15 s to unwind (a 2-3 mm offset on the 1 Hz sine after a start mid-stroke, measured in
+  ``test/test_control.py``). Conditional integration leaves the integrator where it was.
 * derivative on the error, first-order low-pass with ``d_filter_tau`` (0: unfiltered).
 * gain changes are bumpless: the integrator is rescaled so the output does not jump.
 """
@@ -38,10 +50,12 @@ from ros_ehs.params import spec
 
 __all__ = ['Pid', 'PidGains']
 
+_NAMES = ('kp', 'ki', 'kd', 'd_filter_tau', 'u_max', 'tracking_tau', 'antiwindup')
+
 
 @dataclass(frozen=True)
 class PidGains:
-    """PID gains [A/m, A/(m s), A s/m], derivative filter [s], limit [A], tracking [s]."""
+    """PID gains [A/m, A/(m s), A s/m], D filter [s], limit [A], tracking [s], anti-windup."""
 
     kp: float = 0.75
     ki: float = 0.051
@@ -49,10 +63,11 @@ class PidGains:
     d_filter_tau: float = 2.0e-3
     u_max: float = 0.015
     tracking_tau: float = 0.0
+    antiwindup: str = 'conditional_integration'
 
     def __post_init__(self) -> None:
         """Validate every gain against its declaration in ros_ehs.params."""
-        for name in ('kp', 'ki', 'kd', 'd_filter_tau', 'u_max', 'tracking_tau'):
+        for name in _NAMES:
             spec(name).check(getattr(self, name))
 
     @property
@@ -67,8 +82,7 @@ class PidGains:
     @classmethod
     def from_params(cls, params) -> 'PidGains':
         """Build from a :class:`~ros_ehs.params.Params` (or any mapping with the names)."""
-        names = ('kp', 'ki', 'kd', 'd_filter_tau', 'u_max', 'tracking_tau')
-        return cls(**{k: float(params[k]) for k in names})
+        return cls(**{k: params[k] for k in _NAMES})
 
 
 class Pid:
@@ -130,7 +144,10 @@ class Pid:
         u = g.kp * error + self.i_term + g.kd * self.d_state + ff
         u_sat = min(max(u, -g.u_max), g.u_max)
         self.saturated = u_sat != u
-        self.i_term += dt * (g.ki * error + (u_sat - u) / g.t_track)
+        if g.antiwindup == 'back_calculation':
+            self.i_term += dt * (g.ki * error + (u_sat - u) / g.t_track)
+        elif not (self.saturated and error * u > 0.0) or g.antiwindup == 'none':
+            self.i_term += dt * g.ki * error
         self.last_unsat = u
         self.last_u = u_sat
         return u_sat
