@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 from ros_ehs.bag import open_bag
 from ros_ehs.closed_loop import run_closed_loop
+from ros_ehs.errors import BagError
 from ros_ehs.nodes.launch import Launch, node_command
 from ros_ehs.params import Params
 from ros_ehs.reference import Sine
@@ -127,11 +128,32 @@ def _realtime_bench(launch, bag, reference=True):
     launch.start_loop('realtime', bag=bag, reference=reference)
 
 
+def _wait_for_bag(bag, least, timeout=60.0):
+    """
+    Wait until the bag being recorded holds ``least`` = {topic: count} messages.
+
+    The recorder flushes every 50 ms, so the live file shows its progress. Waiting on the data
+    instead of sleeping keeps the tests honest on a loaded machine, where a fixed sleep may
+    record a third of what it does on a quiet one.
+    """
+    end = time.monotonic() + timeout
+    counts = {}
+    while time.monotonic() < end:
+        try:
+            counts = {k: v.count for k, v in open_bag(bag).topics.items()}
+        except BagError:      # not created yet, or caught before its first topic
+            counts = {}
+        if all(counts.get(k, 0) >= n for k, n in least.items()):
+            return counts
+        time.sleep(0.2)
+    raise AssertionError(f'after {timeout:g} s the bag holds {counts}, wanted {least}')
+
+
 def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     bag = tmp_path / 'bench'
     with Launch(dom, tmp_path / 'logs') as launch:
         _realtime_bench(launch, bag)
-        time.sleep(2.0)
+        _wait_for_bag(bag, {'/state': 1000, '/servo_current': 900})
         assert launch.stop(['recorder'])['recorder'] == 0
     ours = open_bag(bag)
     assert not ours.truncated
@@ -171,11 +193,12 @@ def test_recorder_sigkill_loses_at_most_100_ms(dom, tmp_path):
     bag = tmp_path / 'killed'
     with Launch(dom, tmp_path / 'logs') as launch:
         _realtime_bench(launch, bag)
-        time.sleep(2.0)
+        _wait_for_bag(bag, {'/state': 1500})
+        time.sleep(0.3)
         kill_ns = time.time_ns()
         launch.kill('recorder')
     b = open_bag(bag)
-    assert b.truncated and b.message_count > 3000, b.problem
+    assert b.truncated and b.topics['/state'].count >= 1500, b.problem
     lost_ms = (kill_ns - b.end_ns) / 1e6
     assert lost_ms <= 100.0, f'{lost_ms:.1f} ms lost'
 
