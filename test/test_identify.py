@@ -104,7 +104,9 @@ def test_joint_fit_of_two_bags_and_sse_option(fits):
     (e0, _), (e1, _) = fits[0], fits[1]
     free = ('F_cc', 'F_sc', 'c_c')
     base = preset('table1_estimated', F_cc=500.0, F_sc=900.0, c_c=9000.0)
-    r = identify([e0, e1], free=free, base=base, cost='sse', workers=1)
+    # on a 1 Hz sine the Coulomb level and the viscous slope move the force alike: flagged
+    with pytest.warns(IdentificationWarning, match='F_cc and c_c are correlated'):
+        r = identify([e0, e1], free=free, base=base, cost='sse', workers=1)
     assert set(r.metrics) == {e0.name, e1.name}
     for n in free:
         assert r.x[n] == pytest.approx(TRUE[n], rel=0.01), n
