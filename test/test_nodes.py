@@ -157,6 +157,10 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
         assert launch.stop(['recorder'])['recorder'] == 0
     ours = open_bag(bag)
     assert not ours.truncated
+    # the reference started on the closed loop, with the recorder listening: its first
+    # recorded sample is the sine's time zero
+    first = c.reference_from_msg(next(ours.decoded(['/reference']))[1])
+    assert first.z_ref == 0.0 and first.v_ref == pytest.approx(2 * math.pi * 0.04)
     counts = {k: v.count for k, v in ours.topics.items()}
     assert counts['/state'] > 1000 and counts['/servo_current'] > 900
     from rosbags.rosbag2 import Reader

@@ -211,11 +211,17 @@ class Launch:
         Start the bench loop (recorder if ``bag``, controller, reference, plant) in order.
 
         The order makes sure a recorder loses nothing to discovery, which takes seconds
-        between processes started together: the recorder first, then the controller and
-        the reference; once the recorder records their topics, the plant. In lock-step the
-        plant starts stepping only when the controller (and the recorder) listen to
-        ``state``; in real time this returns when the plant's watchdog is armed and the
-        recorder records the plant's topics. ``plant``, ``controller``, ``reference``: extra
+        between processes started together, and that the trajectory starts on a closed loop:
+
+        * lock-step: the recorder, then the controller and the reference (under sim time it
+          waits for ``/clock``); once the recorder records their topics, the plant, which
+          starts stepping only when the controller (and the recorder) listen to ``state``;
+        * real time: the recorder, the controller, then the plant; once its watchdog is armed
+          (the loop is closed, the controller holds the first measured position) and the
+          recorder records the loop, the reference, whose time zero waits for its
+          subscribers (the controller and the recorder).
+
+        Returns when everything runs. ``plant``, ``controller``, ``reference``: extra
         parameters (``reference=False``: no reference node). Raises :class:`LaunchError`
         naming the step that did not happen, with that node's log.
         """
@@ -223,31 +229,43 @@ class Launch:
             raise ValueError(f"mode: expected 'realtime' or 'lockstep', got {mode!r}")
         lock = mode == 'lockstep'
         pf = params_file
+        rec = bag is not None
 
         def recording(*topics):      # the recorder's line for each (absolute) topic
             return [f"recording {'/' + t.name.lstrip('/')} (" for t in topics]
-        if bag is not None:
+
+        def start_reference(**extra):
+            ref = {'use_sim_time': lock, **extra, **({} if reference is True else reference)}
+            self.start('reference', ref, params_file=pf)
+
+        if rec:
             self.start('recorder', {'out': str(bag), 'use_sim_time': lock}, params_file=pf)
             self._expect('recorder', ['recording'], timeout, 'the recorder did not start')
         self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
-        loop_topics = [contract.COMMAND]
-        if reference is not False:
-            ref = {'use_sim_time': lock, **({} if reference is True else reference)}
-            self.start('reference', ref, params_file=pf)
-            loop_topics.append(contract.REFERENCE)
-        if bag is not None:
-            self._expect('recorder', recording(*loop_topics), timeout,
-                         'the recorder did not discover the controller and reference')
+        if lock and reference is not False:
+            start_reference()
+        if lock and rec:
+            self._expect('recorder', recording(contract.COMMAND, *[contract.REFERENCE] * (
+                reference is not False)), timeout,
+                'the recorder did not discover the controller and reference')
         pl = {'mode': mode, **(plant or {})}
         if lock:
-            pl.setdefault('wait_subscribers', 2 if bag is not None else 1)
+            pl.setdefault('wait_subscribers', 2 if rec else 1)
         self.start('plant', pl, params_file=pf)
         self._expect('plant', ['lock-step running' if lock else 'watchdog armed'], timeout,
                      'the loop did not close')
-        if bag is not None:
-            plant_topics = (contract.STATE, contract.PRESSURE_P, contract.PRESSURE_T)
-            self._expect('recorder', recording(*plant_topics, *([contract.CLOCK] * lock)),
-                         timeout, "the recorder did not discover the plant's topics")
+        if rec:
+            loop = (contract.STATE, contract.PRESSURE_P, contract.PRESSURE_T)
+            loop += (contract.CLOCK,) if lock else (contract.COMMAND,)
+            self._expect('recorder', recording(*loop), timeout,
+                         "the recorder did not discover the loop's topics")
+        if not lock and reference is not False:
+            start_reference(wait_subscribers=2 if rec else 1)
+            self._expect('reference', ['time zero'], timeout,
+                         'the reference found no controller (and recorder) to start for')
+            if rec:
+                self._expect('recorder', recording(contract.REFERENCE), timeout,
+                             'the recorder did not discover the reference')
 
     def _expect(self, name: str, texts: list[str], timeout: float, what: str) -> None:
         if not self.wait_for_logs(name, texts, timeout):

@@ -19,6 +19,12 @@ CSV file (``csv_path``, columns ``t`` [s] and ``z`` [m]). Time zero is the first
 time it ticks on a steady timer at ``rate_hz``; under ``use_sim_time`` it publishes once per
 ``/clock`` message, stamped with that time (what a lock-step loop needs). After ``duration``
 (0: never) it holds the last position with zero velocity.
+
+``wait_subscribers`` (real time): time zero is the first tick at which ``reference`` has that
+many subscribers; until then nothing is published. A bench starts the reference last, once
+the loop is closed and holding position, with the controller and the recorder as the two
+subscribers: the trajectory then starts at its beginning on a closed loop instead of
+somewhere mid-stroke on a piston that has not moved yet.
 """
 
 from __future__ import annotations
@@ -44,6 +50,8 @@ OPTIONS = (
            1.0e9),
     Option('csv_path', '', 'trajectory file for kind = csv (columns t [s], z [m])'),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
+    Option('wait_subscribers', 0, 'real time: start the trajectory (time zero) only once '
+           '`reference` has this many subscribers; publish nothing until then', 0, 1000),
 )
 
 
@@ -108,6 +116,14 @@ class ReferenceNode(Node):
         self._publish(t + self._dt_ns)
 
     def _tick(self) -> None:
+        if self.t_first is None:
+            need = int(self.opt['wait_subscribers'])
+            have = self.pub.get_subscription_count()
+            if have < need:
+                return
+            if need:
+                self.get_logger().info(f'time zero: {have} subscriber(s) on '
+                                       f'{contract.REFERENCE.name}')
         self._publish(self.get_clock().now().nanoseconds)
 
     def _publish(self, stamp_ns: int) -> None:
