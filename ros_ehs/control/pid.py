@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Discrete PID of eq. (19) with derivative filter, output limit and back-calculation anti-windup.
+Discrete PID of eq. (19) with derivative filter, output limit and a choice of anti-windup.
 
 Edge-case policy (each branch is tested in ``test/test_control.py``):
 
@@ -146,7 +146,7 @@ class Pid:
         self.saturated = u_sat != u
         if g.antiwindup == 'back_calculation':
             self.i_term += dt * (g.ki * error + (u_sat - u) / g.t_track)
-        elif not (self.saturated and error * u > 0.0) or g.antiwindup == 'none':
+        elif g.antiwindup == 'none' or not (self.saturated and error * u > 0.0):
             self.i_term += dt * g.ki * error
         self.last_unsat = u
         self.last_u = u_sat

@@ -242,12 +242,14 @@ class Launch:
             self.start('recorder', {'out': str(bag), 'use_sim_time': lock}, params_file=pf)
             self._expect('recorder', ['recording'], timeout, 'the recorder did not start')
         self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
-        if lock and reference is not False:
-            start_reference()
-        if lock and rec:
-            self._expect('recorder', recording(contract.COMMAND, *[contract.REFERENCE] * (
-                reference is not False)), timeout,
-                'the recorder did not discover the controller and reference')
+        if lock:
+            first = [contract.COMMAND]
+            if reference is not False:
+                start_reference()
+                first.append(contract.REFERENCE)
+            if rec:
+                self._expect('recorder', recording(*first), timeout,
+                             'the recorder did not discover the controller and reference')
         pl = {'mode': mode, **(plant or {})}
         if lock:
             pl.setdefault('wait_subscribers', 2 if rec else 1)
