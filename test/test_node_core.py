@@ -75,6 +75,13 @@ def test_live_changes_are_validated_as_a_whole_with_a_reason():
     assert not res.successful and 'u_max' in res.reason and 'outside' in res.reason
     res, new = validate_changes(cur, [Parameter('use_sim_time', value=True)], SPECS)
     assert res.successful and new is None          # not ours: nothing to rebuild
+    res, _ = validate_changes(cur, [Parameter('antiwindup', value='clamp')], SPECS)
+    assert not res.successful and "`antiwindup` = 'clamp' is not one of" in res.reason
+    from ros_ehs.nodes.plant import OPTIONS
+    from ros_ehs.params import PLANT_SPECS
+    res, _ = validate_changes(cur, [Parameter('timing', value='bogus')], PLANT_SPECS, OPTIONS)
+    assert not res.successful and res.reason == (
+        "parameter `timing` = 'bogus' is not one of ['thread', 'timer']")
 
 
 def test_controller_declares_every_value_its_feedforward_reads():

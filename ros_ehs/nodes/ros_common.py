@@ -140,6 +140,13 @@ def declare_specs(node: Node, specs: Sequence[ParamSpec], values: Params,
         node.declare_parameter(s.name, v if s.is_choice else float(v), d)
 
 
+def _not_a_choice(o: Option, value: Any) -> str | None:
+    """Return why ``value`` is not one of option ``o``'s choices, or None if it is."""
+    if o.choices and value not in o.choices:
+        return f'parameter `{o.name}` = {value!r} is not one of {list(o.choices)}'
+    return None
+
+
 def declare_options(node: Node, options: Sequence[Option]) -> dict[str, Any]:
     """Declare a node's options; return their values by name (checked against choices)."""
     _coerce_int_overrides(node, [o.name for o in options if isinstance(o.default, float)])
@@ -152,9 +159,9 @@ def declare_options(node: Node, options: Sequence[Option]) -> dict[str, Any]:
             v = node.declare_parameter(o.name, ptype, d).value or []
         else:
             v = node.declare_parameter(o.name, o.default, d).value
-        if o.choices and v not in o.choices:
-            raise ParameterError(f'parameter `{o.name}` = {v!r} is not one of '
-                                 f'{list(o.choices)}')
+        why = _not_a_choice(o, v)
+        if why:
+            raise ParameterError(why)
         out[o.name] = v
     return out
 
@@ -188,10 +195,8 @@ def validate_changes(current: Params, changes: Sequence[Parameter],
     for p in changes:
         if p.name in names:
             upd[p.name] = p.value
-        elif p.name in opts and opts[p.name].choices and p.value not in opts[p.name].choices:
-            return SetParametersResult(successful=False, reason=(
-                f'parameter `{p.name}` = {p.value!r} is not one of '
-                f'{list(opts[p.name].choices)}')), None
+        elif p.name in opts and (why := _not_a_choice(opts[p.name], p.value)):
+            return SetParametersResult(successful=False, reason=why), None
     if not upd:
         return SetParametersResult(successful=True), None
     try:
