@@ -54,6 +54,15 @@ def main(argv=None) -> int:
                     help='publish exact states (default: 5 um, 1 mm/s, 0.2 bar sensor noise)')
     ap.add_argument('--params-file', default=None, help='ROS 2 parameters YAML for all nodes')
     ap.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID')
+    rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
+    rec.add_argument('--max-bag-size', type=int, default=None,
+                     help='split once a file holds this many bytes (0: never)')
+    rec.add_argument('--max-bag-duration', type=float, default=None,
+                     help='split once a file spans this many seconds (0: never; default 600)')
+    rec.add_argument('--compression', choices=('zstd', 'lz4', 'none'), default=None,
+                     help='MCAP chunk compression (default zstd)')
+    rec.add_argument('--min-free-space', type=int, default=None,
+                     help='bytes: refuse to start, and stop recording, below this')
     a = ap.parse_args(argv)
     out = Path(a.out) if a.out else default_bag_path()
     if out.exists():
@@ -74,8 +83,12 @@ def main(argv=None) -> int:
             plant['duration'] = float(a.duration)
         # in real time the reference runs at 250 Hz (the controller extrapolates it with its
         # velocity): a 1 kHz reference costs a quarter of a core for nothing
+        recorder = {k: v for k, v in (('max_bag_size', a.max_bag_size),
+                                      ('max_bag_duration', a.max_bag_duration),
+                                      ('compression', a.compression),
+                                      ('min_free_space', a.min_free_space)) if v is not None}
         try:
-            launch.start_loop(a.mode, bag=out, plant=plant, params_file=pf,
+            launch.start_loop(a.mode, bag=out, plant=plant, params_file=pf, recorder=recorder,
                               reference={'kind': a.reference,
                                          'rate_hz': 1000.0 if lock else 250.0})
         except LaunchError as err:
@@ -93,8 +106,9 @@ def main(argv=None) -> int:
         died = [n for n, p in launch.procs.items() if not p.alive()]
         codes = launch.stop(['recorder', 'reference', 'controller', 'plant'])
     for line in launch['recorder'].output().splitlines():
-        if line.startswith('[recorder] closed'):
-            print('bench: ' + line[len('[recorder] '):])
+        if line.startswith(('[recorder] closed', '[recorder] error')):
+            print('bench: recorder ' + line[len('[recorder] '):],
+                  file=sys.stderr if 'error' in line[:17] else sys.stdout)
     for line in launch['plant'].output().splitlines():
         if line.startswith(FIGURES):
             print('bench: plant ' + line)

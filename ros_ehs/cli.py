@@ -93,7 +93,7 @@ def _cmd_identify(args) -> int:
         cost=args.cost, holdout=args.holdout or (), initial=args.initial,
         state_topic=args.state_topic, command_topic=args.command_topic,
         pressure_topics=None if args.no_pressures else (args.pressure_p, args.pressure_t),
-        workers=args.workers, figures=not args.no_figures,
+        workers=args.workers, figures=not args.no_figures, start=args.start, end=args.end,
         progress=None if args.quiet else progress)
     _print_identification(result, files, held)
     return 0 if result.success else 1
@@ -147,7 +147,8 @@ def main(argv=None) -> int:
     r.add_argument('--no-noise', dest='noise', action='store_false')
     r.set_defaults(func=_cmd_record)
     i = sub.add_parser('identify', help="refit Table 1's parameters from bags (report folder)")
-    i.add_argument('bags', nargs='+', help='bag directories or .mcap files, fitted jointly')
+    i.add_argument('bags', nargs='+', help='bag directories (split or not, mcap or sqlite3) '
+                   'or .mcap/.db3 files, fitted jointly')
     i.add_argument('--out', default='out/identification', help='report folder')
     i.add_argument('--free', default=','.join(ESTIMATED),
                    help='comma-separated free parameters')
@@ -160,6 +161,10 @@ def main(argv=None) -> int:
     i.add_argument('--pressure-p', default='pressure/chamber_p')
     i.add_argument('--pressure-t', default='pressure/chamber_t')
     i.add_argument('--no-pressures', action='store_true', help='fit without pressures')
+    i.add_argument('--start', type=float, default=None,
+                   help="fit from this time on [s from each bag's first message]")
+    i.add_argument('--end', type=float, default=None,
+                   help="fit up to this time [s from each bag's first message]")
     i.add_argument('--workers', type=int, default=1)
     i.add_argument('--no-figures', action='store_true')
     i.add_argument('--quiet', action='store_true')

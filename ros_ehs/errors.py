@@ -21,6 +21,7 @@ built-in exception a caller would expect (``ValueError`` for bad values), so pla
 
 __all__ = [
     'BagError',
+    'BagWriteError',
     'DataError',
     'EhsError',
     'IdentificationWarning',
@@ -47,6 +48,22 @@ class DataError(EhsError, ValueError):
 
 class BagError(DataError):
     """A bag is missing, truncated, foreign or lacks the needed topics."""
+
+
+class BagWriteError(BagError):
+    """
+    Writing a bag failed (disk full, write error): nothing more is written.
+
+    ``path`` is the file that failed, ``free_bytes`` the space left on its filesystem (-1 if
+    unknown), ``errno`` the OS error number.
+    """
+
+    def __init__(self, message: str, path: str = '', free_bytes: int = -1,
+                 errno: int = 0) -> None:
+        super().__init__(message)
+        self.path = path
+        self.free_bytes = free_bytes
+        self.errno = errno
 
 
 class IdentificationWarning(UserWarning):

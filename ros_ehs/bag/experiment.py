@@ -144,10 +144,15 @@ def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experim
     return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], pa, pb)
 
 
-def _read(path, state, command, pressure_p, pressure_t, bag):
+def _read(path, state, command, pressure_p, pressure_t, bag, start=None, end=None):
     """Return the bag's series on the state stamps: name, ts [ns], command, state, pressures."""
-    bag = bag or open_bag(path)
+    bag = bag or open_bag(path, start=start, end=end)
     name = os.path.basename(os.path.normpath(str(path)))
+    if start is not None or end is not None:
+        name += f' [{start or 0:g}-{"" if end is None else f"{end:g}"} s]'
+    if bag.message_count == 0 and (start is not None or end is not None):
+        raise DataError(f'{name}: the window holds no message (is it past the end of the '
+                        'bag?)')
     st = resolve_topic(bag, state)
     cm = resolve_topic(bag, command)
     _check_type(bag, st, contract.STATE.msg_type)
@@ -204,16 +209,19 @@ def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name
                     command: str = contract.COMMAND.name,
                     pressure_p: str | None = contract.PRESSURE_P.name,
                     pressure_t: str | None = contract.PRESSURE_T.name,
-                    bag: Bag | None = None) -> Experiment:
+                    bag: Bag | None = None, start: float | None = None,
+                    end: float | None = None) -> Experiment:
     """
     Read an experiment from the bag at ``path`` using the contract topic names.
 
     Pressures are optional (pass None to ignore them); a bag without them gives an
-    experiment without pressures. Raises :class:`BagError` / :class:`DataError` naming the
-    problem (missing topics with the topics the bag has, wrong types, too little data, no
-    excitation, samples missing from the grid: see :func:`load_experiments` for those).
+    experiment without pressures. ``start``/``end`` [s from the bag's first message] take a
+    window of the record (a split bag reads only the files it needs). Raises
+    :class:`BagError` / :class:`DataError` naming the problem (missing topics with the topics
+    the bag has, wrong types, too little data, no excitation, samples missing from the grid:
+    see :func:`load_experiments` for those).
     """
-    data = _read(path, state, command, pressure_p, pressure_t, bag)
+    data = _read(path, state, command, pressure_p, pressure_t, bag, start, end)
     return _experiment(*data, 0, data[1].size)
 
 
@@ -221,7 +229,8 @@ def load_experiments(path: str | os.PathLike, *, state: str = contract.STATE.nam
                      command: str = contract.COMMAND.name,
                      pressure_p: str | None = contract.PRESSURE_P.name,
                      pressure_t: str | None = contract.PRESSURE_T.name,
-                     bag: Bag | None = None) -> list[Experiment]:
+                     bag: Bag | None = None, start: float | None = None,
+                     end: float | None = None) -> list[Experiment]:
     """
     Read the contiguous runs of the bag at ``path``: one experiment per run.
 
@@ -229,8 +238,10 @@ def load_experiments(path: str | os.PathLike, *, state: str = contract.STATE.nam
     in the sample grid; each gap splits the record, and runs shorter than
     :data:`MIN_SAMPLES` are dropped. Names get ``[k/n]`` when there is more than one run.
     Irregular timing that is not a gap still raises, as :func:`load_experiment` does.
+    ``start``/``end``: a window of the bag, as in :func:`load_experiment`.
     """
-    name, ts, cur, sv, pa, pb = _read(path, state, command, pressure_p, pressure_t, bag)
+    name, ts, cur, sv, pa, pb = _read(path, state, command, pressure_p, pressure_t, bag,
+                                      start, end)
     d = np.diff(ts)
     cuts = np.flatnonzero(d > 1.5 * np.median(d)) + 1 if d.size else np.array([], int)
     edges = [0, *cuts.tolist(), ts.size]

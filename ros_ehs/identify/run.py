@@ -40,6 +40,7 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
                        pressure_topics: tuple[str, str] | None = (
                            contract.PRESSURE_P.name, contract.PRESSURE_T.name),
                        segment: float | None = 1.0, workers: int = 1, max_nfev: int = 100,
+                       start: float | None = None, end: float | None = None,
                        figures: bool = True,
                        progress: Callable[[dict], None] | None = None
                        ) -> tuple[IdentificationResult, dict[str, Path], dict]:
@@ -47,6 +48,7 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
     Load ``bags``, fit them jointly, score ``holdout`` bags and write the report to ``out``.
 
     ``initial``: a parameters YAML for the starting point (default Table 1's initial values).
+    ``start``/``end``: fit only that window of each bag [s from its first message].
     Returns the result, the written files and the hold-out metrics.
     """
     if not bags:
@@ -55,7 +57,7 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
 
     def load(b):
         return load_experiments(b, state=state_topic, command=command_topic, pressure_p=pp,
-                                pressure_t=pt)
+                                pressure_t=pt, start=start, end=end)
 
     exps = [e for b in bags for e in load(b)]      # a bag with gaps gives several runs
     held = [e for b in holdout for e in load(b)]

@@ -42,7 +42,7 @@ import ros_ehs_msgs_py as contract
 __all__ = ['OPTIONS', 'IdentifyNode', 'main', 'pushable']
 
 OPTIONS = (
-    Option('bags', [], 'bags to fit jointly (directories or .mcap files)'),
+    Option('bags', [], 'bags to fit jointly (directories, split or not, or .mcap/.db3 files)'),
     Option('holdout', [], 'bags scored with the fitted values, not fitted'),
     Option('out', 'out/identification', 'report folder'),
     Option('free', list(ESTIMATED), 'parameters to fit (default the seven of Table 1)'),
@@ -56,6 +56,9 @@ OPTIONS = (
     Option('pressure_t_topic', contract.PRESSURE_T.name, 'chamber T pressure topic'),
     Option('use_pressures', True, 'fit the chamber pressures when the bags have them'),
     Option('max_nfev', 100, 'most model evaluations', 1, 100000),
+    Option('start', 0.0, "fit from this time on [s from each bag's first message]", 0.0, 1e9),
+    Option('end', 0.0, 'fit up to this time (0: to the end) [s from the first message '
+           'of each bag]', 0.0, 1e9),
     Option('figures', True, 'write the PNG figures'),
     Option('push', False, 'set the fitted values on the running controller'),
     Option('controller', 'controller', 'name of the controller node to push to'),
@@ -93,6 +96,7 @@ class IdentifyNode(Node):
                 pressure_topics=((o['pressure_p_topic'], o['pressure_t_topic'])
                                  if o['use_pressures'] else None),
                 max_nfev=int(o['max_nfev']), figures=bool(o['figures']),
+                start=float(o['start']) or None, end=float(o['end']) or None,
                 progress=lambda e: log.info(f'iteration {e["iteration"]:3d}  '
                                             f'cost {e["cost"]:.6g}'))
         except EhsError as err:

@@ -205,6 +205,7 @@ class Launch:
                    plant: dict[str, Any] | None = None,
                    controller: dict[str, Any] | None = None,
                    reference: dict[str, Any] | bool = True,
+                   recorder: dict[str, Any] | None = None,
                    params_file: str | os.PathLike | None = None,
                    timeout: float = 60.0) -> None:
         """
@@ -221,8 +222,8 @@ class Launch:
           recorder records the loop, the reference, whose time zero waits for its
           subscribers (the controller and the recorder).
 
-        Returns when everything runs. ``plant``, ``controller``, ``reference``: extra
-        parameters (``reference=False``: no reference node). Raises :class:`LaunchError`
+        Returns when everything runs. ``plant``, ``controller``, ``reference``, ``recorder``:
+        extra parameters (``reference=False``: no reference node). Raises :class:`LaunchError`
         naming the step that did not happen, with that node's log.
         """
         if mode not in ('realtime', 'lockstep'):
@@ -239,7 +240,8 @@ class Launch:
             self.start('reference', ref, params_file=pf)
 
         if rec:
-            self.start('recorder', {'out': str(bag), 'use_sim_time': lock}, params_file=pf)
+            self.start('recorder', {'out': str(bag), 'use_sim_time': lock, **(recorder or {})},
+                       params_file=pf)
             self._expect('recorder', ['recording'], timeout, 'the recorder did not start')
         self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
         if lock:

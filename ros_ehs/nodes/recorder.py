@@ -22,9 +22,21 @@ one offers reliable (the loop topics in lock-step), else best effort; depth ``de
 log line ``recording <topic> (<type>, <reliability>)`` says when. The
 ``offered_qos_profiles`` stored are the publishers'.
 
+Long runs (a fatigue rig records for days): the bag is split into files of at most
+``max_bag_size`` bytes or ``max_bag_duration`` seconds (default 600 s), each chunk compressed
+with ``compression`` (default zstd: 4-5x smaller at well under 1 % of a core), so memory,
+file sizes and the loss a damaged file can cause stay bounded (docs/recording.md).
+
+Disk space and write errors: the recorder refuses to start with less than ``min_free_space``
+free; while running it warns (once a minute) below ``warn_free_space`` with the time left at
+the current rate, and below ``min_free_space`` it stops recording cleanly. A write error
+(disk full, I/O error) is logged once, naming the file and the free space; nothing more is
+written, ``metadata.yaml`` is written for everything flushed before (all of it readable), and
+the node exits with code 1.
+
 Crash safety is the writer's: the open chunk is closed and flushed every ``flush_period``
-(default 50 ms, also on a timer when traffic stops), so SIGKILL loses at most that much.
-SIGINT/SIGTERM close the bag properly (summary, metadata.yaml).
+(default 50 ms, also on a timer when traffic stops), so SIGKILL loses at most that much, in
+every file of a split bag. SIGINT/SIGTERM close the bag properly (summary, metadata.yaml).
 """
 
 from __future__ import annotations
@@ -34,7 +46,9 @@ from pathlib import Path
 import time
 
 from rclpy.node import Node
-from ros_ehs.bag.writer import BagWriter
+from rclpy.task import Future
+from ros_ehs.bag.writer import BagWriter, COMPRESSION, free_bytes
+from ros_ehs.errors import BagError
 from ros_ehs.nodes.ros_common import (declare_options, msg_class, Option, qos_profile,
                                       qos_spec, run, steady_clock)
 import ros_ehs_msgs_py as contract
@@ -50,6 +64,15 @@ OPTIONS = (
     Option('depth', 1000, 'subscription queue depth', 1, 100000),
     Option('discovery_period', 0.2, 'how often to look for listed topics not yet seen [s]',
            0.05, 60.0),
+    Option('max_bag_size', 0, 'split to a new file once the open one holds this many bytes '
+           '(0: no split by size) [bytes]', 0, 2 ** 62),
+    Option('max_bag_duration', 600.0, 'split to a new file once the open one spans this '
+           'long (0: no split by duration) [s]', 0.0, 1e9),
+    Option('compression', 'zstd', 'MCAP chunk compression', choices=tuple(COMPRESSION)),
+    Option('min_free_space', 100_000_000, 'refuse to start, and stop recording cleanly, with '
+           'less free space than this on the filesystem of the bag [bytes]', 0, 2 ** 62),
+    Option('warn_free_space', 1_000_000_000, 'warn (once a minute) with less free space than '
+           'this [bytes]', 0, 2 ** 62),
 )
 
 
@@ -68,18 +91,34 @@ class RecorderNode(Node):
         super().__init__('recorder', **kwargs)
         self.opt = declare_options(self, OPTIONS)
         out = Path(self.opt['out'] or default_bag_path())
+        free = free_bytes(out)
+        if 0 <= free < int(self.opt['min_free_space']):
+            raise BagError(f'not recording to {str(out)!r}: {free / 1e6:.1f} MB free on its '
+                           f'filesystem, below min_free_space = '
+                           f'{int(self.opt["min_free_space"]) / 1e6:.1f} MB')
         self.writer = BagWriter(out, flush_period=float(self.opt['flush_period']),
-                                fsync=bool(self.opt['fsync']))
+                                fsync=bool(self.opt['fsync']),
+                                compression=str(self.opt['compression']),
+                                max_bag_size=int(self.opt['max_bag_size']),
+                                max_bag_duration=float(self.opt['max_bag_duration']))
         self.path = out
+        self.done = Future()
+        self.failure = ''
         self._subs = {}
         self._dirty = False
+        self._files = 1
+        self._space_warned = -1e9
         wanted = list(self.opt['topics']) or [t.name for t in contract.TOPICS]
         self._wanted = {self.resolve_topic_name(n): n for n in wanted}
         self._discover()
         self.create_timer(float(self.opt['discovery_period']), self._discover,
                           clock=steady_clock())
         self.create_timer(float(self.opt['flush_period']), self._flush, clock=steady_clock())
-        self.get_logger().info(f'recording {sorted(self._wanted)} to {out}')
+        self.create_timer(1.0, self._check_space, clock=steady_clock())
+        self.get_logger().info(
+            f'recording {sorted(self._wanted)} to {out} ({self.opt["compression"]}, split at '
+            f'{self.opt["max_bag_duration"]:g} s / {self.opt["max_bag_size"]} bytes; '
+            f'{free / 1e9:.1f} GB free)')
 
     def _subscribe(self, full: str, msg_type: str, offered: list, reliability: str) -> None:
         """Subscribe raw to ``full`` and add it to the bag (a type not installed: warn)."""
@@ -101,13 +140,24 @@ class RecorderNode(Node):
             now = time.time_ns      # the same system time, without a Time object
 
         def on_msg(data: bytes, topic=full) -> None:
-            write(topic, data, now())
+            if self.failure:
+                return
+            try:
+                write(topic, data, now())
+            except BagError as err:
+                self._fail(err)
+                return
             self._dirty = True
+            if len(self.writer.files) != self._files:
+                self._files = len(self.writer.files)
+                self.get_logger().info(f'split: now writing {self.writer.file_name}')
 
         self._subs[full] = self.create_subscription(cls, full, on_msg, qos, raw=True)
         self.get_logger().info(f'recording {full} ({msg_type}, {reliability})')
 
     def _discover(self) -> None:
+        if self.failure:
+            return
         missing = [t for t in self._wanted if t not in self._subs]
         if not missing:
             return
@@ -127,21 +177,72 @@ class RecorderNode(Node):
             specs = [qos_spec(p.qos_profile) for p in pubs]
             rel = ('reliable' if all(q.reliability == 'reliable' for q in specs)
                    else 'best_effort')
-            self._subscribe(full, msg_type, [q.as_rosbag2() for q in specs], rel)
+            try:
+                self._subscribe(full, msg_type, [q.as_rosbag2() for q in specs], rel)
+            except BagError as err:
+                self._fail(err)
+                return
 
     def _flush(self) -> None:
         if self._dirty:
             self._dirty = False
-            self.writer.flush()
+            try:
+                self.writer.flush()
+            except BagError as err:
+                self._fail(err)
+
+    def _check_space(self) -> None:
+        """Warn as space runs low; stop cleanly below ``min_free_space``."""
+        if self.failure:
+            return
+        free = free_bytes(self.path)
+        if free < 0:
+            return
+        t = time.monotonic()
+        if free < int(self.opt['min_free_space']):
+            self._fail(BagError(
+                f'stopped recording to {str(self.path)!r}: {free / 1e6:.1f} MB free on its '
+                f'filesystem, below min_free_space = '
+                f'{int(self.opt["min_free_space"]) / 1e6:.1f} MB'))
+        elif free < int(self.opt['warn_free_space']) and t - self._space_warned >= 60.0:
+            self._space_warned = t
+            f = self.writer.files[-1]      # the open file's bytes per second of log time
+            span = (f['end_ns'] - f['start_ns']) * 1e-9 if f['count'] else 0.0
+            size = (self.path / f['path']).stat().st_size
+            left = free * span / size if span > 1.0 and size else 0.0
+            self.get_logger().warning(
+                f'disk space low: {free / 1e6:.1f} MB free for {self.path}'
+                + (f', about {left / 3600:.1f} h at the current rate' if left else '')
+                + f'; recording stops at {int(self.opt["min_free_space"]) / 1e6:.1f} MB')
+
+    def _fail(self, err: BagError) -> None:
+        """Stop recording after ``err`` (logged once); the node then closes and exits 1."""
+        if self.failure:
+            return
+        self.failure = str(err)
+        self.get_logger().error(str(err))
+        if not self.done.done():
+            self.done.set_result(1)
 
     def close(self) -> None:
         """Close the bag (summary and metadata.yaml) and log what it holds."""
         if self.writer.closed:
             return
-        self.writer.close()
-        counts = ', '.join(f'{k} {n}' for k, n in self.writer.counts.items())
-        print(f'[recorder] closed {self.path}: {self.writer.count} messages ({counts})',
-              flush=True)
+        try:
+            self.writer.close()
+        except BagError as err:
+            self.failure = self.failure or str(err)
+        w = self.writer
+        counts = ', '.join(f'{k} {n}' for k, n in w.counts.items())
+        files = f'{len(w.files)} file' + ('s' if len(w.files) > 1 else '')
+        if not self.failure:
+            print(f'[recorder] closed {self.path}: {w.count} messages in {files} ({counts})',
+                  flush=True)
+            return
+        kept = w.metadata(flushed=True)['message_count']
+        meta = w.metadata_error or 'metadata.yaml written for them'
+        print(f'[recorder] error: {self.failure}; {kept} messages readable in {self.path} '
+              f'({files}); {meta}', flush=True)
 
 
 def main(args=None) -> int:
