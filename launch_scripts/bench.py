@@ -37,7 +37,7 @@ import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checkout works too
 
-from ros_ehs.nodes.launch import FIGURES, Launch, LaunchError  # noqa: E402
+from ros_ehs.launch import FIGURES, Launch, LaunchError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.synthetic import SensorNoise  # noqa: E402
 

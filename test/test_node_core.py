@@ -22,7 +22,7 @@ from ros_ehs.bag.experiment import load_experiment
 from ros_ehs.control.controller import Controller
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.errors import ParameterError
-from ros_ehs.nodes.launch import node_command
+from ros_ehs.launch import node_command
 from ros_ehs.nodes.loop_stats import LoopStats, Window
 from ros_ehs.params import CONTROL_SPECS, Params
 from ros_ehs.reference import make, REFERENCE_SPECS, Sine, Step

@@ -30,10 +30,11 @@ import pytest
 from ros_ehs.bag import open_bag
 from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.errors import BagError
-from ros_ehs.nodes.launch import Launch, node_command
+from ros_ehs.launch import Launch, node_command
 from ros_ehs.params import Params
 from ros_ehs.reference import Sine
 import ros_ehs_msgs_py as c
+import yaml
 
 pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,7 +98,9 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     duration = 2.0
     bag = tmp_path / 'lockstep'
     with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('lockstep', bag=bag, plant={'duration': duration})
+        # split into files of 150 kB as it records: the pause falls across splits
+        launch.start_loop('lockstep', bag=bag, plant={'duration': duration},
+                          recorder={'max_bag_size': 150_000, 'compression': 'none'})
         time.sleep(0.2)
         rec = launch['recorder'].popen
         rec.send_signal(signal.SIGSTOP)
@@ -111,6 +114,16 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     t, z, i = _states(bag)
     n = int(round(duration * 1000))
     assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
+    # split, and nothing lost or doubled across the files: every state the plant sent
+    # (resends included) once, for rosbags as for us
+    f = launch['plant'].figures()
+    files = yaml.safe_load((bag / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['relative_file_paths']
+    assert len(files) >= 4 and open_bag(bag).topics['/state'].count == n + 1 + f['resends']
+    from rosbags.rosbag2 import Reader
+    with Reader(bag) as r:
+        assert sum(x.msgcount for x in r.connections if x.topic == '/state') == \
+            n + 1 + f['resends']
     assert {k: tp.qos[0]['reliability'] for k, tp in open_bag(bag).topics.items()
             if k in ('/state', '/servo_current', '/reference')} == dict.fromkeys(
         ('/state', '/servo_current', '/reference'), 'reliable')
@@ -119,7 +132,6 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     # state k reports the current applied over the period that ended at it
     np.testing.assert_allclose(i[1:], ref.i[:-1], rtol=0, atol=1e-9)
     assert np.ptp(z) > 0.07          # the loop really tracked the 0.04 m sine
-    f = launch['plant'].figures()
     assert f['steps'] == n and f['model_faults'] == 0
 
 
@@ -330,6 +342,14 @@ def test_bad_configuration_is_one_clear_line(dom, tmp_path):
         q = launch.start('plant', {'p_s': -5.0}, name='bad_plant')
         assert q.popen.wait(60) == 2
         assert 'p_s' in q.output() and 'Traceback' not in q.output()
+        r = launch.start('recorder', {'out': str(tmp_path / 'bag'), 'min_free_space': 2 ** 62})
+        assert r.popen.wait(60) == 2
+        assert 'not recording to' in r.output() and 'below min_free_space' in r.output()
+        assert 'Traceback' not in r.output() and not (tmp_path / 'bag').exists()
+        r = launch.start('recorder', {'out': str(tmp_path / 'bag'), 'compression': 'gzip'},
+                         name='bad_recorder')
+        assert r.popen.wait(60) == 2
+        assert "'gzip' is not one of" in r.output() and 'Traceback' not in r.output()
 
 
 # -- contract -------------------------------------------------------------------------------
@@ -386,6 +406,17 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
         assert p.alive()
         assert launch.stop(['player'])['player'] == 0
     assert [m.data for m in got[:20]] == want + want
+    # a split rosbag2 bag plays as one bag, in file order
+    meta = yaml.safe_load((FIXTURES / 'split_wbag' / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']
+    with Launch(dom, tmp_path / 'logs3') as launch:
+        p = launch.start('player', {'bag': str(FIXTURES / 'split_wbag'), 'clock': False,
+                                    'start_delay': 0.0})
+        assert p.popen.wait(60) == 0, p.output()
+    done = [ln for ln in p.output().splitlines() if 'replay done' in ln][0]
+    played = dict(x.split() for x in done.split('replay done: ')[1].split(', '))
+    assert {k: int(v) for k, v in played.items()} == {
+        t['topic_metadata']['name']: t['message_count'] for t in meta['topics_with_message_count']}
 
 
 # -- identification node ----------------------------------------------------------------------

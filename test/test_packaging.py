@@ -82,7 +82,7 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
 
     # the colcon-built executables start and talk (what `ros2 run ros_ehs plant` starts)
     from domain_coordinator import domain_id
-    from ros_ehs.nodes.launch import Launch
+    from ros_ehs.launch import Launch
     site = next(install.glob('lib/python*/site-packages'))
     with domain_id() as dom:
         built = {'PYTHONPATH': str(site), 'AMENT_PREFIX_PATH': prefix_path}

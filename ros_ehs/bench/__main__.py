@@ -17,7 +17,8 @@ import importlib
 import sys
 
 BENCHES = {'model': 'model_bench', 'paper': 'paper_bench', 'identify': 'identify_bench',
-           'loop': 'loop_bench', 'lockstep': 'lockstep_bench', 'record': 'record_bench'}
+           'loop': 'loop_bench', 'lockstep': 'lockstep_bench', 'record': 'record_bench',
+           'soak': 'soak_bench'}
 
 
 def main(argv=None) -> int:

@@ -32,7 +32,7 @@ import time
 from domain_coordinator import domain_id
 from ros_ehs.bench import report
 from ros_ehs.closed_loop import run_closed_loop
-from ros_ehs.nodes.launch import Launch
+from ros_ehs.launch import Launch
 from ros_ehs.params import Params
 from ros_ehs.reference import Sine
 

@@ -30,7 +30,7 @@ import time
 from domain_coordinator import domain_id
 import psutil
 from ros_ehs.bench import report
-from ros_ehs.nodes.launch import Launch
+from ros_ehs.launch import Launch
 
 
 def _cpu(pid: int) -> float:

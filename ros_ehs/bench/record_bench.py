@@ -17,9 +17,10 @@
 A publisher process sends numbered JointState messages (the size of a ``state`` message) on
 a reliable topic at a set rate for ``--seconds``; the recorder node records them; the bench
 then counts what the bag holds and which numbers are missing. Rates are tried from
-``--rates`` in order; ``msgs_per_s`` is the highest rate recorded without loss. In the same
-run, the raw write speed of :class:`ros_ehs.bag.BagWriter` (no DDS) is the yardstick. Last
-line: one JSON object.
+``--rates`` in order, for each chunk compression of ``--compressions``; ``msgs_per_s`` is
+the highest rate recorded without loss (per compression in ``by_compression``, with the
+recorder's CPU share at that rate). In the same run, the raw write speed of
+:class:`ros_ehs.bag.BagWriter` (no DDS) is the yardstick. Last line: one JSON object.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
 from ros_ehs.bench import report
-from ros_ehs.nodes.launch import Launch
+from ros_ehs.launch import Launch
 import ros_ehs_msgs_py as contract
 
 TOPIC = '/bench/blast'
@@ -68,9 +69,10 @@ time.sleep(1.0)
 """.format(topic=TOPIC)
 
 
-def _one(dom: int, rate: float, seconds: float, out: str) -> dict:
+def _one(dom: int, rate: float, seconds: float, out: str, compression: str) -> dict:
     with Launch(dom) as launch:
-        rec = launch.start('recorder', {'out': out, 'topics': [TOPIC], 'depth': 10000})
+        rec = launch.start('recorder', {'out': out, 'topics': [TOPIC], 'depth': 10000,
+                                        'compression': compression})
         assert launch.wait_for_log('recorder', 'recording')
         pub = launch.start('pub', cmd=[sys.executable, '-c', _PUBLISHER, str(rate),
                                        str(seconds)])
@@ -86,15 +88,16 @@ def _one(dom: int, rate: float, seconds: float, out: str) -> dict:
     bag = open_bag(out)
     seqs = np.array([contract.state_from_msg(m).stamp_ns for _, m in bag.decoded([TOPIC])])
     lost = n - len(np.unique(seqs))
-    return {'rate': rate, 'sent': n, 'achieved_rate': round(achieved, 1),
+    return {'compression': compression, 'rate': rate, 'sent': n,
+            'achieved_rate': round(achieved, 1),
             'recorded': int(seqs.size), 'lost': int(lost), 'recorder_cpu_frac': round(cpu, 3)}
 
 
-def _raw_writer_rate(n: int = 100000) -> float:
+def _raw_writer_rate(compression: str, n: int = 100000) -> float:
     m = contract.fill_state(contract.empty_msg(contract.STATE.msg_type),
                             contract.AxisState(1, 0.01, 0.02, 3.0, 4e-5, 0.001))
     with tempfile.TemporaryDirectory() as d:
-        w = BagWriter(f'{d}/raw')
+        w = BagWriter(f'{d}/raw', compression=compression)
         w.add_topic(TOPIC, contract.STATE.msg_type, contract.RECORD_QOS)
         w.write_msg(TOPIC, m, 1)
         data = bytes(w._encoders[contract.STATE.msg_type](m))
@@ -110,16 +113,26 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench record')
     ap.add_argument('--seconds', type=float, default=5.0)
     ap.add_argument('--rates', default='20000,25000,30000')
+    ap.add_argument('--compressions', default='none,zstd')
     a = ap.parse_args(argv)
     runs = []
+    comps = a.compressions.split(',')
     with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
-        for k, r in enumerate(float(x) for x in a.rates.split(',')):
-            res = _one(dom, r, a.seconds, f'{tmp}/bag{k}')
-            print(f'  rate {r:>8.0f}/s: {res}', flush=True)
-            runs.append(res)
-    ok = [x['achieved_rate'] for x in runs if x['lost'] == 0]
-    fig = {'msgs_per_s': max(ok) if ok else 0.0, 'seconds_per_rate': a.seconds,
-           'runs': runs, 'raw_writer_msgs_per_s': round(_raw_writer_rate(), 1)}
+        for comp in comps:
+            for k, r in enumerate(float(x) for x in a.rates.split(',')):
+                res = _one(dom, r, a.seconds, f'{tmp}/bag_{comp}_{k}', comp)
+                print(f'  {comp:>5} rate {r:>8.0f}/s: {res}', flush=True)
+                runs.append(res)
+    by = {}
+    for comp in comps:
+        ok = [x for x in runs if x['compression'] == comp and x['lost'] == 0]
+        best = max(ok, key=lambda x: x['achieved_rate'], default=None)
+        by[comp] = {'msgs_per_s': best['achieved_rate'] if best else 0.0,
+                    'recorder_cpu_frac': best['recorder_cpu_frac'] if best else None,
+                    'raw_writer_msgs_per_s': round(_raw_writer_rate(comp), 1)}
+    fig = {'msgs_per_s': by[comps[0]]['msgs_per_s'], 'seconds_per_rate': a.seconds,
+           'by_compression': by, 'runs': runs,
+           'raw_writer_msgs_per_s': by[comps[0]]['raw_writer_msgs_per_s']}
     return report(fig)
 
 

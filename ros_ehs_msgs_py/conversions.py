@@ -1,0 +1,165 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Conversions between the plain records and messages.
+
+``*_from_msg`` read any object with the message's attributes (an rclpy message or a decoded
+bag message) and raise ValueError naming what is missing; ``fill_*`` write into one (an rclpy
+message instance, or the nested dicts of :func:`empty_msg` for the bag writer).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference
+from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
+
+__all__ = ['command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',
+           'fill_state', 'pressure_from_msg', 'reference_from_msg', 'stamp_ns',
+           'state_from_msg']
+
+
+def stamp_ns(header: Any) -> int:
+    """Return a ``std_msgs/Header`` stamp in nanoseconds."""
+    s = _get(header, 'stamp')
+    return int(_get(s, 'sec')) * 1_000_000_000 + int(_get(s, 'nanosec'))
+
+
+def _get(obj: Any, name: str) -> Any:
+    return obj[name] if isinstance(obj, dict) else getattr(obj, name)
+
+
+def _set(obj: Any, name: str, value: Any) -> None:
+    if isinstance(obj, dict):
+        obj[name] = value
+    else:
+        setattr(obj, name, value)
+
+
+def _set_header(msg: Any, t_ns: int, frame: str = '') -> None:
+    h = _get(msg, 'header')
+    s = _get(h, 'stamp')
+    _set(s, 'sec', int(t_ns // 1_000_000_000))
+    _set(s, 'nanosec', int(t_ns % 1_000_000_000))
+    _set(h, 'frame_id', frame)
+
+
+def empty_msg(msg_type: str) -> dict[str, Any]:
+    """Return a nested-dict message of ``msg_type`` for the bag writer (contract types)."""
+    header = {'stamp': {'sec': 0, 'nanosec': 0}, 'frame_id': ''}
+    if msg_type == 'sensor_msgs/msg/JointState':
+        return {'header': header, 'name': [], 'position': [], 'velocity': [], 'effort': []}
+    if msg_type == 'sensor_msgs/msg/FluidPressure':
+        return {'header': header, 'fluid_pressure': 0.0, 'variance': 0.0}
+    if msg_type == 'rosgraph_msgs/msg/Clock':
+        return {'clock': {'sec': 0, 'nanosec': 0}}
+    raise KeyError(f'no empty message for {msg_type!r}')
+
+
+def _joint(msg: Any, name: str, topic: str) -> int:
+    names = list(_get(msg, 'name'))
+    try:
+        return names.index(name)
+    except ValueError:
+        raise ValueError(f'`{topic}` message has no joint {name!r} (joints: {names})') from None
+
+
+def _field(msg: Any, field: str, k: int, topic: str) -> float:
+    arr = _get(msg, field)
+    if len(arr) <= k:
+        raise ValueError(f'`{topic}` message has no {field}[{k}] (length {len(arr)})')
+    return float(arr[k])
+
+
+def fill_state(msg: Any, s: AxisState) -> Any:
+    """Write ``s`` into a JointState (``piston``, ``spool``, and ``servo_valve`` if ``s.i``)."""
+    _set_header(msg, s.stamp_ns)
+    if math.isnan(s.i):
+        _set(msg, 'name', [JOINT_PISTON, JOINT_SPOOL])
+        _set(msg, 'position', [float(s.z), float(s.x_spool)])
+        _set(msg, 'velocity', [float(s.z_dot), math.nan])
+        _set(msg, 'effort', [float(s.force), math.nan])
+        return msg
+    _set(msg, 'name', [JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE])
+    _set(msg, 'position', [float(s.z), float(s.x_spool), math.nan])
+    _set(msg, 'velocity', [float(s.z_dot), math.nan, math.nan])
+    _set(msg, 'effort', [float(s.force), math.nan, float(s.i)])
+    return msg
+
+
+def state_from_msg(msg: Any) -> AxisState:
+    """Read an :class:`AxisState` from a ``state`` JointState (ValueError if malformed)."""
+    k = _joint(msg, JOINT_PISTON, 'state')
+    eff = _get(msg, 'effort')
+    force = float(eff[k]) if len(eff) > k else math.nan
+    x = i = math.nan
+    names = list(_get(msg, 'name'))
+    if JOINT_SPOOL in names:
+        j = names.index(JOINT_SPOOL)
+        pos = _get(msg, 'position')
+        x = float(pos[j]) if len(pos) > j else math.nan
+    if JOINT_VALVE in names:
+        j = names.index(JOINT_VALVE)
+        i = float(eff[j]) if len(eff) > j else math.nan
+    return AxisState(stamp_ns(_get(msg, 'header')), _field(msg, 'position', k, 'state'),
+                     _field(msg, 'velocity', k, 'state'), force, x, i)
+
+
+def fill_reference(msg: Any, r: Reference) -> Any:
+    """Write ``r`` into a JointState (joint ``piston``)."""
+    _set_header(msg, r.stamp_ns)
+    _set(msg, 'name', [JOINT_PISTON])
+    _set(msg, 'position', [float(r.z_ref)])
+    _set(msg, 'velocity', [float(r.v_ref)])
+    _set(msg, 'effort', [])
+    return msg
+
+
+def reference_from_msg(msg: Any) -> Reference:
+    """Read a :class:`Reference` from a ``reference`` JointState."""
+    k = _joint(msg, JOINT_PISTON, 'reference')
+    vel = _get(msg, 'velocity')
+    v = float(vel[k]) if len(vel) > k else 0.0
+    return Reference(stamp_ns(_get(msg, 'header')), _field(msg, 'position', k, 'reference'), v)
+
+
+def fill_command(msg: Any, c: Command) -> Any:
+    """Write ``c`` into a JointState (joint ``servo_valve``, effort = current [A])."""
+    _set_header(msg, c.stamp_ns)
+    _set(msg, 'name', [JOINT_VALVE])
+    _set(msg, 'position', [])
+    _set(msg, 'velocity', [])
+    _set(msg, 'effort', [float(c.i)])
+    return msg
+
+
+def command_from_msg(msg: Any) -> Command:
+    """Read a :class:`Command` from a ``servo_current`` JointState."""
+    k = _joint(msg, JOINT_VALVE, 'servo_current')
+    return Command(stamp_ns(_get(msg, 'header')), _field(msg, 'effort', k, 'servo_current'))
+
+
+def fill_pressure(msg: Any, p: Pressure) -> Any:
+    """Write ``p`` into a FluidPressure."""
+    _set_header(msg, p.stamp_ns)
+    _set(msg, 'fluid_pressure', float(p.p))
+    _set(msg, 'variance', 0.0)
+    return msg
+
+
+def pressure_from_msg(msg: Any) -> Pressure:
+    """Read a :class:`Pressure` from a FluidPressure."""
+    return Pressure(stamp_ns(_get(msg, 'header')), float(_get(msg, 'fluid_pressure')))

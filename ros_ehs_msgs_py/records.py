@@ -1,0 +1,54 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The contract's plain records: what a message means, in SI units, without ROS."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+__all__ = ['AxisState', 'Command', 'Pressure', 'Reference']
+
+
+class AxisState(NamedTuple):
+    """Measured piston state: position [m], velocity [m/s], hydraulic force [N], spool [m]."""
+
+    stamp_ns: int
+    z: float
+    z_dot: float
+    force: float = math.nan
+    x_spool: float = math.nan
+    i: float = math.nan     #: current [A] applied over the period that ended here (if known)
+
+
+class Reference(NamedTuple):
+    """Position reference [m] and its velocity [m/s]."""
+
+    stamp_ns: int
+    z_ref: float
+    v_ref: float
+
+
+class Command(NamedTuple):
+    """Servo-valve current [A]."""
+
+    stamp_ns: int
+    i: float
+
+
+class Pressure(NamedTuple):
+    """A chamber pressure [Pa]."""
+
+    stamp_ns: int
+    p: float

@@ -1,0 +1,86 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The contract's topics: names (relative), message types, content and units, QoS; joint names."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from ros_ehs_msgs_py.qos import CLOCK_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec, RECORD_QOS
+
+__all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'JOINT_PISTON', 'JOINT_SPOOL', 'JOINT_VALVE',
+           'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T', 'REFERENCE', 'STATE',
+           'TOPICS', 'Topic', 'by_name']
+
+JOINT_PISTON = 'piston'
+JOINT_SPOOL = 'spool'
+JOINT_VALVE = 'servo_valve'
+
+
+class Topic(NamedTuple):
+    """One topic of the contract."""
+
+    name: str
+    msg_type: str
+    content: str
+    qos: QosSpec = LOOP_QOS
+
+    def qos_in(self, lockstep: bool) -> QosSpec:
+        """Return this topic's QoS in real time or lock-step (best-effort topics turn reliable)."""
+        if lockstep and self.qos.reliability == 'best_effort':
+            return LOCKSTEP_QOS
+        return self.qos
+
+
+REFERENCE = Topic('reference', 'sensor_msgs/msg/JointState',
+                  'joint `piston`: position z_ref [m], velocity [m/s]')
+STATE = Topic('state', 'sensor_msgs/msg/JointState',
+              '`piston`: z [m], z_dot [m/s], effort = hydraulic force [N]; `spool`: x [m]; '
+              '`servo_valve` (plant node): effort = current applied over the period [A]')
+PRESSURE_P = Topic('pressure/chamber_p', 'sensor_msgs/msg/FluidPressure',
+                   'chamber P pressure [Pa]')
+PRESSURE_T = Topic('pressure/chamber_t', 'sensor_msgs/msg/FluidPressure',
+                   'chamber T pressure [Pa]')
+COMMAND = Topic('servo_current', 'sensor_msgs/msg/JointState',
+                'joint `servo_valve`: effort = i [A]')
+DIAGNOSTICS = Topic('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                    'loop timing, tracking error, watchdog', RECORD_QOS)
+CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock',
+              'published by the plant in lock-step mode', CLOCK_QOS)
+
+TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, CLOCK)
+
+
+class NodeTopics(NamedTuple):
+    """The contract topics a node publishes and subscribes (its part of the contract)."""
+
+    publishes: tuple[Topic, ...]
+    subscribes: tuple[Topic, ...]
+
+
+#: What each loop node creates in its default (real-time) mode. In lock-step the plant also
+#: publishes CLOCK, and under ``use_sim_time`` the reference subscribes to it.
+NODE_TOPICS = {
+    'plant': NodeTopics((STATE, PRESSURE_P, PRESSURE_T, DIAGNOSTICS), (COMMAND,)),
+    'controller': NodeTopics((COMMAND, DIAGNOSTICS), (STATE, REFERENCE)),
+    'reference': NodeTopics((REFERENCE, DIAGNOSTICS), ()),
+}
+
+
+def by_name(name: str) -> Topic:
+    """Return the contract topic called ``name`` (leading ``/`` ignored except ``/clock``)."""
+    for t in TOPICS:
+        if name in (t.name, '/' + t.name):
+            return t
+    raise KeyError(f'{name!r} is not a contract topic; known: {[t.name for t in TOPICS]}')
