@@ -47,8 +47,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.node import Node
 from ros_ehs.errors import EhsError
-from ros_ehs.model.plant import Plant
 from ros_ehs.launch import FIGURES
+from ros_ehs.model.plant import Plant
 from ros_ehs.nodes.loop_stats import LoopStats
 from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, ERROR,
                                       node_params, OK, Option, qos_profile, read_msg, run,
