@@ -300,3 +300,25 @@ def test_missing_samples_split_the_record_into_runs(tmp_path):
     short = _without_states(b, tmp_path / 'short', lambda k: k % 400 == 0)
     with pytest.raises(DataError, match='longest run without missing samples has 399'):
         load_experiments(short)
+
+
+def test_stray_states_from_another_clock_are_dropped_not_fatal(tmp_path):
+    """Stamp policy of the bag reader: strangers off the grid are dropped and named."""
+    from ros_ehs.bag.experiment import load_experiments
+    clean = _write(tmp_path / 'clean', n=2000)
+    bag = tmp_path / 'stray'
+    src = open_bag(clean)
+    with BagWriter(bag) as w:
+        for k, t in src.topics.items():
+            w.add_topic(k, t.msg_type, t.qos)
+        for m in src.messages():
+            w.write(m.topic, m.data, m.log_time_ns)
+        for ns in (1_500_400_000, 1_500_400_001, 1_000_000_000 + 3600 * 10**9):
+            # a stray publisher: between two grid points, and an hour ahead
+            w.write_msg('/state', c.fill_state(c.empty_msg(c.STATE.msg_type),
+                                               c.AxisState(ns, 9.0, 9.0)), 2_000_000_000)
+    exp, = load_experiments(bag)
+    ref, = load_experiments(clean)
+    assert exp.name == 'stray (2 off-grid states dropped)'
+    np.testing.assert_array_equal(exp.z, ref.z)
+    np.testing.assert_array_equal(exp.i, ref.i)

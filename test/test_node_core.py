@@ -75,6 +75,15 @@ def test_live_changes_are_validated_as_a_whole_with_a_reason():
     assert not res.successful and 'u_max' in res.reason and 'outside' in res.reason
     res, new = validate_changes(cur, [Parameter('use_sim_time', value=True)], SPECS)
     assert res.successful and new is None          # not ours: nothing to rebuild
+    from ros_ehs.nodes.ros_common import rejected_names
+    declared = {'kp', 'use_sim_time'}.__contains__
+    assert rejected_names([Parameter('kp', value=1.5)], declared) is None
+    assert rejected_names([Parameter('', value=1.0)], declared) == \
+        'a parameter with an empty name'
+    assert rejected_names([Parameter('kp', value=1.5), Parameter('nope', value=1.0)],
+                          declared) == 'parameter `nope` is not declared by this node'
+    assert 'restart the node' in rejected_names([Parameter('use_sim_time', value=True)],
+                                                declared)
     res, _ = validate_changes(cur, [Parameter('antiwindup', value='clamp')], SPECS)
     assert not res.successful and "`antiwindup` = 'clamp' is not one of" in res.reason
     from ros_ehs.nodes.plant import OPTIONS

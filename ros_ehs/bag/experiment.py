@@ -14,7 +14,12 @@
 """
 Extract an identification experiment (arrays on one time grid) from a bag's contract topics.
 
-The time base is the ``state`` topic's header stamps. The servo current of each period is,
+The time base is the ``state`` topic's header stamps. Stamp policy: states are sorted by
+stamp and a repeated stamp (a lock-step resend) is kept once; a state closer than 3/4 of the
+median period to the one before it (a stray publisher, another clock) is dropped and the
+experiment's name says how many; a gap (missed samples, a stamp far ahead or behind) splits
+the record into runs (:func:`load_experiments`), and runs too short to fit are dropped.
+The servo current of each period is,
 when the plant reports it, the current it applied (joint ``servo_valve`` of ``state``: what
 the valve really got, watchdog and late commands included). Otherwise it is the latest
 ``servo_current`` command stamped at or before the state sample (the controller stamps its
@@ -144,6 +149,29 @@ def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experim
     return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], pa, pb)
 
 
+def _on_grid(ts: np.ndarray) -> np.ndarray:
+    """
+    Mask of the states on the record's sample grid (sorted, distinct stamps [ns]).
+
+    A state closer than 3/4 of the median period to the one kept before it is a stranger (a
+    stray publisher, another clock, a replay into a live bench) and is dropped.
+    """
+    keep = np.ones(ts.size, dtype=bool)
+    d = np.diff(ts)
+    if d.size == 0:
+        return keep
+    close = 0.75 * np.median(d)
+    if not np.any(d < close):
+        return keep
+    last = ts[0]
+    for j in range(1, ts.size):
+        if ts[j] - last < close:
+            keep[j] = False
+        else:
+            last = ts[j]
+    return keep
+
+
 def _read(path, state, command, pressure_p, pressure_t, bag, start=None, end=None):
     """Return the bag's series on the state stamps: name, ts [ns], command, state, pressures."""
     bag = bag or open_bag(path, start=start, end=end)
@@ -167,6 +195,10 @@ def _read(path, state, command, pressure_p, pressure_t, bag, start=None, end=Non
     ts, sv = ts[order], sv[order]
     keep = np.concatenate([[True], np.diff(ts) > 0])
     ts, sv = ts[keep], sv[keep]
+    keep = _on_grid(ts)
+    if not keep.all():
+        name += f' ({int(keep.size - keep.sum())} off-grid states dropped)'
+        ts, sv = ts[keep], sv[keep]
     oc = np.argsort(tc, kind='stable')
     tc, cv = tc[oc], cv[oc]
     k = np.searchsorted(tc, ts, side='right') - 1

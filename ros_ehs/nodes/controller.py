@@ -19,12 +19,24 @@ state's stamp (so the plant measures the round trip and lock-step stays exact). 
 feedforward parameters are ROS parameters declared from the one table with their ranges;
 a live change is validated as a whole and rejected with the reason.
 
-Edge-case policy (tested in ``test/test_nodes.py``):
+Edge-case policy (tested in ``test/test_nodes.py`` and ``test/test_stamps.py``):
 
 * non-finite state or reference: 0 A and ``fault`` (the PID's policy), until a finite one;
 * malformed message (no ``piston`` joint, empty arrays): ignored and counted;
-* a repeated stamp (lock-step resend): the same command again, no PID update;
-* an older stamp than the last answered: ignored and counted;
+* stamps (any publisher on the bench network can send a ``state``: a bag player, a rig
+  driver with another clock, a restarted plant):
+
+  - real time: a state stamped more than ``future_tolerance`` ahead of this node's clock is
+    dropped and counted (``future``, in diagnostics), never adopted: one stray stamp an hour
+    ahead must not make every true state look out of order;
+  - a repeated stamp (lock-step resend): the same command again, no PID update;
+  - an older stamp than the last answered, by at most ``EPOCH_PERIODS`` periods (reordering):
+    ignored and counted (``out_of_order``);
+  - older by more (a restarted plant, a replayed bag, a lock-step plant started again at
+    ``start_time``): a new run. The PID and feedforward restart from rest, the lock-step
+    reference buffer is cleared, the stamp is answered at once; counted (``epochs``) and
+    logged (at most once a second);
+
 * a state older than ``stale_timeout`` on arrival: not used; the held command is repeated;
 * no state for ``LOST_FACTOR * stale_timeout`` (checked every 10 ms, real time only): 0 A is
   published once, and the PID restarts from rest when states return. (A plain late state
@@ -48,10 +60,10 @@ from rclpy.node import Node
 from ros_ehs.control.controller import Controller
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.nodes.loop_stats import Window
-from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, ERROR,
-                                      node_params, OK, Option, qos_profile, read_msg, run,
-                                      steady_clock, update_options, validate_changes,
-                                      WARN)
+from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics,
+                                      EPOCH_PERIODS, ERROR, node_params, OK, Option,
+                                      qos_profile, read_msg, run, steady_clock,
+                                      update_options, validate_changes, WARN)
 from ros_ehs.params import CONTROL_SPECS, Params, spec
 import ros_ehs_msgs_py as contract
 from sensor_msgs.msg import JointState
@@ -71,6 +83,8 @@ OPTIONS = (
     Option('reference_timeout', 0.1, 'a reference older than this is held at zero velocity '
            '[s]', 1.0e-3, 100.0, read_only=False),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
+    Option('future_tolerance', 0.05, 'real time: a state stamped further ahead of this '
+           "node's clock is dropped and counted [s]", 1.0e-4, 3600.0, read_only=False),
 )
 
 
@@ -97,7 +111,10 @@ class ControllerNode(Node):
         self._last_stamp = -1
         self._lost = False
         self.counts = dict.fromkeys(('answered', 'bad', 'nonfinite', 'stale', 'out_of_order',
-                                     'repeated', 'state_lost_events', 'param_rejects'), 0)
+                                     'future', 'epochs', 'repeated', 'state_lost_events',
+                                     'param_rejects'), 0)
+        self._dt_ns = int(round(self.dt * 1e9))
+        self._diag_future = 0
         self.err = Window(2000)
         self.compute = Window(2000)
         self._cmd = JointState()
@@ -162,15 +179,24 @@ class ControllerNode(Node):
         if s is None:
             self.counts['bad'] += 1
             return
+        if self.wall:
+            age = self.get_clock().now().nanoseconds - s.stamp_ns
+            if age < -float(self.opt['future_tolerance']) * 1e9:
+                self.counts['future'] += 1
+                self.get_logger().warning(
+                    f'dropped a state stamped {-age * 1e-9:.6g} s ahead of this clock',
+                    throttle_duration_sec=1.0)
+                return
         if s.stamp_ns == self._last_stamp:
             self.counts['repeated'] += 1
             self._publish(s.stamp_ns, self.ctrl.output)
             return
         if s.stamp_ns < self._last_stamp:
-            self.counts['out_of_order'] += 1
-            return
+            if self._last_stamp - s.stamp_ns <= EPOCH_PERIODS * self._dt_ns:
+                self.counts['out_of_order'] += 1
+                return
+            self._new_epoch(s.stamp_ns)
         if self.wall:
-            age = self.get_clock().now().nanoseconds - s.stamp_ns
             if age > self.params['stale_timeout'] * 1e9:
                 self.counts['stale'] += 1
                 self._last_stamp = s.stamp_ns
@@ -181,6 +207,19 @@ class ControllerNode(Node):
             self._waiting = s
             return
         self._answer(s, *ref)
+
+    def _new_epoch(self, stamp_ns: int) -> None:
+        """Start a new run at ``stamp_ns``: PID from rest, lock-step references forgotten."""
+        back = (self._last_stamp - stamp_ns) * 1e-9
+        self.counts['epochs'] += 1
+        self.ctrl.reset()
+        self._last_stamp = -1
+        self._refs.clear()
+        self._ref_keys.clear()
+        self._waiting = None
+        self.get_logger().info(f'new run: the state stamp jumped back {back:.6g} s; PID '
+                               f'restarted from rest (run {self.counts["epochs"] + 1})',
+                               throttle_duration_sec=1.0)
 
     def _answer(self, s: contract.AxisState, z_ref: float, v_ref: float) -> None:
         t0 = time.perf_counter()
@@ -249,8 +288,11 @@ class ControllerNode(Node):
             level, msg = ERROR, 'non-finite input: command 0 A'
         elif self._lost:
             level, msg = WARN, 'no state: command 0 A'
+        elif self.counts['future'] > self._diag_future:
+            level, msg = WARN, 'dropped states stamped ahead of this clock'
         elif self.counts['answered'] == 0:
             level, msg = WARN, 'waiting for states'
+        self._diag_future = self.counts['future']
         self.pub_diag.publish(diagnostics(self, 'ros_ehs/controller', level, msg,
                                           self.figures()))
 

@@ -31,6 +31,13 @@ command). Its topics go out over the contract's ``LOCKSTEP_QOS`` (reliable, dept
 recorder that the OS pauses still gets every sample; the subscriptions stay best effort and
 match any publisher.
 
+Stamp policy for commands (the controller stamps each command with the state it answers): a
+command stamped after the latest state this plant published answers none (a stray publisher,
+another clock) and is ignored and counted (``future_commands``); one no newer than the last
+applied is ignored and counted (``stale_commands``); in lock-step only the answer to the
+current state counts. A restarted controller therefore needs nothing: its first answer is
+newer than the last applied. States are stamped on the plant's own grid.
+
 Every state message also carries the current applied over the period that ended at its stamp
 (joint ``servo_valve``), so a bag shows exactly what the valve got. ``noise_*`` add white
 sensor noise to what is published (the model's own state stays exact).
@@ -126,6 +133,7 @@ class PlantNode(Node):
         self.trip_tick_late_ms = math.nan
         self.bad_commands = 0
         self.stale_commands = 0
+        self.future_commands = 0
         self.faults = 0
         self.overruns = 0
         self.resends = 0
@@ -201,6 +209,15 @@ class PlantNode(Node):
             self.bad_commands += 1
             self.get_logger().warning(f'ignored a non-finite command i = {c.i!r} A',
                                       throttle_duration_sec=1.0)
+            return
+        if c.stamp_ns > self.stamp_ns():
+            # a command answers a state: one stamped after the latest state answers none
+            # (a stray publisher, another clock); adopting it would make every true
+            # command look stale until the watchdog zeroes the valve for good
+            self.future_commands += 1
+            self.get_logger().warning(
+                f'ignored a command stamped {(c.stamp_ns - self.stamp_ns()) * 1e-9:.6g} s '
+                'after the latest state', throttle_duration_sec=1.0)
             return
         if c.stamp_ns <= self._last_cmd_stamp:
             self.stale_commands += 1
@@ -357,7 +374,8 @@ class PlantNode(Node):
                  watchdog_trips=self.trips, watchdog_latency_ms=self.trip_latency_ms,
                  watchdog_tick_late_ms=self.trip_tick_late_ms,
                  current_a=float(self.u[0]), bad_commands=self.bad_commands,
-                 stale_commands=self.stale_commands, model_faults=self.faults,
+                 stale_commands=self.stale_commands, future_commands=self.future_commands,
+                 model_faults=self.faults,
                  overruns=self.overruns, resends=self.resends, finished=self.finished)
         if self.lockstep:
             end = self._t_last if self.finished else time.monotonic()

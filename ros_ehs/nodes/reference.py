@@ -20,6 +20,12 @@ time it ticks on a steady timer at ``rate_hz``; under ``use_sim_time`` it publis
 ``/clock`` message, stamped with that time (what a lock-step loop needs). After ``duration``
 (0: never) it holds the last position with zero velocity.
 
+Stamps: in real time the reference stamps with its own clock and reads none. Under
+``use_sim_time``, a ``/clock`` one period back is a resend (the same two references again),
+a few periods back is ignored, and more than ``EPOCH_PERIODS`` periods back is a new run (a
+lock-step plant started again, a replayed bag): the trajectory restarts from its beginning
+at that time, logged at most once a second.
+
 ``wait_subscribers`` (real time): time zero is the first tick at which ``reference`` has that
 many subscribers; until then nothing is published. A bench starts the reference last, once
 the loop is closed and holding position, with the controller and the recorder as the two
@@ -34,8 +40,9 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from ros_ehs.errors import ParameterError
-from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, OK,
-                                      Option, qos_profile, run, steady_clock)
+from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics,
+                                      EPOCH_PERIODS, OK, Option, qos_profile, run,
+                                      steady_clock)
 from ros_ehs.reference import make, REFERENCE_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
@@ -68,6 +75,7 @@ class ReferenceNode(Node):
         self.t_first: int | None = None
         self.last_ns = -1
         self.count = 0
+        self.runs = 1
         self._msg = JointState()
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         # under sim time the reference follows /clock tick by tick (lock-step): every sample
@@ -104,6 +112,12 @@ class ReferenceNode(Node):
         # lock-step plant cannot pass t + dt without it, and the controller then rarely
         # waits for the reference (it keeps a buffer of stamped references).
         t = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        if t < self.last_ns - EPOCH_PERIODS * self._dt_ns:   # /clock went back: a new run
+            self.runs += 1
+            self.get_logger().info(f'new run: /clock jumped back {(self.last_ns - t) * 1e-9:.6g}'
+                                   f' s; trajectory from its start (run {self.runs})',
+                                   throttle_duration_sec=1.0)
+            self.t_first, self.last_ns = None, -1
         if self.t_first is None or t < self.t_first:
             self.t_first = t
         if t <= self.last_ns - self._dt_ns:

@@ -49,11 +49,16 @@ from ros_ehs.errors import EhsError, ParameterError
 from ros_ehs.params import Params, ParamSpec
 import ros_ehs_msgs_py as contract
 
-__all__ = ['OK', 'WARN', 'ERROR', 'Option', 'declare_options', 'declare_specs', 'diagnostics',
-           'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock',
-           'update_options', 'validate_changes']
+__all__ = ['EPOCH_PERIODS', 'OK', 'WARN', 'ERROR', 'Option', 'check_names', 'declare_options',
+           'declare_specs', 'diagnostics', 'msg_class', 'qos_profile', 'qos_spec', 'read_msg',
+           'rejected_names', 'ros_args', 'run', 'steady_clock', 'update_options',
+           'validate_changes']
 
 OK, WARN, ERROR = 0, 1, 2
+
+#: A stamp (or ``/clock``) further back than this many periods than the last one starts a
+#: new run: a restarted plant, a replayed bag (the controller's and reference's policies).
+EPOCH_PERIODS = 5
 
 
 def qos_profile(spec: Any, depth: int | None = None) -> QoSProfile:
@@ -180,6 +185,42 @@ def node_params(node: Node, base: Params, specs: Sequence[ParamSpec]) -> Params:
     return base.replace(**{s.name: node.get_parameter(s.name).value for s in specs})
 
 
+def rejected_names(changes: Sequence[Parameter], declared: Callable[[str], bool]
+                   ) -> str | None:
+    """
+    Return why a live change names no parameter the node can change, or None.
+
+    An empty name, an undeclared one, and ``use_sim_time`` (read when the node starts: its
+    clocks and staleness checks follow it) are rejected.
+    """
+    for p in changes:
+        if not p.name or not p.name.strip():
+            return 'a parameter with an empty name'
+        if not declared(p.name):
+            return f'parameter `{p.name}` is not declared by this node'
+        if p.name == 'use_sim_time':
+            return ('`use_sim_time` is read when the node starts (its clocks and staleness '
+                    'checks follow it): restart the node with the new value')
+    return None
+
+
+def check_names(node: Node) -> None:
+    """
+    Make ``node`` reject live changes whose names :func:`rejected_names` rejects.
+
+    Call it once every parameter is declared (rclpy runs these callbacks on declarations
+    too): :func:`run` does, for every node.
+    """
+    def check(changes):
+        why = rejected_names(changes, node.has_parameter)
+        if why:
+            node.get_logger().warning(f'parameter change rejected: {why}',
+                                      throttle_duration_sec=1.0)
+        return SetParametersResult(successful=why is None, reason=why or '')
+
+    node.add_on_set_parameters_callback(check)
+
+
 def validate_changes(current: Params, changes: Sequence[Parameter],
                      specs: Sequence[ParamSpec], options: Sequence[Option] = ()
                      ) -> tuple[SetParametersResult, Params | None]:
@@ -187,7 +228,8 @@ def validate_changes(current: Params, changes: Sequence[Parameter],
     Check a live parameter change: return the result for rclpy and the new Params.
 
     The new set is validated as a whole (ranges and cross-relations such as F_cc <= F_sc),
-    so the reason names the offending parameter.
+    so the reason names the offending parameter. (Names are checked before, for every node:
+    :func:`run` registers :func:`check_names`.)
     """
     names = {s.name for s in specs}
     opts = {o.name: o for o in options}
@@ -286,6 +328,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     rc = 0
     try:
         node = factory()
+        check_names(node)
         if executor == 'events':
             from rclpy.experimental import EventsExecutor
             exe = EventsExecutor()

@@ -1,0 +1,316 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Stamps and strangers over real DDS: messages from clients that are not ours.
+
+A stray state an hour ahead, a stamp that jumps back (a new run), a lock-step plant started
+again under a running controller, parameter names that are empty or undeclared, and a seeded
+fuzz of malformed messages and parameter sets: the loop must keep running through all of it.
+"""
+
+import math
+import time
+
+from domain_coordinator import domain_id
+import numpy as np
+import pytest
+from ros_ehs.launch import Launch
+import ros_ehs_msgs_py as c
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def dom():
+    with domain_id() as d:
+        yield d
+
+
+@pytest.fixture
+def ros(dom):
+    """Give the test its own rclpy node on the test's domain, with a spin helper."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    node = rclpy.create_node('ehs_stranger', context=ctx)
+    exe = SingleThreadedExecutor(context=ctx)
+    exe.add_node(node)
+
+    def spin(seconds=0.0, until=None, timeout=30.0):
+        end = time.monotonic() + (timeout if until else seconds)
+        while time.monotonic() < end:
+            exe.spin_once(timeout_sec=0.01)
+            if until is not None and until():
+                return True
+        return until is None
+
+    node.spin = spin
+    yield node
+    exe.shutdown()
+    node.destroy_node()
+    rclpy.shutdown(context=ctx)
+
+
+def _jmsg(names, pos=(), vel=(), eff=(), stamp_ns=0):
+    from sensor_msgs.msg import JointState
+    m = JointState(name=list(names), position=[float(x) for x in pos],
+                   velocity=[float(x) for x in vel], effort=[float(x) for x in eff])
+    m.header.stamp.sec, m.header.stamp.nanosec = divmod(int(stamp_ns), 10**9)
+    return m
+
+
+class Diagnostics:
+    """The latest values of each node's diagnostics status (``/diagnostics``)."""
+
+    def __init__(self, ros):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from ros_ehs.nodes.ros_common import qos_profile
+        self.latest = {}
+        self.count = {}
+        ros.create_subscription(DiagnosticArray, 'diagnostics', self._on,
+                                qos_profile(c.DIAGNOSTICS.qos, depth=50))
+
+    def _on(self, arr):
+        for st in arr.status:
+            self.latest[st.name] = ({kv.key: kv.value for kv in st.values}, st.message)
+            self.count[st.name] = self.count.get(st.name, 0) + 1
+
+    def value(self, name, key, default=math.nan):
+        v = self.latest.get(name, ({}, ''))[0].get(key)
+        return default if v is None else float(v)
+
+
+def _answer_rate(ros, diag, seconds=1.0):
+    """Commands per second the controller sends (answered, stale or repeated states)."""
+    def total():
+        return sum(diag.value('ros_ehs/controller', k, 0.0)
+                   for k in ('answered', 'stale', 'repeated'))
+    n0 = diag.count.get('ros_ehs/controller', 0)
+    assert ros.spin(until=lambda: diag.count.get('ros_ehs/controller', 0) > n0, timeout=10)
+    a, t0 = total(), time.monotonic()
+    n1 = diag.count['ros_ehs/controller']
+    ros.spin(seconds)
+    assert ros.spin(until=lambda: diag.count.get('ros_ehs/controller', 0) > n1, timeout=10)
+    return (total() - a) / (time.monotonic() - t0)
+
+
+def _loop(launch):
+    launch.start('plant', {'diagnostics_period': 0.1})
+    launch.start('controller', {'diagnostics_period': 0.1})
+    assert launch.wait_for_log('plant', 'watchdog armed', 60), launch['plant'].output()
+
+
+# -- real time: a stray stamp far ahead ------------------------------------------------------
+def test_a_state_and_a_command_stamped_an_hour_ahead_are_dropped(dom, tmp_path, ros):
+    from sensor_msgs.msg import JointState
+    from ros_ehs.nodes.ros_common import qos_profile
+    diag = Diagnostics(ros)
+    with Launch(dom, tmp_path / 'logs') as launch:
+        _loop(launch)
+        pub_state = ros.create_publisher(JointState, 'state', qos_profile(c.LOOP_QOS))
+        pub_cmd = ros.create_publisher(JointState, 'servo_current', qos_profile(c.LOOP_QOS))
+        assert ros.spin(until=lambda: pub_state.get_subscription_count() >= 1
+                        and pub_cmd.get_subscription_count() >= 1, timeout=30)
+        before = _answer_rate(ros, diag)
+        hour = time.time_ns() + 3600 * 10**9
+        for k in range(3):
+            pub_state.publish(_jmsg(['piston', 'spool'], [0.01, 0.0], [0.0, 0.0], [0.0, 0.0],
+                                    hour + k))
+            pub_cmd.publish(_jmsg(['servo_valve'], eff=[0.004], stamp_ns=hour + k))
+            ros.spin(0.05)
+        after = _answer_rate(ros, diag)
+        assert diag.value('ros_ehs/controller', 'future') >= 1
+        assert diag.value('ros_ehs/plant', 'future_commands') >= 1
+        assert diag.latest['ros_ehs/plant'][0]['watchdog'] == 'ok'
+        launch.stop(['controller', 'plant'])
+    assert before > 500 and after > 0.7 * before, (before, after)
+    assert 'ahead of this clock' in launch['controller'].output()
+    assert 'after the latest state' in launch['plant'].output()
+    f = launch['plant'].figures()
+    assert f['future_commands'] >= 1 and f['current_a'] != 0.004
+
+
+# -- a new run: the stamp jumps back ---------------------------------------------------------
+def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, ros):
+    """A replayed bag under sim time: stamps restart 99 s earlier; PID from rest."""
+    from sensor_msgs.msg import JointState
+    from ros_ehs.nodes.ros_common import qos_profile
+    got = {}
+    ros.create_subscription(JointState, 'servo_current',
+                            lambda m: got.setdefault(c.command_from_msg(m).stamp_ns,
+                                                     (time.monotonic(),
+                                                      c.command_from_msg(m).i)),
+                            qos_profile(c.LOOP_QOS, depth=1000))
+    pub = ros.create_publisher(JointState, 'state', qos_profile(c.LOOP_QOS))
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start('controller', {'use_sim_time': True})
+        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
+        ros.spin(0.5)
+
+        def send(stamp_ns, z):
+            pub.publish(_jmsg(['piston', 'spool'], [z, 0.0], [0.0, 0.0], [0.0, 0.0], stamp_ns))
+            return time.monotonic()
+
+        t100 = 100 * 10**9
+        # the held position: z = 0 (resent, a repeated stamp, until our subscription matched)
+        assert ros.spin(until=lambda: t100 in got or send(t100, 0.0) and False, timeout=20)
+        for k in range(1, 200):             # then 10 mm off it: the integral winds up
+            send(t100 + k * 10**6, 0.01)
+            ros.spin(0.002)
+        assert ros.spin(until=lambda: t100 + 199 * 10**6 in got, timeout=10)
+        sent = send(10**9, 0.0)             # 99 s back: a new run
+        assert ros.spin(until=lambda: 10**9 in got, timeout=5)
+        send(10**9 + 10**6, 0.0)
+        assert ros.spin(until=lambda: 10**9 + 10**6 in got, timeout=5)
+        send(10**9 - 10**6, 0.0)            # 2 periods back: out of order, dropped
+        ros.spin(0.5)
+        launch.stop(['controller'])
+    log = launch['controller'].output()
+    assert log.count('new run: the state stamp jumped back 99') == 1, log[-2000:]
+    assert got[10**9][0] - sent <= 0.1                      # answered within 100 ms
+    assert got[t100][1] == 0.0 and got[t100 + 199 * 10**6][1] != 0.0   # wound up
+    assert got[10**9][1] == got[t100][1]                    # the new run: PID from rest
+    assert 10**9 - 10**6 not in got
+
+
+# -- lock-step: the plant started again -------------------------------------------------------
+def test_a_restarted_lockstep_plant_closes_the_loop_again(dom, tmp_path):
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('lockstep', plant={'duration': 0.3})
+        assert launch.wait_for_log('plant', 'lock-step run complete', 60), \
+            launch['plant'].output()[-2000:]
+        launch.stop(['plant'])
+        second = launch.start('plant', {'mode': 'lockstep', 'duration': 0.3,
+                                        'wait_subscribers': 1}, name='plant_again')
+        assert launch.wait_for_log('plant_again', 'lock-step run complete', 60), \
+            second.output()[-2000:] + launch['controller'].output()[-2000:]
+        assert launch['controller'].alive() and launch['reference'].alive()
+        codes = launch.stop(['reference', 'controller', 'plant_again'])
+    assert set(codes.values()) == {0}
+    assert second.figures()['steps'] == 300
+    assert 'new run' in launch['controller'].output()
+    assert 'new run: /clock jumped back' in launch['reference'].output()
+    # the second run tracked the sine from its start, as the first did
+    f1, f2 = launch['plant'].figures(), second.figures()
+    assert f2['model_faults'] == 0 and f1['steps'] == f2['steps']
+
+
+# -- parameters -----------------------------------------------------------------------------
+def test_empty_and_undeclared_parameter_names_are_rejected_with_a_reason(dom, tmp_path, ros):
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    with Launch(dom, tmp_path / 'logs') as launch:
+        for n in ('plant', 'controller', 'reference'):
+            launch.start(n)
+        for n in ('plant', 'controller', 'reference'):
+            client = AsyncParameterClient(ros, n)
+            assert client.wait_for_services(timeout_sec=30)
+            # rclpy itself refuses a non-empty undeclared name before our check runs (its
+            # reason says 'undeclared'); an empty one reached the node's callbacks and used
+            # to be accepted
+            for name, why in (('', 'a parameter with an empty name'),
+                              ('  ', 'undeclared parameter'),
+                              ('no_such_thing', 'undeclared parameter')):
+                fut = client.set_parameters([Parameter(name, value=1.0)])
+                assert ros.spin(until=fut.done, timeout=10)
+                res = fut.result().results[0]
+                assert not res.successful and why in res.reason, (n, name, res)
+            fut = client.set_parameters_atomically([Parameter('', value=1.0)])
+            assert ros.spin(until=fut.done, timeout=10)
+            assert not fut.result().result.successful
+        launch.stop()
+
+
+# -- fuzz -----------------------------------------------------------------------------------
+_VALUES = (math.nan, math.inf, -math.inf, 1e308, -1e308, 0.0, -0.0, 5e-324)
+_NAMES = ('piston', 'spool', 'servo_valve', '', 'x' * 300, 'pistón', 'piston ')
+
+
+def _fuzz_msg(rng):
+    n = int(rng.integers(0, 5))
+    names = [str(rng.choice(_NAMES)) for _ in range(n)]
+
+    def arr():
+        return [float(rng.choice(_VALUES)) if rng.random() < 0.5 else float(rng.normal(0, 1))
+                for _ in range(int(rng.integers(0, 5)))]
+    kind = rng.integers(0, 4)
+    sec = (int(rng.integers(-2**31, 2**31 - 1)) if kind == 0 else
+           2**31 - 1 if kind == 1 else
+           time.time_ns() // 10**9 + int(rng.integers(-5, 5)))
+    return _jmsg(names, arr(), arr(), arr(), sec * 10**9 + int(rng.integers(0, 10**9)))
+
+
+def _fuzz_params(rng, names):
+    from rclpy.parameter import Parameter
+    out = []
+    for _ in range(int(rng.integers(1, 4))):
+        name = str(rng.choice(names + ['', 'bogus', 'x' * 200]))
+        v = rng.choice(['float', 'int', 'str', 'bool', 'list'])
+        value = {'float': float(rng.choice(_VALUES)) if rng.random() < 0.5
+                 else float(rng.normal(0, 100)),
+                 'int': int(rng.integers(-10**9, 10**9)), 'str': 'fuzz',
+                 'bool': bool(rng.random() < 0.5), 'list': [1.0, 2.0]}[v]
+        out.append(Parameter(name, value=value))
+    return out
+
+
+def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, tmp_path, ros):
+    """3000 malformed JointStates and 60 parameter sets, seeded, within about 10 s."""
+    from rclpy.parameter_client import AsyncParameterClient
+    from sensor_msgs.msg import JointState
+    from ros_ehs.nodes.ros_common import qos_profile
+    rng = np.random.default_rng(20261123)
+    diag = Diagnostics(ros)
+    states = []
+    ros.create_subscription(JointState, 'state', states.append,
+                            qos_profile(c.STATE.qos, depth=100))
+    with Launch(dom, tmp_path / 'logs') as launch:
+        _loop(launch)
+        pubs = [ros.create_publisher(JointState, t, qos_profile(c.LOOP_QOS))
+                for t in ('state', 'servo_current', 'reference')]
+        assert ros.spin(until=lambda: all(p.get_subscription_count() >= 1 for p in pubs),
+                        timeout=30)
+        before = _answer_rate(ros, diag)
+        clients = {n: AsyncParameterClient(ros, n) for n in ('plant', 'controller')}
+        for cl in clients.values():
+            assert cl.wait_for_services(timeout_sec=30)
+        names = ['kp', 'ki', 'kd', 'u_max', 'F_cc', 'F_sc', 'c_c', 'stale_timeout',
+                 'watchdog_periods', 'reference_timeout', 'future_tolerance', 'model',
+                 'rate_hz', 'noise_z', 'antiwindup', 'use_sim_time']
+        t_end = time.monotonic() + 20.0
+        futs = []
+        for k in range(3000):
+            pubs[k % 3].publish(_fuzz_msg(rng))
+            if k % 50 == 0:
+                cl = clients['plant' if k % 100 else 'controller']
+                futs.append(cl.set_parameters(_fuzz_params(rng, names)))
+            if k % 20 == 0:
+                ros.spin(0.01)
+            if time.monotonic() > t_end:
+                break
+        assert k == 2999 and len(futs) == 60
+        assert ros.spin(until=lambda: all(f.done() for f in futs), timeout=30)
+        ros.spin(1.0)
+        states.clear()
+        after = _answer_rate(ros, diag)
+        ours = [c.state_from_msg(m) for m in states if 'spool' in m.name]
+        alive = {n: launch[n].alive() for n in ('plant', 'controller')}
+        launch.stop(['controller', 'plant'])
+    logs = launch['plant'].output() + launch['controller'].output()
+    assert alive == {'plant': True, 'controller': True}
+    assert 'Traceback' not in logs
+    assert len(ours) > 100 and all(math.isfinite(s.z) and math.isfinite(s.z_dot)
+                                   for s in ours)
+    assert after > 0.7 * before, (before, after)
