@@ -112,6 +112,14 @@ def main(argv=None) -> int:
     for line in launch['plant'].output().splitlines():
         if line.startswith(FIGURES):
             print('bench: plant ' + line)
+    try:
+        f = launch['plant'].figures()
+        span = max(f['sim_time_s'], 1e-9)
+        print(f"bench: watchdog trips {f['watchdog_trips']} in {span:.1f} s of loop "
+              f"({f['watchdog_trips'] / span:.2f}/s), fresh cycles "
+              f"{f['fresh_cycle_fraction']:.4f}")
+    except (RuntimeError, KeyError, ValueError):
+        print('bench: the plant left no figures (see its log)', file=sys.stderr)
     bad = {n: c for n, c in codes.items() if c != 0}
     if died or bad:
         print(f'bench: stopped early {died}, exit codes {codes}; logs in {logs}',

@@ -90,7 +90,7 @@ def test_live_changes_are_validated_as_a_whole_with_a_reason():
     from ros_ehs.params import PLANT_SPECS
     res, _ = validate_changes(cur, [Parameter('timing', value='bogus')], PLANT_SPECS, OPTIONS)
     assert not res.successful and res.reason == (
-        "parameter `timing` = 'bogus' is not one of ['thread', 'timer']")
+        "parameter `timing` = 'bogus' is not one of ['timer', 'thread']")
 
 
 def test_controller_declares_every_value_its_feedforward_reads():

@@ -17,7 +17,8 @@
 Runs plant and controller as separate processes in real time for ``--seconds`` (default 20)
 after the loop closes, then, in the same run, a bare rclpy ping-pong with the same executor,
 QoS and message size. Prints the plant's loop figures, the CPU share of each process and the
-round-trip ratio to the bare ping-pong; the last line is one JSON object.
+round-trip and CPU ratios to the bare ping-pong (``ros_ehs.bench.pingpong``: rclpy alone, no
+code of ours), and which of the loop's targets the run met; the last line is one JSON object.
 """
 
 from __future__ import annotations
@@ -91,6 +92,19 @@ def main(argv=None) -> int:
         'cpu_controller_frac': round(cpu['controller'], 4),
         'cpu_bare_ping_frac': round(cpu_bare['ping'], 4),
         'cpu_bare_pong_frac': round(cpu_bare['pong'], 4),
+        'cpu_ratio_plant_vs_ping': round(cpu['plant'] / cpu_bare['ping'], 3),
+        'cpu_ratio_controller_vs_pong': round(cpu['controller'] / cpu_bare['pong'], 3),
+        'bare_rtt_max_ms': round(b['rtt_max_ms'], 3),
+        'bare_watchdog_trips': b['watchdog_trips'],
+    }
+    figures['targets_met'] = {
+        'fresh_0.998': figures['fresh_cycle_fraction'] >= 0.998,
+        'watchdog_trips_le_1': figures['watchdog_trips'] <= 1,
+        'bare_fresh_0.998': figures['bare_fresh_cycle_fraction'] >= 0.998,
+        'rtt_p50_le_1.3x_bare': figures['rtt_ratio_vs_bare_p50'] <= 1.3,
+        'rtt_p99_le_1ms': figures['rtt_p99_ms'] <= 1.0,
+        'cpu_le_1.5x_bare': max(figures['cpu_ratio_plant_vs_ping'],
+                                figures['cpu_ratio_controller_vs_pong']) <= 1.5,
     }
     return report(figures)
 

@@ -12,113 +12,124 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-A bare rclpy ping-pong, the yardstick of ``bench loop``: same executor, QoS and message.
+The barest rclpy ping-pong: the yardstick of ``bench loop`` and ``bench lockstep``.
 
-``python -m ros_ehs.bench.pingpong ping|pong``. The ping node publishes a JointState of the
-plant's size at ``rate_hz`` on a steady timer; the pong node echoes each one back with its
-stamp. On SIGINT the ping node prints its figures (the LoopStats of the plant) as JSON.
+``python -m ros_ehs.bench.pingpong ping|pong|volley``. Nothing of ros_ehs is imported here:
+plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointState.
+
+* ``ping``: a 1 kHz steady timer publishes a JointState (the size of our ``state``) stamped
+  with its sequence number; a cycle is fresh when the echo of the previous ping came back
+  before this tick; the round trip is timed from publish to echo; ``watchdog_trips`` counts
+  what the plant's watchdog would (no echo for the 3 periods ending at the next tick).
+* ``pong``: echoes each ping from its subscription callback, with the same stamp.
+* ``volley``: the next ping goes out as soon as the echo of the last is back (a bare
+  lock-step): round trips per second.
+
+On SIGINT the ping or volley prints its figures as one JSON line.
 """
 
-from __future__ import annotations
-
 import json
+import signal
 import sys
 import time
 
-from rclpy.node import Node
-from ros_ehs.nodes.loop_stats import LoopStats
-from ros_ehs.nodes.ros_common import qos_profile, run, steady_clock
-import ros_ehs_msgs_py as contract
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.experimental import EventsExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
-
-class Ping(Node):
-    """Publish at 1 kHz, measure the echo's round trip."""
-
-    def __init__(self, timer: bool = True) -> None:
-        super().__init__('ping')
-        self.stats = LoopStats()
-        self.k = 0
-        self.fresh = False
-        self.sent: dict[int, float] = {}
-        self.msg = JointState()
-        self.pub = self.create_publisher(JointState, 'ping', qos_profile(contract.LOOP_QOS))
-        self.create_subscription(JointState, 'pong', self.on_pong,
-                                 qos_profile(contract.LOOP_QOS))
-        if timer:
-            self.create_timer(1e-3, self.tick, clock=steady_clock())
-
-    def tick(self) -> None:
-        now = time.monotonic()
-        if self.k:
-            self.stats.tick(now, self.fresh)
-        self.fresh = False
-        self.k += 1
-        contract.fill_state(self.msg, contract.AxisState(self.k, 0.01, 0.02, 3.0, 4e-5, 0.001))
-        self.sent[self.k] = now
-        self.sent.pop(self.k - 1000, None)
-        self.pub.publish(self.msg)
-
-    def on_pong(self, msg: JointState) -> None:
-        t = self.sent.get(contract.stamp_ns(msg.header))
-        if t is not None:
-            self.stats.rtt.add(time.monotonic() - t)
-            self.fresh = True
-
-    def close(self) -> None:
-        """Print the figures."""
-        print(json.dumps(self.stats.as_dict()), flush=True)
+_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+_N = 100000      # samples kept (100 s at 1 kHz)
 
 
-class Volley(Ping):
-    """Send the next ping as soon as the echo of the last one is back (a bare lock-step)."""
-
-    def __init__(self) -> None:
-        super().__init__(timer=False)
-        self.t0 = None
-        self.create_timer(0.05, self.kick, clock=steady_clock())
-
-    def kick(self) -> None:
-        if self.pub.get_subscription_count() and (self.k == 0 or
-                                                  time.monotonic() - self.sent[self.k] > 0.05):
-            self.tick()           # start, or restart after a lost message
-
-    def on_pong(self, msg: JointState) -> None:
-        super().on_pong(msg)
-        if contract.stamp_ns(msg.header) == self.k:
-            if self.t0 is None:
-                self.t0 = time.monotonic()
-            self.tick()
-
-    def close(self) -> None:
-        """Print the volleys per second."""
-        n = self.stats.rtt.total
-        dt = time.monotonic() - (self.t0 or time.monotonic())
-        print(json.dumps({'volleys': n, 'volleys_per_s': n / dt if dt > 0 else 0.0}),
-              flush=True)
-
-
-class Pong(Node):
-    """Echo every ping as a command."""
-
-    def __init__(self) -> None:
-        super().__init__('pong')
-        self.msg = JointState()
-        self.pub = self.create_publisher(JointState, 'pong', qos_profile(contract.LOOP_QOS))
-        self.create_subscription(JointState, 'ping', self.on_ping,
-                                 qos_profile(contract.LOOP_QOS))
-
-    def on_ping(self, msg: JointState) -> None:
-        s = contract.state_from_msg(msg)
-        contract.fill_command(self.msg, contract.Command(s.stamp_ns, s.z))
-        self.pub.publish(self.msg)
+def _pct(values, q):
+    if not values:
+        return float('nan')
+    v = sorted(values)
+    return v[min(len(v) - 1, int(round(q / 100.0 * (len(v) - 1))))]
 
 
 def main(argv=None) -> int:
-    """Run ``ping`` or ``pong``."""
-    argv = sys.argv[1:] if argv is None else argv
-    return run({'ping': Ping, 'pong': Pong, 'volley': Volley}[argv[0]],
-               [sys.argv[0]] + argv[1:])
+    """Run ``ping``, ``pong`` or ``volley`` until SIGINT."""
+    role = (sys.argv[1:] if argv is None else argv)[0]
+    stop = []
+    signal.signal(signal.SIGINT, lambda *_: stop.append(1))
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node(role)
+    exe = EventsExecutor()
+    exe.add_node(node)
+    msg = JointState(name=['piston', 'spool', 'servo_valve'], position=[0.01, 4e-5, 0.0],
+                     velocity=[0.02, 0.0, 0.0], effort=[3.0, 0.0, 0.001])
+    st = {'k': 0, 'fresh': 0, 'cycles': 0, 'back': 0, 'sent': 0.0, 't0': None, 'n': 0,
+          'rx': None, 'trips': 0, 'tripped': False}
+    rtt = []
+
+    if role == 'pong':
+        pub = node.create_publisher(JointState, 'pong', _QOS)
+        node.create_subscription(JointState, 'ping', pub.publish, _QOS)
+    else:
+        pub = node.create_publisher(JointState, 'ping', _QOS)
+
+        def send():
+            st['k'] += 1
+            msg.header.stamp.sec = st['k']
+            st['sent'] = time.monotonic()
+            pub.publish(msg)
+
+        def on_pong(m):
+            if m.header.stamp.sec == st['k']:
+                st['n'] += 1
+                st['rx'] = time.monotonic()
+                if len(rtt) < _N:
+                    rtt.append(st['rx'] - st['sent'])
+                st['back'] = st['k']
+                if role == 'volley':
+                    if st['t0'] is None:
+                        st['t0'] = time.monotonic()
+                    send()
+
+        node.create_subscription(JointState, 'pong', on_pong, _QOS)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if role == 'ping':
+            def tick():
+                if st['k']:
+                    st['cycles'] += 1
+                    st['fresh'] += st['back'] == st['k']
+                    # the plant's watchdog rule (3 periods), counted the same way
+                    late = st['rx'] is not None and time.monotonic() + 1e-3 - st['rx'] > 3e-3
+                    st['trips'] += late and not st['tripped']
+                    st['tripped'] = late
+                send()
+            node.create_timer(1e-3, tick, clock=steady)
+        else:
+            def kick():        # start, or restart after a lost message
+                if pub.get_subscription_count() and (
+                        st['k'] == 0 or time.monotonic() - st['sent'] > 0.05):
+                    send()
+            node.create_timer(0.05, kick, clock=steady)
+
+    while not stop and rclpy.ok():
+        exe.spin_until_future_complete(Future(), timeout_sec=0.1)
+    if role == 'ping':
+        ms = 1e3
+        print(json.dumps({'cycles': st['cycles'], 'fresh_cycles': st['fresh'],
+                          'watchdog_trips': st['trips'],
+                          'fresh_cycle_fraction': st['fresh'] / max(1, st['cycles']),
+                          'rtt_p50_ms': _pct(rtt, 50) * ms, 'rtt_p99_ms': _pct(rtt, 99) * ms,
+                          'rtt_max_ms': max(rtt, default=float('nan')) * ms}), flush=True)
+    elif role == 'volley':
+        dt = time.monotonic() - (st['t0'] or time.monotonic())
+        n = st['n']
+        print(json.dumps({'volleys': n, 'volleys_per_s': n / dt if dt > 0 else 0.0}),
+              flush=True)
+    exe.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
 
 
 if __name__ == '__main__':
