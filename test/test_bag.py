@@ -322,3 +322,28 @@ def test_stray_states_from_another_clock_are_dropped_not_fatal(tmp_path):
     assert exp.name == 'stray (2 off-grid states dropped)'
     np.testing.assert_array_equal(exp.z, ref.z)
     np.testing.assert_array_equal(exp.i, ref.i)
+
+
+def test_a_still_run_before_the_trajectory_is_dropped_when_another_moves(tmp_path):
+    """A real-time bench bag: the hold before the reference started, a gap, the sine."""
+    from ros_ehs.bag.experiment import load_experiments
+
+    def write(path, moving_after_gap):
+        with BagWriter(path) as w:
+            for tp in (c.STATE, c.COMMAND):
+                w.add_topic('/' + tp.name, tp.msg_type, tp.qos)
+            for k in list(range(600)) + list(range(700, 1500)):
+                ns = 1_000_000_000 + k * 1_000_000
+                move = moving_after_gap and k >= 700
+                z = 0.01 * np.sin(k * 0.01) if move else 0.0
+                w.write_msg('/state', c.fill_state(c.empty_msg(c.STATE.msg_type),
+                                                   c.AxisState(ns, z, 0.0)), ns)
+                w.write_msg('/servo_current', c.fill_command(
+                    c.empty_msg(c.COMMAND.msg_type), c.Command(ns, 1e-3 * z)), ns)
+        return path
+
+    runs = load_experiments(write(tmp_path / 'bench', True))
+    assert [r.name for r in runs] == ['bench [2/2]'] and runs[0].t.size == 800
+    with pytest.raises(DataError, match=r'no run moves the piston: still \[1/2\]: no '
+                                        r'excitation.*still \[2/2\]: no excitation'):
+        load_experiments(write(tmp_path / 'still', False))

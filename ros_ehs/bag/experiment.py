@@ -76,6 +76,10 @@ class Experiment:
         return out
 
 
+class _NoExcitation(DataError):
+    """A run in which the piston did not move (a hold before the trajectory started)."""
+
+
 def resolve_topic(bag: Bag, name: str, required: bool = True) -> str | None:
     """
     Find contract topic ``name`` in ``bag``, in any namespace (``/axis1/state``).
@@ -141,9 +145,10 @@ def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experim
             j = int(np.flatnonzero(~np.isfinite(a))[0])
             raise DataError(f'{name}: `{k}` is not finite at t = {t[j]:g} s')
     if np.ptp(arrs['i']) < 1e-5 or np.ptp(arrs['z']) < 1e-4:
-        raise DataError(f'{name}: no excitation: the current spans {np.ptp(arrs["i"]):.3g} A '
-                        f'and the piston {np.ptp(arrs["z"]):.3g} m (need a moving piston, '
-                        'e.g. a 1 Hz sine of a few cm)')
+        raise _NoExcitation(
+            f'{name}: no excitation: the current spans {np.ptp(arrs["i"]):.3g} A and the '
+            f'piston {np.ptp(arrs["z"]):.3g} m (need a moving piston, e.g. a 1 Hz sine of a '
+            'few cm)')
     pa = None if p_a is None else np.asarray(p_a, dtype=float)
     pb = None if p_b is None else np.asarray(p_b, dtype=float)
     return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], pa, pb)
@@ -268,7 +273,9 @@ def load_experiments(path: str | os.PathLike, *, state: str = contract.STATE.nam
 
     A best-effort recorder can miss states (a busy machine, a full queue), which leaves a gap
     in the sample grid; each gap splits the record, and runs shorter than
-    :data:`MIN_SAMPLES` are dropped. Names get ``[k/n]`` when there is more than one run.
+    :data:`MIN_SAMPLES` are dropped, as are runs in which the piston does not move (a hold
+    before the trajectory started) when another run does. Names get ``[k/n]`` when there is
+    more than one run.
     Irregular timing that is not a gap still raises, as :func:`load_experiment` does.
     ``start``/``end``: a window of the bag, as in :func:`load_experiment`.
     """
@@ -285,5 +292,12 @@ def load_experiments(path: str | os.PathLike, *, state: str = contract.STATE.nam
                         f'{len(cuts)} gaps')
     if len(runs) == 1:
         return [_experiment(name, ts, cur, sv, pa, pb, *runs[0])]
-    return [_experiment(f'{name} [{k + 1}/{len(runs)}]', ts, cur, sv, pa, pb, a, b)
-            for k, (a, b) in enumerate(runs)]
+    out, still = [], []
+    for k, (a, b) in enumerate(runs):
+        try:
+            out.append(_experiment(f'{name} [{k + 1}/{len(runs)}]', ts, cur, sv, pa, pb, a, b))
+        except _NoExcitation as err:      # e.g. the hold before the reference started
+            still.append(str(err))
+    if not out:
+        raise DataError(f'{name}: no run moves the piston: ' + '; '.join(still))
+    return out

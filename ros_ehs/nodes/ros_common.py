@@ -333,8 +333,8 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         # Real time: a full garbage collection walks every object of rclpy, numpy, numba and
         # scipy (about 85000, 46 ms on the project's VM: a dozen missed periods at 1 kHz).
         # What exists after start-up lives as long as the node: move it out of the
-        # collector's sight; what the loop allocates later is still collected.
-        gc.collect()
+        # collector's sight (no collection first: that alone delayed the first tick by
+        # ~100 ms); what the loop allocates later is still collected.
         gc.freeze()
         if executor == 'events':
             from rclpy.experimental import EventsExecutor
