@@ -42,6 +42,17 @@ from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.synthetic import SensorNoise  # noqa: E402
 
 
+def _recorder_lines(launch: Launch, errors_only: bool = False) -> None:
+    """Print the recorder's closing line: what the bag holds, or its one error line."""
+    if 'recorder' not in launch.procs:
+        return
+    for line in launch['recorder'].output().splitlines():
+        if line.startswith('[recorder] error'):
+            print('bench: recorder ' + line[len('[recorder] '):], file=sys.stderr)
+        elif line.startswith('[recorder] closed') and not errors_only:
+            print('bench: recorder ' + line[len('[recorder] '):])
+
+
 def main(argv=None) -> int:
     """Run the bench; see the module docstring."""
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
@@ -93,6 +104,7 @@ def main(argv=None) -> int:
                                          'rate_hz': 1000.0 if lock else 250.0})
         except LaunchError as err:
             print(f'bench: {err}', file=sys.stderr)
+            _recorder_lines(launch, errors_only=True)
             return 1
         print(f'bench: {a.mode} loop running ({a.model} model); recording to {out}',
               flush=True)
@@ -105,10 +117,7 @@ def main(argv=None) -> int:
             time.sleep(0.05)
         died = [n for n, p in launch.procs.items() if not p.alive()]
         codes = launch.stop(['recorder', 'reference', 'controller', 'plant'])
-    for line in launch['recorder'].output().splitlines():
-        if line.startswith(('[recorder] closed', '[recorder] error')):
-            print('bench: recorder ' + line[len('[recorder] '):],
-                  file=sys.stderr if 'error' in line[:17] else sys.stdout)
+    _recorder_lines(launch)
     for line in launch['plant'].output().splitlines():
         if line.startswith(FIGURES):
             print('bench: plant ' + line)

@@ -381,3 +381,62 @@ def test_a_full_disk_during_a_bench_leaves_a_readable_bag_and_one_line(tmp_path)
     b = open_bag(tmp_path / 'copy')
     assert b.message_count == kept > 1000 and b.topics['/state'].count > 200
     assert _meta(tmp_path / 'copy')['message_count'] == kept
+    # it warned as space ran low (2 MB is below the default 1 GB warning level)
+    log = (tmp_path / 'out' / 'logs' / 'run' / 'recorder.log').read_text()
+    assert log.count('disk space low') == 1 and 'recording stops at' in log
+
+
+def test_below_min_free_space_the_recorder_stops_cleanly(tmp_path):
+    """On a 4 MB tmpfs with min_free_space 2 MB: a clean stop before the disk is full."""
+    assert _tmpfs_available(), 'this test needs unshare -m and tmpfs (root or user namespaces)'
+    mnt = tmp_path / 'small'
+    mnt.mkdir()
+    script = (f'mount -t tmpfs -o size=4m tmpfs {mnt} && '
+              f'{sys.executable} {ROOT / "launch_scripts" / "bench.py"} --duration 60 '
+              f'--out {mnt}/run --min-free-space 2000000; rc=$?; '
+              f'cp -r {mnt}/run {tmp_path}/copy; exit $rc')
+    res = subprocess.run(['unshare', '-m', 'sh', '-c', script], capture_output=True,
+                         text=True, cwd=tmp_path, timeout=180)
+    assert res.returncode == 1, res.stdout + res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith('bench: recorder error')]
+    assert len(errors) == 1 and 'stopped recording to' in errors[0], res.stderr
+    assert 'below min_free_space = 2.0 MB' in errors[0]
+    kept = int(errors[0].split('; ')[-2].split()[0])
+    b = open_bag(tmp_path / 'copy')
+    assert not b.truncated and b.message_count == kept > 1000      # closed properly
+    assert _meta(tmp_path / 'copy')['message_count'] == kept
+    from rosbags.rosbag2 import Reader
+    with Reader(tmp_path / 'copy') as r:                          # a complete bag
+        assert r.message_count == kept
+
+
+def test_a_split_sqlite3_bag_reads_as_one_bag(tmp_path):
+    """Two .db3 files written by rosbags, listed by one metadata.yaml, as rosbag2 splits."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    src = open_bag(SAMPLE)
+    msgs = list(src.messages())
+    half = len(msgs) // 2
+    bag = tmp_path / 'split'
+    bag.mkdir()
+    infos = []
+    for k, part in enumerate((msgs[:half], msgs[half:])):
+        d = tmp_path / f'part{k}'
+        with Writer(d, version=8, storage_plugin=StoragePlugin.SQLITE3) as w:
+            conns = {t: w.add_connection(t, i.msg_type, typestore=ts)
+                     for t, i in src.topics.items()}
+            for m in part:
+                w.write(conns[m.topic], m.log_time_ns, m.data)
+        next(d.glob('*.db3')).rename(bag / f'split_{k}.db3')
+        infos.append(_meta(d))
+    info = infos[0]
+    info['relative_file_paths'] = ['split_0.db3', 'split_1.db3']
+    info['message_count'] = len(msgs)
+    (bag / 'metadata.yaml').write_text(yaml.safe_dump({'rosbag2_bagfile_information': info}))
+    b = open_bag(bag)
+    assert [p.name for p in b.files] == ['split_0.db3', 'split_1.db3']
+    assert b.message_count == len(msgs) and not b.truncated
+    a, = load_experiments(bag)
+    ref, = load_experiments(SAMPLE)
+    np.testing.assert_array_equal(a.z, ref.z)
