@@ -24,7 +24,6 @@ import os
 from pathlib import Path
 import time
 
-from domain_coordinator import domain_id
 import numpy as np
 import pytest
 from ros_ehs.bag import open_bag
@@ -39,38 +38,6 @@ import yaml
 pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = Path(__file__).resolve().parent / 'fixtures' / 'rosbag2'
-
-
-@pytest.fixture
-def dom():
-    with domain_id() as d:
-        yield d
-
-
-@pytest.fixture
-def ros(dom):
-    """Give the test its own rclpy node on the test's domain, with a spin helper."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=dom)
-    node = rclpy.create_node('ehs_test', context=ctx)
-    exe = SingleThreadedExecutor(context=ctx)
-    exe.add_node(node)
-
-    def spin(seconds=0.0, until=None, timeout=30.0):
-        end = time.monotonic() + (timeout if until else seconds)
-        while time.monotonic() < end:
-            exe.spin_once(timeout_sec=0.02)
-            if until is not None and until():
-                return True
-        return until is None
-
-    node.spin = spin
-    yield node
-    exe.shutdown()
-    node.destroy_node()
-    rclpy.shutdown(context=ctx)
 
 
 def _states(bag_path):

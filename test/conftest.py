@@ -1,0 +1,51 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Fixtures of the DDS tests: a ROS domain of the test's own, and an rclpy node on it."""
+
+import time
+
+from domain_coordinator import domain_id
+import pytest
+
+
+@pytest.fixture
+def dom():
+    with domain_id() as d:
+        yield d
+
+
+@pytest.fixture
+def ros(dom):
+    """Give the test its own rclpy node on the test's domain, with a spin helper."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    node = rclpy.create_node('ehs_test', context=ctx)
+    exe = SingleThreadedExecutor(context=ctx)
+    exe.add_node(node)
+
+    def spin(seconds=0.0, until=None, timeout=30.0):
+        end = time.monotonic() + (timeout if until else seconds)
+        while time.monotonic() < end:
+            exe.spin_once(timeout_sec=0.02)
+            if until is not None and until():
+                return True
+        return until is None
+
+    node.spin = spin
+    yield node
+    exe.shutdown()
+    node.destroy_node()
+    rclpy.shutdown(context=ctx)
