@@ -43,9 +43,13 @@ def main(argv=None) -> int:
     ap.add_argument('--loop', action='store_true')
     ap.add_argument('--no-clock', action='store_true')
     ap.add_argument('--wait-subscribers', type=int, default=0)
+    ap.add_argument('--start', type=float, default=0.0,
+                    help='from this time on [s from the first message of the bag]')
+    ap.add_argument('--end', type=float, default=0.0, help='up to this time (0: the end) [s]')
     a = ap.parse_args(argv)
     params = {'bag': a.bag, 'rate': float(a.rate), 'loop': a.loop, 'clock': not a.no_clock,
-              'wait_subscribers': a.wait_subscribers}
+              'wait_subscribers': a.wait_subscribers, 'start': float(a.start),
+              'end': float(a.end)}
     topics = [t for t in a.topics.split(',') if t]
     if topics:
         params['topics'] = topics

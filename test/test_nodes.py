@@ -384,6 +384,13 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     played = dict(x.split() for x in done.split('replay done: ')[1].split(', '))
     assert {k: int(v) for k, v in played.items()} == {
         t['topic_metadata']['name']: t['message_count'] for t in meta['topics_with_message_count']}
+    # a window of a bag: only what lies in it
+    with Launch(dom, tmp_path / 'logs4') as launch:
+        p = launch.start('player', {'bag': str(ROOT / 'bags' / 'sample_sine_1hz'),
+                                    'clock': False, 'start_delay': 0.0, 'rate': 20.0,
+                                    'start': 2.0, 'end': 3.0, 'topics': ['/state']})
+        assert p.popen.wait(60) == 0, p.output()
+    assert 'replay done: /state 1001' in p.output()
 
 
 # -- identification node ----------------------------------------------------------------------

@@ -22,6 +22,10 @@ processes takes up to seconds: ``wait_subscribers`` holds the first message unti
 replayed topic has that many subscribers, then ``start_delay`` passes. Each topic is re-offered
 with the QoS it was recorded with. Topics whose message type is not installed are skipped
 with a warning naming them. The node exits when the bag is done (unless ``loop``).
+
+A split bag (rosbag2's or ours) plays as one bag, in file order; sqlite3 bags play too. The
+bag is read into memory first: for a long recording, replay a window (``start``/``end``,
+seconds from its first message), which reads only the files it overlaps.
 """
 
 from __future__ import annotations
@@ -51,6 +55,10 @@ OPTIONS = (
            'topic has this many subscribers', 0, 1000),
     Option('start_delay', 0.5, 'then wait this long, so the subscribers have matched too [s]',
            0.0, 60.0),
+    Option('start', 0.0, 'replay from this time on [s from the first message of the bag]',
+           0.0, 1e9),
+    Option('end', 0.0, 'replay up to this time (0: to the end) [s from the first message]',
+           0.0, 1e9),
 )
 
 
@@ -63,7 +71,8 @@ class PlayerNode(Node):
         if not self.opt['bag']:
             raise BagError('parameter `bag` is empty: give the bag to replay '
                            '(-p bag:=bags/sample_sine_1hz)')
-        self.bag = open_bag(self.opt['bag'])
+        self.bag = open_bag(self.opt['bag'], start=float(self.opt['start']) or None,
+                            end=float(self.opt['end']) or None)
         if self.bag.truncated:
             self.get_logger().warning(f'bag is truncated ({self.bag.problem}); replaying what '
                                       'it holds')
