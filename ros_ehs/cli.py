@@ -78,8 +78,22 @@ def _print_identification(result, files, held) -> None:
         print(f'  {name}: ' + ', '.join(fits))
     for w in result.warnings:
         print(f'  warning: {w}')
+    if result.adequate:
+        print('  verdict: adequate: the residuals are within '
+              f'{_worst_ratio(result):.2f}x the sensor noise')
+    else:
+        print('  verdict: NOT ADEQUATE; do not trust these values:')
+        for w in result.inadequacy:
+            print(f'    - {w}')
+        for a in result.advice:
+            print(f'    advice: {a}')
     for k, p in files.items():
         print(f'wrote {p}')
+
+
+def _worst_ratio(result) -> float:
+    return max((m['noise_ratio'] for sig in result.metrics.values() for m in sig.values()
+                if 'noise_ratio' in m), default=float('nan'))
 
 
 def _cmd_identify(args) -> int:
@@ -96,7 +110,7 @@ def _cmd_identify(args) -> int:
         workers=args.workers, figures=not args.no_figures, start=args.start, end=args.end,
         progress=None if args.quiet else progress)
     _print_identification(result, files, held)
-    return 0 if result.success else 1
+    return 0 if result.success and result.adequate else 1
 
 
 def _cmd_record(args) -> int:

@@ -196,3 +196,45 @@ def test_cli_clear_errors(tmp_path, capsys):
     record_experiment(still, duration=1.0, reference=Sine(1e-6, 1.0),
                       noise=SensorNoise(0, 0, 0))
     assert 'no excitation' in _cli_error(capsys, still, '--out', tmp_path / 'o')
+
+
+# -- model adequacy ------------------------------------------------------------------------------
+def test_an_adequate_fit_says_so_with_its_noise_ratios(fits, tmp_path):
+    e, r = fits[0]
+    assert r.adequate and r.inadequacy == [] and r.advice == []
+    for m in r.metrics['sample_sine_1hz'].values():
+        assert 0.9 < m['noise_ratio'] < 1.1 and abs(m['acf1']) < 0.1
+    from ros_ehs.identify.report import write_report
+    summary = json.loads(write_report(r, e, tmp_path, figures=False)['summary'].read_text())
+    assert summary['adequate'] is True and summary['inadequacy'] == []
+
+
+def test_data_from_another_model_is_flagged_inadequate_with_advice(tmp_path, capsys):
+    """A full-model bag fitted with the simplified model: the noise does not explain it."""
+    bag = tmp_path / 'full'
+    record_experiment(bag, model='full', seed=3)
+    e = load_experiment(bag)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)
+        r = identify(e)
+    assert not r.adequate
+    assert any('z_dot residual is' in w and 'sensor noise' in w for w in r.inadequacy)
+    assert any('--model full' in a for a in r.advice)
+    assert r.metrics['full']['z_dot']['noise_ratio'] > 3.0
+    # the command says it, writes it to summary.json, and exits 1
+    rc = cli.main(['identify', str(bag), '--out', str(tmp_path / 'rep'), '--quiet'])
+    out = capsys.readouterr().out
+    assert rc == 1 and 'verdict: NOT ADEQUATE' in out and 'advice: fit the full model' in out
+    summary = json.loads((tmp_path / 'rep' / 'summary.json').read_text())
+    assert summary['adequate'] is False and summary['advice']
+    assert (tmp_path / 'rep' / 'fit_full.png').stat().st_size > 10000
+
+
+def test_a_stop_at_the_evaluation_limit_is_flagged(fits, tmp_path):
+    e, _ = fits[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)
+        r = identify(e, max_nfev=2)
+    assert r.status == 0 and not r.adequate
+    assert any('evaluation limit (max_nfev = 2)' in w for w in r.inadequacy)
+    assert any('max_nfev' in a for a in r.advice)

@@ -55,7 +55,8 @@ from ros_ehs.model.plant import DEFAULT_JAC_EVERY, MODELS, Plant
 from ros_ehs.params import ESTIMATED, Params, preset, spec
 from scipy.optimize import least_squares
 
-__all__ = ['IdentificationResult', 'Problem', 'identify', 'noise_sigma', 'score']
+__all__ = ['IdentificationResult', 'NOISE_RATIO_LIMIT', 'Problem', 'adequacy', 'identify',
+           'noise_sigma', 'score']
 
 SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT')
 _FD_STEP = 1e-3
@@ -251,6 +252,12 @@ class IdentificationResult:
     wall_s: float = 0.0
     model: str = 'simplified'
     cost_kind: str = 'sae'
+    #: the model-adequacy verdict: False when the sensor noise does not explain the fit or
+    #: the solver stopped at its evaluation limit; ``inadequacy`` says why, ``advice`` what
+    #: to run instead
+    adequate: bool = True
+    inadequacy: list[str] = field(default_factory=list)
+    advice: list[str] = field(default_factory=list)
 
     def summary(self) -> dict:
         """Return a JSON-ready summary."""
@@ -266,6 +273,7 @@ class IdentificationResult:
                            for n in self.free},
             'correlation': {'names': list(self.free),
                             'matrix': np.round(self.correlation, 4).tolist()},
+            'adequate': self.adequate, 'inadequacy': self.inadequacy, 'advice': self.advice,
             'fit': self.metrics, 'noise_sigma': self.sigma, 'warnings': self.warnings,
             'history': self.history,
         }
@@ -278,7 +286,7 @@ def _metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
     for ex, o in zip(problem.exps, problem.simulate(theta)):
         fit = {n: o[:, problem.names.index(n)] for n in SIGNALS if n in problem.names}
         m = {}
-        for j in ex.measured:
+        for j, sigma in zip(ex.measured, ex.sigma):
             name = problem.names[j]
             y, f = ex.y[:, j], o[:, j]
             e = f - y
@@ -287,9 +295,13 @@ def _metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
                 fit['z'] = y + e     # position is fitted up to an offset per segment
             sst = float(np.sum((y - y.mean()) ** 2))
             sse = float(np.sum(e ** 2))
+            c = e - e.mean()
+            cc = float(np.dot(c, c))
             m[name] = {'nrmse': math.sqrt(sse / y.size) / (float(np.std(y)) or 1.0),
                        'r2': 1.0 - sse / sst if sst > 0 else math.nan,
-                       'rms': math.sqrt(sse / y.size)}
+                       'rms': math.sqrt(sse / y.size),
+                       'noise_ratio': math.sqrt(sse / y.size) / float(sigma),
+                       'acf1': float(np.dot(c[1:], c[:-1])) / cc if cc > 0 else math.nan}
         out[ex.name] = m
         if fitted is not None:
             fitted[ex.name] = fit
@@ -473,6 +485,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         warnings.warn(note, IdentificationWarning, stacklevel=2)
     fitted: dict[str, dict[str, np.ndarray]] = {}
     metrics = _metrics(problem, theta, fitted)
+    inadequacy, advice = adequacy(metrics, int(sol.status), max_nfev, model)
     return IdentificationResult(
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
         sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),
@@ -482,7 +495,46 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         metrics=metrics, fitted=fitted,
         sigma={ex.name: {problem.names[j]: float(s) for j, s in zip(ex.measured, ex.sigma)}
                for ex in problem.exps},
-        warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost)
+        warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost,
+        adequate=not inadequacy, inadequacy=inadequacy, advice=advice)
+
+
+#: A fit whose residual RMS exceeds this many times the estimated sensor noise, on any
+#: signal, is not explained by the noise: the model misses something. Measured: a fit of
+#: the model that made the data sits at 0.99-1.01 (lag-1 autocorrelation 0.00); the
+#: simplified model fitted to a full-model bag at 6.5-20 (autocorrelation 0.93-0.99).
+NOISE_RATIO_LIMIT = 2.0
+
+
+def adequacy(metrics: dict, status: int, max_nfev: int, model: str
+             ) -> tuple[list[str], list[str]]:
+    """
+    Return the reasons a fit is not adequate (empty: adequate) and the advice they imply.
+
+    ``metrics`` as :func:`identify` computes them (``noise_ratio``, ``acf1`` per signal);
+    ``status`` scipy's (0: the evaluation limit).
+    """
+    why = []
+    for exp, sig in metrics.items():
+        for name, m in sig.items():
+            if m['noise_ratio'] > NOISE_RATIO_LIMIT:
+                why.append(f'{exp}: the {name} residual is {m["noise_ratio"]:.1f}x the '
+                           f'sensor noise (lag-1 autocorrelation {m["acf1"]:.2f}): the '
+                           'noise does not explain the fit')
+    advice = []
+    if why:
+        if model == 'simplified':
+            advice.append('fit the full model (--model full): the simplified one leaves out '
+                          "the valve's dynamics and the leakage")
+        advice.append('free other parameters (--free), or fix those the report names as not '
+                      'identifiable')
+        advice.append('record more excitation: several amplitudes and frequencies (a chirp '
+                      'from the reference node) so each parameter shows in the data')
+    if status == 0:
+        why.append(f'the solver stopped at its evaluation limit (max_nfev = {max_nfev}) '
+                   'before converging: the values are not an optimum')
+        advice.append('raise max_nfev, or start nearer (--initial)')
+    return why, advice
 
 
 def _loss(r: np.ndarray, cost: str) -> float:

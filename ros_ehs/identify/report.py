@@ -16,7 +16,8 @@ The identification report: parameters YAML, JSON summary and PNG figures in one 
 
 * ``identified_params.yaml``: a ROS 2 parameters file (``/**: ros__parameters:``) with the
   fitted values, which plant and controller load with ``--params-file``;
-* ``summary.json``: values, standard errors, correlation, fit metrics, history, warnings;
+* ``summary.json``: values, standard errors, correlation, fit metrics (with each signal's
+  residual against the sensor noise), the adequacy verdict and advice, history, warnings;
 * ``fit_<experiment>.png``: measured vs fitted position and velocity, and the velocity
   residual beside the estimated sensor noise;
 * ``history.png``: cost and parameters per iteration (the paper's Fig. 3);
@@ -85,8 +86,15 @@ def write_report(result: IdentificationResult, experiments, out: str | os.PathLi
         ax[2].set_ylabel('residual [mm/s]')
         ax[2].set_xlabel('time [s]')
         m = result.metrics.get(name, {})
-        title = ', '.join(f'{k}: R2 {v["r2"]:.4f}' for k, v in m.items() if k in ('z_dot', 'z'))
+        title = ', '.join(f'{k}: R2 {v["r2"]:.4f}, {v["noise_ratio"]:.2f}x noise'
+                          for k, v in m.items() if k in ('z_dot', 'z'))
         ax[0].set_title(f'{name}: {title}')
+        if not result.adequate:
+            worst = max((v['noise_ratio'] for v in m.values()), default=math.nan)
+            fig.suptitle(f'NOT ADEQUATE: residuals up to {worst:.1f}x the sensor noise'
+                         + ('; stopped at the evaluation limit' if result.status == 0 else '')
+                         + ' (summary.json: why, and what to run instead)', color='C3',
+                         fontsize=9)
         for a in ax:
             a.grid(True, alpha=0.3)
             a.legend(loc='upper right')

@@ -110,8 +110,14 @@ class IdentifyNode(Node):
             log.info(f'{n:>7} = {result.x[n]:.6g} +- {result.stderr[n]:.3g}')
         for w in result.warnings:
             log.warning(w)
+        if result.adequate:
+            log.info('verdict: adequate (the sensor noise explains the residuals)')
+        else:
+            log.error('verdict: NOT ADEQUATE: ' + '; '.join(result.inadequacy))
+            for a in result.advice:
+                log.warning(f'advice: {a}')
         log.info(f'wrote {o["out"]}: ' + ', '.join(sorted(p.name for p in files.values())))
-        rc = 0 if result.success else 1
+        rc = 0 if result.success and result.adequate else 1
         if o['push'] and result.params is not None:
             rc = max(rc, self._push(result))
         self.done.set_result(rc)
