@@ -201,7 +201,7 @@ def test_cli_clear_errors(tmp_path, capsys):
 # -- model adequacy ------------------------------------------------------------------------------
 def test_an_adequate_fit_says_so_with_its_noise_ratios(fits, tmp_path):
     e, r = fits[0]
-    assert r.adequate and r.inadequacy == [] and r.advice == []
+    assert r.adequate and r.inadequacy == [] and r.advice == [] and r.stderr_widening == 1.0
     for m in r.metrics['sample_sine_1hz'].values():
         assert 0.9 < m['noise_ratio'] < 1.1 and abs(m['acf1']) < 0.1
     from ros_ehs.identify.report import write_report
@@ -221,6 +221,9 @@ def test_data_from_another_model_is_flagged_inadequate_with_advice(tmp_path, cap
     assert any('z_dot residual is' in w and 'sensor noise' in w for w in r.inadequacy)
     assert any('--model full' in a for a in r.advice)
     assert r.metrics['full']['z_dot']['noise_ratio'] > 3.0
+    # correlated residuals: the standard errors are widened for them, and said so
+    assert r.stderr_widening > 3.0
+    assert any('standard errors widened' in w for w in r.warnings)
     # the command says it, writes it to summary.json, and exits 1
     rc = cli.main(['identify', str(bag), '--out', str(tmp_path / 'rep'), '--quiet'])
     out = capsys.readouterr().out

@@ -258,6 +258,8 @@ class IdentificationResult:
     adequate: bool = True
     inadequacy: list[str] = field(default_factory=list)
     advice: list[str] = field(default_factory=list)
+    #: the factor the standard errors were widened by for correlated residuals (1: white)
+    stderr_widening: float = 1.0
 
     def summary(self) -> dict:
         """Return a JSON-ready summary."""
@@ -274,6 +276,7 @@ class IdentificationResult:
             'correlation': {'names': list(self.free),
                             'matrix': np.round(self.correlation, 4).tolist()},
             'adequate': self.adequate, 'inadequacy': self.inadequacy, 'advice': self.advice,
+            'stderr_widening': self.stderr_widening,
             'fit': self.metrics, 'noise_sigma': self.sigma, 'warnings': self.warnings,
             'history': self.history,
         }
@@ -465,6 +468,11 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     if not history or history[-1]['x'] != final['x']:
         history.append(final)
     cov, corr, notes = _covariance(J, r, len(free), cost, free, theta)
+    widen = _autocorrelation_factor(problem.residual_parts(theta))
+    cov = cov * widen
+    if widen > 2.0:
+        notes.append(f'the residuals are correlated: standard errors widened '
+                     f'{math.sqrt(widen):.1f}x for it (they assume independent samples)')
     se = np.sqrt(np.clip(np.diag(cov), 0, None)) * sc
     xv = problem.values(theta)
     for n, v in xv.items():
@@ -496,7 +504,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         sigma={ex.name: {problem.names[j]: float(s) for j, s in zip(ex.measured, ex.sigma)}
                for ex in problem.exps},
         warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost,
-        adequate=not inadequacy, inadequacy=inadequacy, advice=advice)
+        adequate=not inadequacy, inadequacy=inadequacy, advice=advice,
+        stderr_widening=math.sqrt(widen))
 
 
 #: A fit whose residual RMS exceeds this many times the estimated sensor noise, on any
@@ -539,6 +548,25 @@ def adequacy(metrics: dict, status: int, max_nfev: int, model: str
 
 def _loss(r: np.ndarray, cost: str) -> float:
     return float(np.sum(np.abs(r)) if cost == 'sae' else 0.5 * np.sum(r ** 2))
+
+
+def _autocorrelation_factor(parts: list[np.ndarray]) -> float:
+    """
+    Return the variance inflation for correlated residuals, (1 + rho) / (1 - rho).
+
+    rho is the largest lag-1 autocorrelation of any signal's residual (AR(1): n samples carry
+    the information of n (1 - rho) / (1 + rho) independent ones); 1 for white residuals, rho
+    capped at 0.995.
+    """
+    rho = 0.0
+    for p in parts:
+        for col in np.asarray(p).T:
+            c = col - col.mean()
+            cc = float(np.dot(c, c))
+            if cc > 0:
+                rho = max(rho, float(np.dot(c[1:], c[:-1])) / cc)
+    rho = min(rho, 0.995)
+    return (1.0 + rho) / (1.0 - rho) if rho > 0.05 else 1.0
 
 
 def _covariance(J, r, n, cost, free, theta):
