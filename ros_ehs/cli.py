@@ -78,6 +78,8 @@ def _print_identification(result, files, held) -> None:
         print(f'  {name}: ' + ', '.join(fits))
     for w in result.warnings:
         print(f'  warning: {w}')
+    if result.starts:
+        print(f'  robustness: {result.starts["message"]}')
     if result.adequate:
         print('  verdict: adequate: the residuals are within '
               f'{_worst_ratio(result):.2f}x the sensor noise')
@@ -108,6 +110,7 @@ def _cmd_identify(args) -> int:
         state_topic=args.state_topic, command_topic=args.command_topic,
         pressure_topics=None if args.no_pressures else (args.pressure_p, args.pressure_t),
         workers=args.workers, figures=not args.no_figures, start=args.start, end=args.end,
+        starts=args.starts, seed=args.seed,
         progress=None if args.quiet else progress)
     _print_identification(result, files, held)
     return 0 if result.success and result.adequate else 1
@@ -179,6 +182,10 @@ def main(argv=None) -> int:
                    help="fit from this time on [s from each bag's first message]")
     i.add_argument('--end', type=float, default=None,
                    help="fit up to this time [s from each bag's first message]")
+    i.add_argument('--starts', type=int, default=0,
+                   help='also refit from this many seeded random starts and report how many '
+                   'reach the same optimum')
+    i.add_argument('--seed', type=int, default=0, help='seed of the random starts')
     i.add_argument('--workers', type=int, default=1)
     i.add_argument('--no-figures', action='store_true')
     i.add_argument('--quiet', action='store_true')

@@ -241,3 +241,21 @@ def test_a_stop_at_the_evaluation_limit_is_flagged(fits, tmp_path):
     assert r.status == 0 and not r.adequate
     assert any('evaluation limit (max_nfev = 2)' in w for w in r.inadequacy)
     assert any('max_nfev' in a for a in r.advice)
+
+
+def test_random_starts_report_how_many_reach_the_same_optimum(fits):
+    from ros_ehs.identify.estimator import multistart
+    e, r = fits[0]
+    with pytest.raises(InputError, match='`starts`'):
+        multistart(e, r, starts=0)
+    ms = multistart(e, r, starts=3, seed=5)
+    assert ms['starts'] == 3 and len(ms['runs']) == 3
+    assert ms['same_optimum'] == sum(x['same_optimum'] for x in ms['runs'])
+    assert f'{ms["same_optimum"]} of 3 random starts' in ms['message']
+    lo, hi = {'d_c': 1e-6, 'F_cc': 50.0, 'l_iac': 0.105}, {'x_bias': 6e-6}
+    for run in ms['runs']:
+        assert all(run['x0'][n] >= v for n, v in lo.items())
+        assert abs(run['x0']['x_bias']) <= hi['x_bias'] and run['x0']['F_cc'] <= run['x0']['F_sc']
+        if run['same_optimum']:          # the same optimum: the same cost, to within 1 %
+            assert run['cost'] <= 1.01 * r.cost
+    assert multistart(e, r, starts=3, seed=5)['runs'][0]['x0'] == ms['runs'][0]['x0']   # seeded

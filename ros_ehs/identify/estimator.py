@@ -56,7 +56,7 @@ from ros_ehs.params import ESTIMATED, Params, preset, spec
 from scipy.optimize import least_squares
 
 __all__ = ['IdentificationResult', 'NOISE_RATIO_LIMIT', 'Problem', 'adequacy', 'identify',
-           'noise_sigma', 'score']
+           'multistart', 'noise_sigma', 'score']
 
 SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT')
 _FD_STEP = 1e-3
@@ -260,6 +260,8 @@ class IdentificationResult:
     advice: list[str] = field(default_factory=list)
     #: the factor the standard errors were widened by for correlated residuals (1: white)
     stderr_widening: float = 1.0
+    #: :func:`multistart`'s summary when it was run (how many random starts reach this fit)
+    starts: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """Return a JSON-ready summary."""
@@ -276,7 +278,7 @@ class IdentificationResult:
             'correlation': {'names': list(self.free),
                             'matrix': np.round(self.correlation, 4).tolist()},
             'adequate': self.adequate, 'inadequacy': self.inadequacy, 'advice': self.advice,
-            'stderr_widening': self.stderr_widening,
+            'stderr_widening': self.stderr_widening, 'starts': self.starts,
             'fit': self.metrics, 'noise_sigma': self.sigma, 'warnings': self.warnings,
             'history': self.history,
         }
@@ -613,3 +615,46 @@ def score(params: Params, experiments, *, model: str = 'simplified',
                                     None, segment, h, 1, 1)
     problem = Problem(experiments, params, ('c_c',), model, signals, segment, h)
     return _metrics(problem, np.array([params['c_c']]) / problem.scale)
+
+
+def multistart(experiments, result: IdentificationResult, *, starts: int = 10, seed: int = 0,
+               within: float = 0.01, **kwargs) -> dict:
+    """
+    Refit from ``starts`` seeded random starting points; report how many reach ``result``.
+
+    Starts are drawn log-uniformly (uniformly for ``x_bias``) within the fit's bounds and a
+    factor 20 around Table 1's initial values (``x0`` of ``result``), F_cc at most F_sc. A
+    start reaches the same optimum when every parameter lands within ``within`` (relative)
+    or two standard errors of ``result``'s value. ``kwargs`` go to :func:`identify` (the
+    same model, free set, cost...). Returns a JSON-ready summary.
+    """
+    if not (isinstance(starts, int) and starts >= 1):
+        raise InputError(f'`starts` = {starts!r} must be an integer >= 1')
+    rng = np.random.default_rng(seed)
+    free = list(result.free)
+    lo, hi = _bounds(free, kwargs.get('base') or preset('table1_initial'))
+    runs = []
+    for _ in range(starts):
+        x0 = {}
+        for k, n in enumerate(free):
+            a, b = lo[k], hi[k]
+            if a > 0:
+                a, b = max(a, result.x0[n] / 20), min(b, result.x0[n] * 20)
+                x0[n] = float(np.exp(rng.uniform(np.log(a), np.log(b))))
+            else:
+                x0[n] = float(rng.uniform(a, b))
+        if 'F_cc' in x0 and 'F_sc' in x0 and x0['F_cc'] > x0['F_sc']:
+            x0['F_cc'], x0['F_sc'] = x0['F_sc'], x0['F_cc']
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', IdentificationWarning)
+            r = identify(experiments, x0=x0, **kwargs)
+        same = all(abs(r.x[n] - result.x[n])
+                   <= max(within * abs(result.x[n]), 2.0 * result.stderr[n]) for n in free)
+        runs.append({'x0': x0, 'x': r.x, 'cost': r.cost, 'same_optimum': bool(same),
+                     'adequate': r.adequate})
+    n_same = sum(r['same_optimum'] for r in runs)
+    return {'starts': starts, 'seed': seed, 'same_optimum': n_same,
+            'message': f'{n_same} of {starts} random starts reached the same optimum '
+                       f'(every parameter within {within:.0%} or 2 standard errors)',
+            'best_cost_found': min([result.cost] + [r['cost'] for r in runs]),
+            'runs': runs}

@@ -22,7 +22,8 @@ import warnings
 
 from ros_ehs.bag.experiment import load_experiments
 from ros_ehs.errors import IdentificationWarning, InputError
-from ros_ehs.identify.estimator import IdentificationResult, identify, score, SIGNALS
+from ros_ehs.identify.estimator import (IdentificationResult, identify, multistart, score,
+                                        SIGNALS)
 from ros_ehs.identify.report import write_report
 from ros_ehs.params import ESTIMATED, load_yaml, preset
 import ros_ehs_msgs_py as contract
@@ -41,6 +42,7 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
                            contract.PRESSURE_P.name, contract.PRESSURE_T.name),
                        segment: float | None = 1.0, workers: int = 1, max_nfev: int = 100,
                        start: float | None = None, end: float | None = None,
+                       starts: int = 0, seed: int = 0,
                        figures: bool = True,
                        progress: Callable[[dict], None] | None = None
                        ) -> tuple[IdentificationResult, dict[str, Path], dict]:
@@ -49,6 +51,8 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
 
     ``initial``: a parameters YAML for the starting point (default Table 1's initial values).
     ``start``/``end``: fit only that window of each bag [s from its first message].
+    ``starts``: also refit from that many seeded random starts and report how many reach the
+    same optimum (``result.starts``, ``summary.json``).
     Returns the result, the written files and the hold-out metrics.
     """
     if not bags:
@@ -67,6 +71,10 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
         result = identify(exps, free=free, model=model, cost=cost, signals=signals,
                           base=base, segment=segment, workers=workers, max_nfev=max_nfev,
                           progress=progress)
+    if starts:
+        result.starts = multistart(exps, result, starts=starts, seed=seed, free=free,
+                                   model=model, cost=cost, signals=signals, base=base,
+                                   segment=segment, workers=workers, max_nfev=max_nfev)
     held_metrics = {}
     if held and result.params is not None:
         held_metrics = score(result.params, held, model=model, signals=signals,

@@ -56,6 +56,9 @@ OPTIONS = (
     Option('pressure_t_topic', contract.PRESSURE_T.name, 'chamber T pressure topic'),
     Option('use_pressures', True, 'fit the chamber pressures when the bags have them'),
     Option('max_nfev', 100, 'most model evaluations', 1, 100000),
+    Option('starts', 0, 'also refit from this many seeded random starts and report how many '
+           'reach the same optimum', 0, 1000),
+    Option('seed', 0, 'seed of the random starts', 0, 2**31 - 1),
     Option('start', 0.0, "fit from this time on [s from each bag's first message]", 0.0, 1e9),
     Option('end', 0.0, 'fit up to this time (0: to the end) [s from the first message '
            'of each bag]', 0.0, 1e9),
@@ -97,6 +100,7 @@ class IdentifyNode(Node):
                                  if o['use_pressures'] else None),
                 max_nfev=int(o['max_nfev']), figures=bool(o['figures']),
                 start=float(o['start']) or None, end=float(o['end']) or None,
+                starts=int(o['starts']), seed=int(o['seed']),
                 progress=lambda e: log.info(f'iteration {e["iteration"]:3d}  '
                                             f'cost {e["cost"]:.6g}'))
         except EhsError as err:
@@ -110,6 +114,8 @@ class IdentifyNode(Node):
             log.info(f'{n:>7} = {result.x[n]:.6g} +- {result.stderr[n]:.3g}')
         for w in result.warnings:
             log.warning(w)
+        if result.starts:
+            log.info(f'robustness: {result.starts["message"]}')
         if result.adequate:
             log.info('verdict: adequate (the sensor noise explains the residuals)')
         else:
