@@ -259,3 +259,24 @@ def test_random_starts_report_how_many_reach_the_same_optimum(fits):
         if run['same_optimum']:          # the same optimum: the same cost, to within 1 %
             assert run['cost'] <= 1.01 * r.cost
     assert multistart(e, r, starts=3, seed=5)['runs'][0]['x0'] == ms['runs'][0]['x0']   # seeded
+
+
+@pytest.mark.parametrize('seed', [21, 22, 23])
+def test_a_rig_that_is_not_the_model_is_recovered_or_flagged(tmp_path, seed):
+    """Full-model bags from parameter sets drawn away from Table 1 (seeded): the default
+    (simplified) fit recovers d_c, F_cc, F_sc, l_iac and c_c within 5 %, or says it cannot."""
+    rng = np.random.default_rng(seed)
+    est = preset('table1_estimated')
+    # 15-25 % off Table 1's estimates, within Table 1's bounds (l_iac >= 0.105 m: up only)
+    factors = {n: float((1 if n == 'l_iac' else rng.choice([-1, 1])) * rng.uniform(0.15, 0.25)
+                        + 1.0) for n in ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')}
+    truth = est.replace(**{n: est[n] * f for n, f in factors.items()})
+    record_experiment(tmp_path / 'rig', plant_params=truth, model='full', seed=seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)
+        r = identify(load_experiment(tmp_path / 'rig'))
+    errors = {n: abs(r.x[n] / truth[n] - 1.0) for n in factors}
+    if r.adequate:
+        assert max(errors.values()) <= 0.05, errors
+    else:
+        assert any('--model full' in a for a in r.advice) and r.inadequacy
