@@ -263,8 +263,12 @@ def test_random_starts_report_how_many_reach_the_same_optimum(fits):
 
 @pytest.mark.parametrize('seed', [21, 22, 23])
 def test_a_rig_that_is_not_the_model_is_recovered_or_flagged(tmp_path, seed):
-    """Full-model bags from parameter sets drawn away from Table 1 (seeded): the default
-    (simplified) fit recovers d_c, F_cc, F_sc, l_iac and c_c within 5 %, or says it cannot."""
+    """
+    Fit full-model bags from parameter sets drawn away from Table 1 (seeded).
+
+    The default (simplified) fit recovers d_c, F_cc, F_sc, l_iac and c_c within 5 %, or
+    says it cannot.
+    """
     rng = np.random.default_rng(seed)
     est = preset('table1_estimated')
     # 15-25 % off Table 1's estimates, within Table 1's bounds (l_iac >= 0.105 m: up only)
