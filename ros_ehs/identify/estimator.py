@@ -470,7 +470,9 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     if not history or history[-1]['x'] != final['x']:
         history.append(final)
     cov, corr, notes = _covariance(J, r, len(free), cost, free, theta)
-    widen = _autocorrelation_factor(problem.residual_parts(theta))
+    fitted: dict[str, dict[str, np.ndarray]] = {}
+    metrics = _metrics(problem, theta, fitted)
+    widen = _autocorrelation_factor(metrics)
     cov = cov * widen
     if widen > 2.0:
         notes.append(f'the residuals are correlated: standard errors widened '
@@ -493,8 +495,6 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         notes.append(f'the fitted set is not a valid parameter set: {e}')
     for note in notes:
         warnings.warn(note, IdentificationWarning, stacklevel=2)
-    fitted: dict[str, dict[str, np.ndarray]] = {}
-    metrics = _metrics(problem, theta, fitted)
     inadequacy, advice = adequacy(metrics, int(sol.status), max_nfev, model)
     return IdentificationResult(
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
@@ -552,21 +552,16 @@ def _loss(r: np.ndarray, cost: str) -> float:
     return float(np.sum(np.abs(r)) if cost == 'sae' else 0.5 * np.sum(r ** 2))
 
 
-def _autocorrelation_factor(parts: list[np.ndarray]) -> float:
+def _autocorrelation_factor(metrics: dict) -> float:
     """
     Return the variance inflation for correlated residuals, (1 + rho) / (1 - rho).
 
-    rho is the largest lag-1 autocorrelation of any signal's residual (AR(1): n samples carry
-    the information of n (1 - rho) / (1 + rho) independent ones); 1 for white residuals, rho
-    capped at 0.995.
+    rho is the largest lag-1 autocorrelation of any signal's residual (``acf1`` of
+    :func:`_metrics`; AR(1): n samples carry the information of n (1 - rho) / (1 + rho)
+    independent ones); 1 for white residuals, rho capped at 0.995.
     """
-    rho = 0.0
-    for p in parts:
-        for col in np.asarray(p).T:
-            c = col - col.mean()
-            cc = float(np.dot(c, c))
-            if cc > 0:
-                rho = max(rho, float(np.dot(c[1:], c[:-1])) / cc)
+    rho = max((m['acf1'] for sig in metrics.values() for m in sig.values()
+               if math.isfinite(m['acf1'])), default=0.0)
     rho = min(rho, 0.995)
     return (1.0 + rho) / (1.0 - rho) if rho > 0.05 else 1.0
 
