@@ -186,7 +186,8 @@ def main(argv=None) -> int:
                    help='also refit from this many seeded random starts and report how many '
                    'reach the same optimum')
     i.add_argument('--seed', type=int, default=0, help='seed of the random starts')
-    i.add_argument('--workers', type=int, default=1)
+    i.add_argument('--workers', type=int, default=None,
+                   help='processes for the Jacobian (default: 2 for the full model, else 1)')
     i.add_argument('--no-figures', action='store_true')
     i.add_argument('--quiet', action='store_true')
     i.set_defaults(func=_cmd_identify)

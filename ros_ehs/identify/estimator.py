@@ -42,6 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 import multiprocessing as mp
+import os
 import time
 from typing import Callable, Sequence
 import warnings
@@ -350,8 +351,8 @@ def _check(experiments, free, model, signals, cost, base, x0, segment, h, worker
         base = base.replace(**x0)
     if segment is not None and not (isinstance(segment, (int, float)) and segment > 0):
         raise InputError(f'`segment` = {segment!r} s must be > 0 or None')
-    if not (isinstance(workers, int) and workers >= 1):
-        raise InputError(f'`workers` = {workers!r} must be an integer >= 1')
+    if workers is not None and not (isinstance(workers, int) and workers >= 1):
+        raise InputError(f'`workers` = {workers!r} must be an integer >= 1 (or None: auto)')
     if not (isinstance(max_nfev, int) and max_nfev >= 1):
         raise InputError(f'`max_nfev` = {max_nfev!r} must be an integer >= 1')
     dts = {round(e.dt, 12) for e in experiments}
@@ -377,7 +378,7 @@ def _bounds(free, base):
 def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simplified',
              signals: Sequence[str] = SIGNALS, cost: str = 'sae', base: Params | None = None,
              x0: dict[str, float] | None = None, segment: float | None = 1.0,
-             h: float | None = None, workers: int = 1, max_nfev: int = 100,
+             h: float | None = None, workers: int | None = None, max_nfev: int = 100,
              progress: Callable[[dict], None] | None = None) -> IdentificationResult:
     """
     Fit the ``free`` parameters of ``model`` to ``experiments`` (jointly).
@@ -403,9 +404,10 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         Replay segment length [s] (None: one open-loop replay of the whole record).
     h : float, optional
         Integration step [s] (default: the plant's for ``model``).
-    workers : int
-        Processes for the Jacobian columns (default 1: on the 2-core bench machine the
-        parallel columns measured no faster, see ``python -m ros_ehs.bench identify``).
+    workers : int or None
+        Processes for the Jacobian columns. None (default): 2 for the full model (its
+        columns measured 1.6x faster on the 2-core bench machine), 1 for the simplified one
+        (1.08x: not worth a pool; ``python -m ros_ehs.bench identify``).
     max_nfev : int
         Limit on residual evaluations (not counting Jacobian columns).
     progress : callable, optional
@@ -416,6 +418,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     base = base if base is not None else preset('table1_initial')
     experiments, free, base = _check(experiments, free, model, signals, cost, base, x0,
                                      segment, h, workers, max_nfev)
+    if workers is None:       # measured: the full model's columns 1.6x faster on 2 cores
+        workers = min(2, os.cpu_count() or 1) if model == 'full' else 1
     lo, hi = _bounds(free, base)
     problem = Problem(experiments, base, free, model, signals, segment, h)
     sc = problem.scale

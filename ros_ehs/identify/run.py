@@ -40,7 +40,8 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
                        command_topic: str = contract.COMMAND.name,
                        pressure_topics: tuple[str, str] | None = (
                            contract.PRESSURE_P.name, contract.PRESSURE_T.name),
-                       segment: float | None = 1.0, workers: int = 1, max_nfev: int = 100,
+                       segment: float | None = 1.0, workers: int | None = None,
+                       max_nfev: int = 100,
                        start: float | None = None, end: float | None = None,
                        starts: int = 0, seed: int = 0,
                        figures: bool = True,
