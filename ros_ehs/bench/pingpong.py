@@ -25,7 +25,8 @@ plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointSt
 * ``volley``: the next ping goes out as soon as the echo of the last is back (a bare
   lock-step): round trips per second.
 
-On SIGINT the ping or volley prints its figures as one JSON line.
+``--reliable`` uses the lock-step loop's QoS (reliable, depth 1000) instead. On SIGINT the
+ping or volley prints its figures as one JSON line.
 """
 
 import json
@@ -42,6 +43,8 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
 _QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+#: ``--reliable``: the lock-step loop's QoS (the contract's LOCKSTEP_QOS), for comparison
+_RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 _N = 100000      # samples kept (100 s at 1 kHz)
 
 
@@ -54,7 +57,9 @@ def _pct(values, q):
 
 def main(argv=None) -> int:
     """Run ``ping``, ``pong`` or ``volley`` until SIGINT."""
-    role = (sys.argv[1:] if argv is None else argv)[0]
+    args = sys.argv[1:] if argv is None else argv
+    role = args[0]
+    qos = _RELIABLE if '--reliable' in args else _QOS
     stop = []
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
@@ -69,10 +74,10 @@ def main(argv=None) -> int:
     rtt = []
 
     if role == 'pong':
-        pub = node.create_publisher(JointState, 'pong', _QOS)
-        node.create_subscription(JointState, 'ping', pub.publish, _QOS)
+        pub = node.create_publisher(JointState, 'pong', qos)
+        node.create_subscription(JointState, 'ping', pub.publish, qos)
     else:
-        pub = node.create_publisher(JointState, 'ping', _QOS)
+        pub = node.create_publisher(JointState, 'ping', qos)
 
         def send():
             st['k'] += 1
@@ -92,7 +97,7 @@ def main(argv=None) -> int:
                         st['t0'] = time.monotonic()
                     send()
 
-        node.create_subscription(JointState, 'pong', on_pong, _QOS)
+        node.create_subscription(JointState, 'pong', on_pong, qos)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if role == 'ping':
             def tick():
