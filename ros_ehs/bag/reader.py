@@ -178,7 +178,6 @@ class Bag:
         self.files: list[Path] = []
         self.topics: dict[str, TopicInfo] = {}
         self.metadata: dict[str, dict[str, str]] = {}
-        self.info = info
         self.profile = ''
         self._msgs: list[BagMessage] = []
         self._decoders: dict[str, Any] = {}
@@ -193,22 +192,23 @@ class Bag:
                 t0 = None
         self._window: tuple[int | None, int | None] = (None, None)
         windowed = start is not None or end is not None
-        for k, f in enumerate(all_files):
+
+        def window(base: int) -> tuple[int, int]:      # [start, end] as log times [ns]
+            return (base + int((start or 0) * 1e9),
+                    _MAX_NS if end is None else base + int(end * 1e9))
+
+        for f in all_files:
             if windowed and t0 is None and self._msgs:      # no metadata: file 0 fixes t0
                 t0 = min(m.log_time_ns for m in self._msgs)
             if windowed and t0 is not None:
-                lo = t0 + int((start or 0) * 1e9)
-                hi = _MAX_NS if end is None else t0 + int(end * 1e9)
+                lo, hi = self._window = window(t0)
                 if f.start_ns is not None and (f.start_ns > hi or f.end_ns < lo):
                     continue            # wholly outside the window: not read
-                self._window = (lo, hi)
             self._read_file(f.path)
             self.files.append(f.path)
         self._msgs.sort(key=lambda m: m.log_time_ns)   # once: every query is in time order
         if windowed and self._msgs:
-            base = t0 if t0 is not None else self._msgs[0].log_time_ns
-            lo = base + int((start or 0) * 1e9)
-            hi = _MAX_NS if end is None else base + int(end * 1e9)
+            lo, hi = window(t0 if t0 is not None else self._msgs[0].log_time_ns)
             self._msgs = [m for m in self._msgs if lo <= m.log_time_ns <= hi]
             for t in self.topics.values():
                 t.count = 0

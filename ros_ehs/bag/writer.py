@@ -249,8 +249,7 @@ class BagWriter:
         if self.fsync:
             os.fsync(self._f.fileno())
         self._f.close()
-        self._flushed[-1] = dict(self.files[-1])
-        self._flushed_topics = self.counts
+        self._mark_flushed()
 
     def _split(self) -> None:
         self._finish_file()
@@ -359,6 +358,10 @@ class BagWriter:
         self._pending = 0
         self._flushed_at = self._f.tell()
         self._last_flush = time.monotonic()
+        self._mark_flushed()
+
+    def _mark_flushed(self) -> None:
+        """Record what is durable now: the open file's span and counts, per-topic counts."""
         self._flushed[-1] = dict(self.files[-1])
         self._flushed_topics = self.counts
 

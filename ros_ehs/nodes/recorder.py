@@ -93,9 +93,7 @@ class RecorderNode(Node):
         out = Path(self.opt['out'] or default_bag_path())
         free = free_bytes(out)
         if 0 <= free < int(self.opt['min_free_space']):
-            raise BagError(f'not recording to {str(out)!r}: {free / 1e6:.1f} MB free on its '
-                           f'filesystem, below min_free_space = '
-                           f'{int(self.opt["min_free_space"]) / 1e6:.1f} MB')
+            raise BagError(self._low_space('not recording to', out, free))
         self.writer = BagWriter(out, flush_period=float(self.opt['flush_period']),
                                 fsync=bool(self.opt['fsync']),
                                 compression=str(self.opt['compression']),
@@ -200,10 +198,7 @@ class RecorderNode(Node):
             return
         t = time.monotonic()
         if free < int(self.opt['min_free_space']):
-            self._fail(BagError(
-                f'stopped recording to {str(self.path)!r}: {free / 1e6:.1f} MB free on its '
-                f'filesystem, below min_free_space = '
-                f'{int(self.opt["min_free_space"]) / 1e6:.1f} MB'))
+            self._fail(BagError(self._low_space('stopped recording to', self.path, free)))
         elif free < int(self.opt['warn_free_space']) and t - self._space_warned >= 60.0:
             self._space_warned = t
             f = self.writer.files[-1]      # the open file's bytes per second of log time
@@ -214,6 +209,10 @@ class RecorderNode(Node):
                 f'disk space low: {free / 1e6:.1f} MB free for {self.path}'
                 + (f', about {left / 3600:.1f} h at the current rate' if left else '')
                 + f'; recording stops at {int(self.opt["min_free_space"]) / 1e6:.1f} MB')
+
+    def _low_space(self, what: str, path: Path, free: int) -> str:
+        return (f'{what} {str(path)!r}: {free / 1e6:.1f} MB free on its filesystem, below '
+                f'min_free_space = {int(self.opt["min_free_space"]) / 1e6:.1f} MB')
 
     def _fail(self, err: BagError) -> None:
         """Stop recording after ``err`` (logged once); the node then closes and exits 1."""
