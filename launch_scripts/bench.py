@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument('--duration', type=float, default=10.0, help='seconds (0: until Ctrl-C)')
     ap.add_argument('--out', default=None, help='bag directory (default bags/ehs_<time>)')
     ap.add_argument('--mode', choices=('realtime', 'lockstep'), default='realtime')
-    ap.add_argument('--model', choices=('simplified', 'full'), default='simplified')
+    ap.add_argument('--model', choices=('simplified', 'reduced', 'full'), default='simplified')
     ap.add_argument('--reference', choices=('sine', 'step', 'chirp', 'csv'), default='sine')
     ap.add_argument('--no-noise', action='store_true',
                     help='publish exact states (default: 5 um, 1 mm/s, 0.2 bar sensor noise)')

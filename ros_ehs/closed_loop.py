@@ -31,7 +31,7 @@ from ros_ehs.errors import InputError
 from ros_ehs.model.plant import Plant, StateSeries
 from ros_ehs.params import Params
 
-__all__ = ['ClosedLoopResult', 'reference_step', 'run_closed_loop']
+__all__ = ['ClosedLoopResult', 'model_difference', 'reference_step', 'run_closed_loop']
 
 
 @dataclass(frozen=True)
@@ -106,3 +106,26 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
         xs[k + 1] = x
     cur[n] = cur[n - 1]
     return ClosedLoopResult(t, z_ref, v_ref, xs, cur, plant.state_names, z_meas)
+
+
+def model_difference(params: Params, reference, duration: float, model: str, *,
+                     against: str = 'full', against_params: Params | None = None,
+                     h: float | None = None) -> dict[str, float]:
+    """
+    How far ``model`` is from ``against`` in closed loop.
+
+    ``model`` runs with ``params`` and integration step ``h``; ``against`` with
+    ``against_params`` (default: the same ``params``) and its default step, both through
+    :func:`run_closed_loop` on ``reference``. Returns the RMS of the difference over the RMS
+    of ``against``'s signal, for the piston velocity (``velocity``), the load pressure
+    ``p_CP - p_CT`` (``load_pressure``) and the current (``current``).
+    """
+    ref = run_closed_loop(against_params or params, reference, duration, model=against)
+    run = run_closed_loop(params, reference, duration, model=model, h=h)
+
+    def rel(a, b):
+        return float(np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(b ** 2)))
+
+    return {'velocity': rel(run.z_dot, ref.z_dot),
+            'load_pressure': rel(run.p_a - run.p_b, ref.p_a - ref.p_b),
+            'current': rel(run.i, ref.i)}

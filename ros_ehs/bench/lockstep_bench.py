@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     """
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench lockstep')
     ap.add_argument('--seconds', type=float, default=5.0, help='sim seconds')
-    ap.add_argument('--model', default='simplified', choices=('simplified', 'full'))
+    ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
     a = ap.parse_args(argv)
     with domain_id() as dom:
         with Launch(dom) as launch:

@@ -56,7 +56,7 @@ def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench loop')
     ap.add_argument('--seconds', type=float, default=20.0)
-    ap.add_argument('--model', default='simplified', choices=('simplified', 'full'))
+    ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
     a = ap.parse_args(argv)
     with domain_id() as dom:
         with Launch(dom) as launch:

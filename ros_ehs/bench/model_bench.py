@@ -31,10 +31,10 @@ import time
 import numpy as np
 
 from ros_ehs.bench import report
-from ros_ehs.closed_loop import reference_step, run_closed_loop
+from ros_ehs.closed_loop import model_difference, reference_step, run_closed_loop
 from ros_ehs.model.plant import DEFAULT_H, Plant
 from ros_ehs.params import preset
-from ros_ehs.reference import Sine
+from ros_ehs.reference import Chirp, Sine
 
 
 def _best_of(fn, repeat=3):
@@ -49,11 +49,11 @@ def _best_of(fn, repeat=3):
 def run(duration_err: float = 1.0, duration_rtf: float = 4.0) -> dict:
     """Run the benchmark and return the figures."""
     p = preset('table1_estimated', ff_enable=0.0)
-    out = {'h_full_s': DEFAULT_H['full'], 'h_simplified_s': DEFAULT_H['simplified'],
-           'control_period_s': 1e-3}
+    out = {f'h_{m}_s': h for m, h in DEFAULT_H.items()}
+    out['control_period_s'] = 1e-3
     cl = run_closed_loop(p, Sine(), duration_rtf, model='full')
     u = np.column_stack([cl.i[:-1], np.zeros(cl.i.size - 1)])
-    for model in ('full', 'simplified'):
+    for model in ('full', 'reduced', 'simplified'):
         plant = Plant(p, model)
         plant.simulate(1e-3, u[:5])
         wall = _best_of(lambda: plant.simulate(1e-3, u))
@@ -76,11 +76,38 @@ def run(duration_err: float = 1.0, duration_rtf: float = 4.0) -> dict:
     out['rtf_solve_ivp_full'] = round(n * 1e-3 / (time.perf_counter() - t0), 2)
     out['rtf_ratio_full_vs_solve_ivp'] = round(out['rtf_full'] / out['rtf_solve_ivp_full'], 1)
 
-    for model in ('full', 'simplified'):
+    for model in ('full', 'reduced', 'simplified'):
         fast = run_closed_loop(p, Sine(), duration_err, model=model)
         ref = run_closed_loop(p, Sine(), duration_err, model=model, stepper='reference')
         out[f'max_pos_err_{model}_m'] = float(f'{np.abs(fast.z - ref.z).max():.3g}')
     out['err_horizon_s'] = duration_err
+    out['vs_full'] = fidelity()
+    return out
+
+
+#: The fidelity cases of docs/model.md: the paper's sine and 0.2-5 Hz chirps (10 s each).
+FIDELITY_CASES = {'sine_1hz_40mm': Sine(0.04, 1.0)} | {
+    f'chirp_0.2-5hz_{round(a * 1e3)}mm': Chirp(amplitude=a, f0=0.2, f1=5.0, duration=10.0)
+    for a in (0.04, 0.02, 0.01, 0.005)}
+
+
+def fidelity(duration: float = 10.0) -> dict:
+    """
+    Relative RMS differences [%] of the reduced and simplified models from the full one.
+
+    Table 1's estimated values, the default controller, each case of ``FIDELITY_CASES``;
+    ``full_h/2`` and ``full_F_sc+1%`` are the full model against itself, for scale: how much
+    the response moves with the integration step and with 1 % more breakaway friction.
+    """
+    p = preset('table1_estimated')
+    out = {}
+    for case, ref in FIDELITY_CASES.items():
+        rows = {m: model_difference(p, ref, duration, m) for m in ('reduced', 'simplified')}
+        rows['full_h/2'] = model_difference(p, ref, duration, 'full', h=DEFAULT_H['full'] / 2)
+        rows['full_F_sc+1%'] = model_difference(p.replace(F_sc=1.01 * p['F_sc']), ref, duration,
+                                                'full', against_params=p)
+        out[case] = {m: {k: round(100 * v, 2) for k, v in r.items() if k != 'current'}
+                     for m, r in rows.items()}
     return out
 
 

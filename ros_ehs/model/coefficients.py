@@ -15,8 +15,9 @@
 Packing of :class:`~ros_ehs.params.Params` into the flat coefficient vector the kernels read.
 
 The numba kernels take one ``float64`` array instead of a mapping. Derived quantities
-(areas, the corrected flow gain K_q of eq. (8), the Stribeck offset xi(0)) are computed here
-once, so the inner loop does no repeated work.
+(areas, the corrected flow gain K_q of eq. (8), the Stribeck offset xi(0), the reduced
+model's valve gain, compliance and lag) are computed here once, so the inner loop does no
+repeated work.
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ __all__ = ['N_COEF', 'pack', 'flow_gain_kq', 'ff_force_gain']
  C_W, C_CLR, C_RC, C_XBIAS,
  C_AP, C_LIAC, C_STROKE, C_KSTOP, C_KC, C_MP, C_KL,
  C_FCC, C_FSC, C_CC, C_VCS, C_EPSV, C_TAUST,
- C_RENORM, C_XI0, C_LINEAR, C_KQ, C_SMOOTH, N_COEF) = range(52)
+ C_RENORM, C_XI0, C_LINEAR, C_KQ, C_SMOOTH,
+ C_GV0, C_CSV, C_TAUV, C_A2V, N_COEF) = range(56)
 
 
 def flow_gain_kq(p: Params) -> float:
@@ -89,4 +91,7 @@ def pack(p: Params, smooth: bool = True) -> np.ndarray:
     c[C_LINEAR] = 1.0 if p['flow_law'] == 'linear' else 0.0
     c[C_KQ] = flow_gain_kq(p)
     c[C_SMOOTH] = 1.0 if smooth else 0.0
+    # the reduced model's valve, derived from the full model's (kernels import this module)
+    from ros_ehs.model.kernels import valve_reduction
+    valve_reduction(c)
     return c

@@ -37,7 +37,9 @@ __all__ = ['FULL_STATES', 'MODELS', 'Plant', 'SIMPLIFIED_STATES', 'SimResult', '
 FULL_STATES = ('theta_dot', 'theta', 'p_tL', 'p_tR', 'x_dot', 'x', 'p_CP', 'p_CT', 'z_dot',
                'z')
 SIMPLIFIED_STATES = ('p_CP', 'p_CT', 'z_dot', 'z')
-MODELS = {'full': (K.FULL, FULL_STATES), 'simplified': (K.SIMPLIFIED, SIMPLIFIED_STATES)}
+REDUCED_STATES = ('x_dot', 'x', 'p_CP', 'p_CT', 'z_dot', 'z')
+MODELS = {'full': (K.FULL, FULL_STATES), 'simplified': (K.SIMPLIFIED, SIMPLIFIED_STATES),
+          'reduced': (K.REDUCED, REDUCED_STATES)}
 
 # typical magnitude of each state, for the finite-difference Jacobian
 _XSCALE = {'theta_dot': 1.0, 'theta': 1e-3, 'p_tL': 1e6, 'p_tR': 1e6, 'x_dot': 0.1,
@@ -46,10 +48,10 @@ _XSCALE = {'theta_dot': 1.0, 'theta': 1e-3, 'p_tL': 1e6, 'p_tR': 1e6, 'x_dot': 0
 #: Internal step of the fixed-step integrator [s], per model (chosen in docs/model.md).
 #: Full: 50 us keeps the 1 Hz / 0.04 m closed loop within 1e-6 m of the Radau reference.
 #: Simplified: one 1 ms step per control period (~4e-5 m), >= 1000x real time.
-DEFAULT_H = {'full': 50e-6, 'simplified': 1e-3}
+DEFAULT_H = {'full': 50e-6, 'simplified': 1e-3, 'reduced': 100e-6}
 #: Jacobian refresh period, in calls of ``step`` (or samples of ``simulate``). ROS2 keeps
 #: order 2 with a stale Jacobian, so reuse costs little accuracy (docs/model.md).
-DEFAULT_JAC_EVERY = {'full': 4, 'simplified': 1}
+DEFAULT_JAC_EVERY = {'full': 4, 'simplified': 1, 'reduced': 1}
 
 
 class StateSeries:
@@ -254,7 +256,8 @@ class Plant:
         solved = ('theta', 'p_tL', 'p_tR', 'x', 'p_CP', 'p_CT')
         free = [k for k, s in enumerate(names) if s in solved]
         rate_of = {'theta': 'theta_dot', 'x': 'x_dot'}
-        eqs = [names.index(rate_of.get(names[k], names[k])) for k in free]
+        eqs = [names.index(rate_of[names[k]]) if rate_of.get(names[k]) in names
+               else k for k in free]
         scale = self._xscale[free]
         f = np.empty(self.n)
 

@@ -69,8 +69,9 @@ from sensor_msgs.msg import FluidPressure, JointState
 __all__ = ['OPTIONS', 'PlantNode', 'main']
 
 OPTIONS = (
-    Option('model', 'simplified', 'plant model: full (10 states) or simplified (4 states)',
-           choices=('full', 'simplified')),
+    Option('model', 'simplified', 'plant model: full (10 states), reduced (6: the simplified '
+           "with the full model's valve dynamics) or simplified (4 states)",
+           choices=('full', 'reduced', 'simplified')),
     Option('mode', 'realtime', 'realtime: step on a timer; lockstep: one step per command, '
            'publish /clock', choices=('realtime', 'lockstep')),
     Option('rate_hz', 1000.0, 'control period rate [Hz]', 10.0, 5000.0),
