@@ -46,8 +46,9 @@ OPTIONS = (
     Option('holdout', [], 'bags scored with the fitted values, not fitted'),
     Option('out', 'out/identification', 'report folder'),
     Option('free', list(ESTIMATED), 'parameters to fit (default the seven of Table 1)'),
-    Option('model', 'simplified', 'model to fit: simplified or full',
-           choices=('simplified', 'full')),
+    Option('model', 'simplified', 'model to fit: simplified (the paper), reduced (with the '
+           "full model's valve dynamics: for a real rig) or full",
+           choices=('simplified', 'reduced', 'full')),
     Option('cost', 'sae', 'sae (the paper) or sse', choices=('sae', 'sse')),
     Option('initial', '', 'parameters YAML for the start (default Table 1 initial values)'),
     Option('state_topic', contract.STATE.name, 'state topic in the bags'),
