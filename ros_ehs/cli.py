@@ -80,6 +80,8 @@ def _print_identification(result, files, held) -> None:
         print(f'  warning: {w}')
     if result.starts:
         print(f'  robustness: {result.starts["message"]}')
+    if result.excitation:
+        print(f'  excitation: {result.excitation["message"]}')
     if result.adequate:
         print('  verdict: adequate: the residuals are within '
               f'{_worst_ratio(result):.2f}x the sensor noise')
@@ -110,7 +112,7 @@ def _cmd_identify(args) -> int:
         state_topic=args.state_topic, command_topic=args.command_topic,
         pressure_topics=None if args.no_pressures else (args.pressure_p, args.pressure_t),
         workers=args.workers, figures=not args.no_figures, start=args.start, end=args.end,
-        starts=args.starts, seed=args.seed,
+        starts=args.starts, seed=args.seed, advise=not args.no_advice,
         progress=None if args.quiet else progress)
     _print_identification(result, files, held)
     return 0 if result.success and result.adequate else 1
@@ -186,8 +188,12 @@ def main(argv=None) -> int:
                    help='also refit from this many seeded random starts and report how many '
                    'reach the same optimum')
     i.add_argument('--seed', type=int, default=0, help='seed of the random starts')
+    i.add_argument('--no-advice', action='store_true',
+                   help='skip the excitation advice (which parameters the bags do not pin '
+                   'down, and the reference trajectory that would)')
     i.add_argument('--workers', type=int, default=None,
-                   help='processes for the Jacobian (default: 2 for the full model, else 1)')
+                   help='processes for the Jacobian (default: 1 for the simplified model, '
+                   'else 2)')
     i.add_argument('--no-figures', action='store_true')
     i.add_argument('--quiet', action='store_true')
     i.set_defaults(func=_cmd_identify)

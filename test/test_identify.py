@@ -24,6 +24,7 @@ from ros_ehs.bag.experiment import load_experiment
 from ros_ehs.errors import IdentificationWarning, InputError
 from ros_ehs.identify import identify, score
 from ros_ehs.params import ESTIMATED, preset
+from ros_ehs.reference import Sine
 from ros_ehs.synthetic import record_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -168,6 +169,10 @@ def test_cli_writes_params_report_and_json(tmp_path, capsys):
     s = json.loads((tmp_path / 'rep' / 'summary.json').read_text())
     assert s['parameters']['F_sc']['value'] == pytest.approx(TRUE['F_sc'], rel=0.02)
     assert 'held-out sample_sine_1hz' in s['fit']
+    # the paper's 1 Hz / 40 mm sine with pressures pins all seven down: no advice to record
+    assert s['excitation']['identifiability']['weak'] == []
+    assert s['excitation']['recommended'] is None
+    assert 'excitation: every parameter is pinned down' in out
     from ros_ehs.params import load_yaml
     p = load_yaml(tmp_path / 'rep' / 'identified_params.yaml')
     assert p['c_c'] == pytest.approx(TRUE['c_c'], rel=0.02)
@@ -290,3 +295,40 @@ def test_a_rig_that_is_not_the_model_is_recovered_or_flagged(tmp_path, seed):
     errors = {n: abs(r.x[n] / truth[n] - 1.0) for n in factors}
     assert r.adequate, r.inadequacy
     assert max(errors.values()) <= 0.02, errors
+
+
+def test_the_report_names_what_the_bag_cannot_pin_down_and_an_excitation_that_does(
+        tmp_path, capsys):
+    """
+    A 4 Hz / 40 mm bag (the valve saturates) leaves the rounding radius r_c loose.
+
+    The report says so and recommends a trajectory for the reference node; a bag recorded
+    with it, fitted jointly from the first fit (the command's own workflow), pins r_c down.
+    """
+    from ros_ehs.identify.design import trajectory, PINNED
+    bag = tmp_path / 'fast'
+    record_experiment(bag, reference=Sine(0.04, 4.0), seed=3)
+    rc = cli.main(['identify', str(bag), '--out', str(tmp_path / 'rep'), '--quiet',
+                   '--no-figures'])
+    out = capsys.readouterr().out
+    summary = json.loads((tmp_path / 'rep' / 'summary.json').read_text())
+    ident = summary['excitation']['identifiability']
+    assert rc == 0 and ident['weak'] == ['r_c'], ident
+    first = summary['parameters']['r_c']
+    assert first['rel_stderr'] > 2 * PINNED
+    rec = summary['excitation']['recommended']
+    assert rec['rel_stderr']['r_c'] <= PINNED and 'ros2 run ros_ehs reference' in rec['command']
+    assert 'excitation: this excitation does not pin down r_c' in out
+    # the advice, followed
+    record_experiment(tmp_path / 'advised', reference=trajectory(rec['reference']), seed=9)
+    rc = cli.main(['identify', str(bag), str(tmp_path / 'advised'), '--out',
+                   str(tmp_path / 'rep2'), '--initial',
+                   str(tmp_path / 'rep' / 'identified_params.yaml'), '--quiet', '--no-figures'])
+    joint = json.loads((tmp_path / 'rep2' / 'summary.json').read_text())
+    assert rc == 0 and joint['adequate']
+    assert joint['excitation']['identifiability']['weak'] == []
+    assert joint['parameters']['r_c']['rel_stderr'] <= PINNED
+    truth = TRUE['r_c']
+    assert abs(joint['parameters']['r_c']['value'] / truth - 1) < 0.02
+    assert abs(first['value'] / truth - 1) > 0.02         # it was loose before
+    assert 'every parameter is pinned down' in joint['excitation']['message']

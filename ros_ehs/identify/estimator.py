@@ -274,6 +274,9 @@ class IdentificationResult:
     stderr_widening: float = 1.0
     #: :func:`multistart`'s summary when it was run (how many random starts reach this fit)
     starts: dict = field(default_factory=dict)
+    #: :func:`ros_ehs.identify.design.recommend`'s answer when it was run: what the bags pin
+    #: down and the excitation that would pin down the rest
+    excitation: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """Return a JSON-ready summary."""
@@ -291,6 +294,7 @@ class IdentificationResult:
                             'matrix': np.round(self.correlation, 4).tolist()},
             'adequate': self.adequate, 'inadequacy': self.inadequacy, 'advice': self.advice,
             'stderr_widening': self.stderr_widening, 'starts': self.starts,
+            'excitation': self.excitation,
             'fit': self.metrics, 'noise_sigma': self.sigma, 'warnings': self.warnings,
             'history': self.history,
         }

@@ -22,6 +22,7 @@ import warnings
 
 from ros_ehs.bag.experiment import load_experiments
 from ros_ehs.errors import IdentificationWarning, InputError
+from ros_ehs.identify.design import identifiability, recommend
 from ros_ehs.identify.estimator import (IdentificationResult, identify, multistart, score,
                                         SIGNALS)
 from ros_ehs.identify.report import write_report
@@ -44,7 +45,7 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
                        max_nfev: int = 100,
                        start: float | None = None, end: float | None = None,
                        starts: int = 0, seed: int = 0,
-                       figures: bool = True,
+                       advise: bool = True, figures: bool = True,
                        progress: Callable[[dict], None] | None = None
                        ) -> tuple[IdentificationResult, dict[str, Path], dict]:
     """
@@ -54,6 +55,9 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
     ``start``/``end``: fit only that window of each bag [s from its first message].
     ``starts``: also refit from that many seeded random starts and report how many reach the
     same optimum (``result.starts``, ``summary.json``).
+    ``advise``: name the parameters the bags do not pin down and the excitation that would
+    (:func:`ros_ehs.identify.design.recommend`; ``result.excitation``): an adequate fit only,
+    since the standard errors of another mean little; 5-10 s when some parameter is weak.
     Returns the result, the written files and the hold-out metrics.
     """
     if not bags:
@@ -76,6 +80,11 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
         result.starts = multistart(exps, result, starts=starts, seed=seed, free=free,
                                    model=model, cost=cost, signals=signals, base=base,
                                    segment=segment, workers=workers, max_nfev=max_nfev)
+    if advise and result.adequate and result.params is not None:
+        result.excitation = recommend(result, exps, signals=signals, segment=segment)
+    elif advise:
+        result.excitation = {'identifiability': identifiability(result), 'recommended': None,
+                             'message': 'no excitation advice: the fit is not adequate'}
     held_metrics = {}
     if held and result.params is not None:
         held_metrics = score(result.params, held, model=model, signals=signals,

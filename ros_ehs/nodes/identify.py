@@ -60,6 +60,8 @@ OPTIONS = (
     Option('starts', 0, 'also refit from this many seeded random starts and report how many '
            'reach the same optimum', 0, 1000),
     Option('seed', 0, 'seed of the random starts', 0, 2**31 - 1),
+    Option('advise', True, 'name the parameters the bags do not pin down and the reference '
+           'trajectory that would'),
     Option('start', 0.0, "fit from this time on [s from each bag's first message]", 0.0, 1e9),
     Option('end', 0.0, 'fit up to this time (0: to the end) [s from the first message '
            'of each bag]', 0.0, 1e9),
@@ -101,7 +103,7 @@ class IdentifyNode(Node):
                                  if o['use_pressures'] else None),
                 max_nfev=int(o['max_nfev']), figures=bool(o['figures']),
                 start=float(o['start']) or None, end=float(o['end']) or None,
-                starts=int(o['starts']), seed=int(o['seed']),
+                starts=int(o['starts']), seed=int(o['seed']), advise=bool(o['advise']),
                 progress=lambda e: log.info(f'iteration {e["iteration"]:3d}  '
                                             f'cost {e["cost"]:.6g}'))
         except EhsError as err:
@@ -117,6 +119,9 @@ class IdentifyNode(Node):
             log.warning(w)
         if result.starts:
             log.info(f'robustness: {result.starts["message"]}')
+        if result.excitation:
+            weak = result.excitation.get('recommended') is not None
+            (log.warning if weak else log.info)(f'excitation: {result.excitation["message"]}')
         if result.adequate:
             log.info('verdict: adequate (the sensor noise explains the residuals)')
         else:
