@@ -21,8 +21,10 @@ chirps, 10 s each) for the one that, recorded as a second bag and fitted jointly
 first, pins the weak parameters down best. Each candidate is simulated in closed loop with
 the fitted parameters and the bag's sensor noise; its Fisher information ``J'J`` (J of the
 same normalised replay residuals the fit uses) is added to the first bag's, and the predicted
-standard errors are ``sqrt(diag((J0'J0 + J'J)^-1))``, scaled as the fit's are. The prediction
-assumes the fitted model is right; the fit of the new bag checks it.
+standard errors are ``sqrt(diag((J0'J0 + J'J)^-1))``, scaled as the fit's are (pi/2 for the
+SAE cost) and by the fit's largest widening for correlated residuals (conservative: the new
+bag is assumed as correlated as the old). The prediction assumes the fitted model is right;
+the fit of the new bag checks it.
 """
 
 from __future__ import annotations
