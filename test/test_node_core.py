@@ -201,3 +201,35 @@ def test_live_options_follow_accepted_changes_read_only_ones_do_not():
     update_options(opt, [Parameter('watchdog_periods', value=5),
                          Parameter('rate_hz', value=500.0)], OPTIONS)
     assert opt['watchdog_periods'] == 5 and opt['rate_hz'] == 1000.0
+
+
+_RT_CHECK = """
+import os, sys
+from ros_ehs.nodes.ros_common import set_realtime
+if sys.argv[1] == 'drop':
+    os.setgid(65534)
+    os.setuid(65534)
+print(set_realtime(0) == '')
+print(set_realtime(10))
+print(sorted({os.sched_getscheduler(int(t)) for t in os.listdir('/proc/self/task')}))
+"""
+
+
+@pytest.mark.parametrize('who', ['self', 'drop'])
+def test_rt_priority_is_applied_to_every_thread_or_refused_with_a_reason(who):
+    """The loop nodes' ``rt_priority``: SCHED_FIFO on all threads, or a reason why not."""
+    import os
+    import subprocess
+    import sys
+    if who == 'drop' and os.geteuid() != 0:
+        who = 'self'          # already unprivileged: the refusal path runs as is
+    out = subprocess.run([sys.executable, '-c', _RT_CHECK, who], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    zero, said, policies = out.stdout.strip().splitlines()
+    assert zero == 'True'                       # 0: the default scheduler, nothing said
+    if said.startswith('threads on SCHED_FIFO priority 10'):
+        assert policies == f'[{os.SCHED_FIFO}]'
+    else:
+        assert 'rt_priority 10 not applied' in said and 'CAP_SYS_NICE' in said, said
+        assert policies == f'[{os.SCHED_OTHER}]'

@@ -19,7 +19,9 @@ separate processes for ``--seconds`` of sim time; the plant reports how many ste
 second of wall time the loop made. In the same run, two yardsticks: the in-process loop (no
 DDS, :func:`ros_ehs.closed_loop.run_closed_loop`), and a bare rclpy ping-pong sending each
 message as soon as the last echo is back (the most round trips per second rclpy makes on this
-machine: no lock-step over rclpy can be faster), best effort and with the lock-step QoS.
+machine: no lock-step over rclpy can be faster), best effort and with the lock-step QoS; and
+the barest lock-step of the bench's own topology (``--relay``: a third process turns each
+clock into the reference the pong waits for, reliable), none of our code in any of them.
 Last line: one JSON object.
 """
 
@@ -40,12 +42,12 @@ from ros_ehs.reference import Sine
 
 def _volley(dom: int, seconds: float, extra: list[str]) -> dict:
     """Return the ceiling: a bare rclpy ping-pong, back to back (``extra``: its options)."""
+    roles = ['pong', 'relay', 'volley'] if '--relay' in extra else ['pong', 'volley']
     with Launch(dom) as bare:
-        bare.start('pong', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', 'pong', *extra])
-        bare.start('volley', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', 'volley',
-                                  *extra])
+        for role in roles:
+            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *extra])
         time.sleep(2.0 + seconds)
-        bare.stop(['volley', 'pong'])
+        bare.stop(roles[::-1])
         return json.loads(bare['volley'].output().strip().splitlines()[-1])
 
 
@@ -69,7 +71,8 @@ def main(argv=None) -> int:
                 raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
             launch.stop(['reference', 'controller', 'plant'])
             f = launch['plant'].figures()
-        v, vr = (_volley(dom, a.seconds, extra) for extra in ([], ['--reliable']))
+        v, vr, v3 = (_volley(dom, a.seconds, extra)
+                     for extra in ([], ['--reliable'], ['--reliable', '--relay']))
     t0 = time.perf_counter()
     run_closed_loop(Params(), Sine(), a.seconds, model=a.model)
     inproc = a.seconds * 1000 / (time.perf_counter() - t0)
@@ -84,7 +87,11 @@ def main(argv=None) -> int:
                    'lockstep_vs_bare_pingpong': round(f['steps_per_s'] / v['volleys_per_s'], 3),
                    'bare_reliable_round_trips_per_s': round(vr['volleys_per_s'], 1),
                    'lockstep_vs_bare_reliable': round(f['steps_per_s'] / vr['volleys_per_s'],
-                                                      3)})
+                                                      3),
+                   'bare_relay_round_trips_per_s': round(v3['volleys_per_s'], 1),
+                   'lockstep_vs_bare_relay': round(f['steps_per_s'] / v3['volleys_per_s'], 3),
+                   'bare_relay_vs_bare_pingpong': round(v3['volleys_per_s']
+                                                        / v['volleys_per_s'], 3)})
 
 
 if __name__ == '__main__':

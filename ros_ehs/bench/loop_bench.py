@@ -57,16 +57,22 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench loop')
     ap.add_argument('--seconds', type=float, default=20.0)
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
+    ap.add_argument('--rt-priority', type=int, default=0,
+                    help='SCHED_FIFO priority of our loop nodes and of the bare ping-pong alike '
+                    '(the rt_priority option of the nodes; 0: the default scheduler)')
     a = ap.parse_args(argv)
+    rt = {'rt_priority': a.rt_priority} if a.rt_priority else {}
+    rt_bare = ['--rt-priority', str(a.rt_priority)] if a.rt_priority else []
     with domain_id() as dom:
         with Launch(dom) as launch:
-            launch.start('plant', {'model': a.model})
-            launch.start('controller')
+            launch.start('plant', {'model': a.model, **rt})
+            launch.start('controller', rt)
             cpu, f = _measure(launch, ('plant', 'controller'),
                               ('plant', 'watchdog armed'), a.seconds)
         with Launch(dom) as bare:
-            bare.start('pong', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', 'pong'])
-            bare.start('ping', cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', 'ping'])
+            for role in ('pong', 'ping'):
+                bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role,
+                                      *rt_bare])
             time.sleep(2.0)
             c0 = {n: _cpu(bare[n].pid) for n in ('ping', 'pong')}
             t0 = time.monotonic()
@@ -77,6 +83,7 @@ def main(argv=None) -> int:
             b = json.loads(bare['ping'].output().strip().splitlines()[-1])
     figures = {
         'model': a.model, 'seconds': a.seconds, 'rate_hz': 1000,
+        'rt_priority': a.rt_priority,
         'fresh_cycle_fraction': round(f['fresh_cycle_fraction'], 5),
         'cycles': f['cycles'], 'watchdog_trips': f['watchdog_trips'],
         'period_p50_ms': round(f['period_p50_ms'], 4),

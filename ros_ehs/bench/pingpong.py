@@ -24,12 +24,19 @@ plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointSt
 * ``pong``: echoes each ping from its subscription callback, with the same stamp.
 * ``volley``: the next ping goes out as soon as the echo of the last is back (a bare
   lock-step): round trips per second.
+* ``relay`` and ``--relay``: the barest lock-step *with a reference process*, the lock-step
+  bench's topology. The volley also publishes a ``rosgraph_msgs/Clock`` with each ping (as
+  the plant publishes ``/clock`` before its state); the relay answers each clock k with a
+  JointState stamped k + 1 (and k itself first); the pong echoes ping k only once it holds
+  the relay's message k (as the controller waits for the reference of the state's stamp).
 
-``--reliable`` uses the lock-step loop's QoS (reliable, depth 1000) instead. On SIGINT the
-ping or volley prints its figures as one JSON line.
+``--reliable`` uses the lock-step loop's QoS (reliable, depth 1000) instead;
+``--rt-priority N`` puts every thread on SCHED_FIFO priority N, as the loop nodes' option
+``rt_priority`` does. On SIGINT the ping or volley prints its figures as one JSON line.
 """
 
 import json
+import os
 import signal
 import sys
 import time
@@ -40,6 +47,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 
 _QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -56,7 +64,7 @@ def _pct(values, q):
 
 
 def main(argv=None) -> int:
-    """Run ``ping``, ``pong`` or ``volley`` until SIGINT."""
+    """Run ``ping``, ``pong``, ``volley`` or ``relay`` until SIGINT."""
     args = sys.argv[1:] if argv is None else argv
     role = args[0]
     qos = _RELIABLE if '--reliable' in args else _QOS
@@ -67,22 +75,64 @@ def main(argv=None) -> int:
     node = rclpy.create_node(role)
     exe = EventsExecutor()
     exe.add_node(node)
+    if '--rt-priority' in args:
+        prio = os.sched_param(int(args[args.index('--rt-priority') + 1]))
+        for tid in os.listdir('/proc/self/task'):
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, prio)
     msg = JointState(name=['piston', 'spool', 'servo_valve'], position=[0.01, 4e-5, 0.0],
                      velocity=[0.02, 0.0, 0.0], effort=[3.0, 0.0, 0.001])
     st = {'k': 0, 'fresh': 0, 'cycles': 0, 'back': 0, 'sent': 0.0, 't0': None, 'n': 0,
           'rx': None, 'trips': 0, 'tripped': False}
     rtt = []
 
-    if role == 'pong':
+    relay = '--relay' in args
+    if role == 'pong' and relay:
+        pub = node.create_publisher(JointState, 'pong', qos)
+        held, waiting = set(), {}
+
+        def on_ping(m):
+            k = m.header.stamp.sec
+            if k in held:
+                held.discard(k)
+                pub.publish(m)
+            else:
+                waiting[k] = m
+
+        def on_ref(r):
+            k = r.header.stamp.sec
+            if k in waiting:
+                pub.publish(waiting.pop(k))
+            else:
+                held.add(k)
+        node.create_subscription(JointState, 'ping', on_ping, qos)
+        node.create_subscription(JointState, 'ref', on_ref, qos)
+    elif role == 'pong':
         pub = node.create_publisher(JointState, 'pong', qos)
         node.create_subscription(JointState, 'ping', pub.publish, qos)
+    elif role == 'relay':
+        pub = node.create_publisher(JointState, 'ref', qos)
+
+        def on_clock(c):
+            k = c.clock.sec
+            if not st['k']:
+                msg.header.stamp.sec = k
+                pub.publish(msg)
+            st['k'] = k
+            msg.header.stamp.sec = k + 1
+            pub.publish(msg)
+        node.create_subscription(ClockMsg, 'clock', on_clock, qos)
     else:
         pub = node.create_publisher(JointState, 'ping', qos)
+        pub_clock = node.create_publisher(ClockMsg, 'clock', qos) if relay else None
+        clock_msg = ClockMsg()
 
         def send():
             st['k'] += 1
             msg.header.stamp.sec = st['k']
             st['sent'] = time.monotonic()
+            if pub_clock is not None:
+                clock_msg.clock.sec = st['k']
+                pub_clock.publish(clock_msg)
             pub.publish(msg)
 
         def on_pong(m):

@@ -62,7 +62,7 @@ from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.nodes.loop_stats import Window
 from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics,
                                       EPOCH_PERIODS, ERROR, node_params, OK, Option,
-                                      qos_profile, read_msg, run, steady_clock,
+                                      qos_profile, read_msg, RT_PRIORITY, run, steady_clock,
                                       update_options, validate_changes, WARN)
 from ros_ehs.params import CONTROL_SPECS, Params, spec
 import ros_ehs_msgs_py as contract
@@ -85,6 +85,7 @@ OPTIONS = (
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
     Option('future_tolerance', 0.05, 'real time: a state stamped further ahead of this '
            "node's clock is dropped and counted [s]", 1.0e-4, 3600.0, read_only=False),
+    RT_PRIORITY,
 )
 
 
@@ -94,6 +95,7 @@ class ControllerNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('controller', **kwargs)
         self.opt = declare_options(self, OPTIONS)
+        self.rt_priority = int(self.opt['rt_priority'])     # applied by run()
         declare_specs(self, SPECS, Params())
         self.params = node_params(self, Params(), SPECS)
         self.dt = 1.0 / float(self.opt['rate_hz'])

@@ -30,6 +30,7 @@ from __future__ import annotations
 import gc
 import importlib
 import math
+import os
 import signal
 import sys
 from typing import Any, Callable, Iterable, NamedTuple, Sequence
@@ -50,10 +51,10 @@ from ros_ehs.errors import EhsError, ParameterError
 from ros_ehs.params import Params, ParamSpec
 import ros_ehs_msgs_py as contract
 
-__all__ = ['EPOCH_PERIODS', 'OK', 'WARN', 'ERROR', 'Option', 'check_names', 'declare_options',
-           'declare_specs', 'diagnostics', 'msg_class', 'qos_profile', 'qos_spec', 'read_msg',
-           'rejected_names', 'ros_args', 'run', 'steady_clock', 'update_options',
-           'validate_changes']
+__all__ = ['EPOCH_PERIODS', 'OK', 'WARN', 'ERROR', 'Option', 'RT_PRIORITY', 'check_names',
+           'declare_options', 'declare_specs', 'diagnostics', 'msg_class', 'qos_profile',
+           'qos_spec', 'read_msg', 'rejected_names', 'ros_args', 'run', 'set_realtime',
+           'steady_clock', 'update_options', 'validate_changes']
 
 OK, WARN, ERROR = 0, 1, 2
 
@@ -307,6 +308,34 @@ def ros_args(argv: Sequence[str]) -> list[str]:
     return out
 
 
+def set_realtime(priority: int) -> str:
+    """
+    Put every thread of this process (the executor's and the middleware's) on SCHED_FIFO.
+
+    ``priority`` 1-99; 0 leaves the default scheduler. Threads started later inherit it.
+    Returns what was done, or why not (no CAP_SYS_NICE and no ``ulimit -r``): never raises,
+    a node without the privilege runs on as before.
+    """
+    if priority <= 0:
+        return ''
+    try:
+        param = os.sched_param(priority)
+        for tid in os.listdir('/proc/self/task'):
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, param)
+    except (OSError, AttributeError) as err:
+        return (f'rt_priority {priority} not applied ({getattr(err, "strerror", err)}): it '
+                'needs CAP_SYS_NICE or an rtprio limit (ulimit -r, /etc/security/limits.conf)')
+    return f'threads on SCHED_FIFO priority {priority}'
+
+
+#: The ``rt_priority`` option of the loop nodes (plant and controller), as ros2_control's
+#: controller manager has ``thread_priority``.
+RT_PRIORITY = Option('rt_priority', 0, 'real time: SCHED_FIFO priority of all the threads of '
+                     'the node (1-99), so that other work on the machine cannot delay a '
+                     'period; 0: the default scheduler. Needs CAP_SYS_NICE or ulimit -r',
+                     0, 99)
+
+
 def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         executor: str = 'events') -> int:
     """
@@ -330,6 +359,10 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     try:
         node = factory()
         check_names(node)
+        said = set_realtime(int(getattr(node, 'rt_priority', 0)))
+        if said:
+            (node.get_logger().info if said.startswith('threads') else
+             node.get_logger().warning)(said)
         # Real time: a full garbage collection walks every object of rclpy, numpy, numba and
         # scipy (about 85000, 46 ms on the project's VM: a dozen missed periods at 1 kHz).
         # What exists after start-up lives as long as the node: move it out of the
