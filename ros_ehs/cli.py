@@ -67,6 +67,7 @@ def _cmd_params_doc(args) -> int:
 
 
 def _print_identification(result, files, held) -> None:
+    from ros_ehs.identify.estimator import worst_noise_ratio
     print(f'identification ({result.model} model, {result.cost_kind.upper()}): '
           f'{result.message} after {result.iterations} iterations, {result.nfev} evaluations, '
           f'{result.wall_s:.1f} s')
@@ -84,7 +85,7 @@ def _print_identification(result, files, held) -> None:
         print(f'  excitation: {result.excitation["message"]}')
     if result.adequate:
         print('  verdict: adequate: the residuals are within '
-              f'{_worst_ratio(result):.2f}x the sensor noise')
+              f'{worst_noise_ratio(result.metrics):.2f}x the sensor noise')
     else:
         print('  verdict: NOT ADEQUATE; do not trust these values:')
         for w in result.inadequacy:
@@ -93,11 +94,6 @@ def _print_identification(result, files, held) -> None:
             print(f'    advice: {a}')
     for k, p in files.items():
         print(f'wrote {p}')
-
-
-def _worst_ratio(result) -> float:
-    return max((m['noise_ratio'] for sig in result.metrics.values() for m in sig.values()
-                if 'noise_ratio' in m), default=float('nan'))
 
 
 def _cmd_identify(args) -> int:

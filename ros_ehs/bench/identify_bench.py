@@ -35,6 +35,7 @@ from ros_ehs.bag.experiment import load_experiment
 from ros_ehs.bench import report
 from ros_ehs.errors import IdentificationWarning
 from ros_ehs.identify import identify
+from ros_ehs.identify.estimator import worst_noise_ratio
 from ros_ehs.params import ESTIMATED, preset
 from ros_ehs.synthetic import record_experiment
 
@@ -59,8 +60,7 @@ def _mismatch() -> dict:
         out[model] = {
             'wall_s': round(wall, 2), 'iterations': r.iterations, 'nfev': r.nfev,
             'status': r.status, 'adequate': r.adequate,
-            'worst_noise_ratio': round(max(m['noise_ratio'] for sig in r.metrics.values()
-                                           for m in sig.values()), 2),
+            'worst_noise_ratio': round(worst_noise_ratio(r.metrics), 2),
             'stderr_widening': round(r.stderr_widening, 2),
             'covered_2sigma': sum(abs(r.x[n] - truth[n]) <= 2 * r.stderr[n] for n in ESTIMATED),
             'rel_err': {n: round((r.x[n] - truth[n]) / truth[n], 4) for n in ESTIMATED},

@@ -515,8 +515,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         notes.append(f'the residuals are correlated: standard errors widened up to '
                      f'{widening:.1f}x for it (they assume independent samples)')
     se = se * sc
-    worst = max((m['noise_ratio'] for sig in metrics.values() for m in sig.values()
-                 if math.isfinite(m['noise_ratio'])), default=1.0)
+    worst = worst_noise_ratio(metrics)
     if SMALL_MODEL_ERROR < worst <= NOISE_RATIO_LIMIT:
         notes.append(f'the worst residual is {worst:.2f}x the sensor noise: a small model '
                      'error remains, and it can bias the values by more than their standard '
@@ -562,6 +561,12 @@ NOISE_RATIO_LIMIT = 2.0
 #: model on full-model bags sits at about 1.15 and its values were up to 1.6 % off, beyond their
 #: standard errors for 4 of 7 parameters.
 SMALL_MODEL_ERROR = 1.1
+
+
+def worst_noise_ratio(metrics: dict) -> float:
+    """Return the largest ``noise_ratio`` of any signal in ``metrics`` (NaN when none)."""
+    return max((m['noise_ratio'] for sig in metrics.values() for m in sig.values()
+                if math.isfinite(m.get('noise_ratio', math.nan))), default=math.nan)
 
 
 def adequacy(metrics: dict, status: int, max_nfev: int, model: str

@@ -32,7 +32,7 @@ import os
 from pathlib import Path
 import re
 
-from ros_ehs.identify.estimator import IdentificationResult
+from ros_ehs.identify.estimator import IdentificationResult, worst_noise_ratio
 from ros_ehs.params import save_yaml
 
 __all__ = ['write_report']
@@ -90,7 +90,7 @@ def write_report(result: IdentificationResult, experiments, out: str | os.PathLi
                           for k, v in m.items() if k in ('z_dot', 'z'))
         ax[0].set_title(f'{name}: {title}')
         if not result.adequate:
-            worst = max((v['noise_ratio'] for v in m.values()), default=math.nan)
+            worst = worst_noise_ratio({name: m})
             fig.suptitle(f'NOT ADEQUATE: residuals up to {worst:.1f}x the sensor noise'
                          + ('; stopped at the evaluation limit' if result.status == 0 else '')
                          + ' (summary.json: why, and what to run instead)', color='C3',
