@@ -226,3 +226,21 @@ def test_bad_inputs_give_clear_errors():
     with pytest.raises(ParameterError, match='`model`'):
         Plant(EST, 'quantum')
     assert np.array_equal(plant.step(x, [0.0, 0.0], 0.0), x)
+
+
+@pytest.mark.parametrize('model', ['full', 'reduced', 'simplified'])
+def test_the_unchecked_advance_is_step_to_the_bit_and_says_when_the_state_leaves(model):
+    checked, fast = Plant(EST, model), Plant(EST, model)
+    x = checked.equilibrium()
+    y = x.copy()
+    for i in np.random.default_rng(3).uniform(-0.01, 0.01, 200):
+        u = np.array([i, 0.0])
+        x = checked.step(x, u, 1e-3)
+        assert fast.advance(y, u, 1e-3)
+    assert np.array_equal(x, y)
+    bad = y.copy()
+    bad[0] = np.nan
+    assert not fast.advance(bad, np.zeros(2), 1e-3)
+    out = y.copy()
+    out[fast.state_names.index('z')] = 1.01 * EST['l_iac']     # past the cylinder's end
+    assert not fast.advance(out, np.zeros(2), 1e-3)

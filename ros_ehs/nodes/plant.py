@@ -53,7 +53,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.node import Node
-from ros_ehs.errors import EhsError
 from ros_ehs.launch import FIGURES
 from ros_ehs.model.plant import Plant
 from ros_ehs.nodes.loop_stats import LoopStats
@@ -117,6 +116,7 @@ class PlantNode(Node):
         self.params = node_params(self, Params(), PLANT_SPECS)
         self.plant = Plant(self.params, self.opt['model'])
         self.x = self.plant.equilibrium(z=float(self.opt['initial_z']))
+        self._x_next = self.x.copy()
         # compile the kernels now, on a throw-away copy (the loop's plant starts fresh)
         Plant(self.params, self.opt['model']).step(self.x, np.zeros(2), 1e-3)
         self._iz = self.plant.state_names.index('z')
@@ -207,6 +207,7 @@ class PlantNode(Node):
 
     # -- commands ----------------------------------------------------------------------------
     def _on_command(self, msg: JointState) -> None:
+        now = time.monotonic()     # on arrival, as the bare ping-pong's round trip ends
         c = read_msg(self, contract.command_from_msg, msg, 'command')
         if c is None:
             self.bad_commands += 1
@@ -228,7 +229,6 @@ class PlantNode(Node):
         if c.stamp_ns <= self._last_cmd_stamp:
             self.stale_commands += 1
             return
-        now = time.monotonic()
         j = (c.stamp_ns - self.t0_ns) // self._dt_ns % _RING
         if self._sent_stamp[j] == c.stamp_ns:
             self.stats.rtt.add(now - self._sent_time[j])
@@ -248,7 +248,7 @@ class PlantNode(Node):
             self.stats.tick(now, True)
             self._step(self.i_cmd)
             self._last_progress = now
-            self._publish(now)
+            self._publish()
             if self.finished:
                 self._t_last = now
                 self.get_logger().info(f'lock-step run complete: {self.k} steps, '
@@ -258,13 +258,16 @@ class PlantNode(Node):
     # -- stepping ----------------------------------------------------------------------------
     def _step(self, i: float) -> None:
         self.u[0] = self.applied = i
-        try:
-            self.x = self.plant.step(self.x, self.u, self.dt)
-        except EhsError as err:      # diverged or left the cylinder: keep the last state
+        nxt = self._x_next
+        nxt[:] = self.x
+        if self.plant.advance(nxt, self.u, self.dt):      # the unchecked fast path
+            self.x, self._x_next = nxt, self.x
+        else:      # diverged or left the cylinder: keep the last state
             self.faults += 1
             self.i_cmd = 0.0
-            self.get_logger().error(f'model step failed, state held: {err}',
-                                    throttle_duration_sec=1.0)
+            self.get_logger().error(f'model step failed at i = {i!r} A (the state left the '
+                                    'model: non-finite, or the piston outside the '
+                                    'cylinder), state held', throttle_duration_sec=1.0)
         self.k += 1
         if self.lockstep and self.opt['duration'] > 0:
             self.finished = self.k * self.dt >= self.opt['duration'] - 1e-12
@@ -305,7 +308,7 @@ class PlantNode(Node):
             self.get_logger().debug('watchdog: commands are back')
         for _ in range(int(n)):
             self._step(i)
-            self._publish(now)
+            self._publish()
 
     def _run_loop(self) -> None:
         nxt = time.monotonic_ns()
@@ -330,14 +333,14 @@ class PlantNode(Node):
             if now >= self._first_due:
                 self._sent_first = True
                 self._last_progress = now
-                self._publish(now)
+                self._publish()
         elif now - self._last_progress >= float(self.opt['resend_period']) and \
                 not self.finished:
             self.resends += 1
-            self._publish(now)
+            self._publish()
 
     # -- publishing --------------------------------------------------------------------------
-    def _publish(self, now: float) -> None:
+    def _publish(self) -> None:
         st = self.stamp_ns()
         x = self.x
         if self.pub_clock is not None:
@@ -351,7 +354,9 @@ class PlantNode(Node):
             float(self.params['A_p'] * (x[self._ipa] - x[self._ipb])), xv, self.applied))
         j = (st - self.t0_ns) // self._dt_ns % _RING
         self._sent_stamp[j] = st
-        self._sent_time[j] = now
+        # the round trip starts here, at the publish, as the bare ping-pong's does: the
+        # model step before it is the plant's compute, not the loop's transport
+        self._sent_time[j] = time.monotonic()
         self.pub_state.publish(self._msg)
         for k, pub in ((0, self.pub_p), (1, self.pub_t)):
             if pub.get_subscription_count():       # only when someone listens
