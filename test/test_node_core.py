@@ -233,3 +233,17 @@ def test_rt_priority_is_applied_to_every_thread_or_refused_with_a_reason(who):
     else:
         assert 'rt_priority 10 not applied' in said and 'CAP_SYS_NICE' in said, said
         assert policies == f'[{os.SCHED_OTHER}]'
+
+
+@pytest.mark.parametrize('n', [0, 1, 2, 5, 101, 25000])
+def test_window_median_p99_and_max_in_one_pass_are_numpys(n):
+    w = Window(20000)
+    for v in np.random.default_rng(n).exponential(1e-3, n):
+        w.add(v)
+    got = w.p50_p99_max()
+    if n == 0:
+        assert all(math.isnan(g) for g in got)
+        return
+    v = w.values()
+    assert got == pytest.approx((np.percentile(v, 50), np.percentile(v, 99), v.max()),
+                                rel=1e-12)

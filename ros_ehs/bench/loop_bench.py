@@ -15,10 +15,12 @@
 ``python -m ros_ehs.bench loop``: the plant and controller nodes at 1 kHz over DDS.
 
 Runs plant and controller as separate processes in real time for ``--seconds`` (default 20)
-after the loop closes, then, in the same run, a bare rclpy ping-pong with the same executor,
-QoS and message size. Prints the plant's loop figures, the CPU share of each process and the
-round-trip and CPU ratios to the bare ping-pong (``ros_ehs.bench.pingpong``: rclpy alone, no
-code of ours), and which of the loop's targets the run met; the last line is one JSON object.
+after the loop closes and, in the same run, a bare rclpy ping-pong with the same executor,
+QoS and message size for as long, in ``--rounds`` alternating rounds (ours first, then the
+bare loop first, ...): counts are summed over the rounds, percentiles averaged, maxima
+kept. Prints the plant's loop figures, the CPU share of each process and the round-trip and
+CPU ratios to the bare ping-pong (``ros_ehs.bench.pingpong``: rclpy alone, no code of ours),
+and which of the loop's targets the run met; the last line is one JSON object.
 """
 
 from __future__ import annotations
@@ -39,23 +41,58 @@ def _cpu(pid: int) -> float:
     return t.user + t.system
 
 
-def _measure(launch: Launch, names: tuple[str, str], ready: tuple[str, str],
-             seconds: float) -> tuple[dict, dict]:
-    if not launch.wait_for_log(*ready, timeout=60):
-        raise RuntimeError(f'{ready[0]} did not start:\n' + launch[ready[0]].output()[-2000:])
+def _measure(launch: Launch, names: tuple[str, str], seconds: float) -> dict:
+    """CPU share of each of ``names`` over ``seconds`` of wall time."""
     c0 = {n: _cpu(launch[n].pid) for n in names}
     t0 = time.monotonic()
     time.sleep(seconds)
     wall = time.monotonic() - t0
-    cpu = {n: (_cpu(launch[n].pid) - c0[n]) / wall for n in names}
-    launch.stop()
-    return cpu, launch[names[0]].figures()
+    return {n: (_cpu(launch[n].pid) - c0[n]) / wall for n in names}
+
+
+def _ours(dom: int, seconds: float, model: str, rt: dict) -> tuple[dict, dict]:
+    with Launch(dom) as launch:
+        launch.start('plant', {'model': model, **rt})
+        launch.start('controller', rt)
+        if not launch.wait_for_log('plant', 'watchdog armed', timeout=60):
+            raise RuntimeError('the loop did not close:\n' + launch['plant'].output()[-2000:])
+        cpu = _measure(launch, ('plant', 'controller'), seconds)
+        launch.stop()
+        return cpu, launch['plant'].figures()
+
+
+def _bare(dom: int, seconds: float, rt: list[str]) -> tuple[dict, dict]:
+    with Launch(dom) as bare:
+        for role in ('pong', 'ping'):
+            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *rt])
+        time.sleep(2.0)
+        cpu = _measure(bare, ('ping', 'pong'), seconds)
+        bare.stop(['ping', 'pong'])
+        return cpu, json.loads(bare['ping'].output().strip().splitlines()[-1])
+
+
+def _pool(rounds: list[dict], cpus: list[dict]) -> tuple[dict, dict]:
+    """One set of figures from several rounds: counts summed, percentiles averaged."""
+    n = sum(r['cycles'] for r in rounds)
+    out = {'cycles': n, 'watchdog_trips': sum(r['watchdog_trips'] for r in rounds),
+           'fresh_cycle_fraction': sum(r['fresh_cycle_fraction'] * r['cycles']
+                                       for r in rounds) / max(n, 1)}
+    for k in rounds[0]:
+        if k.endswith('_max_ms'):
+            out[k] = max(r[k] for r in rounds)
+        elif k.endswith('_ms'):
+            out[k] = sum(r[k] for r in rounds) / len(rounds)
+    return out, {k: sum(c[k] for c in cpus) / len(cpus) for k in cpus[0]}
 
 
 def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench loop')
-    ap.add_argument('--seconds', type=float, default=20.0)
+    ap.add_argument('--seconds', type=float, default=20.0,
+                    help='seconds of loop for ours and for the bare ping-pong each')
+    ap.add_argument('--rounds', type=int, default=2,
+                    help='split the seconds into this many alternating rounds (ours, bare, '
+                    'bare, ours, ...), so that a drift in the machine load weighs on both')
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
     ap.add_argument('--rt-priority', type=int, default=0,
                     help='SCHED_FIFO priority of our loop nodes and of the bare ping-pong alike '
@@ -63,26 +100,20 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     rt = {'rt_priority': a.rt_priority} if a.rt_priority else {}
     rt_bare = ['--rt-priority', str(a.rt_priority)] if a.rt_priority else []
+    per = a.seconds / max(1, a.rounds)
+    ours, bare, cpu_ours, cpu_b = [], [], [], []
     with domain_id() as dom:
-        with Launch(dom) as launch:
-            launch.start('plant', {'model': a.model, **rt})
-            launch.start('controller', rt)
-            cpu, f = _measure(launch, ('plant', 'controller'),
-                              ('plant', 'watchdog armed'), a.seconds)
-        with Launch(dom) as bare:
-            for role in ('pong', 'ping'):
-                bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role,
-                                      *rt_bare])
-            time.sleep(2.0)
-            c0 = {n: _cpu(bare[n].pid) for n in ('ping', 'pong')}
-            t0 = time.monotonic()
-            time.sleep(a.seconds)
-            wall = time.monotonic() - t0
-            cpu_bare = {n: (_cpu(bare[n].pid) - c0[n]) / wall for n in ('ping', 'pong')}
-            bare.stop(['ping', 'pong'])
-            b = json.loads(bare['ping'].output().strip().splitlines()[-1])
+        for r in range(max(1, a.rounds)):
+            runs = [('ours', ours, cpu_ours), ('bare', bare, cpu_b)]
+            for kind, figs, cpus in (runs if r % 2 == 0 else runs[::-1]):
+                cpu, f = (_ours(dom, per, a.model, rt) if kind == 'ours'
+                          else _bare(dom, per, rt_bare))
+                figs.append(f)
+                cpus.append(cpu)
+    f, cpu = _pool(ours, cpu_ours)
+    b, cpu_bare = _pool(bare, cpu_b)
     figures = {
-        'model': a.model, 'seconds': a.seconds, 'rate_hz': 1000,
+        'model': a.model, 'seconds': a.seconds, 'rounds': a.rounds, 'rate_hz': 1000,
         'rt_priority': a.rt_priority,
         'fresh_cycle_fraction': round(f['fresh_cycle_fraction'], 5),
         'cycles': f['cycles'], 'watchdog_trips': f['watchdog_trips'],

@@ -20,6 +20,8 @@ Loop timing statistics for the nodes' diagnostics and the benchmarks (no ROS imp
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ['LoopStats', 'Window']
@@ -47,6 +49,27 @@ class Window:
         """Return the ``q``-th percentile, NaN when empty."""
         v = self.values()
         return float(np.percentile(v, q)) if v.size else float('nan')
+
+    def p50_p99_max(self) -> tuple[float, float, float]:
+        """
+        Return the median, the 99th percentile and the largest sample (NaN when empty).
+
+        One partial sort for all three: the diagnostics take them once a second from the
+        executor thread of a 1 kHz loop, where two full percentile calls per window cost
+        0.5 ms.
+        """
+        v = self.values()
+        if not v.size:
+            return (math.nan,) * 3
+        n = v.size - 1
+        k50, k99 = n * 0.5, n * 0.99
+        idx = sorted({int(k50), min(int(k50) + 1, n), int(k99), min(int(k99) + 1, n), n})
+        w = np.partition(v, idx)
+
+        def at(k: float) -> float:       # linear interpolation, as np.percentile's default
+            lo = int(k)
+            return float(w[lo] + (w[min(lo + 1, n)] - w[lo]) * (k - lo))
+        return at(k50), at(k99), float(w[n])
 
     def peak(self) -> float:
         """Return the largest sample held, NaN when empty."""
@@ -80,10 +103,9 @@ class LoopStats:
     def as_dict(self) -> dict[str, float]:
         """Return the figures in milliseconds, for diagnostics and benchmarks."""
         ms = 1e3
+        p50, p99, top = self.period.p50_p99_max()
+        r50, r99, rtop = self.rtt.p50_p99_max()
         return {'cycles': self.cycles, 'fresh_cycles': self.fresh,
                 'fresh_cycle_fraction': self.fresh_fraction,
-                'period_p50_ms': self.period.pct(50) * ms,
-                'period_p99_ms': self.period.pct(99) * ms,
-                'period_max_ms': self.period.peak() * ms,
-                'rtt_p50_ms': self.rtt.pct(50) * ms, 'rtt_p99_ms': self.rtt.pct(99) * ms,
-                'rtt_max_ms': self.rtt.peak() * ms}
+                'period_p50_ms': p50 * ms, 'period_p99_ms': p99 * ms, 'period_max_ms': top * ms,
+                'rtt_p50_ms': r50 * ms, 'rtt_p99_ms': r99 * ms, 'rtt_max_ms': rtop * ms}
