@@ -65,6 +65,9 @@ def main(argv=None) -> int:
                     help='publish exact states (default: 5 um, 1 mm/s, 0.2 bar sensor noise)')
     ap.add_argument('--params-file', default=None, help='ROS 2 parameters YAML for all nodes')
     ap.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID')
+    ap.add_argument('--rt-priority', type=int, default=0,
+                    help='SCHED_FIFO priority of the plant and controller (their rt_priority '
+                    'option; needs CAP_SYS_NICE or ulimit -r, else they warn and run on)')
     rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
     rec.add_argument('--max-bag-size', type=int, default=None,
                      help='split once a file holds this many bytes (0: never)')
@@ -87,6 +90,8 @@ def main(argv=None) -> int:
     pf = a.params_file
     with Launch(a.domain_id, logs) as launch:
         plant = {'model': a.model}
+        loop = {'rt_priority': a.rt_priority} if a.rt_priority else {}
+        plant.update(loop)
         if not a.no_noise:
             noise = SensorNoise()
             plant.update(noise_z=noise.z, noise_v=noise.v, noise_p=noise.p)
@@ -99,7 +104,8 @@ def main(argv=None) -> int:
                                       ('compression', a.compression),
                                       ('min_free_space', a.min_free_space)) if v is not None}
         try:
-            launch.start_loop(a.mode, bag=out, plant=plant, params_file=pf, recorder=recorder,
+            launch.start_loop(a.mode, bag=out, plant=plant, controller=loop, params_file=pf,
+                              recorder=recorder,
                               reference={'kind': a.reference,
                                          'rate_hz': 1000.0 if lock else 250.0})
         except LaunchError as err:

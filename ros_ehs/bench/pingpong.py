@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     msg = JointState(name=['piston', 'spool', 'servo_valve'], position=[0.01, 4e-5, 0.0],
                      velocity=[0.02, 0.0, 0.0], effort=[3.0, 0.0, 0.001])
     st = {'k': 0, 'fresh': 0, 'cycles': 0, 'back': 0, 'sent': 0.0, 't0': None, 'n': 0,
-          'rx': None, 'trips': 0, 'tripped': False}
+          'rx': None, 'trips': 0, 'tripped': False, 'last_tick': None, 'period_max': 0.0}
     rtt = []
 
     relay = '--relay' in args
@@ -151,6 +151,10 @@ def main(argv=None) -> int:
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if role == 'ping':
             def tick():
+                t = time.monotonic()
+                if st['last_tick'] is not None:
+                    st['period_max'] = max(st['period_max'], t - st['last_tick'])
+                st['last_tick'] = t
                 if st['k']:
                     st['cycles'] += 1
                     st['fresh'] += st['back'] == st['k']
@@ -175,7 +179,8 @@ def main(argv=None) -> int:
                           'watchdog_trips': st['trips'],
                           'fresh_cycle_fraction': st['fresh'] / max(1, st['cycles']),
                           'rtt_p50_ms': _pct(rtt, 50) * ms, 'rtt_p99_ms': _pct(rtt, 99) * ms,
-                          'rtt_max_ms': max(rtt, default=float('nan')) * ms}), flush=True)
+                          'rtt_max_ms': max(rtt, default=float('nan')) * ms,
+                          'period_max_ms': st['period_max'] * ms}), flush=True)
     elif role == 'volley':
         dt = time.monotonic() - (st['t0'] or time.monotonic())
         n = st['n']
