@@ -247,3 +247,28 @@ def test_window_median_p99_and_max_in_one_pass_are_numpys(n):
     v = w.values()
     assert got == pytest.approx((np.percentile(v, 50), np.percentile(v, 99), v.max()),
                                 rel=1e-12)
+
+
+def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not():
+    import os
+    import subprocess
+    import sys
+    code = ('import os\n'
+            'from ros_ehs.nodes.ros_common import set_cpu_affinity\n'
+            'import rclpy\n'
+            'rclpy.init()\n'
+            'node = rclpy.create_node("pinned")\n'       # the middleware's threads exist
+            'print(set_cpu_affinity(-1) == "")\n'
+            'print(set_cpu_affinity(1000))\n'
+            'print(set_cpu_affinity(0))\n'
+            'print(sorted({frozenset(os.sched_getaffinity(int(t)))'
+            ' for t in os.listdir("/proc/self/task")}, key=sorted))\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    none, bad, good, sets = out.stdout.strip().splitlines()
+    assert none == 'True'
+    assert 'cpu_affinity 1000 not applied' in bad and 'this machine has CPUs' in bad
+    assert good == 'threads on CPU 0'
+    assert sets == '[frozenset({0})]'
+    assert len(os.sched_getaffinity(0)) >= 1     # the test process itself is untouched

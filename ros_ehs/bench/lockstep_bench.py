@@ -40,12 +40,18 @@ from ros_ehs.params import Params
 from ros_ehs.reference import Sine
 
 
-def _volley(dom: int, seconds: float, extra: list[str]) -> dict:
-    """Return the ceiling: a bare rclpy ping-pong, back to back (``extra``: its options)."""
+def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> dict:
+    """
+    Return the ceiling: a bare rclpy ping-pong, back to back (``extra``: its options).
+
+    ``pin``: volley and pong on CPU 0, the relay on CPU 1, as ``--cpu-affinity`` places ours.
+    """
     roles = ['pong', 'relay', 'volley'] if '--relay' in extra else ['pong', 'volley']
     with Launch(dom) as bare:
         for role in roles:
-            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *extra])
+            cpu = ['--cpu', '1' if role == 'relay' else '0'] if pin else []
+            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *extra,
+                                  *cpu])
         time.sleep(2.0 + seconds)
         bare.stop(roles[::-1])
         return json.loads(bare['volley'].output().strip().splitlines()[-1])
@@ -62,22 +68,30 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench lockstep')
     ap.add_argument('--seconds', type=float, default=5.0, help='sim seconds')
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
+    ap.add_argument('--cpu-affinity', action='store_true',
+                    help='plant and controller on CPU 0, the reference on CPU 1 (the '
+                    'cpu_affinity option of the nodes), and the bare yardsticks placed alike')
     a = ap.parse_args(argv)
+    pin = a.cpu_affinity
     with domain_id() as dom:
         with Launch(dom) as launch:
             launch.start_loop('lockstep', plant={'duration': a.seconds, 'model': a.model,
-                                                 'start_delay': 1.0})
+                                                 'start_delay': 1.0,
+                                                 **({'cpu_affinity': 0} if pin else {})},
+                              controller={'cpu_affinity': 0} if pin else None,
+                              reference={'cpu_affinity': 1} if pin else True)
             if not launch.wait_for_log('plant', 'lock-step run complete', 600):
                 raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
             launch.stop(['reference', 'controller', 'plant'])
             f = launch['plant'].figures()
-        v, vr, v3 = (_volley(dom, a.seconds, extra)
+        v, vr, v3 = (_volley(dom, a.seconds, extra, pin)
                      for extra in ([], ['--reliable'], ['--reliable', '--relay']))
     run_closed_loop(Params(), Sine(), 0.01, model=a.model)   # load the compiled kernels first
     t0 = time.perf_counter()
     run_closed_loop(Params(), Sine(), a.seconds, model=a.model)
     inproc = a.seconds * 1000 / (time.perf_counter() - t0)
-    return report({'model': a.model, 'sim_seconds': a.seconds, 'steps': f['steps'],
+    return report({'model': a.model, 'sim_seconds': a.seconds, 'cpu_affinity': pin,
+                   'steps': f['steps'],
                    'steps_per_s': round(f['steps_per_s'], 1),
                    'realtime_factor': round(f['steps_per_s'] / 1000.0, 3),
                    'resends': f['resends'], 'step_p50_ms': round(f['period_p50_ms'], 4),

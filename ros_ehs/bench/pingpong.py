@@ -32,7 +32,8 @@ plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointSt
 
 ``--reliable`` uses the lock-step loop's QoS (reliable, depth 1000) instead;
 ``--rt-priority N`` puts every thread on SCHED_FIFO priority N, as the loop nodes' option
-``rt_priority`` does. On SIGINT the ping or volley prints its figures as one JSON line.
+``rt_priority`` does; ``--cpu N`` keeps them on CPU N, as ``cpu_affinity`` does. On SIGINT
+the ping or volley prints its figures as one JSON line.
 """
 
 import json
@@ -79,6 +80,10 @@ def main(argv=None) -> int:
         prio = os.sched_param(int(args[args.index('--rt-priority') + 1]))
         for tid in os.listdir('/proc/self/task'):
             os.sched_setscheduler(int(tid), os.SCHED_FIFO, prio)
+    if '--cpu' in args:
+        cpu = int(args[args.index('--cpu') + 1])
+        for tid in os.listdir('/proc/self/task'):
+            os.sched_setaffinity(int(tid), {cpu})
     msg = JointState(name=['piston', 'spool', 'servo_valve'], position=[0.01, 4e-5, 0.0],
                      velocity=[0.02, 0.0, 0.0], effort=[3.0, 0.0, 0.001])
     st = {'k': 0, 'fresh': 0, 'cycles': 0, 'back': 0, 'sent': 0.0, 't0': None, 'n': 0,

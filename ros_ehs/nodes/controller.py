@@ -60,7 +60,7 @@ from rclpy.node import Node
 from ros_ehs.control.controller import Controller
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.nodes.loop_stats import Window
-from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics,
+from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs, diagnostics,
                                       EPOCH_PERIODS, ERROR, node_params, OK, Option,
                                       qos_profile, read_msg, RT_PRIORITY, run, steady_clock,
                                       update_options, validate_changes, WARN)
@@ -86,6 +86,7 @@ OPTIONS = (
     Option('future_tolerance', 0.05, 'real time: a state stamped further ahead of this '
            "node's clock is dropped and counted [s]", 1.0e-4, 3600.0, read_only=False),
     RT_PRIORITY,
+    CPU_AFFINITY,
 )
 
 
@@ -96,6 +97,7 @@ class ControllerNode(Node):
         super().__init__('controller', **kwargs)
         self.opt = declare_options(self, OPTIONS)
         self.rt_priority = int(self.opt['rt_priority'])     # applied by run()
+        self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
         declare_specs(self, SPECS, Params())
         self.params = node_params(self, Params(), SPECS)
         self.dt = 1.0 / float(self.opt['rate_hz'])

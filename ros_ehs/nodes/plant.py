@@ -56,11 +56,10 @@ from rclpy.node import Node
 from ros_ehs.launch import FIGURES
 from ros_ehs.model.plant import Plant
 from ros_ehs.nodes.loop_stats import LoopStats
-from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics, ERROR,
-                                      node_params, OK, Option, qos_profile, read_msg,
-                                      RT_PRIORITY, run,
-                                      steady_clock, update_options, validate_changes,
-                                      WARN)
+from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs,
+                                      diagnostics, ERROR, node_params, OK, Option,
+                                      qos_profile, read_msg, RT_PRIORITY, run, steady_clock,
+                                      update_options, validate_changes, WARN)
 from ros_ehs.params import Params, PLANT_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
@@ -98,6 +97,7 @@ OPTIONS = (
     Option('seed', 0, 'seed of the sensor noise', 0, 2**31 - 1),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
     RT_PRIORITY,
+    CPU_AFFINITY,
 )
 
 _MAX_CATCHUP = 50      # periods a late tick may step before the loop is resynchronised
@@ -112,6 +112,7 @@ class PlantNode(Node):
         super().__init__('plant', **kwargs)
         self.opt = declare_options(self, OPTIONS)
         self.rt_priority = int(self.opt['rt_priority'])     # applied by run()
+        self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
         declare_specs(self, PLANT_SPECS, Params())
         self.params = node_params(self, Params(), PLANT_SPECS)
         self.plant = Plant(self.params, self.opt['model'])

@@ -40,7 +40,7 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from ros_ehs.errors import ParameterError
-from ros_ehs.nodes.ros_common import (declare_options, declare_specs, diagnostics,
+from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs, diagnostics,
                                       EPOCH_PERIODS, OK, Option, qos_profile, run,
                                       steady_clock)
 from ros_ehs.reference import make, REFERENCE_SPECS
@@ -59,6 +59,7 @@ OPTIONS = (
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
     Option('wait_subscribers', 0, 'real time: start the trajectory (time zero) only once '
            '`reference` has this many subscribers; publish nothing until then', 0, 1000),
+    CPU_AFFINITY,
 )
 
 
@@ -68,6 +69,7 @@ class ReferenceNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('reference', **kwargs)
         self.opt = declare_options(self, OPTIONS)
+        self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
         declare_specs(self, REFERENCE_SPECS, {s.name: s.default for s in REFERENCE_SPECS})
         values = {s.name: self.get_parameter(s.name).value for s in REFERENCE_SPECS}
         self.traj = make(values, self.opt['csv_path'])
