@@ -332,3 +332,18 @@ def test_the_report_names_what_the_bag_cannot_pin_down_and_an_excitation_that_do
     assert abs(joint['parameters']['r_c']['value'] / truth - 1) < 0.02
     assert abs(first['value'] / truth - 1) > 0.02         # it was loose before
     assert 'every parameter is pinned down' in joint['excitation']['message']
+
+
+def test_excitation_advice_validates_its_inputs(fits):
+    from dataclasses import replace
+
+    from ros_ehs.identify.design import identifiability, recommend
+    e, r = fits[0]
+    with pytest.raises(InputError, match='`candidates` is empty'):
+        recommend(r, [e], candidates=())
+    with pytest.raises(InputError, match='no valid parameter set'):
+        recommend(replace(r, params=None), [e])
+    ident = identifiability(r)
+    assert set(ident['parameters']) == set(r.free) and ident['weak'] == []
+    loose = identifiability(r, pinned=1e-9)        # a threshold nothing meets: all loose
+    assert loose['weak'] == list(r.free)
