@@ -162,12 +162,12 @@ def recommend(result: IdentificationResult, experiments: Sequence[Experiment], *
         for name, s in sig.items():
             sigma[name] = max(sigma.get(name, 0.0), s)
     weak = [free.index(n) for n in ident['weak']]
+    values = np.abs(theta * problem.scale)
     rows = []
     for k, c in enumerate(candidates):
         exp = _synthetic(result, c, experiments[0].dt, sigma, seed + k, duration)
         p = Problem([exp], result.params, free, result.model, signals, segment, h)
         cov = np.linalg.pinv(info0 + _information(p, theta)) * scale_sae * widen ** 2
-        values = np.abs(theta * problem.scale)
         rel = np.sqrt(np.clip(np.diag(cov), 0, None)) * problem.scale / values
         rows.append({'reference': c, 'describe': describe(c),
                      'worst_weak_rel_stderr': float(max(rel[j] for j in weak)),
