@@ -13,6 +13,9 @@
 # limitations under the License.
 """Fixtures of the DDS tests: a ROS domain of the test's own, and an rclpy node on it."""
 
+import signal
+import subprocess
+import sys
 import time
 
 from domain_coordinator import domain_id
@@ -49,3 +52,23 @@ def ros(dom):
     exe.shutdown()
     node.destroy_node()
     rclpy.shutdown(context=ctx)
+
+
+@pytest.fixture
+def sigkilled():
+    """
+    Return ``run(script, bag, first)``: run a writer ``script`` on ``bag``, SIGKILL it.
+
+    The script prints each stamp it wrote; the kill comes after ``first`` of them. Returns
+    every stamp printed, so a test judges the bag on what the writer had written, not on
+    wall-clock sleeps.
+    """
+    def run(script: str, bag, first: int) -> list[int]:
+        p = subprocess.Popen([sys.executable, '-c', script, str(bag)],
+                             stdout=subprocess.PIPE, text=True)
+        written = [int(p.stdout.readline()) for _ in range(first)]
+        p.send_signal(signal.SIGKILL)
+        written += [int(line) for line in p.stdout.read().split()]
+        p.wait()
+        return written
+    return run

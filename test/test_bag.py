@@ -15,9 +15,6 @@
 
 import os
 from pathlib import Path
-import signal
-import subprocess
-import sys
 import textwrap
 
 import numpy as np
@@ -196,17 +193,12 @@ _KILL_SCRIPT = textwrap.dedent("""
 """)
 
 
-def test_sigkill_loses_at_most_100_ms(tmp_path):
+def test_sigkill_loses_at_most_100_ms(tmp_path, sigkilled):
     # Judged on what the writer had written, not on wall-clock sleeps: a loaded machine may
     # stall the writer, but whatever it wrote more than flush_period before its last write
     # must be in the bag after SIGKILL.
     bag = tmp_path / 'killed'
-    p = subprocess.Popen([sys.executable, '-c', _KILL_SCRIPT, str(bag)],
-                         stdout=subprocess.PIPE, text=True)
-    written = [int(p.stdout.readline()) for _ in range(600)]
-    p.send_signal(signal.SIGKILL)
-    written += [int(line) for line in p.stdout.read().split()]
-    p.wait()
+    written = sigkilled(_KILL_SCRIPT, bag, 600)
     b = open_bag(bag)
     assert b.truncated
     kept = {m.log_time_ns for m in b.messages(['/state'])}

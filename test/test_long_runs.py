@@ -22,7 +22,6 @@ in a child process, a 2 MB tmpfs), never the machine's own disk filling up.
 import os
 from pathlib import Path
 import shutil
-import signal
 import subprocess
 import sys
 import textwrap
@@ -164,14 +163,9 @@ _KILL_SPLIT = textwrap.dedent("""
 """)
 
 
-def test_sigkill_of_a_splitting_writer_loses_at_most_100_ms(tmp_path):
+def test_sigkill_of_a_splitting_writer_loses_at_most_100_ms(tmp_path, sigkilled):
     bag = tmp_path / 'killed'
-    p = subprocess.Popen([sys.executable, '-c', _KILL_SPLIT, str(bag)],
-                         stdout=subprocess.PIPE, text=True)
-    written = [int(p.stdout.readline()) for _ in range(1200)]
-    p.send_signal(signal.SIGKILL)
-    written += [int(line) for line in p.stdout.read().split()]
-    p.wait()
+    written = sigkilled(_KILL_SPLIT, bag, 1200)
     b = open_bag(bag)
     assert len(b.files) >= 3
     # every file but the open one was finished; the open one is cut where the kill came
