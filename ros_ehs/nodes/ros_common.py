@@ -309,6 +309,11 @@ def ros_args(argv: Sequence[str]) -> list[str]:
     return out
 
 
+def _thread_ids() -> list[int]:
+    """Return the ids of this process's threads (the executor's and the middleware's)."""
+    return [int(t) for t in os.listdir('/proc/self/task')]
+
+
 def set_realtime(priority: int) -> str:
     """
     Put every thread of this process (the executor's and the middleware's) on SCHED_FIFO.
@@ -321,8 +326,8 @@ def set_realtime(priority: int) -> str:
         return ''
     try:
         param = os.sched_param(priority)
-        for tid in os.listdir('/proc/self/task'):
-            os.sched_setscheduler(int(tid), os.SCHED_FIFO, param)
+        for tid in _thread_ids():
+            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
     except (OSError, AttributeError) as err:
         return (f'rt_priority {priority} not applied ({getattr(err, "strerror", err)}): it '
                 'needs CAP_SYS_NICE or an rtprio limit (ulimit -r, /etc/security/limits.conf)')
@@ -338,8 +343,8 @@ def set_cpu_affinity(cpu: int) -> str:
     if cpu < 0:
         return ''
     try:
-        for tid in os.listdir('/proc/self/task'):
-            os.sched_setaffinity(int(tid), {cpu})
+        for tid in _thread_ids():
+            os.sched_setaffinity(tid, {cpu})
     except (OSError, AttributeError) as err:
         return (f'cpu_affinity {cpu} not applied ({getattr(err, "strerror", err)}): this '
                 f'machine has CPUs {sorted(os.sched_getaffinity(0))}')
