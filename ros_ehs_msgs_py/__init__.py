@@ -24,20 +24,23 @@ which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain
 """
 
 from ros_ehs_msgs_py.conversions import (command_from_msg, empty_msg, fill_command,
-                                         fill_pressure, fill_reference, fill_state,
-                                         pressure_from_msg, reference_from_msg, stamp_ns,
-                                         state_from_msg)
+                                         fill_pressure, fill_reference,
+                                         fill_reference_trajectory, fill_state, pressure_from_msg,
+                                         reference_from_msg, reference_trajectory_from_msg,
+                                         stamp_ns, state_from_msg)
 from ros_ehs_msgs_py.qos import CLOCK_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec, RECORD_QOS
 from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference
 from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, DIAGNOSTICS, JOINT_PISTON,
-                                    JOINT_SPOOL, JOINT_VALVE, NODE_TOPICS, NodeTopics,
-                                    PRESSURE_P, PRESSURE_T, REFERENCE, STATE, Topic, TOPICS)
+                                    JOINT_SPOOL, JOINT_VALVE, LOCKSTEP_NODE_TOPICS,
+                                    NODE_TOPICS, NodeTopics, PRESSURE_P, PRESSURE_T, REFERENCE,
+                                    REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
 
 __all__ = [
     'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'JOINT_PISTON',
-    'JOINT_SPOOL', 'JOINT_VALVE', 'LOCKSTEP_QOS', 'LOOP_QOS', 'NODE_TOPICS', 'NodeTopics',
-    'PRESSURE_P', 'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS', 'REFERENCE', 'Reference',
-    'STATE', 'TOPICS', 'Topic', 'by_name',
+    'JOINT_SPOOL', 'JOINT_VALVE', 'LOCKSTEP_NODE_TOPICS', 'LOCKSTEP_QOS', 'LOOP_QOS',
+    'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS',
+    'REFERENCE', 'REFERENCE_TRAJECTORY', 'Reference', 'STATE', 'TOPICS', 'Topic', 'by_name',
     'command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',
-    'fill_state', 'pressure_from_msg', 'reference_from_msg', 'stamp_ns', 'state_from_msg',
+    'fill_reference_trajectory', 'fill_state', 'pressure_from_msg', 'reference_from_msg',
+    'reference_trajectory_from_msg', 'stamp_ns', 'state_from_msg',
 ]

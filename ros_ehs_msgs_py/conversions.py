@@ -22,14 +22,14 @@ message instance, or the nested dicts of :func:`empty_msg` for the bag writer).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Callable, Sequence
 
 from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
 __all__ = ['command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',
-           'fill_state', 'pressure_from_msg', 'reference_from_msg', 'stamp_ns',
-           'state_from_msg']
+           'fill_reference_trajectory', 'fill_state', 'pressure_from_msg', 'reference_from_msg',
+           'reference_trajectory_from_msg', 'stamp_ns', 'state_from_msg']
 
 
 def stamp_ns(header: Any) -> int:
@@ -66,6 +66,11 @@ def empty_msg(msg_type: str) -> dict[str, Any]:
         return {'header': header, 'fluid_pressure': 0.0, 'variance': 0.0}
     if msg_type == 'rosgraph_msgs/msg/Clock':
         return {'clock': {'sec': 0, 'nanosec': 0}}
+    if msg_type == 'trajectory_msgs/msg/JointTrajectory':
+        return {'header': header, 'joint_names': [], 'points': []}
+    if msg_type == 'trajectory_msgs/msg/JointTrajectoryPoint':
+        return {'positions': [], 'velocities': [], 'accelerations': [], 'effort': [],
+                'time_from_start': {'sec': 0, 'nanosec': 0}}
     raise KeyError(f'no empty message for {msg_type!r}')
 
 
@@ -134,6 +139,60 @@ def reference_from_msg(msg: Any) -> Reference:
     vel = _get(msg, 'velocity')
     v = float(vel[k]) if len(vel) > k else 0.0
     return Reference(stamp_ns(_get(msg, 'header')), _field(msg, 'position', k, 'reference'), v)
+
+
+def fill_reference_trajectory(msg: Any, refs: Sequence[Reference],
+                              new_point: Callable[[], Any]) -> Any:
+    """
+    Write ``refs`` (in time order) into a JointTrajectory (joint ``piston``).
+
+    ``header.stamp`` is the first reference's stamp and each point's ``time_from_start`` its
+    offset from it. ``new_point`` makes an empty point: ``JointTrajectoryPoint`` for an rclpy
+    message, ``lambda: empty_msg('trajectory_msgs/msg/JointTrajectoryPoint')`` for a dict.
+    """
+    if not refs:
+        raise ValueError('a reference trajectory needs at least one point')
+    t0 = refs[0].stamp_ns
+    _set_header(msg, t0)
+    _set(msg, 'joint_names', [JOINT_PISTON])
+    points = []
+    for r in refs:
+        p = new_point()
+        _set(p, 'positions', [float(r.z_ref)])
+        _set(p, 'velocities', [float(r.v_ref)])
+        d = _get(p, 'time_from_start')
+        _set(d, 'sec', int((r.stamp_ns - t0) // 1_000_000_000))
+        _set(d, 'nanosec', int((r.stamp_ns - t0) % 1_000_000_000))
+        points.append(p)
+    _set(msg, 'points', points)
+    return msg
+
+
+def reference_trajectory_from_msg(msg: Any) -> list[Reference]:
+    """
+    Read the :class:`Reference` of each point of a ``reference_trajectory`` JointTrajectory.
+
+    Each stamp is ``header.stamp + time_from_start``; a point without a velocity for
+    ``piston`` has v_ref 0, as in :func:`reference_from_msg`. ValueError names the joint or the
+    point that is missing.
+    """
+    names = list(_get(msg, 'joint_names'))
+    try:
+        k = names.index(JOINT_PISTON)
+    except ValueError:
+        raise ValueError(f'`reference_trajectory` message has no joint {JOINT_PISTON!r} '
+                         f'(joints: {names})') from None
+    t0 = stamp_ns(_get(msg, 'header'))
+    out = []
+    for n, p in enumerate(_get(msg, 'points')):
+        pos, vel = _get(p, 'positions'), _get(p, 'velocities')
+        if len(pos) <= k:
+            raise ValueError(f'`reference_trajectory` point {n} has no positions[{k}] '
+                             f'(length {len(pos)})')
+        d = _get(p, 'time_from_start')
+        out.append(Reference(t0 + int(_get(d, 'sec')) * 1_000_000_000 + int(_get(d, 'nanosec')),
+                             float(pos[k]), float(vel[k]) if len(vel) > k else 0.0))
+    return out
 
 
 def fill_command(msg: Any, c: Command) -> Any:

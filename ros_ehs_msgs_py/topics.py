@@ -20,8 +20,8 @@ from typing import NamedTuple
 from ros_ehs_msgs_py.qos import CLOCK_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec, RECORD_QOS
 
 __all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'JOINT_PISTON', 'JOINT_SPOOL', 'JOINT_VALVE',
-           'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T', 'REFERENCE', 'STATE',
-           'TOPICS', 'Topic', 'by_name']
+           'LOCKSTEP_NODE_TOPICS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T',
+           'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name']
 
 JOINT_PISTON = 'piston'
 JOINT_SPOOL = 'spool'
@@ -58,8 +58,14 @@ DIAGNOSTICS = Topic('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
                     'loop timing, tracking error, watchdog', RECORD_QOS)
 CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock',
               'published by the plant in lock-step mode', CLOCK_QOS)
+REFERENCE_TRAJECTORY = Topic(
+    'reference_trajectory', 'trajectory_msgs/msg/JointTrajectory',
+    'lock-step (reference under use_sim_time): the coming periods in one message, joint '
+    '`piston`: positions z_ref [m], velocities v_ref [m/s], each at header.stamp + '
+    'time_from_start', LOCKSTEP_QOS)
 
-TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, CLOCK)
+TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, CLOCK,
+          REFERENCE_TRAJECTORY)
 
 
 class NodeTopics(NamedTuple):
@@ -69,12 +75,20 @@ class NodeTopics(NamedTuple):
     subscribes: tuple[Topic, ...]
 
 
-#: What each loop node creates in its default (real-time) mode. In lock-step the plant also
-#: publishes CLOCK, and under ``use_sim_time`` the reference subscribes to it.
+#: What each loop node creates in its default (real-time) mode.
 NODE_TOPICS = {
     'plant': NodeTopics((STATE, PRESSURE_P, PRESSURE_T, DIAGNOSTICS), (COMMAND,)),
     'controller': NodeTopics((COMMAND, DIAGNOSTICS), (STATE, REFERENCE)),
     'reference': NodeTopics((REFERENCE, DIAGNOSTICS), ()),
+}
+
+#: The same in lock-step (plant ``mode: lockstep``, controller ``lockstep: true``, reference
+#: under ``use_sim_time``): the plant publishes CLOCK, the reference follows it and sends the
+#: coming periods as one REFERENCE_TRAJECTORY, which is what the controller reads.
+LOCKSTEP_NODE_TOPICS = {
+    'plant': NodeTopics((STATE, PRESSURE_P, PRESSURE_T, DIAGNOSTICS, CLOCK), (COMMAND,)),
+    'controller': NodeTopics((COMMAND, DIAGNOSTICS), (STATE, REFERENCE_TRAJECTORY)),
+    'reference': NodeTopics((REFERENCE, REFERENCE_TRAJECTORY, DIAGNOSTICS), (CLOCK,)),
 }
 
 

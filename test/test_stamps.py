@@ -174,6 +174,20 @@ def test_a_restarted_lockstep_plant_closes_the_loop_again(dom, tmp_path):
     assert f2['model_faults'] == 0 and f1['steps'] == f2['steps']
 
 
+def test_a_clock_slower_than_the_preview_still_closes_the_lock_step_loop(dom, tmp_path):
+    """/clock every 30 ms, references 5 ms ahead: the plant's resends carry the loop."""
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('lockstep', plant={'duration': 0.1, 'clock_period': 0.03,
+                                             'resend_period': 0.005},
+                          reference={'preview': 0.005})
+        assert launch.wait_for_log('plant', 'lock-step run complete', 60), \
+            launch['plant'].output()[-2000:]
+        codes = launch.stop(['reference', 'controller', 'plant'])
+    assert set(codes.values()) == {0}
+    f = launch['plant'].figures()
+    assert f['steps'] == 100 and f['resends'] >= 5 and f['model_faults'] == 0
+
+
 # -- parameters -----------------------------------------------------------------------------
 def test_empty_and_undeclared_parameter_names_are_rejected_with_a_reason(dom, tmp_path, ros):
     from rclpy.parameter import Parameter

@@ -19,9 +19,11 @@ separate processes for ``--seconds`` of sim time; the plant reports how many ste
 second of wall time the loop made. In the same run, two yardsticks: the in-process loop (no
 DDS, :func:`ros_ehs.closed_loop.run_closed_loop`), and a bare rclpy ping-pong sending each
 message as soon as the last echo is back (the most round trips per second rclpy makes on this
-machine: no lock-step over rclpy can be faster), best effort and with the lock-step QoS; and
-the barest lock-step of the bench's own topology (``--relay``: a third process turns each
-clock into the reference the pong waits for, reliable), none of our code in any of them.
+machine over JointState objects), best effort and with the lock-step QoS; and the barest
+lock-step of the topology the bench had until session 8 (``--relay``: a third process turns
+a clock every period into the reference the pong waits for, reliable; the bench now sends
+``/clock`` every 10 periods and the references as one ``reference_trajectory`` per clock),
+none of our code in any of them.
 Last line: one JSON object.
 """
 

@@ -25,7 +25,7 @@ plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointSt
 * ``volley``: the next ping goes out as soon as the echo of the last is back (a bare
   lock-step): round trips per second.
 * ``relay`` and ``--relay``: the barest lock-step *with a reference process*, the lock-step
-  bench's topology. The volley also publishes a ``rosgraph_msgs/Clock`` with each ping (as
+  bench's topology until session 8 (a clock and a reference every period). The volley also publishes a ``rosgraph_msgs/Clock`` with each ping (as
   the plant publishes ``/clock`` before its state); the relay answers each clock k with a
   JointState stamped k + 1 (and k itself first); the pong echoes ping k only once it holds
   the relay's message k (as the controller waits for the reference of the state's stamp).

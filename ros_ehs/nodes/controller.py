@@ -44,14 +44,16 @@ Edge-case policy (tested in ``test/test_nodes.py`` and ``test/test_stamps.py``):
 * before the first reference: hold the first measured position; between references,
   first-order hold (``z_ref + v_ref * age``, so the reference may run slower than the loop);
   a reference older than ``reference_timeout``: hold its position with zero velocity;
-* ``lockstep``: a state is answered only with the reference of the same stamp, waiting for
-  it if needed, so the loop is deterministic; commands go out over the contract's
-  ``LOCKSTEP_QOS`` (reliable) so a recorder gets every one.
+* ``lockstep``: the references come as ``reference_trajectory`` (the reference node sends
+  the coming periods in one message per ``/clock``) into a buffer keyed by stamp (at most
+  ``REF_BUFFER`` stamps, oldest dropped first; a used one is dropped at once); a state is
+  answered only with the reference of the same stamp, waiting for it if needed, so the loop
+  is deterministic; commands go out over the contract's ``LOCKSTEP_QOS`` (reliable) so a
+  recorder gets every one.
 """
 
 from __future__ import annotations
 
-from collections import deque
 import math
 import time
 
@@ -67,11 +69,15 @@ from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_spe
 from ros_ehs.params import CONTROL_SPECS, Params, spec
 import ros_ehs_msgs_py as contract
 from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['OPTIONS', 'ControllerNode', 'SPECS', 'main']
 
 #: States missing for this many ``stale_timeout`` mean the plant is gone (see the policy).
 LOST_FACTOR = 10
+
+#: Lock-step references kept ahead of the states (stamps; 4 s at 1 kHz).
+REF_BUFFER = 4096
 
 #: The parameters the controller declares: its own and the plant values its feedforward uses.
 SPECS = CONTROL_SPECS + tuple(spec(n) for n in MODEL_PARAMS)
@@ -107,8 +113,7 @@ class ControllerNode(Node):
         # plant waits for us, so nothing can be stale)
         self.wall = not (self.get_parameter('use_sim_time').value or self.lockstep)
         self._pending: Params | None = None
-        self._refs: dict[int, tuple[float, float]] = {}
-        self._ref_keys: deque[int] = deque()
+        self._refs: dict[int, tuple[float, float]] = {}     # insertion-ordered
         self._ref = None                 # latest (z_ref, v_ref, rx time)
         self._hold_z: float | None = None
         self._waiting = None             # a state parked until its reference comes
@@ -134,9 +139,13 @@ class ControllerNode(Node):
         if self.wall:     # a timer, not a QoS deadline: that would need every
             # state publisher (a rig, a bag player) to offer a deadline too
             self.create_timer(0.01, self._check_lost, clock=steady_clock())
-        self.create_subscription(JointState, contract.REFERENCE.name, self._on_reference,
-                                 qos_profile(contract.REFERENCE.qos,
-                                             depth=64 if self.lockstep else None))
+        if self.lockstep:
+            self.create_subscription(JointTrajectory, contract.REFERENCE_TRAJECTORY.name,
+                                     self._on_trajectory,
+                                     qos_profile(contract.REFERENCE_TRAJECTORY.qos))
+        else:
+            self.create_subscription(JointState, contract.REFERENCE.name, self._on_reference,
+                                     qos_profile(contract.REFERENCE.qos))
         self.add_on_set_parameters_callback(self._check_params)
         self.add_post_set_parameters_callback(self._apply_params)
         self.figures()     # warm numpy's percentile now: its first call takes ~6 ms
@@ -152,19 +161,26 @@ class ControllerNode(Node):
             self.counts['bad'] += 1
             return
         self._ref = (r.z_ref, r.v_ref, time.monotonic(), r.stamp_ns)
-        if self.lockstep:
-            self._refs[r.stamp_ns] = (r.z_ref, r.v_ref)
-            self._ref_keys.append(r.stamp_ns)
-            while len(self._ref_keys) > 256:
-                self._refs.pop(self._ref_keys.popleft(), None)
-            w = self._waiting
-            if w is not None and w.stamp_ns == r.stamp_ns:
-                self._waiting = None
-                self._answer(w, r.z_ref, r.v_ref)
+
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        refs = read_msg(self, contract.reference_trajectory_from_msg, msg,
+                        'reference_trajectory')
+        if refs is None:
+            self.counts['bad'] += 1
+            return
+        buf = self._refs
+        for r in refs:
+            buf[r.stamp_ns] = (r.z_ref, r.v_ref)
+        while len(buf) > REF_BUFFER:
+            del buf[next(iter(buf))]
+        w = self._waiting
+        if w is not None and w.stamp_ns in buf:
+            self._waiting = None
+            self._answer(w, *buf.pop(w.stamp_ns))
 
     def _reference_for(self, s: contract.AxisState):
         if self.lockstep:
-            return self._refs.get(s.stamp_ns)
+            return self._refs.pop(s.stamp_ns, None)
         if self._ref is None:
             if self._hold_z is None and math.isfinite(s.z):
                 self._hold_z = s.z
@@ -220,7 +236,6 @@ class ControllerNode(Node):
         self.ctrl.reset()
         self._last_stamp = -1
         self._refs.clear()
-        self._ref_keys.clear()
         self._waiting = None
         self.get_logger().info(f'new run: the state stamp jumped back {back:.6g} s; PID '
                                f'restarted from rest (run {self.counts["epochs"] + 1})',

@@ -23,13 +23,17 @@ happen the valve current is zero (the hydraulic fail-safe: spool to null) until 
 commands return. So the valve is at zero within ``watchdog_periods`` periods of the last fresh
 command (plus the lateness of that tick).
 
-``mode: lockstep`` publishes ``/clock`` and the state, then waits for the command stamped with
-that state's stamp and steps exactly one period: a closed loop over DDS that is deterministic
-and runs as fast as the messages go. A lost message is recovered by republishing the state
-after ``resend_period`` of silence (the controller answers a repeated stamp with the same
-command). Its topics go out over the contract's ``LOCKSTEP_QOS`` (reliable, depth 1000), so a
-recorder that the OS pauses still gets every sample; the subscriptions stay best effort and
-match any publisher.
+``mode: lockstep`` publishes the state, then waits for the command stamped with that state's
+stamp and steps exactly one period: a closed loop over DDS that is deterministic and runs as
+fast as the messages go. ``/clock`` goes out after the state every ``clock_period`` of sim
+time, with the first and the last state and with every resend: the reference answers each
+clock with the references up to its ``preview`` ahead, so a period needs only the state and
+the command, as a bare ping-pong does (sim-time nodes see time in ``clock_period`` steps, as
+under gazebo_ros's ``publish_rate``; 0 publishes every period). A lost message is recovered
+by republishing the state after ``resend_period`` of silence (the controller answers a
+repeated stamp with the same command). Its topics go out over the contract's
+``LOCKSTEP_QOS`` (reliable, depth 1000), so a recorder that the OS pauses still gets every
+sample; the subscriptions stay best effort and match any publisher.
 
 Stamp policy for commands (the controller stamps each command with the state it answers): a
 command stamped after the latest state this plant published answers none (a stray publisher,
@@ -88,6 +92,8 @@ OPTIONS = (
            '(2 with a recorder)', 0, 100),
     Option('start_delay', 0.5, 'lock-step: then wait this long, so every node has matched '
            'every other before the first step [s]', 0.0, 60.0),
+    Option('clock_period', 0.01, 'lock-step: publish /clock every this much sim time (0: '
+           "every period); keep it below the reference's preview [s]", 0.0, 10.0),
     Option('resend_period', 0.05, 'lock-step: republish the state after this much silence '
            '[s]', 1.0e-3, 10.0),
     Option('noise_z', 0.0, 'white noise (1 sigma) on the published position [m]; the bench '
@@ -127,6 +133,7 @@ class PlantNode(Node):
         self.dt = 1.0 / float(self.opt['rate_hz'])
         self._dt_ns = int(round(self.dt * 1e9))
         self.lockstep = self.opt['mode'] == 'lockstep'
+        self._clock_every = max(1, int(round(float(self.opt['clock_period']) / self.dt)))
         self.i_limit = 2.0 * float(self.params['i_rated'])
         self.u = np.zeros(2)
         self.i_cmd = 0.0
@@ -249,7 +256,7 @@ class PlantNode(Node):
             self.stats.tick(now, True)
             self._step(self.i_cmd)
             self._last_progress = now
-            self._publish()
+            self._publish(clock=self.finished or self.k % self._clock_every == 0)
             if self.finished:
                 self._t_last = now
                 self.get_logger().info(f'lock-step run complete: {self.k} steps, '
@@ -334,19 +341,16 @@ class PlantNode(Node):
             if now >= self._first_due:
                 self._sent_first = True
                 self._last_progress = now
-                self._publish()
+                self._publish(clock=True)
         elif now - self._last_progress >= float(self.opt['resend_period']) and \
                 not self.finished:
             self.resends += 1
-            self._publish()
+            self._publish(clock=True)
 
     # -- publishing --------------------------------------------------------------------------
-    def _publish(self) -> None:
+    def _publish(self, clock: bool = False) -> None:
         st = self.stamp_ns()
         x = self.x
-        if self.pub_clock is not None:
-            self._cmsg.clock.sec, self._cmsg.clock.nanosec = divmod(st, 1_000_000_000)
-            self.pub_clock.publish(self._cmsg)
         xv = float(x[self._ixv]) if self._ixv >= 0 else math.nan
         nz, nv, npr = self._noise
         e = self._rng.standard_normal(4) if (nz or nv or npr) else _ZEROS
@@ -359,6 +363,9 @@ class PlantNode(Node):
         # model step before it is the plant's compute, not the loop's transport
         self._sent_time[j] = time.monotonic()
         self.pub_state.publish(self._msg)
+        if clock and self.pub_clock is not None:     # after the state: off the loop's path
+            self._cmsg.clock.sec, self._cmsg.clock.nanosec = divmod(st, 1_000_000_000)
+            self.pub_clock.publish(self._cmsg)
         for k, pub in ((0, self.pub_p), (1, self.pub_t)):
             if pub.get_subscription_count():       # only when someone listens
                 p = float(x[(self._ipa, self._ipb)[k]] + npr * e[2 + k])

@@ -16,15 +16,21 @@ The reference node: publishes z_ref [m] and v_ref [m/s] on ``reference``.
 
 Trajectories (``kind``): sine (default 0.04 m at 1 Hz, the paper's test), step, chirp, or a
 CSV file (``csv_path``, columns ``t`` [s] and ``z`` [m]). Time zero is the first tick. In real
-time it ticks on a steady timer at ``rate_hz``; under ``use_sim_time`` it publishes once per
-``/clock`` message, stamped with that time (what a lock-step loop needs). After ``duration``
-(0: never) it holds the last position with zero velocity.
+time it ticks on a steady timer at ``rate_hz``. Under ``use_sim_time`` (lock-step) it answers
+each ``/clock`` t with the samples at t, t + 1/``rate_hz``, ... up to t + ``preview`` as one
+``reference_trajectory`` (trajectory_msgs/JointTrajectory, what the lock-step controller
+reads), and the sample at t alone on ``reference`` (for a recorder and plots). One message
+covers many periods, so the plant needs to publish ``/clock`` only every ``clock_period``
+(shorter than ``preview``), and the loop carries two messages per period, as a bare
+ping-pong does. After ``duration`` (0: never) it holds the last position with zero velocity.
 
 Stamps: in real time the reference stamps with its own clock and reads none. Under
-``use_sim_time``, a ``/clock`` one period back is a resend (the same two references again),
-a few periods back is ignored, and more than ``EPOCH_PERIODS`` periods back is a new run (a
-lock-step plant started again, a replayed bag): the trajectory restarts from its beginning
-at that time, logged at most once a second.
+``use_sim_time`` each ``/clock`` is answered with its whole window, so a resend or a reordered
+clock needs no special case (the samples are the same); more than ``EPOCH_PERIODS`` periods
+back is a new run (a lock-step plant started again, a replayed bag): the trajectory restarts
+from its beginning at that time, logged at most once a second. ``/clock`` ticks further apart
+than ``preview`` leave the controller waiting, and the loop then advances only by the plant's
+resends (tested): keep ``preview`` above the plant's ``clock_period``.
 
 ``wait_subscribers`` (real time): time zero is the first tick at which ``reference`` has that
 many subscribers; until then nothing is published. A bench starts the reference last, once
@@ -47,12 +53,15 @@ from ros_ehs.reference import make, REFERENCE_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 __all__ = ['OPTIONS', 'ReferenceNode', 'main']
 
 OPTIONS = (
     Option('rate_hz', 1000.0, 'publication rate in real time; under use_sim_time the '
-           'period of the reference published one tick ahead [Hz]', 1.0, 5000.0),
+           'sample rate of reference_trajectory (the loop rate) [Hz]', 1.0, 5000.0),
+    Option('preview', 0.02, 'use_sim_time: each /clock t is answered with the samples up to '
+           "t + preview; must exceed the plant's clock_period [s]", 0.0, 1.0),
     Option('duration', 0.0, 'hold the last position after this time [s] (0: never)', 0.0,
            1.0e9),
     Option('csv_path', '', 'trajectory file for kind = csv (columns t [s], z [m])'),
@@ -79,6 +88,7 @@ class ReferenceNode(Node):
         self.count = 0
         self.runs = 1
         self._msg = JointState()
+        self._traj = JointTrajectory()
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         # under sim time the reference follows /clock tick by tick (lock-step): every sample
         # counts, so it goes out over the lock-step QoS
@@ -88,6 +98,9 @@ class ReferenceNode(Node):
                                               qos_profile(contract.DIAGNOSTICS.qos))
         self._dt_ns = int(round(1e9 / float(self.opt['rate_hz'])))
         if self.sim_time:
+            self.pub_traj = self.create_publisher(
+                JointTrajectory, contract.REFERENCE_TRAJECTORY.name,
+                qos_profile(contract.REFERENCE_TRAJECTORY.qos))
             self.create_subscription(Clock, contract.CLOCK.name, self._on_clock,
                                      qos_profile(contract.CLOCK.qos, depth=10))
         else:
@@ -110,26 +123,28 @@ class ReferenceNode(Node):
         return SetParametersResult(successful=True)
 
     def _on_clock(self, msg: Clock) -> None:
-        # Publish the reference for this tick and, one period ahead, for the next: a
-        # lock-step plant cannot pass t + dt without it, and the controller then rarely
-        # waits for the reference (it keeps a buffer of stamped references).
+        # Answer clock t with the whole window [t, t + preview] (at least t + one period):
+        # the controller then has the coming periods before their states arrive. A resend
+        # or a reordered clock gets its window again: the same samples, so no special case.
         t = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
         if t < self.last_ns - EPOCH_PERIODS * self._dt_ns:   # /clock went back: a new run
             self.runs += 1
             self.get_logger().info(f'new run: /clock jumped back {(self.last_ns - t) * 1e-9:.6g}'
                                    f' s; trajectory from its start (run {self.runs})',
                                    throttle_duration_sec=1.0)
-            self.t_first, self.last_ns = None, -1
+            self.t_first = None
         if self.t_first is None or t < self.t_first:
             self.t_first = t
-        if t <= self.last_ns - self._dt_ns:
-            if t == self.last_ns - self._dt_ns:     # a repeated clock (resend)
-                self._publish(t)
-                self._publish(t + self._dt_ns)
-            return
-        if t > self.last_ns:
-            self._publish(t)
-        self._publish(t + self._dt_ns)
+        self.last_ns = t
+        n = max(1, int(float(self.opt['preview']) * 1e9 // self._dt_ns))
+        stamps = np.arange(n + 1, dtype=np.int64) * self._dt_ns + t
+        z, v = self._sample(stamps)
+        refs = [contract.Reference(int(st), float(zz), float(vv))
+                for st, zz, vv in zip(stamps, z, v)]
+        self.pub_traj.publish(contract.fill_reference_trajectory(self._traj, refs,
+                                                                 JointTrajectoryPoint))
+        self.pub.publish(contract.fill_reference(self._msg, refs[0]))
+        self.count += 1
 
     def _tick(self) -> None:
         if self.t_first is None:
@@ -142,15 +157,22 @@ class ReferenceNode(Node):
                                        f'{contract.REFERENCE.name}')
         self._publish(self.get_clock().now().nanoseconds)
 
+    def _sample(self, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return z_ref [m] and v_ref [m/s] at ``stamps_ns`` (held after ``duration``)."""
+        t = (stamps_ns - self.t_first) * 1e-9
+        dur = float(self.opt['duration'])
+        if dur <= 0:
+            return self.traj(t)
+        hold = t > dur
+        z, v = self.traj(np.minimum(t, dur))
+        return z, np.where(hold, 0.0, v)
+
     def _publish(self, stamp_ns: int) -> None:
         if self.t_first is None:
             self.t_first = stamp_ns
-        t = (stamp_ns - self.t_first) * 1e-9
-        dur = float(self.opt['duration'])
-        hold = dur > 0 and t > dur
-        z, v = self.traj(np.array([min(t, dur) if hold else t]))
-        contract.fill_reference(self._msg, contract.Reference(
-            stamp_ns, float(z[0]), 0.0 if hold else float(v[0])))
+        z, v = self._sample(np.array([stamp_ns], dtype=np.int64))
+        contract.fill_reference(self._msg, contract.Reference(stamp_ns, float(z[0]),
+                                                              float(v[0])))
         self.pub.publish(self._msg)
         self.last_ns = stamp_ns
         self.count += 1
