@@ -17,10 +17,11 @@ The ros_ehs topic contract (DESIGN.md section 3): names, message types, units, Q
 Pure Python, no ROS import, so the numerical core and the bag reader use it as freely as the
 nodes. Names are relative, so a namespace (``__ns:=/axis1``) runs several axes.
 
-Four small modules, re-exported here: :mod:`~ros_ehs_msgs_py.topics` (names, types, units,
+Five small modules, re-exported here: :mod:`~ros_ehs_msgs_py.topics` (names, types, units,
 which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain records),
 :mod:`~ros_ehs_msgs_py.records` (:class:`AxisState`, :class:`Reference`, :class:`Command`,
-:class:`Pressure`) and :mod:`~ros_ehs_msgs_py.conversions` (records to and from messages).
+:class:`Pressure`), :mod:`~ros_ehs_msgs_py.conversions` (records to and from messages) and
+:mod:`~ros_ehs_msgs_py.wire` (the loop's JointStates to and from CDR bytes, the fast path).
 """
 
 from ros_ehs_msgs_py.conversions import (command_from_msg, empty_msg, fill_command,
@@ -34,12 +35,17 @@ from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, DIAGNOSTICS, JOINT_
                                     JOINT_SPOOL, JOINT_VALVE, LOCKSTEP_NODE_TOPICS,
                                     NODE_TOPICS, NodeTopics, PRESSURE_P, PRESSURE_T, REFERENCE,
                                     REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
+from ros_ehs_msgs_py.wire import (command_from_cdr, command_to_cdr, decode_joint_state,
+                                  JointStateData, JointStateEncoder, state_from_cdr,
+                                  state_to_cdr)
 
 __all__ = [
     'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'JOINT_PISTON',
     'JOINT_SPOOL', 'JOINT_VALVE', 'LOCKSTEP_NODE_TOPICS', 'LOCKSTEP_QOS', 'LOOP_QOS',
     'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS',
     'REFERENCE', 'REFERENCE_TRAJECTORY', 'Reference', 'STATE', 'TOPICS', 'Topic', 'by_name',
+    'JointStateData', 'JointStateEncoder', 'command_from_cdr', 'command_to_cdr',
+    'decode_joint_state', 'state_from_cdr', 'state_to_cdr',
     'command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',
     'fill_reference_trajectory', 'fill_state', 'pressure_from_msg', 'reference_from_msg',
     'reference_trajectory_from_msg', 'stamp_ns', 'state_from_msg',

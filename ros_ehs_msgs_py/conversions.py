@@ -27,9 +27,11 @@ from typing import Any, Callable, Sequence
 from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
-__all__ = ['command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',
+__all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'fill_command',
+           'fill_pressure', 'fill_reference',
            'fill_reference_trajectory', 'fill_state', 'pressure_from_msg', 'reference_from_msg',
-           'reference_trajectory_from_msg', 'stamp_ns', 'state_from_msg']
+           'reference_trajectory_from_msg', 'stamp_ns', 'state_from_arrays',
+           'state_from_msg']
 
 
 def stamp_ns(header: Any) -> int:
@@ -105,22 +107,34 @@ def fill_state(msg: Any, s: AxisState) -> Any:
     return msg
 
 
-def state_from_msg(msg: Any) -> AxisState:
-    """Read an :class:`AxisState` from a ``state`` JointState (ValueError if malformed)."""
-    k = _joint(msg, JOINT_PISTON, 'state')
-    eff = _get(msg, 'effort')
-    force = float(eff[k]) if len(eff) > k else math.nan
+def state_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float],
+                      velocity: Sequence[float], effort: Sequence[float]) -> AxisState:
+    """Read an :class:`AxisState` from a ``state`` JointState's fields (ValueError if bad)."""
+    names = list(names)
+    try:
+        k = names.index(JOINT_PISTON)
+    except ValueError:
+        raise ValueError(f'`state` message has no joint {JOINT_PISTON!r} (joints: {names})'
+                         ) from None
+    force = float(effort[k]) if len(effort) > k else math.nan
     x = i = math.nan
-    names = list(_get(msg, 'name'))
     if JOINT_SPOOL in names:
         j = names.index(JOINT_SPOOL)
-        pos = _get(msg, 'position')
-        x = float(pos[j]) if len(pos) > j else math.nan
+        x = float(position[j]) if len(position) > j else math.nan
     if JOINT_VALVE in names:
         j = names.index(JOINT_VALVE)
-        i = float(eff[j]) if len(eff) > j else math.nan
-    return AxisState(stamp_ns(_get(msg, 'header')), _field(msg, 'position', k, 'state'),
-                     _field(msg, 'velocity', k, 'state'), force, x, i)
+        i = float(effort[j]) if len(effort) > j else math.nan
+    for field, arr in (('position', position), ('velocity', velocity)):
+        if len(arr) <= k:
+            raise ValueError(f'`state` message has no {field}[{k}] (length {len(arr)})')
+    return AxisState(stamp, float(position[k]), float(velocity[k]), force, x, i)
+
+
+def state_from_msg(msg: Any) -> AxisState:
+    """Read an :class:`AxisState` from a ``state`` JointState (ValueError if malformed)."""
+    return state_from_arrays(stamp_ns(_get(msg, 'header')), _get(msg, 'name'),
+                             _get(msg, 'position'), _get(msg, 'velocity'),
+                             _get(msg, 'effort'))
 
 
 def fill_reference(msg: Any, r: Reference) -> Any:
@@ -205,10 +219,23 @@ def fill_command(msg: Any, c: Command) -> Any:
     return msg
 
 
+def command_from_arrays(stamp: int, names: Sequence[str], effort: Sequence[float]) -> Command:
+    """Read a :class:`Command` from a ``servo_current`` JointState's fields."""
+    names = list(names)
+    try:
+        k = names.index(JOINT_VALVE)
+    except ValueError:
+        raise ValueError(f'`servo_current` message has no joint {JOINT_VALVE!r} (joints: '
+                         f'{names})') from None
+    if len(effort) <= k:
+        raise ValueError(f'`servo_current` message has no effort[{k}] (length {len(effort)})')
+    return Command(stamp, float(effort[k]))
+
+
 def command_from_msg(msg: Any) -> Command:
     """Read a :class:`Command` from a ``servo_current`` JointState."""
-    k = _joint(msg, JOINT_VALVE, 'servo_current')
-    return Command(stamp_ns(_get(msg, 'header')), _field(msg, 'effort', k, 'servo_current'))
+    return command_from_arrays(stamp_ns(_get(msg, 'header')), _get(msg, 'name'),
+                               _get(msg, 'effort'))
 
 
 def fill_pressure(msg: Any, p: Pressure) -> Any:

@@ -61,8 +61,10 @@ LOOP_QOS = QosSpec('best_effort', 1)
 RECORD_QOS = QosSpec('reliable', 10)
 #: ``/clock``, as rclcpp's ClockQoS.
 CLOCK_QOS = QosSpec('best_effort', 1)
-#: Loop topics and ``/clock`` in lock-step: reliable, keep last 1000. Nothing waits for the
+#: Loop topics and ``/clock`` in lock-step: reliable, keep last 10000. Nothing waits for the
 #: recorder in lock-step, and a best-effort recorder that the OS pauses for 0.3 s loses
-#: ~100 states; a reliable writer holds up to 1000 samples (1 s at 1 kHz) until each
-#: reliable reader has them. Best-effort readers (rclpy's /clock) still match.
-LOCKSTEP_QOS = QosSpec('reliable', 1000)
+#: ~100 states; a reliable writer holds up to 10000 samples until each reliable reader has
+#: them: 2 s of a lock-step loop at 5000 steps/s (with 1000, a 0.3 s pause of the recorder
+#: lost 110 states once the loop ran that fast). The history is allocated as it fills: the
+#: nodes' memory is the same as with 1000. Best-effort readers (rclpy's /clock) still match.
+LOCKSTEP_QOS = QosSpec('reliable', 10000)

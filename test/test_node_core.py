@@ -272,3 +272,45 @@ def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not():
     assert good == 'threads on CPU 0'
     assert sets == '[frozenset({0})]'
     assert len(os.sched_getaffinity(0)) >= 1     # the test process itself is untouched
+
+
+# -- the wire fast path, against rclpy's own serializer ------------------------------------------
+def test_wire_reads_any_joint_state_rclpy_serializes_and_writes_what_rclpy_reads():
+    import random
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import JointState
+    rng = random.Random(8)
+    for n in range(1500):      # foreign layouts: names, lengths, frame ids, extreme values
+        j = JointState()
+        j.header.stamp.sec = rng.randint(-2**31, 2**31 - 1)
+        j.header.stamp.nanosec = rng.randint(0, 999_999_999)
+        j.header.frame_id = 'f' * rng.randint(0, 6)
+        j.name = ['j' * rng.randint(0, 9) for _ in range(rng.randint(0, 4))]
+        for f in ('position', 'velocity', 'effort'):
+            setattr(j, f, [rng.choice([rng.uniform(-1e308, 1e308), math.inf, -0.0])
+                           for _ in range(rng.randint(0, 4))])
+        data = serialize_message(j)
+        for _ in range(2):     # the second read goes through the cached layout
+            d = c.decode_joint_state(data)
+            assert d.stamp_ns == j.header.stamp.sec * 10**9 + j.header.stamp.nanosec, n
+            assert list(d.name) == list(j.name), n
+            for f in ('position', 'velocity', 'effort'):
+                assert list(getattr(d, f)) == list(getattr(j, f)), (n, f)
+    s = c.AxisState(1_234_567_890_123, 0.01, 0.02, 3.0, 1e-5, 0.004)
+    m = deserialize_message(c.state_to_cdr(s), JointState)
+    assert list(m.name) == ['piston', 'spool', 'servo_valve'] and c.state_from_msg(m) == s
+    m = deserialize_message(c.command_to_cdr(c.Command(-5, 0.001)), JointState)
+    assert c.command_from_msg(m) == c.Command(-5, 0.001) and list(m.name) == ['servo_valve']
+    # the records by the same rules as from message objects, foreign joint order included
+    other = c.fill_state(JointState(), s)
+    other.name, other.position = ['spool', 'piston', 'servo_valve'], [1e-5, 0.01, math.nan]
+    other.velocity, other.effort = [0.0, 0.02, 0.0], [0.0, 3.0, 0.004]
+    assert c.state_from_cdr(serialize_message(other)) == c.state_from_msg(other) == s
+    with pytest.raises(ValueError, match="no joint 'servo_valve'"):
+        c.command_from_cdr(serialize_message(c.fill_reference(JointState(),
+                                                              c.Reference(0, 0.1, 0.0))))
+    for bad, why in ((b'\x00\x01\x00', 'no CDR header'),
+                     (b'\x00\x03\x00\x00' + bytes(40), 'encapsulation'),
+                     (c.state_to_cdr(s)[:60], 'truncated|bad string')):
+        with pytest.raises(ValueError, match=why):
+            c.decode_joint_state(bad)

@@ -23,7 +23,8 @@ machine over JointState objects), best effort and with the lock-step QoS; and th
 lock-step of the topology the bench had until session 8 (``--relay``: a third process turns
 a clock every period into the reference the pong waits for, reliable; the bench now sends
 ``/clock`` every 10 periods and the references as one ``reference_trajectory`` per clock),
-none of our code in any of them.
+none of our code in any of them. And, for reference, the bare ping-pong over serialized
+messages (``--raw``), the path our loop nodes take: the ceiling for them.
 Last line: one JSON object.
 """
 
@@ -64,7 +65,7 @@ def main(argv=None) -> int:
     Run the benchmark; print figures, the last line JSON.
 
     Two yardsticks from the same run: the bare ping-pong best effort (the issue's ceiling)
-    and with the lock-step loop's own QoS (reliable, depth 1000, so a recorder gets every
+    and with the lock-step loop's own QoS (reliable, depth 10000, so a recorder gets every
     sample), which costs the bare loop itself about a quarter of its rate.
     """
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench lockstep')
@@ -86,8 +87,8 @@ def main(argv=None) -> int:
                 raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
             launch.stop(['reference', 'controller', 'plant'])
             f = launch['plant'].figures()
-        v, vr, v3 = (_volley(dom, a.seconds, extra, pin)
-                     for extra in ([], ['--reliable'], ['--reliable', '--relay']))
+        v, vr, v3, vw = (_volley(dom, a.seconds, extra, pin)
+                         for extra in ([], ['--reliable'], ['--reliable', '--relay'], ['--raw']))
     run_closed_loop(Params(), Sine(), 0.01, model=a.model)   # load the compiled kernels first
     t0 = time.perf_counter()
     run_closed_loop(Params(), Sine(), a.seconds, model=a.model)
@@ -108,7 +109,10 @@ def main(argv=None) -> int:
                    'bare_relay_round_trips_per_s': round(v3['volleys_per_s'], 1),
                    'lockstep_vs_bare_relay': round(f['steps_per_s'] / v3['volleys_per_s'], 3),
                    'bare_relay_vs_bare_pingpong': round(v3['volleys_per_s']
-                                                        / v['volleys_per_s'], 3)})
+                                                        / v['volleys_per_s'], 3),
+                   'bare_serialized_round_trips_per_s': round(vw['volleys_per_s'], 1),
+                   'lockstep_vs_bare_serialized': round(f['steps_per_s'] / vw['volleys_per_s'],
+                                                        3)})
 
 
 if __name__ == '__main__':

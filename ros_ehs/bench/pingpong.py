@@ -25,12 +25,15 @@ plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointSt
 * ``volley``: the next ping goes out as soon as the echo of the last is back (a bare
   lock-step): round trips per second.
 * ``relay`` and ``--relay``: the barest lock-step *with a reference process*, the lock-step
-  bench's topology until session 8 (a clock and a reference every period). The volley also publishes a ``rosgraph_msgs/Clock`` with each ping (as
-  the plant publishes ``/clock`` before its state); the relay answers each clock k with a
-  JointState stamped k + 1 (and k itself first); the pong echoes ping k only once it holds
-  the relay's message k (as the controller waits for the reference of the state's stamp).
+  bench's topology until session 8 (a clock and a reference every period). The volley also
+  publishes a ``rosgraph_msgs/Clock`` with each ping (as the plant then did); the relay
+  answers each clock k with a JointState stamped k + 1 (and k itself first); the pong echoes
+  ping k only once it holds the relay's message k (as the controller waits for the
+  reference of the state's stamp).
 
-``--reliable`` uses the lock-step loop's QoS (reliable, depth 1000) instead;
+``--raw`` sends serialized messages (``publish`` of bytes, ``raw=True`` subscriptions), the
+path the loop nodes take since session 8 (ping, pong, volley). ``--reliable`` uses the
+lock-step loop's QoS (reliable, depth 10000) instead;
 ``--rt-priority N`` puts every thread on SCHED_FIFO priority N, as the loop nodes' option
 ``rt_priority`` does; ``--cpu N`` keeps them on CPU N, as ``cpu_affinity`` does. On SIGINT
 the ping or volley prints its figures as one JSON line.
@@ -39,6 +42,7 @@ the ping or volley prints its figures as one JSON line.
 import json
 import os
 import signal
+import struct
 import sys
 import time
 
@@ -46,6 +50,7 @@ import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.experimental import EventsExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -53,7 +58,7 @@ from sensor_msgs.msg import JointState
 
 _QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 #: ``--reliable``: the lock-step loop's QoS (the contract's LOCKSTEP_QOS), for comparison
-_RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+_RELIABLE = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE)
 _N = 100000      # samples kept (100 s at 1 kHz)
 
 
@@ -91,6 +96,8 @@ def main(argv=None) -> int:
     rtt = []
 
     relay = '--relay' in args
+    raw = '--raw' in args
+    wire = bytearray(serialize_message(msg))       # --raw: stamp.sec at bytes 4-7
     if role == 'pong' and relay:
         pub = node.create_publisher(JointState, 'pong', qos)
         held, waiting = set(), {}
@@ -113,7 +120,7 @@ def main(argv=None) -> int:
         node.create_subscription(JointState, 'ref', on_ref, qos)
     elif role == 'pong':
         pub = node.create_publisher(JointState, 'pong', qos)
-        node.create_subscription(JointState, 'ping', pub.publish, qos)
+        node.create_subscription(JointState, 'ping', pub.publish, qos, raw=raw)
     elif role == 'relay':
         pub = node.create_publisher(JointState, 'ref', qos)
 
@@ -138,10 +145,14 @@ def main(argv=None) -> int:
             if pub_clock is not None:
                 clock_msg.clock.sec = st['k']
                 pub_clock.publish(clock_msg)
-            pub.publish(msg)
+            if raw:
+                struct.pack_into('<i', wire, 4, st['k'])
+                pub.publish(bytes(wire))
+            else:
+                pub.publish(msg)
 
         def on_pong(m):
-            if m.header.stamp.sec == st['k']:
+            if (struct.unpack_from('<i', m, 4)[0] if raw else m.header.stamp.sec) == st['k']:
                 st['n'] += 1
                 st['rx'] = time.monotonic()
                 if len(rtt) < _N:
@@ -152,7 +163,7 @@ def main(argv=None) -> int:
                         st['t0'] = time.monotonic()
                     send()
 
-        node.create_subscription(JointState, 'pong', on_pong, qos)
+        node.create_subscription(JointState, 'pong', on_pong, qos, raw=raw)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if role == 'ping':
             def tick():

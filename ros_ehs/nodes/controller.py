@@ -126,15 +126,14 @@ class ControllerNode(Node):
         self._diag_future = 0
         self.err = Window(2000)
         self.compute = Window(2000)
-        self._cmd = JointState()
-        self._cmd_rec = contract.Command(0, 0.0)
 
         cmd_qos = qos_profile(contract.COMMAND.qos_in(self.lockstep))
         self.pub_cmd = self.create_publisher(JointState, contract.COMMAND.name, cmd_qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               qos_profile(contract.DIAGNOSTICS.qos))
+        # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire, the fast path)
         self.create_subscription(JointState, contract.STATE.name, self._on_state,
-                                 qos_profile(contract.STATE.qos))
+                                 qos_profile(contract.STATE.qos), raw=True)
         self._last_rx = time.monotonic()
         if self.wall:     # a timer, not a QoS deadline: that would need every
             # state publisher (a rig, a bag player) to offer a deadline too
@@ -194,9 +193,9 @@ class ControllerNode(Node):
         return z + v * ahead, v
 
     # -- states ------------------------------------------------------------------------------
-    def _on_state(self, msg: JointState) -> None:
+    def _on_state(self, data: bytes) -> None:
         self._last_rx = time.monotonic()
-        s = read_msg(self, contract.state_from_msg, msg, 'state')
+        s = read_msg(self, contract.state_from_cdr, data, 'state')
         if s is None:
             self.counts['bad'] += 1
             return
@@ -260,8 +259,7 @@ class ControllerNode(Node):
         self.compute.add(time.perf_counter() - t0)
 
     def _publish(self, stamp_ns: int, i: float) -> None:
-        contract.fill_command(self._cmd, self._cmd_rec._replace(stamp_ns=stamp_ns, i=i))
-        self.pub_cmd.publish(self._cmd)
+        self.pub_cmd.publish(contract.command_to_cdr(contract.Command(stamp_ns, i)))
 
     def _check_lost(self) -> None:
         limit = LOST_FACTOR * float(self.params['stale_timeout'])

@@ -32,7 +32,7 @@ the command, as a bare ping-pong does (sim-time nodes see time in ``clock_period
 under gazebo_ros's ``publish_rate``; 0 publishes every period). A lost message is recovered
 by republishing the state after ``resend_period`` of silence (the controller answers a
 repeated stamp with the same command). Its topics go out over the contract's
-``LOCKSTEP_QOS`` (reliable, depth 1000), so a recorder that the OS pauses still gets every
+``LOCKSTEP_QOS`` (reliable, depth 10000), so a recorder that the OS pauses still gets every
 sample; the subscriptions stay best effort and match any publisher.
 
 Stamp policy for commands (the controller stamps each command with the state it answers): a
@@ -162,7 +162,6 @@ class PlantNode(Node):
         self._noise = tuple(float(self.opt[k]) for k in ('noise_z', 'noise_v', 'noise_p'))
         self._pending: Params | None = None
 
-        self._msg = JointState()
         self._pmsg = (FluidPressure(), FluidPressure())
         self._cmsg = Clock()
 
@@ -182,8 +181,9 @@ class PlantNode(Node):
         self._loop: threading.Thread | None = None
         if self.lockstep:
             self.pub_clock = self.create_publisher(Clock, contract.CLOCK.name, out(contract.CLOCK))
+        # raw: the command's CDR bytes are read directly (ros_ehs_msgs_py.wire, the fast path)
         self.create_subscription(JointState, contract.COMMAND.name, self._on_command,
-                                 qos_profile(contract.COMMAND.qos))
+                                 qos_profile(contract.COMMAND.qos), raw=True)
         self.add_on_set_parameters_callback(self._check_params)
         self.add_post_set_parameters_callback(self._apply_params)
         clock = steady_clock()
@@ -214,9 +214,9 @@ class PlantNode(Node):
         return self.t0_ns + (self.k if k is None else k) * self._dt_ns
 
     # -- commands ----------------------------------------------------------------------------
-    def _on_command(self, msg: JointState) -> None:
+    def _on_command(self, data: bytes) -> None:
         now = time.monotonic()     # on arrival, as the bare ping-pong's round trip ends
-        c = read_msg(self, contract.command_from_msg, msg, 'command')
+        c = read_msg(self, contract.command_from_cdr, data, 'command')
         if c is None:
             self.bad_commands += 1
             return
@@ -354,7 +354,7 @@ class PlantNode(Node):
         xv = float(x[self._ixv]) if self._ixv >= 0 else math.nan
         nz, nv, npr = self._noise
         e = self._rng.standard_normal(4) if (nz or nv or npr) else _ZEROS
-        contract.fill_state(self._msg, contract.AxisState(
+        data = contract.state_to_cdr(contract.AxisState(
             st, float(x[self._iz] + nz * e[0]), float(x[self._iv] + nv * e[1]),
             float(self.params['A_p'] * (x[self._ipa] - x[self._ipb])), xv, self.applied))
         j = (st - self.t0_ns) // self._dt_ns % _RING
@@ -362,7 +362,7 @@ class PlantNode(Node):
         # the round trip starts here, at the publish, as the bare ping-pong's does: the
         # model step before it is the plant's compute, not the loop's transport
         self._sent_time[j] = time.monotonic()
-        self.pub_state.publish(self._msg)
+        self.pub_state.publish(data)      # serialized: no message object to convert
         if clock and self.pub_clock is not None:     # after the state: off the loop's path
             self._cmsg.clock.sec, self._cmsg.clock.nanosec = divmod(st, 1_000_000_000)
             self.pub_clock.publish(self._cmsg)
