@@ -27,6 +27,9 @@ against 8200-9200 with message objects (``bench lockstep`` prints both).
   ``unpack``. A truncated or foreign payload raises ValueError naming what is wrong.
 * :func:`state_from_cdr`, :func:`command_from_cdr`: the records, by the same rules as
   :func:`~ros_ehs_msgs_py.conversions.state_from_msg` and ``command_from_msg``.
+* :func:`reference_trajectory_to_cdr`, :func:`reference_trajectory_from_cdr`: the lock-step
+  ``reference_trajectory`` (trajectory_msgs/JointTrajectory), the same way: a template per
+  point count, and a reader for any JointTrajectory with the last layout cached.
 
 Checked against rclpy's own ``serialize_message``/``deserialize_message`` (test_node_core).
 """
@@ -38,11 +41,12 @@ import struct
 from typing import NamedTuple, Sequence
 
 from ros_ehs_msgs_py.conversions import command_from_arrays, state_from_arrays
-from ros_ehs_msgs_py.records import AxisState, Command
+from ros_ehs_msgs_py.records import AxisState, Command, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
 __all__ = ['JointStateData', 'JointStateEncoder', 'command_from_cdr', 'command_to_cdr',
-           'decode_joint_state', 'state_from_cdr', 'state_to_cdr']
+           'decode_joint_state', 'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr',
+           'state_from_cdr', 'state_to_cdr']
 
 #: encapsulation id -> (byte order, alignment of 8-byte values): CDR and plain XCDR2
 _ENCAPSULATION = {b'\x00\x00': ('>', 8), b'\x00\x01': ('<', 8),
@@ -217,3 +221,130 @@ def command_from_cdr(data: bytes) -> Command:
     """Read a :class:`Command` from a serialized ``servo_current`` JointState."""
     m = decode_joint_state(data)
     return command_from_arrays(m.stamp_ns, m.name, m.effort)
+
+
+# -- trajectory_msgs/JointTrajectory (the lock-step reference_trajectory) -----------------------
+def _trajectory_template(n: int) -> tuple[bytearray, list[int]]:
+    """Return the CDR of an ``n``-point trajectory of joint ``piston`` and its value offsets."""
+    body = bytearray(struct.pack('<iII', 0, 0, 1)) + b'\0\0\0\0'     # stamp, frame_id ''
+    name = JOINT_PISTON.encode() + b'\0'
+    body += struct.pack('<II', 1, len(name)) + name
+    body += b'\0' * _pad(len(body), 4) + struct.pack('<I', n)
+    offsets = []      # per point: position, velocity (8-byte aligned), time_from_start
+    for _ in range(n):
+        for _field in range(2):
+            body += b'\0' * _pad(len(body), 4) + struct.pack('<I', 1)
+            body += b'\0' * _pad(len(body), 8)
+            offsets.append(len(body))
+            body += b'\0' * 8
+        body += struct.pack('<II', 0, 0)          # no accelerations, no effort
+        offsets.append(len(body))
+        body += b'\0' * 8
+    return bytearray(b'\x00\x01\x00\x00') + body, [4 + o for o in offsets]
+
+
+_TRAJ: dict[int, tuple[bytearray, list[int]]] = {}
+
+
+def reference_trajectory_to_cdr(refs: Sequence[Reference]) -> bytes:
+    """Return ``refs`` (in time order) as a serialized ``reference_trajectory``."""
+    if not refs:
+        raise ValueError('a reference trajectory needs at least one point')
+    n = len(refs)
+    if n not in _TRAJ:
+        if len(_TRAJ) > 16:
+            _TRAJ.clear()
+        _TRAJ[n] = _trajectory_template(n)
+    buf, off = _TRAJ[n]
+    t0 = refs[0].stamp_ns
+    struct.pack_into('<iI', buf, 4, *divmod(int(t0), _NS))
+    pack = struct.pack_into
+    for k, r in enumerate(refs):
+        o = off[3 * k:3 * k + 3]
+        pack('<d', buf, o[0], r.z_ref)
+        pack('<d', buf, o[1], r.v_ref)
+        pack('<iI', buf, o[2], *divmod(int(r.stamp_ns - t0), _NS))
+    return bytes(buf)
+
+
+_traj_cache: list = [None]      # (head bytes, length, Struct, offset, k, counts per point)
+
+
+def reference_trajectory_from_cdr(data: bytes) -> list[Reference]:
+    """
+    Read the :class:`Reference` of each point of a serialized ``reference_trajectory``.
+
+    Any JointTrajectory: the ``piston`` joint's position and velocity (0 without one) at
+    ``header.stamp + time_from_start``, as :func:`~ros_ehs_msgs_py.conversions.
+    reference_trajectory_from_msg` reads a message object. ValueError names what is wrong.
+    """
+    c = _traj_cache[0]
+    if c is not None and len(data) == c[1] and data[:2] == c[0][:2] and \
+            data[12:c[3]] == c[0][2:]:
+        v = c[2].unpack_from(data, c[3])
+        if v[0] == c[5] and all(v[i] == w for i, w in c[6]):
+            sec, nsec = struct.unpack_from(_ENCAPSULATION[bytes(data[:2])][0] + 'iI', data, 4)
+            t0 = sec * _NS + nsec
+            return [Reference(t0 + v[ts] * _NS + v[ts + 1], v[zp], v[vp] if vp else 0.0)
+                    for zp, vp, ts in c[4]]
+    return _trajectory_slow(data)
+
+
+def _trajectory_slow(data: bytes) -> list[Reference]:
+    r = _Reader(data)
+    sec, nsec = r._take('iI', 8, 4, 'header.stamp')
+    r.string('header.frame_id')
+    n = r.u32('joint_names')
+    if n > len(data):
+        raise ValueError(f'JointTrajectory payload: joint_names claims {n} strings')
+    names = [r.string(f'joint_names[{k}]') for k in range(n)]
+    try:
+        j = names.index(JOINT_PISTON)
+    except ValueError:
+        raise ValueError(f'`reference_trajectory` message has no joint {JOINT_PISTON!r} '
+                         f'(joints: {names})') from None
+    mark = r.off + _pad(r.off - 4, 4)      # where the point count starts
+    npts = r.u32('points')
+    if npts > len(data):
+        raise ValueError(f'JointTrajectory payload: points claims {npts} points')
+    t0 = sec * _NS + nsec
+    out, layout = [], []
+    fmt, idx, checks = r.order + 'I', 1, []
+    off = mark + 4
+    for k in range(npts):
+        arrays = []
+        for field in ('positions', 'velocities', 'accelerations', 'effort'):
+            arrays.append(r.doubles(f'points[{k}].{field}'))
+        ts, tn = r._take('iI', 8, 4, f'points[{k}].time_from_start')
+        pos, vel = arrays[0], arrays[1]
+        if len(pos) <= j:
+            raise ValueError(f'`reference_trajectory` point {k} has no positions[{j}] '
+                             f'(length {len(pos)})')
+        out.append(Reference(t0 + ts * _NS + tn, pos[j], vel[j] if len(vel) > j else 0.0))
+        # the same walk as a format, for the cache
+        where = []
+        for arr in arrays:
+            p = _pad(off - 4, 4)
+            fmt += (f'{p}x' if p else '') + 'I'
+            checks.append((idx, len(arr)))
+            idx += 1
+            off += p + 4
+            if arr:
+                p = _pad(off - 4, r.align8)
+                fmt += (f'{p}x' if p else '') + f'{len(arr)}d'
+                where.append(idx)
+                idx += len(arr)
+                off += p + 8 * len(arr)
+            else:
+                where.append(None)
+        p = _pad(off - 4, 4)
+        fmt += (f'{p}x' if p else '') + 'iI'
+        zp = where[0] + j
+        vp = where[1] + j if where[1] is not None and len(vel) > j else None
+        layout.append((zp, vp, idx))
+        idx += 2
+        off += p + 8
+    if r.off == len(data) and off == len(data):
+        _traj_cache[0] = (bytes(data[:2]) + bytes(data[12:mark]), len(data),
+                          struct.Struct(fmt), mark, layout, npts, checks)
+    return out

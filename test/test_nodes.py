@@ -276,8 +276,9 @@ def test_bad_messages_crash_nothing(dom, tmp_path, ros):
         for _ in range(20):
             for m in bad_cmds:
                 pub_cmd.publish(m)
-            for m in bad_states:
-                pub_state.publish(m)
+            for m in bad_states:      # one at a time: a depth-1 reader keeps only the last
+                pub_state.publish(m)  # of a burst
+                ros.spin(0.003)
             ros.spin(0.02)
         ros.spin(1.0)
         assert launch['plant'].alive() and launch['controller'].alive()

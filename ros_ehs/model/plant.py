@@ -218,10 +218,11 @@ class Plant:
         2.8 us against 9.0 us for the simplified model).
         """
         self._advance(x, u, dt)
-        for v in x:
+        xs = x.tolist()      # Python floats: no numpy scalar per element
+        for v in xs:
             if not math.isfinite(v):
                 return False
-        return abs(x[self._iz]) < self._l_iac
+        return abs(xs[self._iz]) < self._l_iac
 
     def _advance(self, x: np.ndarray, u: np.ndarray, dt: float) -> None:
         """Integrate ``x`` in place over ``dt`` (substeps, Jacobian refresh): no checks."""

@@ -141,7 +141,7 @@ class ControllerNode(Node):
         if self.lockstep:
             self.create_subscription(JointTrajectory, contract.REFERENCE_TRAJECTORY.name,
                                      self._on_trajectory,
-                                     qos_profile(contract.REFERENCE_TRAJECTORY.qos))
+                                     qos_profile(contract.REFERENCE_TRAJECTORY.qos), raw=True)
         else:
             self.create_subscription(JointState, contract.REFERENCE.name, self._on_reference,
                                      qos_profile(contract.REFERENCE.qos))
@@ -161,8 +161,8 @@ class ControllerNode(Node):
             return
         self._ref = (r.z_ref, r.v_ref, time.monotonic(), r.stamp_ns)
 
-    def _on_trajectory(self, msg: JointTrajectory) -> None:
-        refs = read_msg(self, contract.reference_trajectory_from_msg, msg,
+    def _on_trajectory(self, data: bytes) -> None:
+        refs = read_msg(self, contract.reference_trajectory_from_cdr, data,
                         'reference_trajectory')
         if refs is None:
             self.counts['bad'] += 1

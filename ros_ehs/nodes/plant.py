@@ -108,7 +108,7 @@ OPTIONS = (
 
 _MAX_CATCHUP = 50      # periods a late tick may step before the loop is resynchronised
 _RING = 1024           # send times kept for round-trip measurement
-_ZEROS = np.zeros(4)
+_ZEROS = (0.0, 0.0, 0.0, 0.0)
 
 
 class PlantNode(Node):
@@ -134,6 +134,8 @@ class PlantNode(Node):
         self._dt_ns = int(round(self.dt * 1e9))
         self.lockstep = self.opt['mode'] == 'lockstep'
         self._clock_every = max(1, int(round(float(self.opt['clock_period']) / self.dt)))
+        self._duration = float(self.opt['duration']) if self.lockstep else 0.0
+        self._A_p = float(self.params['A_p'])
         self.i_limit = 2.0 * float(self.params['i_rated'])
         self.u = np.zeros(2)
         self.i_cmd = 0.0
@@ -155,8 +157,8 @@ class PlantNode(Node):
         self._fresh = False
         self._last_cmd_stamp = -1
         self._last_rx = 0.0
-        self._sent_stamp = np.full(_RING, -1, dtype=np.int64)
-        self._sent_time = np.zeros(_RING)
+        self._sent_stamp = [-1] * _RING       # plain lists: the per-period path stays in
+        self._sent_time = [0.0] * _RING       # Python floats, no numpy scalars
         self.stats = LoopStats()
         self._rng = np.random.default_rng(int(self.opt['seed']))
         self._noise = tuple(float(self.opt[k]) for k in ('noise_z', 'noise_v', 'noise_p'))
@@ -277,8 +279,8 @@ class PlantNode(Node):
                                     'model: non-finite, or the piston outside the '
                                     'cylinder), state held', throttle_duration_sec=1.0)
         self.k += 1
-        if self.lockstep and self.opt['duration'] > 0:
-            self.finished = self.k * self.dt >= self.opt['duration'] - 1e-12
+        if self._duration > 0:      # lock-step only
+            self.finished = self.k * self.dt >= self._duration - 1e-12
 
     def _tick(self) -> None:
         now_ns = time.monotonic_ns()
@@ -351,12 +353,13 @@ class PlantNode(Node):
     def _publish(self, clock: bool = False) -> None:
         st = self.stamp_ns()
         x = self.x
-        xv = float(x[self._ixv]) if self._ixv >= 0 else math.nan
+        xs = x.tolist()
+        xv = xs[self._ixv] if self._ixv >= 0 else math.nan
         nz, nv, npr = self._noise
-        e = self._rng.standard_normal(4) if (nz or nv or npr) else _ZEROS
+        e = self._rng.standard_normal(4).tolist() if (nz or nv or npr) else _ZEROS
         data = contract.state_to_cdr(contract.AxisState(
-            st, float(x[self._iz] + nz * e[0]), float(x[self._iv] + nv * e[1]),
-            float(self.params['A_p'] * (x[self._ipa] - x[self._ipb])), xv, self.applied))
+            st, xs[self._iz] + nz * e[0], xs[self._iv] + nv * e[1],
+            self._A_p * (xs[self._ipa] - xs[self._ipb]), xv, self.applied))
         j = (st - self.t0_ns) // self._dt_ns % _RING
         self._sent_stamp[j] = st
         # the round trip starts here, at the publish, as the bare ping-pong's does: the
@@ -368,7 +371,7 @@ class PlantNode(Node):
             self.pub_clock.publish(self._cmsg)
         for k, pub in ((0, self.pub_p), (1, self.pub_t)):
             if pub.get_subscription_count():       # only when someone listens
-                p = float(x[(self._ipa, self._ipb)[k]] + npr * e[2 + k])
+                p = xs[(self._ipa, self._ipb)[k]] + npr * e[2 + k]
                 pub.publish(contract.fill_pressure(self._pmsg[k], contract.Pressure(st, p)))
 
     # -- parameters and diagnostics ----------------------------------------------------------
@@ -381,6 +384,7 @@ class PlantNode(Node):
         if new is not None and new != self.params:
             self.params = new
             self.plant = Plant(new, self.opt['model'])
+            self._A_p = float(new['A_p'])
             self.i_limit = 2.0 * float(new['i_rated'])
             self.get_logger().info('plant parameters changed; model rebuilt, state kept')
         update_options(self.opt, changes, OPTIONS)

@@ -53,7 +53,7 @@ from ros_ehs.reference import make, REFERENCE_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['OPTIONS', 'ReferenceNode', 'main']
 
@@ -88,7 +88,6 @@ class ReferenceNode(Node):
         self.count = 0
         self.runs = 1
         self._msg = JointState()
-        self._traj = JointTrajectory()
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         # under sim time the reference follows /clock tick by tick (lock-step): every sample
         # counts, so it goes out over the lock-step QoS
@@ -141,8 +140,7 @@ class ReferenceNode(Node):
         z, v = self._sample(stamps)
         refs = [contract.Reference(int(st), float(zz), float(vv))
                 for st, zz, vv in zip(stamps, z, v)]
-        self.pub_traj.publish(contract.fill_reference_trajectory(self._traj, refs,
-                                                                 JointTrajectoryPoint))
+        self.pub_traj.publish(contract.reference_trajectory_to_cdr(refs))    # serialized
         self.pub.publish(contract.fill_reference(self._msg, refs[0]))
         self.count += 1
 
