@@ -36,9 +36,9 @@ from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, DIAGNOSTICS, JOINT_
                                     NODE_TOPICS, NodeTopics, PRESSURE_P, PRESSURE_T, REFERENCE,
                                     REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
 from ros_ehs_msgs_py.wire import (command_from_cdr, command_to_cdr, decode_joint_state,
-                                  JointStateData, JointStateEncoder,
-                                  reference_trajectory_from_cdr, reference_trajectory_to_cdr,
-                                  state_from_cdr, state_to_cdr)
+                                  JointStateData, JointStateEncoder, reference_from_cdr,
+                                  reference_to_cdr, reference_trajectory_from_cdr,
+                                  reference_trajectory_to_cdr, state_from_cdr, state_to_cdr)
 
 __all__ = [
     'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'JOINT_PISTON',
@@ -46,7 +46,8 @@ __all__ = [
     'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS',
     'REFERENCE', 'REFERENCE_TRAJECTORY', 'Reference', 'STATE', 'TOPICS', 'Topic', 'by_name',
     'JointStateData', 'JointStateEncoder', 'command_from_cdr', 'command_to_cdr',
-    'decode_joint_state', 'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr',
+    'decode_joint_state', 'reference_from_cdr', 'reference_to_cdr',
+    'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr',
     'state_from_cdr', 'state_to_cdr',
     'command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',
     'fill_reference_trajectory', 'fill_state', 'pressure_from_msg', 'reference_from_msg',

@@ -29,7 +29,8 @@ from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
 __all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'fill_command',
            'fill_pressure', 'fill_reference',
-           'fill_reference_trajectory', 'fill_state', 'pressure_from_msg', 'reference_from_msg',
+           'fill_reference_trajectory', 'fill_state', 'pressure_from_msg',
+           'reference_from_arrays', 'reference_from_msg',
            'reference_trajectory_from_msg', 'stamp_ns', 'state_from_arrays',
            'state_from_msg']
 
@@ -147,12 +148,24 @@ def fill_reference(msg: Any, r: Reference) -> Any:
     return msg
 
 
+def reference_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float],
+                          velocity: Sequence[float]) -> Reference:
+    """Read a :class:`Reference` from a ``reference`` JointState's fields."""
+    names = list(names)
+    try:
+        k = names.index(JOINT_PISTON)
+    except ValueError:
+        raise ValueError(f'`reference` message has no joint {JOINT_PISTON!r} (joints: '
+                         f'{names})') from None
+    if len(position) <= k:
+        raise ValueError(f'`reference` message has no position[{k}] (length {len(position)})')
+    return Reference(stamp, float(position[k]), float(velocity[k]) if len(velocity) > k else 0.0)
+
+
 def reference_from_msg(msg: Any) -> Reference:
     """Read a :class:`Reference` from a ``reference`` JointState."""
-    k = _joint(msg, JOINT_PISTON, 'reference')
-    vel = _get(msg, 'velocity')
-    v = float(vel[k]) if len(vel) > k else 0.0
-    return Reference(stamp_ns(_get(msg, 'header')), _field(msg, 'position', k, 'reference'), v)
+    return reference_from_arrays(stamp_ns(_get(msg, 'header')), _get(msg, 'name'),
+                                 _get(msg, 'position'), _get(msg, 'velocity'))
 
 
 def fill_reference_trajectory(msg: Any, refs: Sequence[Reference],

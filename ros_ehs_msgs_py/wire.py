@@ -23,10 +23,11 @@ against 8200-9200 with message objects (``bench lockstep`` prints both).
   message is the template with the stamp and the values packed in (:func:`state_to_cdr`,
   :func:`command_to_cdr`).
 * :func:`decode_joint_state`: any JointState, from any client: CDR (XCDR1) and plain XCDR2,
-  either byte order; the last layout seen is cached, so a steady publisher costs one
-  ``unpack``. A truncated or foreign payload raises ValueError naming what is wrong.
-* :func:`state_from_cdr`, :func:`command_from_cdr`: the records, by the same rules as
-  :func:`~ros_ehs_msgs_py.conversions.state_from_msg` and ``command_from_msg``.
+  either byte order; each layout seen is cached (by payload length), so a steady publisher
+  costs one ``unpack``. A truncated or foreign payload raises ValueError naming what is wrong.
+* :func:`state_from_cdr`, :func:`command_from_cdr`, :func:`reference_from_cdr`: the
+  records, by the same rules as :func:`~ros_ehs_msgs_py.conversions.state_from_msg` and the
+  other ``*_from_msg``.
 * :func:`reference_trajectory_to_cdr`, :func:`reference_trajectory_from_cdr`: the lock-step
   ``reference_trajectory`` (trajectory_msgs/JointTrajectory), the same way: a template per
   point count, and a reader for any JointTrajectory with the last layout cached.
@@ -40,13 +41,15 @@ import math
 import struct
 from typing import NamedTuple, Sequence
 
-from ros_ehs_msgs_py.conversions import command_from_arrays, state_from_arrays
+from ros_ehs_msgs_py.conversions import (command_from_arrays, reference_from_arrays,
+                                         state_from_arrays)
 from ros_ehs_msgs_py.records import AxisState, Command, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
 __all__ = ['JointStateData', 'JointStateEncoder', 'command_from_cdr', 'command_to_cdr',
-           'decode_joint_state', 'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr',
-           'state_from_cdr', 'state_to_cdr']
+           'decode_joint_state', 'reference_from_cdr', 'reference_to_cdr',
+           'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr', 'state_from_cdr',
+           'state_to_cdr']
 
 #: encapsulation id -> (byte order, alignment of 8-byte values): CDR and plain XCDR2
 _ENCAPSULATION = {b'\x00\x00': ('>', 8), b'\x00\x01': ('<', 8),
@@ -112,6 +115,7 @@ class JointStateEncoder:
 
 _STATE = JointStateEncoder((JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE), 3, 3, 3)
 _COMMAND = JointStateEncoder((JOINT_VALVE,), 0, 0, 1)
+_REFERENCE = JointStateEncoder((JOINT_PISTON,), 1, 1, 0)
 _NAN = math.nan
 
 
@@ -119,6 +123,11 @@ def state_to_cdr(s: AxisState) -> bytes:
     """Return ``s`` as a serialized ``state`` JointState (piston, spool, servo_valve)."""
     return _STATE.encode(s.stamp_ns, (s.z, s.x_spool, _NAN, s.z_dot, _NAN, _NAN,
                                       s.force, _NAN, s.i))
+
+
+def reference_to_cdr(r: Reference) -> bytes:
+    """Return ``r`` as a serialized ``reference`` JointState (``piston`` position, velocity)."""
+    return _REFERENCE.encode(r.stamp_ns, (r.z_ref, r.v_ref))
 
 
 def command_to_cdr(c: Command) -> bytes:
@@ -169,7 +178,9 @@ class _Reader:
         return self._take(f'{n}d', 8 * n, self.align8, what)
 
 
-_cache: list = [None]      # the last layout: (prefix, length, Struct, offset, names, counts)
+#: layouts seen, by payload length: (encapsulation, prefix, length, Struct, offset, names,
+#: counts). A node reads a few (state and reference); a stream of foreign layouts is bounded.
+_cache: dict[int, tuple] = {}
 
 
 def _decode_slow(data: bytes) -> JointStateData:
@@ -193,15 +204,17 @@ def _decode_slow(data: bytes) -> JointStateData:
                 p = _pad(off - 4, r.align8)
                 fmt += (f'{p}x' if p else '') + f'{len(arr)}d'
                 off += p + 8 * len(arr)
-        _cache[0] = (bytes(data[:2]), bytes(data[12:mark]), len(data), struct.Struct(fmt),
-                     mark, names, (len(pos), len(vel), len(eff)))
+        if len(_cache) >= 64:
+            _cache.clear()
+        _cache[len(data)] = (bytes(data[:2]), bytes(data[12:mark]), len(data),
+                             struct.Struct(fmt), mark, names, (len(pos), len(vel), len(eff)))
     return JointStateData(sec * _NS + nsec, names, pos, vel, eff)
 
 
 def decode_joint_state(data: bytes) -> JointStateData:
     """Return the JointState serialized in ``data`` (ValueError names what is malformed)."""
-    c = _cache[0]
-    if c is not None and len(data) == c[2] and data[:2] == c[0] and data[12:c[4]] == c[1]:
+    c = _cache.get(len(data))
+    if c is not None and data[:2] == c[0] and data[12:c[4]] == c[1]:
         v = c[3].unpack_from(data, c[4])
         counts = c[6]
         if (v[0], v[1 + counts[0]], v[2 + counts[0] + counts[1]]) == counts:
@@ -215,6 +228,12 @@ def state_from_cdr(data: bytes) -> AxisState:
     """Read an :class:`AxisState` from a serialized ``state`` JointState."""
     m = decode_joint_state(data)
     return state_from_arrays(m.stamp_ns, m.name, m.position, m.velocity, m.effort)
+
+
+def reference_from_cdr(data: bytes) -> Reference:
+    """Read a :class:`Reference` from a serialized ``reference`` JointState."""
+    m = decode_joint_state(data)
+    return reference_from_arrays(m.stamp_ns, m.name, m.position, m.velocity)
 
 
 def command_from_cdr(data: bytes) -> Command:

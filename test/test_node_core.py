@@ -301,6 +301,9 @@ def test_wire_reads_any_joint_state_rclpy_serializes_and_writes_what_rclpy_reads
     assert list(m.name) == ['piston', 'spool', 'servo_valve'] and c.state_from_msg(m) == s
     m = deserialize_message(c.command_to_cdr(c.Command(-5, 0.001)), JointState)
     assert c.command_from_msg(m) == c.Command(-5, 0.001) and list(m.name) == ['servo_valve']
+    r = c.Reference(7, 0.02, -0.3)
+    m = deserialize_message(c.reference_to_cdr(r), JointState)
+    assert c.reference_from_msg(m) == r == c.reference_from_cdr(serialize_message(m))
     # the records by the same rules as from message objects, foreign joint order included
     other = c.fill_state(JointState(), s)
     other.name, other.position = ['spool', 'piston', 'servo_valve'], [1e-5, 0.01, math.nan]

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import sys
 import time
 
@@ -60,59 +61,82 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
         return json.loads(bare['volley'].output().strip().splitlines()[-1])
 
 
+def _ours(dom: int, seconds: float, model: str, pin: bool) -> dict:
+    """Run plant, controller and reference in lock-step for ``seconds``; the plant's figures."""
+    with Launch(dom) as launch:
+        launch.start_loop('lockstep', plant={'duration': seconds, 'model': model,
+                                             'start_delay': 1.0,
+                                             **({'cpu_affinity': 0} if pin else {})},
+                          controller={'cpu_affinity': 0} if pin else None,
+                          reference={'cpu_affinity': 1} if pin else True)
+        if not launch.wait_for_log('plant', 'lock-step run complete', 600):
+            raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
+        launch.stop(['reference', 'controller', 'plant'])
+        return launch['plant'].figures()
+
+
 def main(argv=None) -> int:
     """
     Run the benchmark; print figures, the last line JSON.
 
-    Two yardsticks from the same run: the bare ping-pong best effort (the issue's ceiling)
-    and with the lock-step loop's own QoS (reliable, depth 10000, so a recorder gets every
-    sample), which costs the bare loop itself about a quarter of its rate.
+    Ours and the bare best-effort ping-pong (the issue's ceiling) run in alternating rounds
+    (``--rounds``), the ping-pong for as long as our run just took, so that the load of the
+    machine, which moves both by tens of percent within a minute here, weighs on both alike;
+    the figures are the medians over the rounds. Then, once each, the other yardsticks: the
+    ping-pong with the lock-step loop's own QoS (reliable, depth 10000), the old topology's
+    relay and the serialized ping-pong.
     """
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench lockstep')
-    ap.add_argument('--seconds', type=float, default=5.0, help='sim seconds')
+    ap.add_argument('--seconds', type=float, default=5.0, help='sim seconds per round')
+    ap.add_argument('--rounds', type=int, default=3, help='alternating rounds (ours, bare)')
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
     ap.add_argument('--cpu-affinity', action='store_true',
                     help='plant and controller on CPU 0, the reference on CPU 1 (the '
                     'cpu_affinity option of the nodes), and the bare yardsticks placed alike')
     a = ap.parse_args(argv)
+    if a.rounds < 1 or not a.seconds > 0:
+        ap.error('--rounds must be >= 1 and --seconds > 0')
     pin = a.cpu_affinity
+    ours, bare = [], []
     with domain_id() as dom:
-        with Launch(dom) as launch:
-            launch.start_loop('lockstep', plant={'duration': a.seconds, 'model': a.model,
-                                                 'start_delay': 1.0,
-                                                 **({'cpu_affinity': 0} if pin else {})},
-                              controller={'cpu_affinity': 0} if pin else None,
-                              reference={'cpu_affinity': 1} if pin else True)
-            if not launch.wait_for_log('plant', 'lock-step run complete', 600):
-                raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
-            launch.stop(['reference', 'controller', 'plant'])
-            f = launch['plant'].figures()
-        v, vr, v3, vw = (_volley(dom, a.seconds, extra, pin)
-                         for extra in ([], ['--reliable'], ['--reliable', '--relay'], ['--raw']))
+        for _ in range(a.rounds):
+            f = _ours(dom, a.seconds, a.model, pin)
+            ours.append(f)
+            wall = max(1.0, f['steps'] / f['steps_per_s'])
+            bare.append(_volley(dom, wall, [], pin)['volleys_per_s'])
+        wall = max(1.0, a.seconds * 1000.0 / statistics.median(
+            x['steps_per_s'] for x in ours))
+        vr, v3, vw = (_volley(dom, wall, extra, pin)['volleys_per_s']
+                      for extra in (['--reliable'], ['--reliable', '--relay'], ['--raw']))
     run_closed_loop(Params(), Sine(), 0.01, model=a.model)   # load the compiled kernels first
     t0 = time.perf_counter()
     run_closed_loop(Params(), Sine(), a.seconds, model=a.model)
     inproc = a.seconds * 1000 / (time.perf_counter() - t0)
-    return report({'model': a.model, 'sim_seconds': a.seconds, 'cpu_affinity': pin,
-                   'steps': f['steps'],
-                   'steps_per_s': round(f['steps_per_s'], 1),
-                   'realtime_factor': round(f['steps_per_s'] / 1000.0, 3),
-                   'resends': f['resends'], 'step_p50_ms': round(f['period_p50_ms'], 4),
-                   'step_p99_ms': round(f['period_p99_ms'], 4),
-                   'in_process_steps_per_s': round(inproc, 1),
-                   'dds_vs_in_process': round(f['steps_per_s'] / inproc, 4),
-                   'bare_pingpong_round_trips_per_s': round(v['volleys_per_s'], 1),
-                   'lockstep_vs_bare_pingpong': round(f['steps_per_s'] / v['volleys_per_s'], 3),
-                   'bare_reliable_round_trips_per_s': round(vr['volleys_per_s'], 1),
-                   'lockstep_vs_bare_reliable': round(f['steps_per_s'] / vr['volleys_per_s'],
-                                                      3),
-                   'bare_relay_round_trips_per_s': round(v3['volleys_per_s'], 1),
-                   'lockstep_vs_bare_relay': round(f['steps_per_s'] / v3['volleys_per_s'], 3),
-                   'bare_relay_vs_bare_pingpong': round(v3['volleys_per_s']
-                                                        / v['volleys_per_s'], 3),
-                   'bare_serialized_round_trips_per_s': round(vw['volleys_per_s'], 1),
-                   'lockstep_vs_bare_serialized': round(f['steps_per_s'] / vw['volleys_per_s'],
-                                                        3)})
+    rate = statistics.median(x['steps_per_s'] for x in ours)
+    v = statistics.median(bare)
+    f = sorted(ours, key=lambda x: x['steps_per_s'])[len(ours) // 2]     # the median run
+
+    def r(x: float, n: int = 3) -> float:
+        return round(x, n)
+    return report({'model': a.model, 'sim_seconds': a.seconds, 'rounds': a.rounds,
+                   'cpu_affinity': pin, 'steps': f['steps'],
+                   'steps_per_s': r(rate, 1), 'realtime_factor': r(rate / 1000.0),
+                   'resends': sum(x['resends'] for x in ours),
+                   'step_p50_ms': r(f['period_p50_ms'], 4),
+                   'step_p99_ms': r(f['period_p99_ms'], 4),
+                   'in_process_steps_per_s': r(inproc, 1),
+                   'dds_vs_in_process': r(rate / inproc, 4),
+                   'bare_pingpong_round_trips_per_s': r(v, 1),
+                   'lockstep_vs_bare_pingpong': r(rate / v),
+                   'per_round': [[r(x['steps_per_s'], 1), r(b, 1), r(x['steps_per_s'] / b)]
+                                 for x, b in zip(ours, bare)],
+                   'bare_reliable_round_trips_per_s': r(vr, 1),
+                   'lockstep_vs_bare_reliable': r(rate / vr),
+                   'bare_relay_round_trips_per_s': r(v3, 1),
+                   'lockstep_vs_bare_relay': r(rate / v3),
+                   'bare_relay_vs_bare_pingpong': r(v3 / v),
+                   'bare_serialized_round_trips_per_s': r(vw, 1),
+                   'lockstep_vs_bare_serialized': r(rate / vw)})
 
 
 if __name__ == '__main__':

@@ -144,7 +144,7 @@ class ControllerNode(Node):
                                      qos_profile(contract.REFERENCE_TRAJECTORY.qos), raw=True)
         else:
             self.create_subscription(JointState, contract.REFERENCE.name, self._on_reference,
-                                     qos_profile(contract.REFERENCE.qos))
+                                     qos_profile(contract.REFERENCE.qos), raw=True)
         self.add_on_set_parameters_callback(self._check_params)
         self.add_post_set_parameters_callback(self._apply_params)
         self.figures()     # warm numpy's percentile now: its first call takes ~6 ms
@@ -154,8 +154,8 @@ class ControllerNode(Node):
         self.get_logger().info(f'PID + feedforward at {self.opt["rate_hz"]:g} Hz{sync}')
 
     # -- references --------------------------------------------------------------------------
-    def _on_reference(self, msg: JointState) -> None:
-        r = read_msg(self, contract.reference_from_msg, msg, 'reference')
+    def _on_reference(self, data: bytes) -> None:
+        r = read_msg(self, contract.reference_from_cdr, data, 'reference')
         if r is None:
             self.counts['bad'] += 1
             return

@@ -165,6 +165,8 @@ class PlantNode(Node):
         self._pending: Params | None = None
 
         self._pmsg = (FluidPressure(), FluidPressure())
+        self._listen_check = 0.0
+        self._listening = [False, False]
         self._cmsg = Clock()
 
         def out(t):      # lock-step: the loop topics go out reliable (see LOCKSTEP_QOS)
@@ -369,8 +371,13 @@ class PlantNode(Node):
         if clock and self.pub_clock is not None:     # after the state: off the loop's path
             self._cmsg.clock.sec, self._cmsg.clock.nanosec = divmod(st, 1_000_000_000)
             self.pub_clock.publish(self._cmsg)
+        now = time.monotonic()
+        if now >= self._listen_check:      # who listens to the pressures, every 50 ms
+            self._listen_check = now + 0.05
+            self._listening = [pub.get_subscription_count() > 0
+                               for pub in (self.pub_p, self.pub_t)]
         for k, pub in ((0, self.pub_p), (1, self.pub_t)):
-            if pub.get_subscription_count():       # only when someone listens
+            if self._listening[k]:       # only when someone listens
                 p = xs[(self._ipa, self._ipb)[k]] + npr * e[2 + k]
                 pub.publish(contract.fill_pressure(self._pmsg[k], contract.Pressure(st, p)))
 

@@ -87,7 +87,6 @@ class ReferenceNode(Node):
         self.last_ns = -1
         self.count = 0
         self.runs = 1
-        self._msg = JointState()
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         # under sim time the reference follows /clock tick by tick (lock-step): every sample
         # counts, so it goes out over the lock-step QoS
@@ -141,7 +140,7 @@ class ReferenceNode(Node):
         refs = [contract.Reference(int(st), float(zz), float(vv))
                 for st, zz, vv in zip(stamps, z, v)]
         self.pub_traj.publish(contract.reference_trajectory_to_cdr(refs))    # serialized
-        self.pub.publish(contract.fill_reference(self._msg, refs[0]))
+        self.pub.publish(contract.reference_to_cdr(refs[0]))
         self.count += 1
 
     def _tick(self) -> None:
@@ -169,9 +168,8 @@ class ReferenceNode(Node):
         if self.t_first is None:
             self.t_first = stamp_ns
         z, v = self._sample(np.array([stamp_ns], dtype=np.int64))
-        contract.fill_reference(self._msg, contract.Reference(stamp_ns, float(z[0]),
-                                                              float(v[0])))
-        self.pub.publish(self._msg)
+        self.pub.publish(contract.reference_to_cdr(contract.Reference(stamp_ns, float(z[0]),
+                                                                      float(v[0]))))
         self.last_ns = stamp_ns
         self.count += 1
 
