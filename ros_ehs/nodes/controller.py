@@ -112,6 +112,7 @@ class ControllerNode(Node):
         # staleness is a wall-clock notion: off under sim time and in lock-step (where the
         # plant waits for us, so nothing can be stale)
         self.wall = not (self.get_parameter('use_sim_time').value or self.lockstep)
+        self._limits()
         self._pending: Params | None = None
         self._refs: dict[int, tuple[float, float]] = {}     # insertion-ordered
         self._ref = None                 # latest (z_ref, v_ref, rx time)
@@ -185,11 +186,11 @@ class ControllerNode(Node):
                 self._hold_z = s.z
             return (self._hold_z if self._hold_z is not None else math.nan), 0.0
         z, v, rx, stamp = self._ref
-        if time.monotonic() - rx > float(self.opt['reference_timeout']):
+        if time.monotonic() - rx > self._ref_timeout:
             return z, 0.0
         # first-order hold: a reference slower than the loop is extrapolated with its
         # velocity to the state's instant (at most one reference_timeout ahead)
-        ahead = min(max((s.stamp_ns - stamp) * 1e-9, 0.0), float(self.opt['reference_timeout']))
+        ahead = min(max((s.stamp_ns - stamp) * 1e-9, 0.0), self._ref_timeout)
         return z + v * ahead, v
 
     # -- states ------------------------------------------------------------------------------
@@ -200,8 +201,9 @@ class ControllerNode(Node):
             self.counts['bad'] += 1
             return
         if self.wall:
-            age = self.get_clock().now().nanoseconds - s.stamp_ns
-            if age < -float(self.opt['future_tolerance']) * 1e9:
+            # real time: this node's clock is the system clock (time_ns: no Time object)
+            age = time.time_ns() - s.stamp_ns
+            if age < self._future_ns:
                 self.counts['future'] += 1
                 self.get_logger().warning(
                     f'dropped a state stamped {-age * 1e-9:.6g} s ahead of this clock',
@@ -217,7 +219,7 @@ class ControllerNode(Node):
                 return
             self._new_epoch(s.stamp_ns)
         if self.wall:
-            if age > self.params['stale_timeout'] * 1e9:
+            if age > self._stale_ns:
                 self.counts['stale'] += 1
                 self._last_stamp = s.stamp_ns
                 self._publish(s.stamp_ns, self.ctrl.output)
@@ -288,6 +290,13 @@ class ControllerNode(Node):
             self.get_logger().info('parameters changed: ' + ', '.join(
                 f'{p.name}={p.value}' for p in changes))
         update_options(self.opt, changes, OPTIONS)
+        self._limits()
+
+    def _limits(self) -> None:
+        """Take the live limits the per-state path compares with, in its units, once."""
+        self._future_ns = -float(self.opt['future_tolerance']) * 1e9
+        self._stale_ns = float(self.params['stale_timeout']) * 1e9
+        self._ref_timeout = float(self.opt['reference_timeout'])
 
     def figures(self) -> dict:
         """Return the figures the diagnostics report."""
