@@ -28,6 +28,7 @@ from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
 __all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'fill_command',
+           'joint_index',
            'fill_pressure', 'fill_reference',
            'fill_reference_trajectory', 'fill_state', 'pressure_from_msg',
            'reference_from_arrays', 'reference_from_msg',
@@ -77,12 +78,17 @@ def empty_msg(msg_type: str) -> dict[str, Any]:
     raise KeyError(f'no empty message for {msg_type!r}')
 
 
-def _joint(msg: Any, name: str, topic: str) -> int:
-    names = list(_get(msg, 'name'))
+def joint_index(names: Sequence[str], name: str, topic: str) -> int:
+    """Return the index of joint ``name`` in ``names`` (ValueError naming ``topic`` if none)."""
+    names = list(names)
     try:
         return names.index(name)
     except ValueError:
         raise ValueError(f'`{topic}` message has no joint {name!r} (joints: {names})') from None
+
+
+def _joint(msg: Any, name: str, topic: str) -> int:
+    return joint_index(_get(msg, 'name'), name, topic)
 
 
 def _field(msg: Any, field: str, k: int, topic: str) -> float:
@@ -112,11 +118,7 @@ def state_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float
                       velocity: Sequence[float], effort: Sequence[float]) -> AxisState:
     """Read an :class:`AxisState` from a ``state`` JointState's fields (ValueError if bad)."""
     names = list(names)
-    try:
-        k = names.index(JOINT_PISTON)
-    except ValueError:
-        raise ValueError(f'`state` message has no joint {JOINT_PISTON!r} (joints: {names})'
-                         ) from None
+    k = joint_index(names, JOINT_PISTON, 'state')
     force = float(effort[k]) if len(effort) > k else math.nan
     x = i = math.nan
     if JOINT_SPOOL in names:
@@ -151,12 +153,7 @@ def fill_reference(msg: Any, r: Reference) -> Any:
 def reference_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float],
                           velocity: Sequence[float]) -> Reference:
     """Read a :class:`Reference` from a ``reference`` JointState's fields."""
-    names = list(names)
-    try:
-        k = names.index(JOINT_PISTON)
-    except ValueError:
-        raise ValueError(f'`reference` message has no joint {JOINT_PISTON!r} (joints: '
-                         f'{names})') from None
+    k = joint_index(names, JOINT_PISTON, 'reference')
     if len(position) <= k:
         raise ValueError(f'`reference` message has no position[{k}] (length {len(position)})')
     return Reference(stamp, float(position[k]), float(velocity[k]) if len(velocity) > k else 0.0)
@@ -203,12 +200,7 @@ def reference_trajectory_from_msg(msg: Any) -> list[Reference]:
     ``piston`` has v_ref 0, as in :func:`reference_from_msg`. ValueError names the joint or the
     point that is missing.
     """
-    names = list(_get(msg, 'joint_names'))
-    try:
-        k = names.index(JOINT_PISTON)
-    except ValueError:
-        raise ValueError(f'`reference_trajectory` message has no joint {JOINT_PISTON!r} '
-                         f'(joints: {names})') from None
+    k = joint_index(_get(msg, 'joint_names'), JOINT_PISTON, 'reference_trajectory')
     t0 = stamp_ns(_get(msg, 'header'))
     out = []
     for n, p in enumerate(_get(msg, 'points')):
@@ -234,12 +226,7 @@ def fill_command(msg: Any, c: Command) -> Any:
 
 def command_from_arrays(stamp: int, names: Sequence[str], effort: Sequence[float]) -> Command:
     """Read a :class:`Command` from a ``servo_current`` JointState's fields."""
-    names = list(names)
-    try:
-        k = names.index(JOINT_VALVE)
-    except ValueError:
-        raise ValueError(f'`servo_current` message has no joint {JOINT_VALVE!r} (joints: '
-                         f'{names})') from None
+    k = joint_index(names, JOINT_VALVE, 'servo_current')
     if len(effort) <= k:
         raise ValueError(f'`servo_current` message has no effort[{k}] (length {len(effort)})')
     return Command(stamp, float(effort[k]))

@@ -41,8 +41,8 @@ import math
 import struct
 from typing import NamedTuple, Sequence
 
-from ros_ehs_msgs_py.conversions import (command_from_arrays, reference_from_arrays,
-                                         state_from_arrays)
+from ros_ehs_msgs_py.conversions import (command_from_arrays, joint_index,
+                                         reference_from_arrays, state_from_arrays)
 from ros_ehs_msgs_py.records import AxisState, Command, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
@@ -169,6 +169,15 @@ class _Reader:
         self.off += n
         return s.decode('utf-8', errors='replace')
 
+    def header_and_names(self, names: str) -> tuple[int, list[str]]:
+        """Read ``header`` (stamp [ns]; frame_id dropped) and the string sequence ``names``."""
+        sec, nsec = self._take('iI', 8, 4, 'header.stamp')
+        self.string('header.frame_id')
+        n = self.u32(names)
+        if n > len(self.data):
+            raise ValueError(f'payload: {names} claims {n} strings')
+        return sec * _NS + nsec, [self.string(f'{names}[{k}]') for k in range(n)]
+
     def doubles(self, what: str) -> tuple[float, ...]:
         n = self.u32(what)
         if n == 0:
@@ -185,12 +194,8 @@ _cache: dict[int, tuple] = {}
 
 def _decode_slow(data: bytes) -> JointStateData:
     r = _Reader(data)
-    sec, nsec = r._take('iI', 8, 4, 'header.stamp')
-    r.string('header.frame_id')
-    n = r.u32('name')
-    if n > len(data):
-        raise ValueError(f'JointState payload: name claims {n} strings')
-    names = tuple(r.string(f'name[{k}]') for k in range(n))
+    stamp, names = r.header_and_names('name')
+    names = tuple(names)
     mark = r.off
     pos, vel, eff = (r.doubles(w) for w in ('position', 'velocity', 'effort'))
     if r.off == len(data):     # remember this layout: the next message of it is one unpack
@@ -208,7 +213,7 @@ def _decode_slow(data: bytes) -> JointStateData:
             _cache.clear()
         _cache[len(data)] = (bytes(data[:2]), bytes(data[12:mark]), len(data),
                              struct.Struct(fmt), mark, names, (len(pos), len(vel), len(eff)))
-    return JointStateData(sec * _NS + nsec, names, pos, vel, eff)
+    return JointStateData(stamp, names, pos, vel, eff)
 
 
 def decode_joint_state(data: bytes) -> JointStateData:
@@ -311,22 +316,12 @@ def reference_trajectory_from_cdr(data: bytes) -> list[Reference]:
 
 def _trajectory_slow(data: bytes) -> list[Reference]:
     r = _Reader(data)
-    sec, nsec = r._take('iI', 8, 4, 'header.stamp')
-    r.string('header.frame_id')
-    n = r.u32('joint_names')
-    if n > len(data):
-        raise ValueError(f'JointTrajectory payload: joint_names claims {n} strings')
-    names = [r.string(f'joint_names[{k}]') for k in range(n)]
-    try:
-        j = names.index(JOINT_PISTON)
-    except ValueError:
-        raise ValueError(f'`reference_trajectory` message has no joint {JOINT_PISTON!r} '
-                         f'(joints: {names})') from None
+    t0, names = r.header_and_names('joint_names')
+    j = joint_index(names, JOINT_PISTON, 'reference_trajectory')
     mark = r.off + _pad(r.off - 4, 4)      # where the point count starts
     npts = r.u32('points')
     if npts > len(data):
         raise ValueError(f'JointTrajectory payload: points claims {npts} points')
-    t0 = sec * _NS + nsec
     out, layout = [], []
     fmt, idx, checks = r.order + 'I', 1, []
     off = mark + 4
