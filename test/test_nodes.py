@@ -76,9 +76,10 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
         assert launch.wait_for_log('plant', 'lock-step run complete', 120), \
             launch['plant'].output()[-3000:]
         # what the pause made the recorder miss is repaired at the writers' next heartbeat,
-        # up to 3 s later (Fast DDS's period): stopped after 0.5 s it lost 120-150 of the
-        # 201 /clock and /reference (docs/recording.md)
-        time.sleep(3.5)
+        # up to 3 s later (Fast DDS's period): stopped 0.5 s after the run, a recorder
+        # without its 3.5 s lock-step drain lost 120-150 of the 201 /clock and /reference
+        # (docs/recording.md); it is stopped first, while the writers still run
+        time.sleep(0.5)
         codes = launch.stop(['recorder', 'reference', 'controller', 'plant'])
     assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}
     t, z, i = _states(bag)

@@ -61,7 +61,8 @@ OPTIONS = (
     Option('flush_period', 0.05, 'close the open chunk and flush at least this often [s]: '
            'the most a crash can lose', 0.005, 10.0),
     Option('fsync', False, 'also fsync on every flush (survives power loss)'),
-    Option('depth', 1000, 'subscription queue depth', 1, 100000),
+    Option('depth', 10000, 'subscription queue depth: what a stalled recorder can catch up '
+           "on (as the lock-step writers' LOCKSTEP_QOS keeps)", 1, 100000),
     Option('discovery_period', 0.2, 'how often to look for listed topics not yet seen [s]',
            0.05, 60.0),
     Option('max_bag_size', 0, 'split to a new file once the open one holds this many bytes '
@@ -86,11 +87,17 @@ class RecorderNode(Node):
 
     #: after SIGINT, keep taking in the messages DDS has already queued for this long [s]
     drain_period = 0.3
+    #: the same under use_sim_time (lock-step, reliable loop topics): what a stall of this
+    #: process made it miss is resent at each writer's next heartbeat, up to 3 s later
+    #: (Fast DDS's period); the writers are still running when a launch stops us first
+    LOCKSTEP_DRAIN = 3.5
 
     def __init__(self, **kwargs) -> None:
         super().__init__('recorder', **kwargs)
         self.opt = declare_options(self, OPTIONS)
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
+        if self._sim_time:
+            self.drain_period = self.LOCKSTEP_DRAIN
         out = Path(self.opt['out'] or default_bag_path())
         free = free_bytes(out)
         if 0 <= free < int(self.opt['min_free_space']):
