@@ -466,7 +466,7 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
     out = tmp_path / 'bench'
     res = subprocess.run([sys.executable, str(ROOT / 'launch_scripts' / 'bench.py'),
                           '--mode', 'lockstep', '--duration', '1.0', '--out', str(out),
-                          '--domain-id', str(dom), '--no-noise'],
+                          '--domain-id', str(dom), '--no-noise', '--cpu-affinity'],
                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
     assert 'bench: done' in res.stdout and 'closed' in res.stdout
@@ -477,6 +477,11 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
     logs = tmp_path / 'out' / 'logs' / 'bench'
     assert sorted(p.name for p in logs.iterdir()) == ['controller.log', 'plant.log',
                                                       'recorder.log', 'reference.log']
+    # --cpu-affinity: plant and controller share CPU 0, the reference has CPU 1 (or each
+    # says why not, on a machine with one CPU)
+    for node, cpu in (('plant', 0), ('controller', 0), ('reference', 1)):
+        text = (logs / f'{node}.log').read_text()
+        assert f'threads on CPU {cpu}' in text or f'cpu_affinity {cpu} not applied' in text
 
 
 def test_replay_launch_script_plays_a_bag_and_exits(dom, tmp_path):
