@@ -142,7 +142,7 @@ class _Reader:
 
     def __init__(self, data: bytes) -> None:
         if len(data) < 4:
-            raise ValueError(f'a JointState payload of {len(data)} bytes has no CDR header')
+            raise ValueError(f'a CDR payload of {len(data)} bytes has no CDR header')
         enc = _ENCAPSULATION.get(bytes(data[:2]))
         if enc is None:
             raise ValueError(f'unsupported CDR encapsulation 0x{bytes(data[:2]).hex()} '
@@ -153,7 +153,7 @@ class _Reader:
     def _take(self, fmt: str, size: int, align: int, what: str):
         off = self.off + _pad(self.off - 4, align)
         if off + size > len(self.data):
-            raise ValueError(f'JointState payload truncated in {what} (offset {off}, '
+            raise ValueError(f'CDR payload truncated in {what} (offset {off}, '
                              f'{len(self.data)} bytes)')
         self.off = off + size
         return struct.unpack_from(self.order + fmt, self.data, off)
@@ -164,7 +164,7 @@ class _Reader:
     def string(self, what: str) -> str:
         n = self.u32(what)
         if n == 0 or self.off + n > len(self.data):
-            raise ValueError(f'JointState payload: bad string length {n} in {what}')
+            raise ValueError(f'CDR payload: bad string length {n} in {what}')
         s = bytes(self.data[self.off:self.off + n - 1])
         self.off += n
         return s.decode('utf-8', errors='replace')
@@ -183,7 +183,7 @@ class _Reader:
         if n == 0:
             return ()
         if n > len(self.data):
-            raise ValueError(f'JointState payload: {what} claims {n} values')
+            raise ValueError(f'CDR payload: {what} claims {n} values')
         return self._take(f'{n}d', 8 * n, self.align8, what)
 
 

@@ -366,12 +366,11 @@ class PlantNode(Node):
         self._sent_stamp[j] = st
         # the round trip starts here, at the publish, as the bare ping-pong's does: the
         # model step before it is the plant's compute, not the loop's transport
-        self._sent_time[j] = time.monotonic()
+        now = self._sent_time[j] = time.monotonic()
         self.pub_state.publish(data)      # serialized: no message object to convert
         if clock and self.pub_clock is not None:     # after the state: off the loop's path
             self._cmsg.clock.sec, self._cmsg.clock.nanosec = divmod(st, 1_000_000_000)
             self.pub_clock.publish(self._cmsg)
-        now = time.monotonic()
         if now >= self._listen_check:      # who listens to the pressures, every 50 ms
             self._listen_check = now + 0.05
             self._listening = [pub.get_subscription_count() > 0

@@ -96,6 +96,7 @@ class RecorderNode(Node):
         super().__init__('recorder', **kwargs)
         self.opt = declare_options(self, OPTIONS)
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._clock = self.get_clock()
         if self._sim_time:
             self.drain_period = self.LOCKSTEP_DRAIN
         out = Path(self.opt['out'] or default_bag_path())
@@ -129,8 +130,20 @@ class RecorderNode(Node):
     def _now(self) -> int:
         """Return the receive time [ns]: the node's clock (``/clock`` under use_sim_time)."""
         if self._sim_time:
-            return self.get_clock().now().nanoseconds
+            return self._clock.now().nanoseconds
         return time.time_ns()      # the same system time, without a Time object
+
+    def _take_waiting(self, full: str, sub) -> None:
+        """
+        Write whatever else waits in ``sub``'s reader (raw) to ``full``.
+
+        rmw_fastrtps reports fewer new-message events than messages after a pause (SIGSTOP,
+        a busy machine) and the EventsExecutor takes one message per event, so the rest would
+        wait for later events, or for none at the end (3600 messages waited so in one paused
+        lock-step run).
+        """
+        for got in iter(lambda: sub.handle.take_message(sub.msg_type, True), None):
+            self.writer.write(full, got[0], self._now())
 
     def _subscribe(self, full: str, msg_type: str, offered: list, reliability: str) -> None:
         """Subscribe raw to ``full`` and add it to the bag (a type not installed: warn)."""
@@ -149,12 +162,7 @@ class RecorderNode(Node):
                 return
             try:
                 write(topic, data, now())
-                # then whatever else waits in this reader: rmw_fastrtps reports fewer
-                # new-message events than messages after a pause (SIGSTOP, a busy machine),
-                # and the EventsExecutor takes one message per event, so the rest would sit
-                # there until the bag closed without them (measured: 150 of 201 /clock)
-                for got in iter(lambda: take(cls, True), None):
-                    write(topic, got[0], now())
+                self._take_waiting(topic, sub)
             except BagError as err:
                 self._fail(err)
                 return
@@ -164,7 +172,6 @@ class RecorderNode(Node):
                 self.get_logger().info(f'split: now writing {self.writer.file_name}')
 
         sub = self.create_subscription(cls, full, on_msg, qos, raw=True)
-        take = sub.handle.take_message
         self._subs[full] = sub
         self.get_logger().info(f'recording {full} ({msg_type}, {reliability})')
 
@@ -245,8 +252,7 @@ class RecorderNode(Node):
         try:
             for full, sub in self._subs.items():
                 if sub is not None and not self.failure:
-                    for got in iter(lambda: sub.handle.take_message(sub.msg_type, True), None):
-                        self.writer.write(full, got[0], self._now())
+                    self._take_waiting(full, sub)
             self.writer.close()
         except BagError as err:
             self.failure = self.failure or str(err)
