@@ -249,6 +249,25 @@ def test_window_median_p99_and_max_in_one_pass_are_numpys(n):
                                 rel=1e-12)
 
 
+@pytest.mark.parametrize('n, last', [(0, 10), (5, 10), (1500, 2000), (2500, 2000),
+                                     (20000, 2000), (25000, 2000), (25000, 4999),
+                                     (25000, 5001), (25000, 30000)])
+def test_window_newest_samples_are_the_ones_ranked(n, last):
+    # the diagnostics rank only the newest samples of the ring, across its wrap
+    w = Window(20000)
+    seen = np.random.default_rng(n + last).exponential(1e-3, n)
+    for v in seen:
+        w.add(v)
+    got = w.p50_p99_max(last)
+    newest = seen[-min(last, 20000):]
+    assert np.sort(w.values(last)) == pytest.approx(np.sort(newest), rel=0, abs=0)
+    if n == 0:
+        assert all(math.isnan(g) for g in got)
+        return
+    assert got == pytest.approx((np.percentile(newest, 50), np.percentile(newest, 99),
+                                 newest.max()), rel=1e-12)
+
+
 def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not():
     import os
     import subprocess

@@ -57,7 +57,9 @@ def _ours(dom: int, seconds: float, model: str, rt: dict) -> tuple[dict, dict]:
         if not launch.wait_for_log('plant', 'watchdog armed', timeout=60):
             raise RuntimeError('the loop did not close:\n' + launch['plant'].output()[-2000:])
         cpu = _measure(launch, ('plant', 'controller'), seconds)
-        launch.stop()
+        # the plant first, as the bare ping goes first: a plant outliving its controller
+        # counts every period until its own exit as a stale one (and a watchdog trip)
+        launch.stop(['plant', 'controller'])
         return cpu, launch['plant'].figures()
 
 

@@ -171,7 +171,7 @@ def main(argv=None) -> int:
                 if st['last_tick'] is not None:
                     st['period_max'] = max(st['period_max'], t - st['last_tick'])
                 st['last_tick'] = t
-                if st['k']:
+                if st['rx'] is not None:     # from the first echo, as the plant counts
                     st['cycles'] += 1
                     st['fresh'] += st['back'] == st['k']
                     # the plant's watchdog rule (3 periods), counted the same way

@@ -107,6 +107,9 @@ OPTIONS = (
 )
 
 _MAX_CATCHUP = 50      # periods a late tick may step before the loop is resynchronised
+#: periods the diagnostics rank for their percentiles (2 s at 1 kHz): ranking all 20000
+#: took 0.45 ms of the executor and made the next tick late (Window.p50_p99_max)
+DIAGNOSTICS_WINDOW = 2000
 _RING = 1024           # send times kept for round-trip measurement
 _ZEROS = (0.0, 0.0, 0.0, 0.0)
 
@@ -395,9 +398,13 @@ class PlantNode(Node):
             self.get_logger().info('plant parameters changed; model rebuilt, state kept')
         update_options(self.opt, changes, OPTIONS)
 
-    def figures(self) -> dict:
-        """Return the loop and watchdog figures the diagnostics report."""
-        f = self.stats.as_dict()
+    def figures(self, last: int | None = None) -> dict:
+        """
+        Return the loop and watchdog figures: at exit, and in the diagnostics.
+
+        Percentiles over the whole window (the last 20000 periods), or its ``last`` newest.
+        """
+        f = self.stats.as_dict(last)
         f.update(steps=self.k, sim_time_s=self.k * self.dt,
                  watchdog=('tripped' if self.tripped else 'ok' if self.armed else 'waiting'),
                  watchdog_trips=self.trips, watchdog_latency_ms=self.trip_latency_ms,
@@ -419,7 +426,7 @@ class PlantNode(Node):
         print(FIGURES + json.dumps(self.figures()), flush=True)
 
     def _diagnose(self) -> None:
-        f = self.figures()
+        f = self.figures(DIAGNOSTICS_WINDOW)
         level, msg = OK, 'running'
         if self.faults:
             level, msg = ERROR, f'{self.faults} model step failures'
