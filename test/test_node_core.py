@@ -13,6 +13,7 @@
 # limitations under the License.
 """The node layer's pure parts, without DDS: arguments, options, statistics, contract pieces."""
 
+import json
 import math
 
 import numpy as np
@@ -249,6 +250,15 @@ def test_window_median_p99_and_max_in_one_pass_are_numpys(n):
                                 rel=1e-12)
 
 
+@pytest.mark.parametrize('n', [1, 2, 7, 2000, 2500])
+@pytest.mark.parametrize('q', [0, 1, 50, 99, 99.9, 100])
+def test_window_percentile_is_numpys(n, q):
+    w = Window(2000)
+    for v in np.random.default_rng(n).exponential(1e-3, n):
+        w.add(v)
+    assert w.pct(q) == pytest.approx(np.percentile(w.values(), q), rel=1e-12)
+
+
 @pytest.mark.parametrize('n, last', [(0, 10), (5, 10), (1500, 2000), (2500, 2000),
                                      (20000, 2000), (25000, 2000), (25000, 4999),
                                      (25000, 5001), (25000, 30000)])
@@ -378,3 +388,22 @@ def test_wire_reads_any_joint_trajectory_as_the_message_objects_are_read():
         c.reference_trajectory_from_cdr(serialize_message(m))
     with pytest.raises(ValueError, match='truncated|bad string|claims'):
         c.reference_trajectory_from_cdr(data[:200])
+
+
+def test_the_machine_yardstick_of_bench_loop_ticks_at_1khz_without_ros():
+    import subprocess
+    import sys
+    code = ('import json, sys, contextlib, io\n'
+            'from ros_ehs.bench import sleeper\n'
+            'out = io.StringIO()\n'
+            'with contextlib.redirect_stdout(out):\n'
+            '    sleeper.main(["--seconds", "0.3"])\n'
+            'f = json.loads(out.getvalue())\n'
+            'f["rclpy_imported"] = "rclpy" in sys.modules\n'
+            'print(json.dumps(f))\n')
+    res = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 0, res.stderr
+    f = json.loads(res.stdout.strip().splitlines()[-1])
+    assert f['ticks'] == 300 and not f['rclpy_imported']
+    assert f['max_gap_ms'] >= 0.9 and 0 <= f['stalls_2ms'] <= 300

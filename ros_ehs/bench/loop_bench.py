@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import sys
 import time
 
@@ -73,6 +74,13 @@ def _bare(dom: int, seconds: float, rt: list[str]) -> tuple[dict, dict]:
         return cpu, json.loads(bare['ping'].output().strip().splitlines()[-1])
 
 
+def _machine(seconds: float, rt: list[str]) -> dict:
+    """Return the floor: a 1 kHz sleep loop without ROS (``ros_ehs.bench.sleeper``)."""
+    out = subprocess.run([sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds',
+                          str(seconds), *rt], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def _pool(rounds: list[dict], cpus: list[dict]) -> tuple[dict, dict]:
     """One set of figures from several rounds: counts summed, percentiles averaged."""
     n = sum(r['cycles'] for r in rounds)
@@ -103,9 +111,10 @@ def main(argv=None) -> int:
     rt = {'rt_priority': a.rt_priority} if a.rt_priority else {}
     rt_bare = ['--rt-priority', str(a.rt_priority)] if a.rt_priority else []
     per = a.seconds / max(1, a.rounds)
-    ours, bare, cpu_ours, cpu_b = [], [], [], []
+    ours, bare, cpu_ours, cpu_b, machine = [], [], [], [], []
     with domain_id() as dom:
         for r in range(max(1, a.rounds)):
+            machine.append(_machine(per, rt_bare))
             runs = [('ours', ours, cpu_ours), ('bare', bare, cpu_b)]
             for kind, figs, cpus in (runs if r % 2 == 0 else runs[::-1]):
                 cpu, f = (_ours(dom, per, a.model, rt) if kind == 'ours'
@@ -136,6 +145,9 @@ def main(argv=None) -> int:
         'cpu_ratio_controller_vs_pong': round(cpu['controller'] / cpu_bare['pong'], 3),
         'bare_rtt_max_ms': round(b['rtt_max_ms'], 3),
         'bare_watchdog_trips': b['watchdog_trips'],
+        # the machine alone, no ROS, in the same rounds: each stall trips any 1 kHz loop
+        'machine_stalls_2ms': sum(m['stalls_2ms'] for m in machine),
+        'machine_max_gap_ms': round(max(m['max_gap_ms'] for m in machine), 3),
     }
     figures['targets_met'] = {
         'fresh_0.998': figures['fresh_cycle_fraction'] >= 0.998,
