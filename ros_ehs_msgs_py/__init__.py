@@ -35,7 +35,8 @@ from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, DIAGNOSTICS, JOINT_
                                     JOINT_SPOOL, JOINT_VALVE, LOCKSTEP_NODE_TOPICS,
                                     NODE_TOPICS, NodeTopics, PRESSURE_P, PRESSURE_T, REFERENCE,
                                     REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
-from ros_ehs_msgs_py.wire import (command_from_cdr, command_to_cdr, decode_joint_state,
+from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr,
+                                  command_to_cdr, decode_joint_state,
                                   JointStateData, JointStateEncoder, reference_from_cdr,
                                   reference_to_cdr, reference_trajectory_from_cdr,
                                   reference_trajectory_to_cdr, state_from_cdr, state_to_cdr)
@@ -45,7 +46,8 @@ __all__ = [
     'JOINT_SPOOL', 'JOINT_VALVE', 'LOCKSTEP_NODE_TOPICS', 'LOCKSTEP_QOS', 'LOOP_QOS',
     'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS',
     'REFERENCE', 'REFERENCE_TRAJECTORY', 'Reference', 'STATE', 'TOPICS', 'Topic', 'by_name',
-    'JointStateData', 'JointStateEncoder', 'command_from_cdr', 'command_to_cdr',
+    'JointStateData', 'JointStateEncoder', 'clock_from_cdr', 'clock_to_cdr',
+    'command_from_cdr', 'command_to_cdr',
     'decode_joint_state', 'reference_from_cdr', 'reference_to_cdr',
     'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr',
     'state_from_cdr', 'state_to_cdr',

@@ -28,6 +28,8 @@ against 8200-9200 with message objects (``bench lockstep`` prints both).
 * :func:`state_from_cdr`, :func:`command_from_cdr`, :func:`reference_from_cdr`: the
   records, by the same rules as :func:`~ros_ehs_msgs_py.conversions.state_from_msg` and the
   other ``*_from_msg``.
+* :func:`clock_to_cdr`, :func:`clock_from_cdr`: the lock-step plant's ``/clock``
+  (rosgraph_msgs/Clock), which the reference reads raw too.
 * :func:`reference_trajectory_to_cdr`, :func:`reference_trajectory_from_cdr`: the lock-step
   ``reference_trajectory`` (trajectory_msgs/JointTrajectory), the same way: a template per
   point count, and a reader for any JointTrajectory with the last layout cached.
@@ -46,7 +48,8 @@ from ros_ehs_msgs_py.conversions import (command_from_arrays, joint_index,
 from ros_ehs_msgs_py.records import AxisState, Command, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
-__all__ = ['JointStateData', 'JointStateEncoder', 'command_from_cdr', 'command_to_cdr',
+__all__ = ['JointStateData', 'JointStateEncoder', 'clock_from_cdr', 'clock_to_cdr',
+           'command_from_cdr', 'command_to_cdr',
            'decode_joint_state', 'reference_from_cdr', 'reference_to_cdr',
            'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr', 'state_from_cdr',
            'state_to_cdr']
@@ -245,6 +248,26 @@ def command_from_cdr(data: bytes) -> Command:
     """Read a :class:`Command` from a serialized ``servo_current`` JointState."""
     m = decode_joint_state(data)
     return command_from_arrays(m.stamp_ns, m.name, m.effort)
+
+
+# -- rosgraph_msgs/Clock (the lock-step /clock) ---------------------------------------------
+_CLOCK = struct.Struct('<4siI')
+
+
+def clock_to_cdr(stamp_ns: int) -> bytes:
+    """Return a serialized rosgraph_msgs/Clock at ``stamp_ns`` (>= 0) [ns]."""
+    return _CLOCK.pack(b'\x00\x01\x00\x00', *divmod(int(stamp_ns), _NS))
+
+
+def clock_from_cdr(data: bytes) -> int:
+    """Return the time [ns] of a serialized rosgraph_msgs/Clock (CDR or XCDR2, any order)."""
+    enc = _ENCAPSULATION.get(bytes(data[:2]))
+    if enc is None:
+        raise ValueError(f'CDR payload: unknown encapsulation {bytes(data[:2])!r}')
+    if len(data) < 12:
+        raise ValueError(f'CDR payload: a Clock needs 12 bytes, got {len(data)}')
+    sec, nsec = struct.unpack_from(enc[0] + 'iI', data, 4)
+    return sec * _NS + nsec
 
 
 # -- trajectory_msgs/JointTrajectory (the lock-step reference_trajectory) -----------------------

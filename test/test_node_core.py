@@ -15,6 +15,7 @@
 
 import json
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -388,6 +389,21 @@ def test_wire_reads_any_joint_trajectory_as_the_message_objects_are_read():
         c.reference_trajectory_from_cdr(serialize_message(m))
     with pytest.raises(ValueError, match='truncated|bad string|claims'):
         c.reference_trajectory_from_cdr(data[:200])
+
+
+def test_wire_clock_is_rclpys_both_ways_and_rejects_what_is_not_a_clock():
+    from rclpy.serialization import deserialize_message, serialize_message
+    from rosgraph_msgs.msg import Clock
+    for ns in (0, 1, 999_999_999, 1_000_000_000, 10_010_000_000, 10**9 * (2**31 - 1) + 5):
+        m = deserialize_message(c.clock_to_cdr(ns), Clock)     # rclpy reads what we write
+        assert m.clock.sec * 10**9 + m.clock.nanosec == ns
+        assert c.clock_from_cdr(serialize_message(m)) == ns     # we read what rclpy writes
+        big = b'\x00\x00\x00\x00' + struct.pack('>iI', *divmod(ns, 10**9))
+        assert c.clock_from_cdr(big) == ns                      # the other byte order
+    with pytest.raises(ValueError, match='12 bytes'):
+        c.clock_from_cdr(c.clock_to_cdr(5)[:10])
+    with pytest.raises(ValueError, match='encapsulation'):
+        c.clock_from_cdr(b'\x07\x07' + c.clock_to_cdr(5)[2:])
 
 
 def test_the_machine_yardstick_of_bench_loop_ticks_at_1khz_without_ros():

@@ -174,6 +174,32 @@ def test_a_restarted_lockstep_plant_closes_the_loop_again(dom, tmp_path):
     assert f2['model_faults'] == 0 and f1['steps'] == f2['steps']
 
 
+def test_a_malformed_clock_from_another_client_is_counted_and_the_loop_still_runs(
+        dom, tmp_path, ros):
+    """The reference reads /clock raw: a foreign client's short payload is named, not a crash."""
+    from rosgraph_msgs.msg import Clock
+    from ros_ehs.nodes.ros_common import qos_profile
+    diag = Diagnostics(ros)
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('lockstep', plant={'duration': 0.2},
+                          reference={'diagnostics_period': 0.1})
+        assert launch.wait_for_log('plant', 'lock-step run complete', 60), \
+            launch['plant'].output()[-2000:]
+        pub = ros.create_publisher(Clock, '/clock', qos_profile(c.CLOCK_QOS))
+        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
+        for payload in (b'\x00\x01\x00\x00\x01', b'\x09\x09\x00\x00' + bytes(8)):
+            pub.publish(payload)        # bytes go out as they are: a foreign, broken clock
+            ros.spin(0.05)
+        assert ros.spin(until=lambda: diag.value('ros_ehs/reference', 'bad_clocks', 0) >= 2,
+                        timeout=10)
+        assert launch['reference'].alive()
+        codes = launch.stop(['reference', 'controller', 'plant'])
+    assert set(codes.values()) == {0}
+    out = launch['reference'].output()
+    assert 'ignored a malformed /clock: CDR payload' in out and 'Traceback' not in out
+    assert launch['plant'].figures()['steps'] == 200
+
+
 def test_a_clock_slower_than_the_preview_still_closes_the_lock_step_loop(dom, tmp_path):
     """/clock every 30 ms, references 5 ms ahead: the plant's resends carry the loop."""
     with Launch(dom, tmp_path / 'logs') as launch:

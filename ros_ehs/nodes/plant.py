@@ -170,7 +170,6 @@ class PlantNode(Node):
         self._pmsg = (FluidPressure(), FluidPressure())
         self._listen_check = 0.0
         self._listening = [False, False]
-        self._cmsg = Clock()
 
         def out(t):      # lock-step: the loop topics go out reliable (see LOCKSTEP_QOS)
             return qos_profile(t.qos_in(self.lockstep))
@@ -372,8 +371,7 @@ class PlantNode(Node):
         now = self._sent_time[j] = time.monotonic()
         self.pub_state.publish(data)      # serialized: no message object to convert
         if clock and self.pub_clock is not None:     # after the state: off the loop's path
-            self._cmsg.clock.sec, self._cmsg.clock.nanosec = divmod(st, 1_000_000_000)
-            self.pub_clock.publish(self._cmsg)
+            self.pub_clock.publish(contract.clock_to_cdr(st))      # serialized
         if now >= self._listen_check:      # who listens to the pressures, every 50 ms
             self._listen_check = now + 0.05
             self._listening = [pub.get_subscription_count() > 0

@@ -47,8 +47,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from ros_ehs.errors import ParameterError
 from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs, diagnostics,
-                                      EPOCH_PERIODS, OK, Option, qos_profile, run,
-                                      steady_clock)
+                                      EPOCH_PERIODS, OK, Option, qos_profile, read_msg,
+                                      run, steady_clock)
 from ros_ehs.reference import make, REFERENCE_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
@@ -86,6 +86,7 @@ class ReferenceNode(Node):
         self.t_first: int | None = None
         self.last_ns = -1
         self.count = 0
+        self.bad = 0        # malformed /clock messages ignored
         self.runs = 1
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         # under sim time the reference follows /clock tick by tick (lock-step): every sample
@@ -99,8 +100,9 @@ class ReferenceNode(Node):
             self.pub_traj = self.create_publisher(
                 JointTrajectory, contract.REFERENCE_TRAJECTORY.name,
                 qos_profile(contract.REFERENCE_TRAJECTORY.qos))
+            # raw: the clock's 12 CDR bytes are read directly (ros_ehs_msgs_py.wire)
             self.create_subscription(Clock, contract.CLOCK.name, self._on_clock,
-                                     qos_profile(contract.CLOCK.qos, depth=10))
+                                     qos_profile(contract.CLOCK.qos, depth=10), raw=True)
         else:
             self.create_timer(1.0 / float(self.opt['rate_hz']), self._tick,
                               clock=steady_clock())
@@ -120,11 +122,14 @@ class ReferenceNode(Node):
         self.traj, self.values = traj, new
         return SetParametersResult(successful=True)
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, data: bytes) -> None:
         # Answer clock t with the whole window [t, t + preview] (at least t + one period):
         # the controller then has the coming periods before their states arrive. A resend
         # or a reordered clock gets its window again: the same samples, so no special case.
-        t = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        t = read_msg(self, contract.clock_from_cdr, data, '/clock')
+        if t is None:
+            self.bad += 1
+            return
         if t < self.last_ns - EPOCH_PERIODS * self._dt_ns:   # /clock went back: a new run
             self.runs += 1
             self.get_logger().info(f'new run: /clock jumped back {(self.last_ns - t) * 1e-9:.6g}'
@@ -176,7 +181,8 @@ class ReferenceNode(Node):
     def _diagnose(self) -> None:
         t = 0.0 if self.t_first is None else (self.last_ns - self.t_first) * 1e-9
         self.pub_diag.publish(diagnostics(self, 'ros_ehs/reference', OK, self.values['kind'],
-                                          {'published': self.count, 'time_s': t}))
+                                          {'published': self.count, 'time_s': t,
+                                           'bad_clocks': self.bad}))
 
 
 def main(args=None) -> int:
