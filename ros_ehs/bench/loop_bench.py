@@ -20,7 +20,10 @@ QoS and message size for as long, in ``--rounds`` alternating rounds (ours first
 bare loop first, ...): counts are summed over the rounds, percentiles averaged, maxima
 kept. Prints the plant's loop figures, the CPU share of each process and the round-trip and
 CPU ratios to the bare ping-pong (``ros_ehs.bench.pingpong``: rclpy alone, no code of ours),
-and which of the loop's targets the run met; the last line is one JSON object.
+and which of the loop's targets the run met; the last line is one JSON object. Each round
+also runs the machine alone (``ros_ehs.bench.sleeper``: a 1 kHz sleep loop without ROS, at
+the same priority): its stalls over 2 ms (``machine_stalls_2ms``) trip any 1 kHz loop's
+watchdog, ours and the bare one alike.
 """
 
 from __future__ import annotations
