@@ -217,18 +217,23 @@ print(sorted({os.sched_getscheduler(int(t)) for t in os.listdir('/proc/self/task
 """
 
 
+def _python(code: str, *args: str) -> list[str]:
+    """Run ``code`` in a fresh interpreter (its own threads, scheduler, imports): its lines."""
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, '-c', code, *args], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip().splitlines()
+
+
 @pytest.mark.parametrize('who', ['self', 'drop'])
 def test_rt_priority_is_applied_to_every_thread_or_refused_with_a_reason(who):
     """The loop nodes' ``rt_priority``: SCHED_FIFO on all threads, or a reason why not."""
     import os
-    import subprocess
-    import sys
     if who == 'drop' and os.geteuid() != 0:
         who = 'self'          # already unprivileged: the refusal path runs as is
-    out = subprocess.run([sys.executable, '-c', _RT_CHECK, who], capture_output=True,
-                         text=True, timeout=60)
-    assert out.returncode == 0, out.stderr
-    zero, said, policies = out.stdout.strip().splitlines()
+    zero, said, policies = _python(_RT_CHECK, who)
     assert zero == 'True'                       # 0: the default scheduler, nothing said
     if said.startswith('threads on SCHED_FIFO priority 10'):
         assert policies == f'[{os.SCHED_FIFO}]'
@@ -281,8 +286,6 @@ def test_window_newest_samples_are_the_ones_ranked(n, last):
 
 def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not():
     import os
-    import subprocess
-    import sys
     code = ('import os\n'
             'from ros_ehs.nodes.ros_common import set_cpu_affinity\n'
             'import rclpy\n'
@@ -293,10 +296,7 @@ def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not():
             'print(set_cpu_affinity(0))\n'
             'print(sorted({frozenset(os.sched_getaffinity(int(t)))'
             ' for t in os.listdir("/proc/self/task")}, key=sorted))\n')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         timeout=60)
-    assert out.returncode == 0, out.stderr
-    none, bad, good, sets = out.stdout.strip().splitlines()
+    none, bad, good, sets = _python(code)
     assert none == 'True'
     assert 'cpu_affinity 1000 not applied' in bad and 'this machine has CPUs' in bad
     assert good == 'threads on CPU 0'
@@ -407,8 +407,6 @@ def test_wire_clock_is_rclpys_both_ways_and_rejects_what_is_not_a_clock():
 
 
 def test_the_machine_yardstick_of_bench_loop_ticks_at_1khz_without_ros():
-    import subprocess
-    import sys
     code = ('import json, sys, contextlib, io\n'
             'from ros_ehs.bench import sleeper\n'
             'out = io.StringIO()\n'
@@ -417,9 +415,6 @@ def test_the_machine_yardstick_of_bench_loop_ticks_at_1khz_without_ros():
             'f = json.loads(out.getvalue())\n'
             'f["rclpy_imported"] = "rclpy" in sys.modules\n'
             'print(json.dumps(f))\n')
-    res = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         timeout=60)
-    assert res.returncode == 0, res.stderr
-    f = json.loads(res.stdout.strip().splitlines()[-1])
+    f = json.loads(_python(code)[-1])
     assert f['ticks'] == 300 and not f['rclpy_imported']
     assert f['max_gap_ms'] >= 0.9 and 0 <= f['stalls_2ms'] <= 300
