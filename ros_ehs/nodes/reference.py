@@ -30,7 +30,9 @@ clock needs no special case (the samples are the same); more than ``EPOCH_PERIOD
 back is a new run (a lock-step plant started again, a replayed bag): the trajectory restarts
 from its beginning at that time, logged at most once a second. ``/clock`` ticks further apart
 than ``preview`` leave the controller waiting, and the loop then advances only by the plant's
-resends (tested): keep ``preview`` above the plant's ``clock_period``.
+resends (tested): keep ``preview`` above the plant's ``clock_period``. ``/clock`` is read raw
+(12 CDR bytes); a malformed one from another client is logged, counted (``bad_clocks`` in
+the diagnostics) and answered with nothing (tested).
 
 ``wait_subscribers`` (real time): time zero is the first tick at which ``reference`` has that
 many subscribers; until then nothing is published. A bench starts the reference last, once
