@@ -131,7 +131,10 @@ def main(argv=None) -> int:
                 break
             time.sleep(0.05)
         died = [n for n, p in launch.procs.items() if not p.alive()]
-        codes = launch.stop(['recorder', 'reference', 'controller', 'plant'])
+        # the recorder first (it drains while the writers still run), then the plant before
+        # its controller: a plant outliving the controller would count every period until
+        # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
+        codes = launch.stop(['recorder', 'reference', 'plant', 'controller'])
     _recorder_lines(launch)
     for line in launch['plant'].output().splitlines():
         if line.startswith(FIGURES):
