@@ -11,7 +11,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/launch_scripts', glob('launch_scripts/*.py')),
+        ('share/' + package_name + '/launch_scripts',
+         glob('launch_scripts/*.py') + glob('launch_scripts/*.xml')),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'pyyaml'],

@@ -21,7 +21,10 @@ Start a bench: plant + controller + reference + recorder, each its own process.
 
 It runs for ``--duration`` seconds (real time: wall seconds after the loop closes; lock-step:
 sim seconds, as fast as DDS goes) or until Ctrl-C, then stops every child cleanly: the
-recorder first (so the bag closes with the loop intact), then reference, controller, plant.
+recorder first (so the bag closes with the loop intact), then reference, plant, controller.
+With ``--rt-priority`` the nodes get the Fast DDS profile ``fastdds_rt.xml`` beside this
+script (unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` is set already): under SCHED_FIFO a node
+joining the network could block the plant's publish for 333 ms (docs/nodes.md).
 The bag goes to ``--out`` (default ``bags/ehs_<UTC time>``), the node logs to
 ``out/logs/<bag name>/``. ``--params-file`` is passed to every node (a ``/**`` section
 reaches them all, ``plant:`` only the plant). Exit code 0 when every node ran and stopped
@@ -31,6 +34,7 @@ cleanly, 1 otherwise (their logs say why).
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 import signal
 import sys
@@ -41,6 +45,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checko
 from ros_ehs.launch import FIGURES, Launch, LaunchError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.synthetic import SensorNoise  # noqa: E402
+
+FASTDDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+#: the Fast DDS profile a bench under SCHED_FIFO needs (see the file's comment)
+RT_PROFILE = Path(__file__).resolve().with_name('fastdds_rt.xml')
 
 
 def _recorder_lines(launch: Launch, errors_only: bool = False) -> None:
@@ -73,7 +81,8 @@ def main(argv=None) -> int:
                     '(docs/nodes.md)')
     ap.add_argument('--rt-priority', type=int, default=0,
                     help='SCHED_FIFO priority of the plant and controller (their rt_priority '
-                    'option; needs CAP_SYS_NICE or ulimit -r, else they warn and run on)')
+                    'option; needs CAP_SYS_NICE or ulimit -r, else they warn and run on); '
+                    'the nodes then get the Fast DDS profile fastdds_rt.xml beside this script')
     rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
     rec.add_argument('--max-bag-size', type=int, default=None,
                      help='split once a file holds this many bytes (0: never)')
@@ -94,7 +103,12 @@ def main(argv=None) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     pf = a.params_file
-    with Launch(a.domain_id, logs) as launch:
+    env = {}
+    if a.rt_priority and not os.environ.get(FASTDDS_PROFILE_ENV):
+        env[FASTDDS_PROFILE_ENV] = str(RT_PROFILE)
+        print(f'bench: Fast DDS profile {RT_PROFILE} (shared-memory healthy check 30 ms)',
+              flush=True)
+    with Launch(a.domain_id, logs, env=env) as launch:
         plant = {'model': a.model}
         loop = {'rt_priority': a.rt_priority} if a.rt_priority else {}
         if a.cpu_affinity:

@@ -466,10 +466,12 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
     out = tmp_path / 'bench'
     res = subprocess.run([sys.executable, str(ROOT / 'launch_scripts' / 'bench.py'),
                           '--mode', 'lockstep', '--duration', '1.0', '--out', str(out),
-                          '--domain-id', str(dom), '--no-noise', '--cpu-affinity'],
+                          '--domain-id', str(dom), '--no-noise', '--cpu-affinity',
+                          '--rt-priority', '10'],
                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
     assert 'bench: done' in res.stdout and 'closed' in res.stdout
+    assert 'bench: Fast DDS profile' in res.stdout and 'fastdds_rt.xml' in res.stdout
     t, z, i = _states(out)
     assert len(t) == 1001 and np.all(np.diff(t) == 1_000_000)
     ref = run_closed_loop(Params(), Sine(0.04, 1.0), 1.0, model='simplified', dt=1e-3)
@@ -482,6 +484,30 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
     for node, cpu in (('plant', 0), ('controller', 0), ('reference', 1)):
         text = (logs / f'{node}.log').read_text()
         assert f'threads on CPU {cpu}' in text or f'cpu_affinity {cpu} not applied' in text
+        assert 'XMLPARSER' not in text          # the profile was read without a complaint
+    for node in ('plant', 'controller'):         # --rt-priority: SCHED_FIFO, or why not
+        text = (logs / f'{node}.log').read_text()
+        assert 'threads on SCHED_FIFO priority 10' in text or 'rt_priority 10 not applied' in text
+
+
+@pytest.mark.parametrize('broken', [False, True])
+def test_the_rt_fastdds_profile_is_read_and_carries_the_loop(dom, tmp_path, broken):
+    # launch_scripts/fastdds_rt.xml: Fast DDS names a profile it cannot read (the broken copy
+    # shows the check can fail); the good one carries the loop over both of its transports
+    profile = ROOT / 'launch_scripts' / 'fastdds_rt.xml'
+    if broken:
+        bad = tmp_path / 'broken.xml'
+        bad.write_text(profile.read_text().replace('</profiles>', '</profile>'))
+        profile = bad
+    with Launch(dom, tmp_path / 'logs', env={'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile)}) \
+            as launch:
+        launch.start_loop('realtime', reference=False)
+        time.sleep(1.0)
+        launch.stop(['plant', 'controller'])
+    out = launch['plant'].output() + launch['controller'].output()
+    assert ('XMLPARSER' in out) == broken
+    f = launch['plant'].figures()
+    assert f['cycles'] > 500 and f['fresh_cycle_fraction'] > 0.9
 
 
 def test_replay_launch_script_plays_a_bag_and_exits(dom, tmp_path):

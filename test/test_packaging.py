@@ -72,6 +72,9 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     for name in _console_scripts():
         assert os.access(lib / name, os.X_OK), f'{name} missing from {lib}'
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'ros_ehs').exists()
+    # the launchers, and the Fast DDS profile bench.py hands its nodes under --rt-priority
+    share = install / 'share' / 'ros_ehs' / 'launch_scripts'
+    assert {'bench.py', 'replay.py', 'fastdds_rt.xml'} <= {p.name for p in share.iterdir()}
     # what `ros2 run ros_ehs <exe>` does: ament_index lookup, then lib/<pkg>/<exe>
     prefix_path = f'{install}:{os.environ.get("AMENT_PREFIX_PATH", "")}'
     env = dict(os.environ, AMENT_PREFIX_PATH=prefix_path)
