@@ -261,12 +261,7 @@ def clock_to_cdr(stamp_ns: int) -> bytes:
 
 def clock_from_cdr(data: bytes) -> int:
     """Return the time [ns] of a serialized rosgraph_msgs/Clock (CDR or XCDR2, any order)."""
-    enc = _ENCAPSULATION.get(bytes(data[:2]))
-    if enc is None:
-        raise ValueError(f'CDR payload: unknown encapsulation {bytes(data[:2])!r}')
-    if len(data) < 12:
-        raise ValueError(f'CDR payload: a Clock needs 12 bytes, got {len(data)}')
-    sec, nsec = struct.unpack_from(enc[0] + 'iI', data, 4)
+    sec, nsec = _Reader(data)._take('iI', 8, 4, 'the Clock')
     return sec * _NS + nsec
 
 

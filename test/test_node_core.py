@@ -400,9 +400,9 @@ def test_wire_clock_is_rclpys_both_ways_and_rejects_what_is_not_a_clock():
         assert c.clock_from_cdr(serialize_message(m)) == ns     # we read what rclpy writes
         big = b'\x00\x00\x00\x00' + struct.pack('>iI', *divmod(ns, 10**9))
         assert c.clock_from_cdr(big) == ns                      # the other byte order
-    with pytest.raises(ValueError, match='12 bytes'):
+    with pytest.raises(ValueError, match='truncated in the Clock'):
         c.clock_from_cdr(c.clock_to_cdr(5)[:10])
-    with pytest.raises(ValueError, match='encapsulation'):
+    with pytest.raises(ValueError, match='unsupported CDR encapsulation'):
         c.clock_from_cdr(b'\x07\x07' + c.clock_to_cdr(5)[2:])
 
 
