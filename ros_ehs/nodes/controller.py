@@ -148,7 +148,6 @@ class ControllerNode(Node):
                                      qos_profile(contract.REFERENCE.qos), raw=True)
         self.add_on_set_parameters_callback(self._check_params)
         self.add_post_set_parameters_callback(self._apply_params)
-        self.figures()     # the diagnostics' path once, before the loop runs
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
                           clock=steady_clock())
         sync = ', reference-synchronised (lock-step)' if self.lockstep else ''

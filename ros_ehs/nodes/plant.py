@@ -208,7 +208,6 @@ class PlantNode(Node):
                 self._loop.start()
             else:
                 self.create_timer(self.dt, self._tick, clock=clock)
-        self.figures()     # the diagnostics' path once, before the loop runs
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose, clock=clock)
         self.get_logger().info(
             f'{self.opt["model"]} model, {self.opt["mode"]} at {self.opt["rate_hz"]:g} Hz, '
