@@ -109,6 +109,10 @@ def main(argv=None) -> int:
         print(f'bench: Fast DDS profile {RT_PROFILE} (shared-memory healthy check 30 ms)',
               flush=True)
     with Launch(a.domain_id, logs, env=env) as launch:
+        if launch.shm_cleanup is not None and launch.shm_cleanup.removed:
+            # left by processes that did not exit cleanly; reused, they carry the timeouts
+            # of whoever created them (a 333 ms stall under SCHED_FIFO): ros_ehs.fastdds_shm
+            print(f'bench: {launch.shm_cleanup.summary()}', flush=True)
         plant = {'model': a.model}
         loop = {'rt_priority': a.rt_priority} if a.rt_priority else {}
         if a.cpu_affinity:

@@ -35,6 +35,7 @@ import time
 from typing import Any, Iterable
 
 from ros_ehs.errors import EhsError
+from ros_ehs.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
 __all__ = ['FIGURES', 'Launch', 'LaunchError', 'NodeProcess', 'node_command', 'NODES']
@@ -114,11 +115,13 @@ class Launch:
 
     ``domain_id`` defaults to the environment's ``ROS_DOMAIN_ID``; ``log_dir`` to a new
     temporary directory. Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE``
-    LOCALHOST unless set).
+    LOCALHOST unless set). ``clean_shm``: first remove the shared-memory ports and segments
+    that processes which did not exit cleanly left in ``/dev/shm``
+    (:func:`ros_ehs.fastdds_shm.clean_zombies`; what was done is in ``self.shm_cleanup``).
     """
 
     def __init__(self, domain_id: int | None = None, log_dir: str | os.PathLike | None = None,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None, clean_shm: bool = True) -> None:
         self.env = dict(os.environ)
         self.env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         self.env['PYTHONUNBUFFERED'] = '1'
@@ -129,6 +132,7 @@ class Launch:
         self.log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix='ehs_logs_'))
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, NodeProcess] = {}
+        self.shm_cleanup = clean_zombies() if clean_shm and SHM_DIR.is_dir() else None
 
     def start(self, node: str, params: dict[str, Any] | None = None, *,
               name: str | None = None, params_file: str | os.PathLike | None = None,
