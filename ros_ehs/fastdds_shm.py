@@ -34,7 +34,9 @@ those files removed: none in 17 (docs/nodes.md has the side-by-side figures).
 :func:`clean_zombies` removes every port and segment that no live process holds, as
 ``fastdds shm clean`` does, and also the ports left without a lock file, which that tool
 does not list. A lock is tested with ``flock`` (what Fast DDS takes); a file that cannot be
-tested is left alone. ``python -m ros_ehs.fastdds_shm`` runs it and prints what it removed;
+tested is left alone. Run it before starting nodes, not while other participants on the
+machine are being created (a port just being set up may not be locked yet); running
+participants are safe. ``python -m ros_ehs.fastdds_shm`` runs it and prints what it removed;
 :class:`ros_ehs.launch.Launch` and ``launch_scripts/bench.py`` run it before starting nodes.
 """
 
