@@ -174,7 +174,7 @@ def test_a_restarted_lockstep_plant_closes_the_loop_again(dom, tmp_path):
     assert f2['model_faults'] == 0 and f1['steps'] == f2['steps']
 
 
-def test_a_malformed_clock_from_another_client_is_counted_and_the_loop_still_runs(
+def test_a_malformed_clock_from_another_client_is_counted_and_the_reference_answers_on(
         dom, tmp_path, ros):
     """The reference reads /clock raw: a foreign client's short payload is named, not a crash."""
     from rosgraph_msgs.msg import Clock
@@ -193,6 +193,24 @@ def test_a_malformed_clock_from_another_client_is_counted_and_the_loop_still_run
         assert ros.spin(until=lambda: diag.value('ros_ehs/reference', 'bad_clocks', 0) >= 2,
                         timeout=10)
         assert launch['reference'].alive()
+        # and it still answers a well-formed clock (an rclpy message, not our CDR) with the
+        # window that starts at that time
+        from trajectory_msgs.msg import JointTrajectory
+        got = []
+        ros.create_subscription(JointTrajectory, c.REFERENCE_TRAJECTORY.name, got.append,
+                                qos_profile(c.REFERENCE_TRAJECTORY.qos))
+        assert ros.spin(until=lambda: ros.count_publishers(c.REFERENCE_TRAJECTORY.name) >= 1,
+                        timeout=30)
+        good = Clock()
+        good.clock.sec = 100
+        answered = []
+
+        def answer():
+            if not answered or time.monotonic() - answered[-1] > 0.5:   # until matched
+                answered.append(time.monotonic())
+                pub.publish(good)
+            return any(m.header.stamp.sec == 100 for m in got)
+        assert ros.spin(until=answer, timeout=15), [m.header.stamp for m in got]
         codes = launch.stop(['reference', 'controller', 'plant'])
     assert set(codes.values()) == {0}
     out = launch['reference'].output()
