@@ -74,11 +74,10 @@ def main(argv=None) -> int:
                     help='publish exact states (default: 5 um, 1 mm/s, 0.2 bar sensor noise)')
     ap.add_argument('--params-file', default=None, help='ROS 2 parameters YAML for all nodes')
     ap.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID')
-    ap.add_argument('--cpu-affinity', action='store_true',
-                    help='plant and controller on CPU 0, the reference on CPU 1 (their '
-                    'cpu_affinity option): a lock-step loop then skips the cross-core wake-up; '
-                    'on a 2-core VM 4500-4900 steps/s against 3700-4000 with the recorder '
-                    '(docs/nodes.md)')
+    ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=None,
+                    help='plant and controller on one CPU, the reference on another (their '
+                    'cpu_affinity option); default: in lock-step only, where the loop then '
+                    'skips the cross-core wake-up (docs/nodes.md, "CPU placement")')
     ap.add_argument('--rt-priority', type=int, default=0,
                     help='SCHED_FIFO priority of the plant and controller (their rt_priority '
                     'option; needs CAP_SYS_NICE or ulimit -r, else they warn and run on); '
@@ -115,8 +114,6 @@ def main(argv=None) -> int:
             print(f'bench: {launch.shm_cleanup.summary()}', flush=True)
         plant = {'model': a.model}
         loop = {'rt_priority': a.rt_priority} if a.rt_priority else {}
-        if a.cpu_affinity:
-            loop['cpu_affinity'] = 0
         plant.update(loop)
         if not a.no_noise:
             noise = SensorNoise()
@@ -131,15 +128,17 @@ def main(argv=None) -> int:
                                       ('min_free_space', a.min_free_space)) if v is not None}
         try:
             launch.start_loop(a.mode, bag=out, plant=plant, controller=loop, params_file=pf,
-                              recorder=recorder,
+                              recorder=recorder, pin=a.cpu_affinity,
                               reference={'kind': a.reference,
-                                         'rate_hz': 1000.0 if lock else 250.0,
-                                         **({'cpu_affinity': 1} if a.cpu_affinity else {})})
+                                         'rate_hz': 1000.0 if lock else 250.0})
         except LaunchError as err:
             print(f'bench: {err}', file=sys.stderr)
             _recorder_lines(launch, errors_only=True)
             return 1
-        print(f'bench: {a.mode} loop running ({a.model} model); recording to {out}',
+        where = ('' if launch.placement is None else
+                 '; plant and controller on CPU {}, reference on CPU {}'.format(
+                     *launch.placement))
+        print(f'bench: {a.mode} loop running ({a.model} model{where}); recording to {out}',
               flush=True)
         t0 = time.monotonic()
         while not stop and all(p.alive() for p in launch.procs.values()):

@@ -38,7 +38,8 @@ from ros_ehs.errors import EhsError
 from ros_ehs.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
-__all__ = ['FIGURES', 'Launch', 'LaunchError', 'NodeProcess', 'node_command', 'NODES']
+__all__ = ['FIGURES', 'Launch', 'LaunchError', 'loop_placement', 'NodeProcess',
+           'node_command', 'NODES']
 
 #: What the plant prints before its JSON figures at shutdown (one line).
 FIGURES = 'figures '
@@ -55,6 +56,19 @@ def _value(v: Any) -> str:
     if isinstance(v, (list, tuple)):
         return '[' + ','.join(_value(x) for x in v) + ']'
     return str(v)
+
+
+def loop_placement(pin: bool | None = None) -> tuple[int, int] | None:
+    """
+    Return the CPUs of a pinned loop, (plant and controller, reference), or None: unpinned.
+
+    The first two CPUs this process may use. ``pin`` None: only if it may use two or more
+    (on one CPU there is nothing to place); True: always (one CPU: all on it); False: never.
+    """
+    allowed = sorted(os.sched_getaffinity(0))
+    if pin is False or (pin is None and len(allowed) < 2):
+        return None
+    return allowed[0], allowed[1 % len(allowed)]
 
 
 def node_command(node: str, params: dict[str, Any] | None = None,
@@ -133,6 +147,7 @@ class Launch:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, NodeProcess] = {}
         self.shm_cleanup = clean_zombies() if clean_shm and SHM_DIR.is_dir() else None
+        self.placement: tuple[int, int] | None = None     # set by start_loop
 
     def start(self, node: str, params: dict[str, Any] | None = None, *,
               name: str | None = None, params_file: str | os.PathLike | None = None,
@@ -211,6 +226,7 @@ class Launch:
                    reference: dict[str, Any] | bool = True,
                    recorder: dict[str, Any] | None = None,
                    params_file: str | os.PathLike | None = None,
+                   pin: bool | None = None,
                    timeout: float = 60.0) -> None:
         """
         Start the bench loop (recorder if ``bag``, controller, reference, plant) in order.
@@ -229,10 +245,24 @@ class Launch:
         Returns when everything runs. ``plant``, ``controller``, ``reference``, ``recorder``:
         extra parameters (``reference=False``: no reference node). Raises :class:`LaunchError`
         naming the step that did not happen, with that node's log.
+
+        ``pin`` (default: in lock-step, when this process may use two CPUs or more) sets the
+        nodes' ``cpu_affinity`` as :func:`loop_placement` says, unless given in ``plant``,
+        ``controller`` or ``reference``: a lock-step loop is a ping-pong, and one between two
+        processes on one CPU skips the cross-CPU wake-up (docs/nodes.md, "CPU placement").
         """
         if mode not in ('realtime', 'lockstep'):
             raise ValueError(f"mode: expected 'realtime' or 'lockstep', got {mode!r}")
         lock = mode == 'lockstep'
+        cpus = loop_placement(pin if pin is not None or lock else False)
+        if cpus is not None:
+            loop_cpu, ref_cpu = cpus
+            plant = {'cpu_affinity': loop_cpu, **(plant or {})}
+            controller = {'cpu_affinity': loop_cpu, **(controller or {})}
+            if reference is not False:
+                reference = {'cpu_affinity': ref_cpu,
+                             **({} if reference is True else reference)}
+        self.placement = cpus
         pf = params_file
         rec = bag is not None
 

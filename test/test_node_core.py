@@ -304,6 +304,15 @@ def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not():
     assert len(os.sched_getaffinity(0)) >= 1     # the test process itself is untouched
 
 
+@pytest.mark.parametrize('allowed, pin, want', [
+    ({0, 1}, None, (0, 1)), ({5, 3, 7}, None, (3, 5)), ({2}, None, None), ({2}, True, (2, 2)),
+    ({0, 1}, False, None), ({4, 9}, True, (4, 9))])
+def test_loop_placement_takes_the_first_two_allowed_cpus(monkeypatch, allowed, pin, want):
+    import ros_ehs.launch as launch
+    monkeypatch.setattr(launch.os, 'sched_getaffinity', lambda pid: set(allowed))
+    assert launch.loop_placement(pin) == want
+
+
 # -- the wire fast path, against rclpy's own serializer ------------------------------------------
 def test_wire_reads_any_joint_state_rclpy_serializes_and_writes_what_rclpy_reads():
     import random

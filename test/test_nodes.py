@@ -29,7 +29,7 @@ import pytest
 from ros_ehs.bag import open_bag
 from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.errors import BagError
-from ros_ehs.launch import Launch, node_command
+from ros_ehs.launch import Launch, loop_placement, node_command
 from ros_ehs.params import Params
 from ros_ehs.reference import Sine
 import ros_ehs_msgs_py as c
@@ -68,6 +68,14 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
         # split into files of 150 kB as it records: the pause falls across splits
         launch.start_loop('lockstep', bag=bag, plant={'duration': duration},
                           recorder={'max_bag_size': 150_000, 'compression': 'none'})
+        # placed by default (Launch.start_loop): plant and controller on one CPU, the
+        # reference on another, as each node's log says once its threads are moved
+        assert launch.placement == loop_placement()
+        if launch.placement is not None:
+            loop_cpu, ref_cpu = launch.placement
+            for name, cpu in (('plant', loop_cpu), ('controller', loop_cpu),
+                              ('reference', ref_cpu)):
+                assert f'threads on CPU {cpu}' in launch[name].output(), name
         time.sleep(0.2)
         rec = launch['recorder'].popen
         rec.send_signal(signal.SIGSTOP)

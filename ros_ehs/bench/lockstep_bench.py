@@ -25,6 +25,11 @@ a clock every period into the reference the pong waits for, reliable; the bench 
 ``/clock`` every 10 periods and the references as one ``reference_trajectory`` per clock),
 none of our code in any of them. And, for reference, the bare ping-pong over serialized
 messages (``--raw``), the path our loop nodes take: the ceiling for them.
+
+Placement: by default the loop runs as :meth:`ros_ehs.launch.Launch.start_loop` places a
+lock-step loop (plant and controller on one CPU, the reference on another), and every
+yardstick is placed alike; one more bare ping-pong, unpinned, shows what the placement is
+worth (``bare_unpinned_*``). ``--no-cpu-affinity`` leaves everything to the scheduler.
 Last line: one JSON object.
 """
 
@@ -39,7 +44,7 @@ import time
 from domain_coordinator import domain_id
 from ros_ehs.bench import report
 from ros_ehs.closed_loop import run_closed_loop
-from ros_ehs.launch import Launch
+from ros_ehs.launch import Launch, loop_placement
 from ros_ehs.params import Params
 from ros_ehs.reference import Sine
 
@@ -48,12 +53,14 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
     """
     Return the ceiling: a bare rclpy ping-pong, back to back (``extra``: its options).
 
-    ``pin``: volley and pong on CPU 0, the relay on CPU 1, as ``--cpu-affinity`` places ours.
+    ``pin``: volley and pong on one CPU, the relay on another, as ``--cpu-affinity`` places
+    ours (:func:`ros_ehs.launch.loop_placement`).
     """
+    cpus = loop_placement(True) if pin else None
     roles = ['pong', 'relay', 'volley'] if '--relay' in extra else ['pong', 'volley']
     with Launch(dom) as bare:
         for role in roles:
-            cpu = ['--cpu', '1' if role == 'relay' else '0'] if pin else []
+            cpu = ['--cpu', str(cpus[role == 'relay'])] if cpus else []
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *extra,
                                   *cpu])
         time.sleep(2.0 + seconds)
@@ -65,10 +72,7 @@ def _ours(dom: int, seconds: float, model: str, pin: bool) -> dict:
     """Run plant, controller and reference in lock-step for ``seconds``; the plant's figures."""
     with Launch(dom) as launch:
         launch.start_loop('lockstep', plant={'duration': seconds, 'model': model,
-                                             'start_delay': 1.0,
-                                             **({'cpu_affinity': 0} if pin else {})},
-                          controller={'cpu_affinity': 0} if pin else None,
-                          reference={'cpu_affinity': 1} if pin else True)
+                                             'start_delay': 1.0}, pin=pin)
         if not launch.wait_for_log('plant', 'lock-step run complete', 600):
             raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
         launch.stop(['reference', 'controller', 'plant'])
@@ -90,9 +94,10 @@ def main(argv=None) -> int:
     ap.add_argument('--seconds', type=float, default=5.0, help='sim seconds per round')
     ap.add_argument('--rounds', type=int, default=3, help='alternating rounds (ours, bare)')
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
-    ap.add_argument('--cpu-affinity', action='store_true',
-                    help='plant and controller on CPU 0, the reference on CPU 1 (the '
-                    'cpu_affinity option of the nodes), and the bare yardsticks placed alike')
+    ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=True,
+                    help='plant and controller on one CPU, the reference on another (as '
+                    'Launch.start_loop places a lock-step loop by default), and the bare '
+                    'yardsticks placed alike; --no-cpu-affinity: all unpinned')
     a = ap.parse_args(argv)
     if a.rounds < 1 or not a.seconds > 0:
         ap.error('--rounds must be >= 1 and --seconds > 0')
@@ -108,6 +113,9 @@ def main(argv=None) -> int:
             x['steps_per_s'] for x in ours))
         vr, v3, vw = (_volley(dom, wall, extra, pin)['volleys_per_s']
                       for extra in (['--reliable'], ['--reliable', '--relay'], ['--raw']))
+        # pinned, the yardsticks are placed alike; the bare ping-pong as the scheduler
+        # places it, once, shows what the placement itself is worth
+        free = _volley(dom, wall, [])['volleys_per_s'] if pin else None
     run_closed_loop(Params(), Sine(), 0.01, model=a.model)   # load the compiled kernels first
     t0 = time.perf_counter()
     run_closed_loop(Params(), Sine(), a.seconds, model=a.model)
@@ -136,7 +144,9 @@ def main(argv=None) -> int:
                    'lockstep_vs_bare_relay': r(rate / v3),
                    'bare_relay_vs_bare_pingpong': r(v3 / v),
                    'bare_serialized_round_trips_per_s': r(vw, 1),
-                   'lockstep_vs_bare_serialized': r(rate / vw)})
+                   'lockstep_vs_bare_serialized': r(rate / vw),
+                   **({'bare_unpinned_round_trips_per_s': r(free, 1),
+                       'lockstep_vs_bare_unpinned': r(rate / free)} if pin else {})})
 
 
 if __name__ == '__main__':
