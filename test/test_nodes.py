@@ -234,6 +234,10 @@ def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_pat
     # the zeroing tick came at most 3 periods after the last fresh command arrived, plus
     # that tick's own lateness (a busy 2-core machine delays a thread by ms at times)
     assert f['watchdog_latency_ms'] - max(0.0, f['watchdog_tick_late_ms']) <= 3.0 + 1e-3, f
+    # and it is counted as the controller's, not as a late plant tick's: even when the tick
+    # after the kill comes late (a killed process makes the machine busy: 5 ms here once),
+    # the next on-time tick finds the command too old as well
+    assert f['watchdog_trips'] - f['watchdog_trips_late_tick'] >= 1, f
     # in the bag: the applied current is zero from the trip to the end (>= 1 s), the state
     # stays finite, and the valve was zeroed soon after the stamp of the command it applied
     # last (found by its value: the best-effort recorder may miss the last few commands
@@ -250,6 +254,30 @@ def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_pat
     last_cmd = max(applied) if applied else max(x.stamp_ns for x in cmds if x.i != 0.0)
     assert 0 <= (last_nonzero - last_cmd) / 1e6 <= 20, (
         (last_nonzero - last_cmd) / 1e6, len(applied), f)
+
+
+def test_a_stalled_plant_trips_the_watchdog_and_says_its_own_late_tick_did(dom, tmp_path):
+    """
+    The plant stopped for 30 ms (SIGSTOP: the machine not running it) while the controller runs.
+
+    Its next tick comes ~30 ms late, so the command is older than 3 periods and the valve is
+    zeroed for that tick (the rule holds whoever is late); the trip is counted as one an
+    on-time tick would not have had, and the loop runs on.
+    """
+    import signal
+    with Launch(dom, tmp_path / 'logs') as launch:
+        _realtime_bench(launch, tmp_path / 'stall', reference=False)
+        time.sleep(1.0)
+        plant = launch['plant'].popen
+        plant.send_signal(signal.SIGSTOP)
+        time.sleep(0.03)
+        plant.send_signal(signal.SIGCONT)
+        time.sleep(1.0)
+        launch.stop(['recorder', 'plant', 'controller'])
+        f = launch['plant'].figures()
+    assert f['period_max_ms'] >= 25.0, f
+    assert f['watchdog_trips'] >= 1 and f['watchdog_trips_late_tick'] >= 1, f
+    assert f['watchdog'] == 'ok' and f['fresh_cycle_fraction'] > 0.9, f
 
 
 def test_bad_messages_crash_nothing(dom, tmp_path, ros):

@@ -88,6 +88,8 @@ def _pool(rounds: list[dict], cpus: list[dict]) -> tuple[dict, dict]:
     """One set of figures from several rounds: counts summed, percentiles averaged."""
     n = sum(r['cycles'] for r in rounds)
     out = {'cycles': n, 'watchdog_trips': sum(r['watchdog_trips'] for r in rounds),
+           'watchdog_trips_late_tick': sum(r.get('watchdog_trips_late_tick', 0)
+                                           for r in rounds),
            'fresh_cycle_fraction': sum(r['fresh_cycle_fraction'] * r['cycles']
                                        for r in rounds) / max(n, 1)}
     for k in rounds[0]:
@@ -131,6 +133,8 @@ def main(argv=None) -> int:
         'rt_priority': a.rt_priority,
         'fresh_cycle_fraction': round(f['fresh_cycle_fraction'], 5),
         'cycles': f['cycles'], 'watchdog_trips': f['watchdog_trips'],
+        # of those, at a plant tick so late that an on-time one would not have tripped
+        'watchdog_trips_late_tick': f['watchdog_trips_late_tick'],
         'period_p50_ms': round(f['period_p50_ms'], 4),
         'period_p99_ms': round(f['period_p99_ms'], 4),
         'period_max_ms': round(f['period_max_ms'], 3),

@@ -21,7 +21,10 @@ no gaps. The watchdog never applies a command over a period that ends more than
 ``watchdog_periods`` periods after the command arrived: from the tick where that would
 happen the valve current is zero (the hydraulic fail-safe: spool to null) until fresh
 commands return. So the valve is at zero within ``watchdog_periods`` periods of the last fresh
-command (plus the lateness of that tick).
+command (plus the lateness of that tick). A trip at a tick so late that an on-time one would
+have applied the command is also counted apart (``watchdog_trips_late_tick``: the machine
+did not run the plant in time; the controller was not late), unless a later on-time tick
+finds the command too old as well (a controller that stopped).
 
 ``mode: lockstep`` publishes the state, then waits for the command stamped with that state's
 stamp and steps exactly one period: a closed loop over DDS that is deterministic and runs as
@@ -147,6 +150,8 @@ class PlantNode(Node):
         self.armed = False       # a first command has come
         self.tripped = False
         self.trips = 0
+        self.trips_late_tick = 0     # of those, trips that an on-time tick would not have had
+        self._trip_late = False
         self.trip_latency_ms = math.nan
         self.trip_tick_late_ms = math.nan
         self.bad_commands = 0
@@ -303,19 +308,31 @@ class PlantNode(Node):
             self.stats.tick(now, fresh)
         # the command would be this old at the end of the coming period
         age = now + self.dt - self._last_rx
+        wd = self.opt['watchdog_periods'] * self.dt
         i = self.i_cmd
         if not self.armed:
             i = 0.0
-        elif age > self.opt['watchdog_periods'] * self.dt:
+        elif age > wd:
             i = 0.0
+            # would an on-time tick have applied the command? Then the plant's own lateness
+            # (the machine) tripped it, not a late controller: counted apart, until a tick
+            # finds the command too old on time as well (a controller that has stopped)
+            late_only = due_ns * 1e-9 + self.dt - self._last_rx <= wd
             if not self.tripped:
                 self.tripped = True
                 self.trips += 1
                 self.trip_latency_ms = (now - self._last_rx) * 1e3
                 self.trip_tick_late_ms = (now_ns - due_ns) * 1e-6   # this tick's lateness
+                self._trip_late = late_only
+                self.trips_late_tick += late_only
                 self.get_logger().warning(
-                    f'watchdog: no fresh command for {self.trip_latency_ms:.2f} ms, valve '
-                    f'current zeroed ({self.trips} trips so far)', throttle_duration_sec=1.0)
+                    f'watchdog: no fresh command for {self.trip_latency_ms:.2f} ms (this tick '
+                    f'{self.trip_tick_late_ms:.2f} ms late), valve current zeroed '
+                    f'({self.trips} trips so far, {self.trips_late_tick} at late ticks)',
+                    throttle_duration_sec=1.0)
+            elif self._trip_late and not late_only:
+                self._trip_late = False
+                self.trips_late_tick -= 1
         elif self.tripped:
             self.tripped = False
             self.get_logger().debug('watchdog: commands are back')
@@ -404,7 +421,8 @@ class PlantNode(Node):
         f = self.stats.as_dict(last)
         f.update(steps=self.k, sim_time_s=self.k * self.dt,
                  watchdog=('tripped' if self.tripped else 'ok' if self.armed else 'waiting'),
-                 watchdog_trips=self.trips, watchdog_latency_ms=self.trip_latency_ms,
+                 watchdog_trips=self.trips, watchdog_trips_late_tick=self.trips_late_tick,
+                 watchdog_latency_ms=self.trip_latency_ms,
                  watchdog_tick_late_ms=self.trip_tick_late_ms,
                  current_a=float(self.u[0]), bad_commands=self.bad_commands,
                  stale_commands=self.stale_commands, future_commands=self.future_commands,
