@@ -161,10 +161,9 @@ def main(argv=None) -> int:
         span = max(f['sim_time_s'], 1e-9)
         late = f['watchdog_trips_late_tick']
         print(f"bench: watchdog trips {f['watchdog_trips']} in {span:.1f} s of loop "
-              f"({f['watchdog_trips'] / span:.2f}/s; {f['watchdog_trips'] - late} with a late "
-              f'command, {late} at a late plant tick that an on-time one would not have '
-              f"had), fresh cycles {f['fresh_cycle_fraction']:.4f}, longest period "
-              f"{f['period_max_ms']:.2f} ms")
+              f"({f['watchdog_trips'] / span:.2f}/s): {f['watchdog_trips'] - late} from late "
+              f'commands, {late} from late plant ticks alone (the machine); fresh cycles '
+              f"{f['fresh_cycle_fraction']:.4f}, longest period {f['period_max_ms']:.2f} ms")
     except (RuntimeError, KeyError, ValueError):
         print('bench: the plant left no figures (see its log)', file=sys.stderr)
     bad = {n: c for n, c in codes.items() if c != 0}
