@@ -17,7 +17,7 @@ Start a bench: plant + controller + reference + recorder, each its own process.
 
     python launch_scripts/bench.py --duration 10 --out bags/my_run
     python launch_scripts/bench.py --mode lockstep --duration 10     # deterministic, fast
-    python launch_scripts/bench.py --mode lockstep --duration 60 --cpu-affinity   # faster
+    python launch_scripts/bench.py --mode lockstep --duration 60 --no-cpu-affinity
 
 It runs for ``--duration`` seconds (real time: wall seconds after the loop closes; lock-step:
 sim seconds, as fast as DDS goes) or until Ctrl-C, then stops every child cleanly: the
@@ -29,11 +29,17 @@ The bag goes to ``--out`` (default ``bags/ehs_<UTC time>``), the node logs to
 ``out/logs/<bag name>/``. ``--params-file`` is passed to every node (a ``/**`` section
 reaches them all, ``plant:`` only the plant). Exit code 0 when every node ran and stopped
 cleanly, 1 otherwise (their logs say why).
+
+In real time, beside the nodes, a machine probe runs on each CPU (``ros_ehs.bench.sleeper``: a
+1 kHz sleep loop without ROS, at the same ``--rt-priority``; ``--no-machine-probe`` leaves
+them out): the summary says how many of the plant's watchdog trips at its own late ticks fell
+in a stall of the machine that a probe saw in the same run.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from pathlib import Path
 import signal
@@ -42,11 +48,18 @@ import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checkout works too
 
+from ros_ehs.bench.sleeper import coincident  # noqa: E402
 from ros_ehs.launch import FIGURES, Launch, LaunchError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.synthetic import SensorNoise  # noqa: E402
 
 FASTDDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+#: machine probes list their gaps longer than this [ms]: a tick 0.3 ms late or more
+PROBE_GAP_MS = 1.3
+#: a probe's gap this long [ms] is a stall of the machine (held a period or more)
+STALL_MS = 2.0
+#: at most this many CPUs get a probe (one each); a larger machine gets none
+PROBE_MAX_CPUS = 4
 #: the Fast DDS profile a bench under SCHED_FIFO needs (see the file's comment)
 RT_PROFILE = Path(__file__).resolve().with_name('fastdds_rt.xml')
 
@@ -60,6 +73,45 @@ def _recorder_lines(launch: Launch, errors_only: bool = False) -> None:
             print('bench: recorder ' + line[len('[recorder] '):], file=sys.stderr)
         elif line.startswith('[recorder] closed') and not errors_only:
             print('bench: recorder ' + line[len('[recorder] '):])
+
+
+def _start_probes(launch: Launch, rt_priority: int) -> list[str]:
+    """Start one machine probe per CPU this process may use; return their names."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) > PROBE_MAX_CPUS:
+        print(f'bench: no machine probes ({len(cpus)} CPUs, more than {PROBE_MAX_CPUS})')
+        return []
+    rt = ['--rt-priority', str(rt_priority)] if rt_priority else []
+    for cpu in cpus:
+        launch.start(f'probe{cpu}', cmd=[sys.executable, '-m', 'ros_ehs.bench.sleeper',
+                                         '--seconds', '0', '--cpu', str(cpu),
+                                         '--gaps-over', str(PROBE_GAP_MS), *rt])
+    return [f'probe{cpu}' for cpu in cpus]
+
+
+def _probe_lines(launch: Launch, probes: list[str], trip_log: list) -> None:
+    """Print what the probes saw, and how many watchdog trips fell in a stall they saw."""
+    gaps, top = [], 0.0
+    for name in probes:
+        try:
+            f = json.loads(launch[name].output().strip().splitlines()[-1])
+        except (IndexError, ValueError):
+            print(f'bench: machine probe {name} left no figures (see its log)', file=sys.stderr)
+            return
+        gaps += f['gaps']
+        top = max(top, f['max_gap_ms'])
+        for said in f.get('not_applied', []):
+            print(f'bench: machine probe {name}: {said}', file=sys.stderr)
+    # each trip's span without a fresh command, [t - age, t]: did a probe stall over 2 ms in
+    # it (held a period or more: what trips the watchdog with a round trip of zero)?
+    hit = coincident([(t, age) for t, _, age, _ in trip_log],
+                     [(end, g) for end, g in gaps if g > STALL_MS])
+    alone = sum(h for h, (*_, a) in zip(hit, trip_log) if a)
+    print(f'bench: machine probes ({len(probes)}, a 1 kHz sleep loop without ROS on each CPU, '
+          f'same priority, same run): {len(gaps)} gaps over {PROBE_GAP_MS:g} ms, longest '
+          f'{top:.2f} ms; {sum(hit)} of the {len(trip_log)} watchdog trips fell in a gap over '
+          f'{STALL_MS:g} ms '
+          f'({alone} of them at late plant ticks alone)')
 
 
 def main(argv=None) -> int:
@@ -82,6 +134,9 @@ def main(argv=None) -> int:
                     help='SCHED_FIFO priority of the plant and controller (their rt_priority '
                     'option; needs CAP_SYS_NICE or ulimit -r, else they warn and run on); '
                     'the nodes then get the Fast DDS profile fastdds_rt.xml beside this script')
+    ap.add_argument('--machine-probe', action=argparse.BooleanOptionalAction, default=True,
+                    help='real time: a 1 kHz sleep loop without ROS on each CPU beside the '
+                    "nodes, to tell the machine's stalls from the loop's")
     rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
     rec.add_argument('--max-bag-size', type=int, default=None,
                      help='split once a file holds this many bytes (0: never)')
@@ -126,6 +181,7 @@ def main(argv=None) -> int:
                                       ('max_bag_duration', a.max_bag_duration),
                                       ('compression', a.compression),
                                       ('min_free_space', a.min_free_space)) if v is not None}
+        probes = _start_probes(launch, a.rt_priority) if a.machine_probe and not lock else []
         try:
             launch.start_loop(a.mode, bag=out, plant=plant, controller=loop, params_file=pf,
                               recorder=recorder, pin=a.cpu_affinity,
@@ -151,7 +207,7 @@ def main(argv=None) -> int:
         # the recorder first (it drains while the writers still run), then the plant before
         # its controller: a plant outliving the controller would count every period until
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
-        codes = launch.stop(['recorder', 'reference', 'plant', 'controller'])
+        codes = launch.stop(['recorder', 'reference', 'plant', 'controller', *probes])
     _recorder_lines(launch)
     for line in launch['plant'].output().splitlines():
         if line.startswith(FIGURES):
@@ -162,8 +218,10 @@ def main(argv=None) -> int:
         late = f['watchdog_trips_late_tick']
         print(f"bench: watchdog trips {f['watchdog_trips']} in {span:.1f} s of loop "
               f"({f['watchdog_trips'] / span:.2f}/s): {f['watchdog_trips'] - late} from late "
-              f'commands, {late} from late plant ticks alone (the machine); fresh cycles '
+              f'commands, {late} from late plant ticks alone; fresh cycles '
               f"{f['fresh_cycle_fraction']:.4f}, longest period {f['period_max_ms']:.2f} ms")
+        if probes:
+            _probe_lines(launch, probes, f['watchdog_trip_log'])
     except (RuntimeError, KeyError, ValueError):
         print('bench: the plant left no figures (see its log)', file=sys.stderr)
     bad = {n: c for n, c in codes.items() if c != 0}

@@ -427,3 +427,38 @@ def test_the_machine_yardstick_of_bench_loop_ticks_at_1khz_without_ros():
     f = json.loads(_python(code)[-1])
     assert f['ticks'] == 300 and not f['rclpy_imported']
     assert f['max_gap_ms'] >= 0.9 and 0 <= f['stalls_2ms'] <= 300
+
+
+def test_coincident_needs_the_spans_to_overlap_by_a_quarter_of_the_shorter():
+    from ros_ehs.bench.sleeper import coincident
+    gaps = [(10.0, 4.0)]                              # a probe held over [9.996, 10.0]
+    spans = [(10.001, 2.0),                           # [9.999, 10.001]: 1 ms of 2 overlap
+             (10.0035, 4.0),                          # [9.9995, 10.0035]: 0.5 ms of 4
+             (9.995, 1.0),                            # [9.994, 9.995]: before it
+             (9.9985, 0.5)]                           # inside it
+    assert coincident(spans, gaps) == [True, False, False, True]
+    assert coincident(spans, []) == [False] * 4 and coincident([], gaps) == []
+
+
+def test_the_machine_probe_runs_until_sigint_and_lists_its_long_gaps():
+    import signal
+    import subprocess
+    import sys
+    import time
+    p = subprocess.Popen([sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds', '0',
+                          '--gaps-over', '0.5', '--cpu', '4095'],
+                         stdout=subprocess.PIPE, text=True)
+    time.sleep(1.0)
+    p.send_signal(signal.SIGSTOP)        # held 50 ms, as a stalled machine would hold it
+    time.sleep(0.05)
+    p.send_signal(signal.SIGCONT)
+    time.sleep(0.3)
+    p.send_signal(signal.SIGINT)
+    out, _ = p.communicate(timeout=10)
+    f = json.loads(out.strip().splitlines()[-1])
+    assert p.returncode == 0 and f['ticks'] > 500
+    # every gap is over 0.5 ms here, so the list is full: the newest MAX_GAPS, bounded
+    from ros_ehs.bench.sleeper import MAX_GAPS
+    assert all(g > 0.5 for _, g in f['gaps']) and len(f['gaps']) == min(MAX_GAPS, f['ticks'])
+    assert max(g for _, g in f['gaps']) >= 45.0 and f['stalls_2ms'] >= 1
+    assert f['not_applied'] == ['cpu not applied: Invalid argument']   # no CPU 4095: said

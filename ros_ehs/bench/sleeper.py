@@ -14,35 +14,81 @@
 """
 The machine alone: a 1 kHz sleep loop with no ROS at all, the floor under ``bench loop``.
 
-``python -m ros_ehs.bench.sleeper --seconds S [--rt-priority N]``. One Python thread sleeps
-to each millisecond of a steady grid, as the plant's timer does, and counts the periods it
-was not given the CPU for: ``stalls_2ms`` counts the gaps between ticks longer than 2 ms
-(consecutive long gaps once), which is what the plant's watchdog rule (3 periods, the last
-one ending at the next tick) trips on with a round trip of zero. rclpy is not imported:
-whatever stalls here stalls every process, ours and the bare ping-pong alike. Prints one
-JSON line.
+``python -m ros_ehs.bench.sleeper --seconds S [--rt-priority N] [--cpu C] [--gaps-over MS]``.
+One Python thread sleeps to each millisecond of a steady grid, as the plant's timer does, and
+counts the periods it was not given the CPU for: ``stalls_2ms`` counts the gaps between ticks
+longer than 2 ms (consecutive long gaps once), which is what the plant's watchdog rule (3
+periods, the last one ending at the next tick) trips on with a round trip of zero. rclpy is
+not imported: whatever stalls here stalls every process, ours and the bare ping-pong alike.
+Prints one JSON line.
+
+``--seconds 0`` runs until SIGINT or SIGTERM (a probe beside a bench: ``launch_scripts/
+bench.py`` runs one on each CPU); ``--gaps-over MS`` also lists the gaps longer than MS as
+``[end, length]`` (``time.monotonic()`` seconds, ms), the newest ``MAX_GAPS``, so that
+:func:`coincident` can tell whether a late tick of the plant fell in a stall of the machine.
 """
 
 import argparse
+from collections import deque
 import json
 import os
+import signal
 import time
+
+__all__ = ['coincident', 'main', 'MAX_GAPS']
+
+#: Gaps kept by ``--gaps-over`` (the newest): bounded however long the probe runs.
+MAX_GAPS = 1000
+
+
+def coincident(spans: list[tuple[float, float]],
+               gaps: list[tuple[float, float]]) -> list[bool]:
+    """
+    Say, for each span, whether a probe's gap overlaps it.
+
+    ``spans``: ``(t, ms)``, the span ``[t - ms, t]`` (``time.monotonic()`` seconds; a tick
+    that ran ``ms`` late at ``t``, or a watchdog trip at ``t`` after ``ms`` without a fresh
+    command); ``gaps``: ``(end, ms)`` from the probes, each a span ``[end - ms, end]`` in which
+    a probe was not run. They must overlap by at least a quarter of the shorter one (clock
+    reads and wake-ups take some microseconds).
+    """
+    held = [(end - g * 1e-3, end, g) for end, g in gaps]
+    return [any(min(t, hi) - max(t - ms * 1e-3, lo) >= 0.25e-3 * min(ms, g)
+                for lo, hi, g in held) for t, ms in spans]
 
 
 def main(argv=None) -> int:
-    """Run the loop for ``--seconds``; print its figures as one JSON line."""
+    """Run the loop for ``--seconds`` (0: until a signal); print its figures as one JSON line."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench.sleeper')
-    ap.add_argument('--seconds', type=float, default=20.0)
+    ap.add_argument('--seconds', type=float, default=20.0, help='0: until SIGINT or SIGTERM')
     ap.add_argument('--rt-priority', type=int, default=0,
                     help='SCHED_FIFO priority, as the loop nodes and the bare ping-pong get')
+    ap.add_argument('--cpu', type=int, default=-1, help='run on this CPU only')
+    ap.add_argument('--gaps-over', type=float, default=0.0,
+                    help='list the gaps longer than this [ms] (0: none)')
     a = ap.parse_args(argv)
-    if a.rt_priority:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.rt_priority))
+    if a.seconds < 0 or a.gaps_over < 0:
+        ap.error('--seconds and --gaps-over must be >= 0')
+    said = []
+    for what, apply in (('rt_priority', lambda: os.sched_setscheduler(
+            0, os.SCHED_FIFO, os.sched_param(a.rt_priority)) if a.rt_priority else None),
+                        ('cpu', lambda: os.sched_setaffinity(0, {a.cpu}) if a.cpu >= 0
+                         else None)):
+        try:
+            apply()
+        except OSError as err:       # unprivileged, or no such CPU: run on, and say so
+            said.append(f'{what} not applied: {err.strerror}')
+    stop = []
+    if a.seconds == 0:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.append(1))
     period = 1_000_000
-    n = int(a.seconds * 1000)
-    stalls, stalled, top = 0, False, 0
+    n = int(a.seconds * 1000) if a.seconds else -1
+    over = int(a.gaps_over * 1e6) if a.gaps_over else None
+    gaps = deque(maxlen=MAX_GAPS)
+    stalls, stalled, top, ticks = 0, False, 0, 0
     last = nxt = time.monotonic_ns()
-    for _ in range(n):
+    while ticks != n and not stop:
         nxt += period
         d = nxt - time.monotonic_ns()
         if d > 0:
@@ -50,11 +96,19 @@ def main(argv=None) -> int:
         now = time.monotonic_ns()
         gap = now - last
         last = now
+        ticks += 1
         top = max(top, gap)
         long = gap > 2 * period
         stalls += long and not stalled
         stalled = long
-    print(json.dumps({'ticks': n, 'stalls_2ms': stalls, 'max_gap_ms': top * 1e-6}), flush=True)
+        if over is not None and gap > over:
+            gaps.append((now * 1e-9, gap * 1e-6))
+    f = {'ticks': ticks, 'stalls_2ms': stalls, 'max_gap_ms': top * 1e-6}
+    if over is not None:
+        f['gaps'] = [[round(e, 6), round(g, 4)] for e, g in gaps]
+    if said:
+        f['not_applied'] = said
+    print(json.dumps(f), flush=True)
     return 0
 
 

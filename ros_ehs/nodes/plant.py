@@ -52,6 +52,7 @@ sensor noise to what is published (the model's own state stays exact).
 
 from __future__ import annotations
 
+from collections import deque
 import json
 import math
 import threading
@@ -115,6 +116,7 @@ _MAX_CATCHUP = 50      # periods a late tick may step before the loop is resynch
 DIAGNOSTICS_WINDOW = 2000
 _RING = 1024           # send times kept for round-trip measurement
 _ZEROS = (0.0, 0.0, 0.0, 0.0)
+TRIP_LOG = 100         # watchdog trips listed at exit (the newest)
 
 
 class PlantNode(Node):
@@ -152,6 +154,10 @@ class PlantNode(Node):
         self.trips = 0
         self.trips_late_tick = 0     # of those, trips that an on-time tick would not have had
         self._trip_late = False
+        #: the newest trips, [time.monotonic(), tick lateness ms, command age ms, at a late
+        #: tick alone]: printed
+        #: at exit (launch_scripts/bench.py matches them with its machine probes); bounded
+        self._trip_log: deque[list] = deque(maxlen=TRIP_LOG)
         self.trip_latency_ms = math.nan
         self.trip_tick_late_ms = math.nan
         self.bad_commands = 0
@@ -325,6 +331,8 @@ class PlantNode(Node):
                 self.trip_tick_late_ms = (now_ns - due_ns) * 1e-6   # this tick's lateness
                 self._trip_late = late_only
                 self.trips_late_tick += late_only
+                self._trip_log.append([round(now, 6), round(self.trip_tick_late_ms, 4),
+                                       round(self.trip_latency_ms, 4), late_only])
                 self.get_logger().warning(
                     f'watchdog: no fresh command for {self.trip_latency_ms:.2f} ms (this tick '
                     f'{self.trip_tick_late_ms:.2f} ms late), valve current zeroed '
@@ -333,6 +341,7 @@ class PlantNode(Node):
             elif self._trip_late and not late_only:
                 self._trip_late = False
                 self.trips_late_tick -= 1
+                self._trip_log[-1][3] = False
         elif self.tripped:
             self.tripped = False
             self.get_logger().debug('watchdog: commands are back')
@@ -438,7 +447,8 @@ class PlantNode(Node):
         if self._loop is not None:
             self._stop.set()
             self._loop.join(timeout=1.0)
-        print(FIGURES + json.dumps(self.figures()), flush=True)
+        f = {**self.figures(), 'watchdog_trip_log': list(self._trip_log)}
+        print(FIGURES + json.dumps(f), flush=True)
 
     def _diagnose(self) -> None:
         f = self.figures(DIAGNOSTICS_WINDOW)
