@@ -155,8 +155,8 @@ class PlantNode(Node):
         self.trips_late_tick = 0     # of those, trips that an on-time tick would not have had
         self._trip_late = False
         #: the newest trips, [time.monotonic(), tick lateness ms, command age ms, at a late
-        #: tick alone]: printed
-        #: at exit (launch_scripts/bench.py matches them with its machine probes); bounded
+        #: tick alone], printed at exit (launch_scripts/bench.py matches them with its machine
+        #: probes); bounded
         self._trip_log: deque[list] = deque(maxlen=TRIP_LOG)
         self.trip_latency_ms = math.nan
         self.trip_tick_late_ms = math.nan
