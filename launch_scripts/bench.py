@@ -32,8 +32,8 @@ cleanly, 1 otherwise (their logs say why).
 
 In real time, beside the nodes, a machine probe runs on each CPU (``ros_ehs.bench.sleeper``: a
 1 kHz sleep loop without ROS, at the same ``--rt-priority``; ``--no-machine-probe`` leaves
-them out): the summary says how many of the plant's watchdog trips at its own late ticks fell
-in a stall of the machine that a probe saw in the same run.
+them out): the summary says how many of the plant's watchdog trips fell in a stall of the
+machine that a probe saw in the same run.
 """
 
 from __future__ import annotations
@@ -110,8 +110,7 @@ def _probe_lines(launch: Launch, probes: list[str], trip_log: list) -> None:
     print(f'bench: machine probes ({len(probes)}, a 1 kHz sleep loop without ROS on each CPU, '
           f'same priority, same run): {len(gaps)} gaps over {PROBE_GAP_MS:g} ms, longest '
           f'{top:.2f} ms; {sum(hit)} of the {len(trip_log)} watchdog trips fell in a gap over '
-          f'{STALL_MS:g} ms '
-          f'({alone} of them at late plant ticks alone)')
+          f'{STALL_MS:g} ms ({alone} of them at late plant ticks alone)')
 
 
 def main(argv=None) -> int:

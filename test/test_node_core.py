@@ -462,3 +462,12 @@ def test_the_machine_probe_runs_until_sigint_and_lists_its_long_gaps():
     assert all(g > 0.5 for _, g in f['gaps']) and len(f['gaps']) == min(MAX_GAPS, f['ticks'])
     assert max(g for _, g in f['gaps']) >= 45.0 and f['stalls_2ms'] >= 1
     assert f['not_applied'] == ['cpu not applied: Invalid argument']   # no CPU 4095: said
+
+
+@pytest.mark.parametrize('args', [['--seconds', '-1'], ['--gaps-over', '-0.5']])
+def test_the_machine_probe_refuses_negative_times_by_name(args):
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, '-m', 'ros_ehs.bench.sleeper', *args],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and '--seconds and --gaps-over must be >= 0' in r.stderr

@@ -25,7 +25,8 @@ Prints one JSON line.
 ``--seconds 0`` runs until SIGINT or SIGTERM (a probe beside a bench: ``launch_scripts/
 bench.py`` runs one on each CPU); ``--gaps-over MS`` also lists the gaps longer than MS as
 ``[end, length]`` (``time.monotonic()`` seconds, ms), the newest ``MAX_GAPS``, so that
-:func:`coincident` can tell whether a late tick of the plant fell in a stall of the machine.
+:func:`coincident` can tell whether a watchdog trip of the plant fell in a stall of the
+machine.
 """
 
 import argparse
@@ -69,15 +70,17 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.seconds < 0 or a.gaps_over < 0:
         ap.error('--seconds and --gaps-over must be >= 0')
-    said = []
-    for what, apply in (('rt_priority', lambda: os.sched_setscheduler(
-            0, os.SCHED_FIFO, os.sched_param(a.rt_priority)) if a.rt_priority else None),
-                        ('cpu', lambda: os.sched_setaffinity(0, {a.cpu}) if a.cpu >= 0
-                         else None)):
+    said = []      # unprivileged, or no such CPU: run on, and say so
+    if a.rt_priority:
         try:
-            apply()
-        except OSError as err:       # unprivileged, or no such CPU: run on, and say so
-            said.append(f'{what} not applied: {err.strerror}')
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.rt_priority))
+        except OSError as err:
+            said.append(f'rt_priority not applied: {err.strerror}')
+    if a.cpu >= 0:
+        try:
+            os.sched_setaffinity(0, {a.cpu})
+        except OSError as err:
+            said.append(f'cpu not applied: {err.strerror}')
     stop = []
     if a.seconds == 0:
         for sig in (signal.SIGINT, signal.SIGTERM):
