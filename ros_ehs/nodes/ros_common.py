@@ -353,9 +353,9 @@ def set_cpu_affinity(cpu: int) -> str:
 
 #: The ``cpu_affinity`` option of the lock-step nodes; ``Launch.start_loop`` sets it for a
 #: lock-step loop by default (``ros_ehs.launch.loop_placement``). Measured on the 2-core VM,
-#: plant and controller on one CPU and the reference on the other: 12600-14450 lock-step
+#: plant and controller on one CPU and the reference on the other: 12400-14450 lock-step
 #: steps/s against 6280-8060 unpinned (a ping-pong between two processes on one core skips
-#: the cross-core wake-up; the bare rclpy ping-pong gains as much, docs/nodes.md).
+#: the cross-core wake-up; the bare rclpy ping-pong gains 1.2-1.5x, docs/nodes.md).
 CPU_AFFINITY = Option('cpu_affinity', -1, 'keep all the threads of the node on this CPU '
                       '(-1: anywhere); lock-step: plant and controller on one, the reference '
                       'on another', -1, 1023)
