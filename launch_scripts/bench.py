@@ -127,8 +127,9 @@ def main(argv=None) -> int:
     ap.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID')
     ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=None,
                     help='plant and controller on one CPU, the reference on another (their '
-                    'cpu_affinity option); default: in lock-step only, where the loop then '
-                    'skips the cross-core wake-up (docs/nodes.md, "CPU placement")')
+                    'cpu_affinity option; default: yes, on a machine with two CPUs or more): '
+                    'the loop then skips the cross-core wake-up (docs/nodes.md, "CPU '
+                    'placement")')
     ap.add_argument('--rt-priority', type=int, default=0,
                     help='SCHED_FIFO priority of the plant and controller (their rt_priority '
                     'option; needs CAP_SYS_NICE or ulimit -r, else they warn and run on); '
@@ -203,6 +204,7 @@ def main(argv=None) -> int:
                 break
             time.sleep(0.05)
         died = [n for n, p in launch.procs.items() if not p.alive()]
+        print(f'bench: stopping after {time.monotonic() - t0:.1f} s', flush=True)
         # the recorder first (it drains while the writers still run), then the plant before
         # its controller: a plant outliving the controller would count every period until
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)

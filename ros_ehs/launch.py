@@ -246,15 +246,17 @@ class Launch:
         extra parameters (``reference=False``: no reference node). Raises :class:`LaunchError`
         naming the step that did not happen, with that node's log.
 
-        ``pin`` (default: in lock-step, when this process may use two CPUs or more) sets the
-        nodes' ``cpu_affinity`` as :func:`loop_placement` says, unless given in ``plant``,
-        ``controller`` or ``reference``: a lock-step loop is a ping-pong, and one between two
-        processes on one CPU skips the cross-CPU wake-up (docs/nodes.md, "CPU placement").
+        ``pin`` (default: when this process may use two CPUs or more) sets the nodes'
+        ``cpu_affinity`` as :func:`loop_placement` says, unless given in ``plant``,
+        ``controller`` or ``reference``: the loop is a ping-pong, and one between two
+        processes on one CPU skips the cross-CPU wake-up of a halted vCPU: lock-step runs
+        1.5-2.3x faster, and a real-time bench has no watchdog trip in a window the machine
+        does not stall (docs/nodes.md, "CPU placement").
         """
         if mode not in ('realtime', 'lockstep'):
             raise ValueError(f"mode: expected 'realtime' or 'lockstep', got {mode!r}")
         lock = mode == 'lockstep'
-        cpus = loop_placement(pin if pin is not None or lock else False)
+        cpus = loop_placement(pin)
         if cpus is not None:
             loop_cpu, ref_cpu = cpus
             plant = {'cpu_affinity': loop_cpu, **(plant or {})}

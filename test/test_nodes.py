@@ -68,14 +68,7 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
         # split into files of 150 kB as it records: the pause falls across splits
         launch.start_loop('lockstep', bag=bag, plant={'duration': duration},
                           recorder={'max_bag_size': 150_000, 'compression': 'none'})
-        # placed by default (Launch.start_loop): plant and controller on one CPU, the
-        # reference on another, as each node's log says once its threads are moved
-        assert launch.placement == loop_placement()
-        if launch.placement is not None:
-            loop_cpu, ref_cpu = launch.placement
-            for name, cpu in (('plant', loop_cpu), ('controller', loop_cpu),
-                              ('reference', ref_cpu)):
-                assert f'threads on CPU {cpu}' in launch[name].output(), name
+        _assert_placed(launch)
         time.sleep(0.2)
         rec = launch['recorder'].popen
         rec.send_signal(signal.SIGSTOP)
@@ -136,6 +129,21 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     assert f['steps'] == n and f['model_faults'] == 0
 
 
+def _assert_placed(launch):
+    """
+    Check the default placement of ``Launch.start_loop``, in lock-step and in real time.
+
+    Plant and controller on one CPU, the reference on another, as each node's log says once
+    the kernel has moved its threads (nothing to place on a machine with one CPU).
+    """
+    assert launch.placement == loop_placement()
+    if launch.placement is not None:
+        loop_cpu, ref_cpu = launch.placement
+        for name, cpu in (('plant', loop_cpu), ('controller', loop_cpu),
+                          ('reference', ref_cpu)):
+            assert f'threads on CPU {cpu}' in launch[name].output(), name
+
+
 # -- recording ----------------------------------------------------------------------------------
 def _realtime_bench(launch, bag, reference=True):
     launch.start_loop('realtime', bag=bag, reference=reference)
@@ -166,6 +174,7 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     bag = tmp_path / 'bench'
     with Launch(dom, tmp_path / 'logs') as launch:
         _realtime_bench(launch, bag)
+        _assert_placed(launch)
         _wait_for_bag(bag, {'/state': 1000, '/servo_current': 900})
         assert launch.stop(['recorder'])['recorder'] == 0
     ours = open_bag(bag)

@@ -126,6 +126,7 @@ def main(argv=None) -> int:
 
     def r(x: float, n: int = 3) -> float:
         return round(x, n)
+    per_round = [x['steps_per_s'] / b for x, b in zip(ours, bare)]
     return report({'model': a.model, 'sim_seconds': a.seconds, 'rounds': a.rounds,
                    'cpu_affinity': pin, 'steps': f['steps'],
                    'steps_per_s': r(rate, 1), 'realtime_factor': r(rate / 1000.0),
@@ -146,7 +147,11 @@ def main(argv=None) -> int:
                    'bare_serialized_round_trips_per_s': r(vw, 1),
                    'lockstep_vs_bare_serialized': r(rate / vw),
                    **({'bare_unpinned_round_trips_per_s': r(free, 1),
-                       'lockstep_vs_bare_unpinned': r(rate / free)} if pin else {})})
+                       'lockstep_vs_bare_unpinned': r(rate / free)} if pin else {}),
+                   # the target: the median round at 0.8 of the bare ping-pong or more; and
+                   # how many single rounds were (the machine moves a round by +-10 %)
+                   'rounds_at_0.8_of_bare': sum(x >= 0.8 for x in per_round),
+                   'targets_met': {'lockstep_0.8_of_bare': rate / v >= 0.8}})
 
 
 if __name__ == '__main__':

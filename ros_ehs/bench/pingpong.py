@@ -20,7 +20,9 @@ plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointSt
 * ``ping``: a 1 kHz steady timer publishes a JointState (the size of our ``state``) stamped
   with its sequence number; a cycle is fresh when the echo of the previous ping came back
   before this tick; the round trip is timed from publish to echo; ``watchdog_trips`` counts
-  what the plant's watchdog would (no echo for the 3 periods ending at the next tick).
+  what the plant's watchdog would (no echo for the 3 periods ending at the next tick), and
+  lists the newest 100 as ``trip_log`` (``[time.monotonic(), ms without an echo]``, as the
+  plant's ``watchdog_trip_log`` starts).
 * ``pong``: echoes each ping from its subscription callback, with the same stamp.
 * ``volley``: the next ping goes out as soon as the echo of the last is back (a bare
   lock-step): round trips per second.
@@ -39,6 +41,7 @@ lock-step loop's QoS (reliable, depth 10000) instead;
 the ping or volley prints its figures as one JSON line.
 """
 
+from collections import deque
 import json
 import os
 import signal
@@ -94,6 +97,7 @@ def main(argv=None) -> int:
     st = {'k': 0, 'fresh': 0, 'cycles': 0, 'back': 0, 'sent': 0.0, 't0': None, 'n': 0,
           'rx': None, 'trips': 0, 'tripped': False, 'last_tick': None, 'period_max': 0.0}
     rtt = []
+    trip_log = deque(maxlen=100)
 
     relay = '--relay' in args
     raw = '--raw' in args
@@ -176,7 +180,9 @@ def main(argv=None) -> int:
                     st['fresh'] += st['back'] == st['k']
                     # the plant's watchdog rule (3 periods), counted the same way
                     late = st['rx'] is not None and time.monotonic() + 1e-3 - st['rx'] > 3e-3
-                    st['trips'] += late and not st['tripped']
+                    if late and not st['tripped']:
+                        st['trips'] += 1
+                        trip_log.append([round(t, 6), round((t - st['rx']) * 1e3, 3)])
                     st['tripped'] = late
                 send()
             node.create_timer(1e-3, tick, clock=steady)
@@ -196,7 +202,8 @@ def main(argv=None) -> int:
                           'fresh_cycle_fraction': st['fresh'] / max(1, st['cycles']),
                           'rtt_p50_ms': _pct(rtt, 50) * ms, 'rtt_p99_ms': _pct(rtt, 99) * ms,
                           'rtt_max_ms': max(rtt, default=float('nan')) * ms,
-                          'period_max_ms': st['period_max'] * ms}), flush=True)
+                          'period_max_ms': st['period_max'] * ms,
+                          'trip_log': list(trip_log)}), flush=True)
     elif role == 'volley':
         dt = time.monotonic() - (st['t0'] or time.monotonic())
         n = st['n']

@@ -1,0 +1,186 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+``python -m ros_ehs.bench window``: the main job's bench, window by window, beside bare rclpy.
+
+The main job's target is that a 10 s bench has no watchdog trip *on a quiet machine*. This
+benchmark says which windows were quiet. It runs ``--windows`` pairs of ``--seconds`` long
+windows, alternating (ours first, then the bare loop first, ...):
+
+* **ours**: ``launch_scripts/bench.py`` as the main job runs it (plant, controller,
+  reference and recorder, real time, ``--rt-priority``), from its ``loop running`` to its
+  ``stopping``; the trips of the start-up before that are counted apart
+  (``ours_trips_in_start_up``);
+* **bare**: the barest rclpy ping-pong (``ros_ehs.bench.pingpong``, no code of ours) at the
+  same priority, with the plant's watchdog rule.
+
+In every window a machine probe runs on each CPU (``ros_ehs.bench.sleeper``: a 1 kHz sleep
+loop without ROS, same priority). A window is *quiet* when no probe was held over 2 ms in it:
+a stall that long trips any 1 kHz loop with the 3-period watchdog. Per window it prints the
+trips, the stalls and how many trips fell in one; the last line is one JSON object with the
+trip-free share of all windows and of the quiet ones, ours and bare.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+import time
+
+from domain_coordinator import domain_id
+from ros_ehs.bench import report
+from ros_ehs.bench.sleeper import coincident
+from ros_ehs.launch import FIGURES, Launch, loop_placement
+
+#: a probe held this long [ms] is a stall of the machine (as ``launch_scripts/bench.py``)
+STALL_MS = 2.0
+BENCH = Path(__file__).resolve().parents[2] / 'launch_scripts' / 'bench.py'
+RT_PROFILE = BENCH.with_name('fastdds_rt.xml')
+
+
+def _probes(rt: list[str]) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds', '0',
+                              '--cpu', str(c), '--gaps-over', str(STALL_MS), *rt],
+                             stdout=subprocess.PIPE, text=True)
+            for c in sorted(os.sched_getaffinity(0))]
+
+
+def _stalls(probes: list[subprocess.Popen], t0: float, t1: float) -> list[tuple]:
+    """Stop the probes; return their gaps over STALL_MS in ``[t0, t1]``: ``(end, ms, cpu)``."""
+    gaps = []
+    for cpu, p in enumerate(probes):
+        p.send_signal(2)
+        out, _ = p.communicate(timeout=10)
+        gaps += [(e, g, cpu) for e, g in json.loads(out.strip().splitlines()[-1])['gaps']
+                 if e >= t0 and e - g * 1e-3 <= t1]
+    return sorted(gaps)
+
+
+def _ours(dom: int, seconds: float, prio: int, pin: bool, tmp: Path,
+          i: int) -> tuple[list, float, float]:
+    """
+    Run the main job's bench; return its trips ``(t, ms)`` and the window's span.
+
+    The window runs from the bench's ``loop running`` (the loop closed, the reference and the
+    recorder in) to its ``stopping``; the plant's trip log also holds the trips of the
+    start-up before it, which the caller counts apart.
+    """
+    env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+    cmd = [sys.executable, str(BENCH), '--duration', str(seconds), '--out', str(tmp / f'w{i}'),
+           '--no-machine-probe'] + (['--rt-priority', str(prio)] if prio else [])
+    cmd.append('--cpu-affinity' if pin else '--no-cpu-affinity')
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                         env=env)
+    t0 = t1 = None
+    lines = []
+    for line in p.stdout:
+        lines.append(line)
+        if t0 is None and 'loop running' in line:
+            t0 = time.monotonic()
+        elif t1 is None and line.startswith('bench: stopping'):
+            t1 = time.monotonic()      # the window ends here: what follows is shutting down
+    if p.wait() != 0 or t0 is None or t1 is None:
+        raise RuntimeError(f'the bench failed (exit {p.returncode}):\n' + ''.join(lines[-30:]))
+    tag = 'bench: plant ' + FIGURES
+    f = json.loads(next(ln for ln in lines if ln.startswith(tag))[len(tag):])
+    return [(t, age) for t, _, age, _ in f['watchdog_trip_log']], t0, t1
+
+
+def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, float]:
+    """Run the bare ping-pong; return its trips ``(t, ms)`` and the measured span."""
+    rt = ['--rt-priority', str(prio)] if prio else []
+    cpus = loop_placement(True) if pin else None
+    if cpus:      # ping and pong on one CPU, as bench.py --cpu-affinity places ours
+        rt += ['--cpu', str(cpus[0])]
+    env = {'FASTRTPS_DEFAULT_PROFILES_FILE': str(RT_PROFILE)} if prio else {}
+    with Launch(dom, env=env) as bare:
+        for role in ('pong', 'ping'):
+            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *rt])
+        time.sleep(2.0)
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        t1 = time.monotonic()
+        bare.stop(['ping', 'pong'])
+        f = json.loads(bare['ping'].output().strip().splitlines()[-1])
+    # trips in the warm-up are not in the window (ours count from the loop's start)
+    return [(t, ms) for t, ms in f['trip_log'] if t >= t0], t0, t1
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; print one line per window, then the figures, the last line JSON."""
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench window')
+    ap.add_argument('--windows', type=int, default=8,
+                    help='windows of ours and of the bare loop each')
+    ap.add_argument('--seconds', type=float, default=10.0, help='length of each window')
+    ap.add_argument('--rt-priority', type=int, default=50,
+                    help='SCHED_FIFO priority of the loop nodes, the bare ping-pong and the '
+                    "probes (the main job's 50; 0: the default scheduler)")
+    ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=True,
+                    help='plant and controller on one CPU, the reference on another, as the '
+                    "main job places them, and the bare ping and pong on the plant's CPU; "
+                    '--no-cpu-affinity: all left to the scheduler')
+    a = ap.parse_args(argv)
+    if a.windows < 1 or a.seconds <= 0:
+        ap.error('--windows must be >= 1 and --seconds > 0')
+    if not BENCH.is_file():
+        print(f'window: needs a source checkout ({BENCH} not found)', file=sys.stderr)
+        return 2
+    rt = ['--rt-priority', str(a.rt_priority)] if a.rt_priority else []
+    rows = {'ours': [], 'bare': []}
+    start_up = 0        # our trips before a window: between the loop's closing and its start
+    with domain_id() as dom, tempfile.TemporaryDirectory(prefix='ehs_window_') as tmp:
+        for i in range(a.windows):
+            for kind in (('ours', 'bare') if i % 2 == 0 else ('bare', 'ours')):
+                probes = _probes(rt)
+                trips, t0, t1 = (
+                    _ours(dom, a.seconds, a.rt_priority, a.cpu_affinity, Path(tmp), i)
+                    if kind == 'ours' else _bare(dom, a.seconds, a.rt_priority, a.cpu_affinity))
+                start_up += sum(t < t0 for t, _ in trips)
+                trips = [(t, ms) for t, ms in trips if t0 <= t <= t1]
+                stalls = _stalls(probes, t0, t1)
+                hit = sum(coincident(trips, [(e, g) for e, g, _ in stalls]))
+                rows[kind].append((len(trips), len(stalls), hit))
+                at = ', '.join(f'{g:.1f} ms on CPU {cpu} at {e - t0:.2f} s'
+                               for e, g, cpu in stalls)
+                print(f'window {i + 1} {kind}: {len(trips)} watchdog trips in {t1 - t0:.1f} s '
+                      f'({hit} in a machine stall); machine stalls over {STALL_MS:g} ms: '
+                      f'{len(stalls)}{" (" + at + ")" if at else ""}', flush=True)
+    figures = {'windows': a.windows, 'seconds': a.seconds, 'rt_priority': a.rt_priority,
+               'cpu_affinity': a.cpu_affinity}
+    for kind, r in rows.items():
+        quiet = [t for t, s, _ in r if s == 0]
+        figures.update({
+            f'{kind}_trip_free_windows': sum(t == 0 for t, _, _ in r),
+            f'{kind}_quiet_windows': len(quiet),
+            f'{kind}_quiet_trip_free_windows': sum(t == 0 for t in quiet),
+            f'{kind}_watchdog_trips': sum(t for t, _, _ in r),
+            f'{kind}_trips_in_machine_stalls': sum(h for _, _, h in r),
+        })
+    figures['ours_trips_in_start_up'] = start_up
+    figures['machine_stalled_windows'] = sum(s > 0 for r in rows.values() for _, s, _ in r)
+    figures['targets_met'] = {
+        # the main job's target: on a quiet machine a 10 s run has no trip
+        'quiet_windows_trip_free': figures['ours_quiet_trip_free_windows']
+        == figures['ours_quiet_windows'],
+    }
+    return report(figures)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
