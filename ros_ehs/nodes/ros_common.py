@@ -52,6 +52,7 @@ from ros_ehs.params import Params, ParamSpec
 import ros_ehs_msgs_py as contract
 
 __all__ = ['CPU_AFFINITY', 'EPOCH_PERIODS', 'OK', 'WARN', 'ERROR', 'Option', 'RT_PRIORITY',
+           'SIDE_THREADS',
            'check_names', 'declare_options', 'declare_specs', 'diagnostics', 'msg_class',
            'qos_profile', 'qos_spec', 'read_msg', 'rejected_names', 'ros_args', 'run',
            'set_cpu_affinity', 'set_realtime', 'steady_clock', 'update_options',
@@ -314,6 +315,22 @@ def _thread_ids() -> list[int]:
     return [int(t) for t in os.listdir('/proc/self/task')]
 
 
+#: Fast DDS threads (by name) that carry no message of the loop, which goes over shared
+#: memory: UDP receptions (discovery; a peer on another host), timed events (announcements,
+#: heartbeats), the asynchronous writer, the shared-memory watchdog. ``set_cpu_affinity``
+#: keeps them off the loop's CPU: measured (session 12, 12 alternating pairs of 10 s
+#: main-job benches), 8 of 12 windows without a watchdog trip against 3 of 12 with them on it.
+SIDE_THREADS = ('dds.udp.', 'dds.ev.', 'dds.asyn.', 'dds.shm.wdog')
+
+
+def _thread_name(tid: int) -> str:
+    try:
+        with open(f'/proc/self/task/{tid}/comm') as f:
+            return f.read().strip()
+    except OSError:
+        return ''
+
+
 def set_realtime(priority: int) -> str:
     """
     Put every thread of this process (the executor's and the middleware's) on SCHED_FIFO.
@@ -336,29 +353,37 @@ def set_realtime(priority: int) -> str:
 
 def set_cpu_affinity(cpu: int) -> str:
     """
-    Keep every thread of this process on CPU ``cpu`` (-1: anywhere, the default).
+    Keep the threads of this process that carry the loop on CPU ``cpu`` (-1: anywhere).
 
-    Returns what was done, or why not (no such CPU); never raises.
+    The loop's threads are the executor's, the Python ones and the middleware's
+    shared-memory listeners; the middleware's other threads (:data:`SIDE_THREADS`:
+    discovery, timed events) go to the other CPUs this process may use, so that a node
+    joining the network or a participant's announcement does not hold the loop's CPU (on one
+    CPU: all on it). Returns what was done, or why not (no such CPU); never raises.
     """
     if cpu < 0:
         return ''
     try:
+        others = (set(os.sched_getaffinity(0)) - {cpu}) or {cpu}
         for tid in _thread_ids():
-            os.sched_setaffinity(tid, {cpu})
+            side = _thread_name(tid).startswith(SIDE_THREADS)
+            os.sched_setaffinity(tid, others if side else {cpu})
     except (OSError, AttributeError) as err:
         return (f'cpu_affinity {cpu} not applied ({getattr(err, "strerror", err)}): this '
                 f'machine has CPUs {sorted(os.sched_getaffinity(0))}')
-    return f'threads on CPU {cpu}'
+    return f'threads on CPU {cpu} (discovery and timed events on CPUs {sorted(others)})'
 
 
-#: The ``cpu_affinity`` option of the lock-step nodes; ``Launch.start_loop`` sets it for a
-#: lock-step loop by default (``ros_ehs.launch.loop_placement``). Measured on the 2-core VM,
-#: plant and controller on one CPU and the reference on the other: 12400-14450 lock-step
-#: steps/s against 6280-8060 unpinned (a ping-pong between two processes on one core skips
-#: the cross-core wake-up; the bare rclpy ping-pong gains 1.2-1.5x, docs/nodes.md).
-CPU_AFFINITY = Option('cpu_affinity', -1, 'keep all the threads of the node on this CPU '
-                      '(-1: anywhere); lock-step: plant and controller on one, the reference '
-                      'on another', -1, 1023)
+#: The ``cpu_affinity`` option of the loop nodes; ``Launch.start_loop`` sets it by default
+#: (``ros_ehs.launch.loop_placement``). Measured on the 2-core VM, plant and controller on one
+#: CPU and the reference on the other: 12400-14450 lock-step steps/s against 6280-8060
+#: unpinned (a ping-pong between two processes on one core skips the cross-core wake-up; the
+#: bare rclpy ping-pong gains 1.2-1.5x), and in real time no watchdog trip in 30 of 30 10 s
+#: windows the machine did not stall (docs/nodes.md, "CPU placement").
+CPU_AFFINITY = Option('cpu_affinity', -1, 'keep the threads of the node that carry the loop '
+                      "on this CPU, the middleware's discovery and timed events on the "
+                      'others (-1: anywhere); a bench: plant and controller on one, the '
+                      'reference on another', -1, 1023)
 
 
 #: The ``rt_priority`` option of the loop nodes (plant and controller), as ros2_control's
