@@ -596,3 +596,39 @@ def test_replay_launch_script_plays_a_bag_and_exits(dom, tmp_path):
                          capture_output=True, text=True, env=env, timeout=120)
     assert res.returncode == 0, res.stderr
     assert 'replay done: /topic 10' in res.stderr + res.stdout
+
+
+def test_a_reference_waiting_for_the_loop_starts_on_the_plants_ok_only(dom, tmp_path, ros):
+    """
+    ``wait_loop``: time zero waits for the plant's diagnostics at level OK, over real DDS.
+
+    The diagnostics come from this test's own rclpy node, not from our plant: another node's
+    OK, the plant's WARN (waiting for its first command) and a plant status inside an array
+    of others are told apart; the first sample after the plant's OK is the trajectory's
+    time zero.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from ros_ehs.nodes.ros_common import qos_profile
+    from sensor_msgs.msg import JointState
+    got = []
+    ros.create_subscription(JointState, 'reference', got.append,
+                            qos_profile(c.REFERENCE.qos, depth=1000))
+    pub = ros.create_publisher(DiagnosticArray, 'diagnostics', qos_profile(c.DIAGNOSTICS.qos))
+
+    def say(*statuses):
+        pub.publish(DiagnosticArray(status=[DiagnosticStatus(name=n, level=bytes([lv]))
+                                            for n, lv in statuses]))
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start('reference', {'wait_loop': True, 'wait_subscribers': 1,
+                                   'rate_hz': 250.0})
+        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
+        for statuses in ([('ros_ehs/controller', 0)], [('ros_ehs/plant', 1)],
+                         [('ros_ehs/plant', 2), ('ros_ehs/recorder', 0)]):
+            say(*statuses)
+            ros.spin(0.4)
+            assert got == [], statuses         # not the plant's OK: nothing yet
+        say(('ros_ehs/reference', 0), ('ros_ehs/plant', 0))
+        assert ros.spin(until=lambda: len(got) >= 10, timeout=10), launch['reference'].output()
+        assert 'the plant reports its loop closed' in launch['reference'].output()
+    first = c.reference_from_msg(got[0])
+    assert first.z_ref == 0.0 and first.v_ref == pytest.approx(2 * math.pi * 0.04)

@@ -66,8 +66,8 @@ from ros_ehs.model.plant import Plant
 from ros_ehs.nodes.loop_stats import LoopStats
 from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs,
                                       diagnostics, ERROR, node_params, OK, Option,
-                                      qos_profile, read_msg, RT_PRIORITY, run, steady_clock,
-                                      update_options, validate_changes, WARN)
+                                      PLANT_STATUS, qos_profile, read_msg, RT_PRIORITY, run,
+                                      steady_clock, update_options, validate_changes, WARN)
 from ros_ehs.params import Params, PLANT_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
@@ -459,7 +459,7 @@ class PlantNode(Node):
             level, msg = WARN, 'watchdog tripped: valve current zero'
         elif not self.armed and not self.lockstep:
             level, msg = WARN, 'waiting for the first command'
-        self.pub_diag.publish(diagnostics(self, 'ros_ehs/plant', level, msg, f))
+        self.pub_diag.publish(diagnostics(self, PLANT_STATUS, level, msg, f))
 
 
 def main(args=None) -> int:

@@ -35,10 +35,13 @@ resends (tested): keep ``preview`` above the plant's ``clock_period``. ``/clock`
 the diagnostics) and answered with nothing (tested).
 
 ``wait_subscribers`` (real time): time zero is the first tick at which ``reference`` has that
-many subscribers; until then nothing is published. A bench starts the reference last, once
-the loop is closed and holding position, with the controller and the recorder as the two
-subscribers: the trajectory then starts at its beginning on a closed loop instead of
-somewhere mid-stroke on a piston that has not moved yet.
+many subscribers; until then nothing is published. ``wait_loop`` (real time): time zero also
+waits for the plant's diagnostics to report its loop closed (status ``ros_ehs/plant`` at
+level OK: watchdog armed, not tripped; another node's OK or the plant's WARN do not count,
+tested). A bench starts the reference before the plant, so that no participant joins a
+running loop, with both: the trajectory then starts at its beginning on a closed loop
+holding position, with the controller and the recorder listening, instead of somewhere
+mid-stroke on a piston that has not moved yet.
 """
 
 from __future__ import annotations
@@ -49,8 +52,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from ros_ehs.errors import ParameterError
 from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs, diagnostics,
-                                      EPOCH_PERIODS, OK, Option, qos_profile, read_msg,
-                                      run, steady_clock)
+                                      EPOCH_PERIODS, OK, Option, PLANT_STATUS, qos_profile,
+                                      read_msg, run, steady_clock)
 from ros_ehs.reference import make, REFERENCE_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
@@ -68,6 +71,8 @@ OPTIONS = (
            1.0e9),
     Option('csv_path', '', 'trajectory file for kind = csv (columns t [s], z [m])'),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
+    Option('wait_loop', False, 'real time: start the trajectory (time zero) only once the '
+           "plant's diagnostics report its loop closed (status ros_ehs/plant at level OK)"),
     Option('wait_subscribers', 0, 'real time: start the trajectory (time zero) only once '
            '`reference` has this many subscribers; publish nothing until then', 0, 1000),
     CPU_AFFINITY,
@@ -108,6 +113,12 @@ class ReferenceNode(Node):
         else:
             self.create_timer(1.0 / float(self.opt['rate_hz']), self._tick,
                               clock=steady_clock())
+        # real time, wait_loop: subscribed from the start and kept (1 Hz): a subscription
+        # made or destroyed mid-run is a discovery event in every participant of the loop
+        self.loop_closed = not (self.opt['wait_loop'] and not self.sim_time)
+        if not self.loop_closed:
+            self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self._on_diag,
+                                     qos_profile(contract.DIAGNOSTICS.qos))
         self.add_on_set_parameters_callback(self._check)
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
                           clock=steady_clock())
@@ -150,15 +161,20 @@ class ReferenceNode(Node):
         self.pub.publish(contract.reference_to_cdr(refs[0]))
         self.count += 1
 
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        if any(st.name == PLANT_STATUS and st.level == bytes([OK]) for st in msg.status):
+            self.loop_closed = True
+
     def _tick(self) -> None:
         if self.t_first is None:
             need = int(self.opt['wait_subscribers'])
             have = self.pub.get_subscription_count()
-            if have < need:
+            if have < need or not self.loop_closed:
                 return
-            if need:
-                self.get_logger().info(f'time zero: {have} subscriber(s) on '
-                                       f'{contract.REFERENCE.name}')
+            if need or self.opt['wait_loop']:
+                self.get_logger().info(
+                    f'time zero: {have} subscriber(s) on {contract.REFERENCE.name}' +
+                    (', the plant reports its loop closed' if self.opt['wait_loop'] else ''))
         self._publish(self.get_clock().now().nanoseconds)
 
     def _sample(self, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -52,13 +52,16 @@ from ros_ehs.params import Params, ParamSpec
 import ros_ehs_msgs_py as contract
 
 __all__ = ['CPU_AFFINITY', 'EPOCH_PERIODS', 'OK', 'WARN', 'ERROR', 'Option', 'RT_PRIORITY',
-           'SIDE_THREADS',
+           'PLANT_STATUS', 'SIDE_THREADS',
            'check_names', 'declare_options', 'declare_specs', 'diagnostics', 'msg_class',
            'qos_profile', 'qos_spec', 'read_msg', 'rejected_names', 'ros_args', 'run',
            'set_cpu_affinity', 'set_realtime', 'steady_clock', 'update_options',
            'validate_changes']
 
 OK, WARN, ERROR = 0, 1, 2
+#: The name of the plant's status in ``diagnostics``: level OK once its loop is closed
+#: (watchdog armed, not tripped); a reference with ``wait_loop`` waits for it.
+PLANT_STATUS = 'ros_ehs/plant'
 
 #: A stamp (or ``/clock``) further back than this many periods than the last one starts a
 #: new run: a restarted plant, a replayed bag (the controller's and reference's policies).
