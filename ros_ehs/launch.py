@@ -242,8 +242,10 @@ class Launch:
           the loop closes: one joining a running loop held its CPU at times (a watchdog trip
           in the loop's first 4-5 s in 3 of 10 runs; started first, 0 of 12; session 12).
           The reference's time zero waits for its subscribers (the controller and the
-          recorder) and for the plant's diagnostics to report the loop closed
-          (``wait_loop``): the controller holds the first measured position until then.
+          recorder) and for the plant's diagnostics to report the loop closed, with the
+          recorder listening to ``state`` (``wait_loop``, the plant's ``wait_subscribers``):
+          the controller holds the first measured position until then, and the bag holds
+          the states from time zero on.
 
         Returns when everything runs. ``plant``, ``controller``, ``reference``, ``recorder``:
         extra parameters (``reference=False``: no reference node). Raises :class:`LaunchError`
@@ -296,9 +298,9 @@ class Launch:
             if rec:
                 self._expect('recorder', recording(contract.REFERENCE), timeout,
                              'the recorder did not discover the reference')
-        pl = {'mode': mode, **(plant or {})}
-        if lock:
-            pl.setdefault('wait_subscribers', 2 if rec else 1)
+        # lock-step: the plant starts stepping when they listen; real time: it reports the
+        # loop running only then, and the reference's time zero waits for that report
+        pl = {'mode': mode, 'wait_subscribers': 2 if rec else 1, **(plant or {})}
         self.start('plant', pl, params_file=pf)
         self._expect('plant', ['lock-step running' if lock else 'watchdog armed'], timeout,
                      'the loop did not close')

@@ -183,6 +183,10 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     # recorded sample is the sine's time zero
     first = c.reference_from_msg(next(ours.decoded(['/reference']))[1])
     assert first.z_ref == 0.0 and first.v_ref == pytest.approx(2 * math.pi * 0.04)
+    # and the states from before time zero on: the plant reports its loop running only once
+    # the recorder listens to it too (a bag once began 1.5 s into the trajectory)
+    first_state = c.state_from_msg(next(ours.decoded(['/state']))[1])
+    assert first_state.stamp_ns < first.stamp_ns, (first_state.stamp_ns, first.stamp_ns)
     counts = {k: v.count for k, v in ours.topics.items()}
     assert counts['/state'] > 1000 and counts['/servo_current'] > 900
     from rosbags.rosbag2 import Reader

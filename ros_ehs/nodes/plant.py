@@ -93,7 +93,8 @@ OPTIONS = (
     Option('duration', 0.0, 'lock-step: stop advancing at this sim time after start [s] '
            '(0: never)', 0.0, 1.0e9),
     Option('wait_subscribers', 1, 'lock-step: start when `state` has this many subscribers '
-           '(2 with a recorder)', 0, 100),
+           '(2 with a recorder); real time: report the loop running (diagnostics OK, what a '
+           'reference with wait_loop starts on) only then', 0, 100),
     Option('start_delay', 0.5, 'lock-step: then wait this long, so every node has matched '
            'every other before the first step [s]', 0.0, 60.0),
     Option('clock_period', 0.01, 'lock-step: publish /clock every this much sim time (0: '
@@ -459,6 +460,10 @@ class PlantNode(Node):
             level, msg = WARN, 'watchdog tripped: valve current zero'
         elif not self.armed and not self.lockstep:
             level, msg = WARN, 'waiting for the first command'
+        elif not self.lockstep:
+            have, need = self.pub_state.get_subscription_count(), self.opt['wait_subscribers']
+            if have < need:      # a recorder not yet listening: the bag would miss the start
+                level, msg = WARN, f'waiting for {need} subscribers on state ({have} now)'
         self.pub_diag.publish(diagnostics(self, PLANT_STATUS, level, msg, f))
 
 
