@@ -38,6 +38,7 @@ import argparse
 import json
 import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import tempfile
@@ -54,18 +55,19 @@ BENCH = Path(__file__).resolve().parents[2] / 'launch_scripts' / 'bench.py'
 RT_PROFILE = BENCH.with_name('fastdds_rt.xml')
 
 
-def _probes(rt: list[str]) -> list[subprocess.Popen]:
-    return [subprocess.Popen([sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds', '0',
-                              '--cpu', str(c), '--gaps-over', str(STALL_MS), *rt],
-                             stdout=subprocess.PIPE, text=True)
-            for c in sorted(os.sched_getaffinity(0))]
+def _probes(rt: list[str]) -> dict[int, subprocess.Popen]:
+    """Start a machine probe on each CPU this process may use: ``{cpu: process}``."""
+    return {c: subprocess.Popen([sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds',
+                                 '0', '--cpu', str(c), '--gaps-over', str(STALL_MS), *rt],
+                                stdout=subprocess.PIPE, text=True)
+            for c in sorted(os.sched_getaffinity(0))}
 
 
-def _stalls(probes: list[subprocess.Popen], t0: float, t1: float) -> list[tuple]:
+def _stalls(probes: dict[int, subprocess.Popen], t0: float, t1: float) -> list[tuple]:
     """Stop the probes; return their gaps over STALL_MS in ``[t0, t1]``: ``(end, ms, cpu)``."""
     gaps = []
-    for cpu, p in enumerate(probes):
-        p.send_signal(2)
+    for cpu, p in probes.items():
+        p.send_signal(signal.SIGINT)
         out, _ = p.communicate(timeout=10)
         gaps += [(e, g, cpu) for e, g in json.loads(out.strip().splitlines()[-1])['gaps']
                  if e >= t0 and e - g * 1e-3 <= t1]
