@@ -48,7 +48,8 @@ import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checkout works too
 
-from ros_ehs.bench.sleeper import coincident  # noqa: E402
+from ros_ehs.bench.sleeper import coincident, STALL_MS  # noqa: E402
+from ros_ehs.bench.sleeper import command as probe_command  # noqa: E402
 from ros_ehs.launch import FIGURES, Launch, LaunchError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.synthetic import SensorNoise  # noqa: E402
@@ -56,8 +57,6 @@ from ros_ehs.synthetic import SensorNoise  # noqa: E402
 FASTDDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 #: machine probes list their gaps longer than this [ms]: a tick 0.3 ms late or more
 PROBE_GAP_MS = 1.3
-#: a probe's gap this long [ms] is a stall of the machine (held a period or more)
-STALL_MS = 2.0
 #: at most this many CPUs get a probe (one each); a larger machine gets none
 PROBE_MAX_CPUS = 4
 #: the Fast DDS profile a bench under SCHED_FIFO needs (see the file's comment)
@@ -81,11 +80,8 @@ def _start_probes(launch: Launch, rt_priority: int) -> list[str]:
     if len(cpus) > PROBE_MAX_CPUS:
         print(f'bench: no machine probes ({len(cpus)} CPUs, more than {PROBE_MAX_CPUS})')
         return []
-    rt = ['--rt-priority', str(rt_priority)] if rt_priority else []
     for cpu in cpus:
-        launch.start(f'probe{cpu}', cmd=[sys.executable, '-m', 'ros_ehs.bench.sleeper',
-                                         '--seconds', '0', '--cpu', str(cpu),
-                                         '--gaps-over', str(PROBE_GAP_MS), *rt])
+        launch.start(f'probe{cpu}', cmd=probe_command(cpu, PROBE_GAP_MS, rt_priority))
     return [f'probe{cpu}' for cpu in cpus]
 
 

@@ -137,8 +137,8 @@ def main(argv=None) -> int:
                    'dds_vs_in_process': r(rate / inproc, 4),
                    'bare_pingpong_round_trips_per_s': r(v, 1),
                    'lockstep_vs_bare_pingpong': r(rate / v),
-                   'per_round': [[r(x['steps_per_s'], 1), r(b, 1), r(x['steps_per_s'] / b)]
-                                 for x, b in zip(ours, bare)],
+                   'per_round': [[r(x['steps_per_s'], 1), r(b, 1), r(q)]
+                                 for x, b, q in zip(ours, bare, per_round)],
                    'bare_reliable_round_trips_per_s': r(vr, 1),
                    'lockstep_vs_bare_reliable': r(rate / vr),
                    'bare_relay_round_trips_per_s': r(v3, 1),

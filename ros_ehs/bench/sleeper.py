@@ -34,12 +34,23 @@ from collections import deque
 import json
 import os
 import signal
+import sys
 import time
 
-__all__ = ['coincident', 'main', 'MAX_GAPS']
+__all__ = ['coincident', 'command', 'main', 'MAX_GAPS', 'STALL_MS']
 
 #: Gaps kept by ``--gaps-over`` (the newest): bounded however long the probe runs.
 MAX_GAPS = 1000
+#: A gap this long [ms] is a stall of the machine (``stalls_2ms``): a loop held this long
+#: trips the plant's 3-period watchdog at 1 kHz with a round trip of zero.
+STALL_MS = 2.0
+
+
+def command(cpu: int, gaps_over: float, rt_priority: int = 0) -> list[str]:
+    """Return the command line of a probe on ``cpu`` that runs until SIGINT or SIGTERM."""
+    rt = ['--rt-priority', str(rt_priority)] if rt_priority else []
+    return [sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds', '0', '--cpu', str(cpu),
+            '--gaps-over', str(gaps_over), *rt]
 
 
 def coincident(spans: list[tuple[float, float]],
@@ -86,6 +97,7 @@ def main(argv=None) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: stop.append(1))
     period = 1_000_000
+    stall = int(STALL_MS * 1e6)
     n = int(a.seconds * 1000) if a.seconds else -1
     over = int(a.gaps_over * 1e6) if a.gaps_over else None
     gaps = deque(maxlen=MAX_GAPS)
@@ -101,7 +113,7 @@ def main(argv=None) -> int:
         last = now
         ticks += 1
         top = max(top, gap)
-        long = gap > 2 * period
+        long = gap > stall
         stalls += long and not stalled
         stalled = long
         if over is not None and gap > over:

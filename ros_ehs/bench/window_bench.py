@@ -46,20 +46,17 @@ import time
 
 from domain_coordinator import domain_id
 from ros_ehs.bench import report
-from ros_ehs.bench.sleeper import coincident
+from ros_ehs.bench.sleeper import coincident, command, STALL_MS
 from ros_ehs.launch import FIGURES, Launch, loop_placement
 
-#: a probe held this long [ms] is a stall of the machine (as ``launch_scripts/bench.py``)
-STALL_MS = 2.0
 BENCH = Path(__file__).resolve().parents[2] / 'launch_scripts' / 'bench.py'
 RT_PROFILE = BENCH.with_name('fastdds_rt.xml')
 
 
-def _probes(rt: list[str]) -> dict[int, subprocess.Popen]:
+def _probes(rt_priority: int) -> dict[int, subprocess.Popen]:
     """Start a machine probe on each CPU this process may use: ``{cpu: process}``."""
-    return {c: subprocess.Popen([sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds',
-                                 '0', '--cpu', str(c), '--gaps-over', str(STALL_MS), *rt],
-                                stdout=subprocess.PIPE, text=True)
+    return {c: subprocess.Popen(command(c, STALL_MS, rt_priority), stdout=subprocess.PIPE,
+                                text=True)
             for c in sorted(os.sched_getaffinity(0))}
 
 
@@ -143,13 +140,12 @@ def main(argv=None) -> int:
     if not BENCH.is_file():
         print(f'window: needs a source checkout ({BENCH} not found)', file=sys.stderr)
         return 2
-    rt = ['--rt-priority', str(a.rt_priority)] if a.rt_priority else []
     rows = {'ours': [], 'bare': []}
     start_up = 0        # our trips before a window: between the loop's closing and its start
     with domain_id() as dom, tempfile.TemporaryDirectory(prefix='ehs_window_') as tmp:
         for i in range(a.windows):
             for kind in (('ours', 'bare') if i % 2 == 0 else ('bare', 'ours')):
-                probes = _probes(rt)
+                probes = _probes(a.rt_priority)
                 trips, t0, t1 = (
                     _ours(dom, a.seconds, a.rt_priority, a.cpu_affinity, Path(tmp), i)
                     if kind == 'ours' else _bare(dom, a.seconds, a.rt_priority, a.cpu_affinity))
