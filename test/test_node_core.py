@@ -484,3 +484,18 @@ def test_the_machine_probe_refuses_negative_times_by_name(args):
     r = subprocess.run([sys.executable, '-m', 'ros_ehs.bench.sleeper', *args],
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 2 and '--seconds and --gaps-over must be >= 0' in r.stderr
+
+
+@pytest.mark.parametrize('bench, args, says', [
+    ('window', ['--windows', '0'], '--windows must be >= 1 and --seconds > 0'),
+    ('window', ['--seconds', '0'], '--windows must be >= 1 and --seconds > 0'),
+    ('window', ['--seconds', 'nan'], '--windows must be >= 1 and --seconds > 0'),
+    ('loop', ['--rounds', '0'], '--rounds must be >= 1 and --seconds > 0'),
+    ('loop', ['--seconds', 'nan'], '--rounds must be >= 1 and --seconds > 0'),
+    ('lockstep', ['--seconds', '-1'], '--rounds must be >= 1 and --seconds > 0')])
+def test_the_loop_benchmarks_refuse_an_empty_run_by_name(bench, args, says):
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, '-m', 'ros_ehs.bench', bench, *args],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and says in r.stderr, r.stderr

@@ -113,12 +113,14 @@ def main(argv=None) -> int:
                     help='SCHED_FIFO priority of our loop nodes and of the bare ping-pong alike '
                     '(the rt_priority option of the nodes; 0: the default scheduler)')
     a = ap.parse_args(argv)
+    if a.rounds < 1 or not a.seconds > 0:        # NaN too
+        ap.error('--rounds must be >= 1 and --seconds > 0')
     rt = {'rt_priority': a.rt_priority} if a.rt_priority else {}
     rt_bare = ['--rt-priority', str(a.rt_priority)] if a.rt_priority else []
-    per = a.seconds / max(1, a.rounds)
+    per = a.seconds / a.rounds
     ours, bare, cpu_ours, cpu_b, machine = [], [], [], [], []
     with domain_id() as dom:
-        for r in range(max(1, a.rounds)):
+        for r in range(a.rounds):
             machine.append(_machine(per, rt_bare))
             runs = [('ours', ours, cpu_ours), ('bare', bare, cpu_b)]
             for kind, figs, cpus in (runs if r % 2 == 0 else runs[::-1]):

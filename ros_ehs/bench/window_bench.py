@@ -135,7 +135,7 @@ def main(argv=None) -> int:
                     "main job places them, and the bare ping and pong on the plant's CPU; "
                     '--no-cpu-affinity: all left to the scheduler')
     a = ap.parse_args(argv)
-    if a.windows < 1 or a.seconds <= 0:
+    if a.windows < 1 or not a.seconds > 0:        # NaN too
         ap.error('--windows must be >= 1 and --seconds > 0')
     if not BENCH.is_file():
         print(f'window: needs a source checkout ({BENCH} not found)', file=sys.stderr)
