@@ -487,13 +487,21 @@ def test_the_machine_probe_refuses_negative_times_by_name(args):
 
 
 @pytest.mark.parametrize('bench, args, says', [
-    ('window', ['--windows', '0'], '--windows must be >= 1 and --seconds > 0'),
-    ('window', ['--seconds', '0'], '--windows must be >= 1 and --seconds > 0'),
-    ('window', ['--seconds', 'nan'], '--windows must be >= 1 and --seconds > 0'),
-    ('loop', ['--rounds', '0'], '--rounds must be >= 1 and --seconds > 0'),
-    ('loop', ['--seconds', 'nan'], '--rounds must be >= 1 and --seconds > 0'),
-    ('lockstep', ['--seconds', '-1'], '--rounds must be >= 1 and --seconds > 0')])
-def test_the_loop_benchmarks_refuse_an_empty_run_by_name(bench, args, says):
+    ('window', ['--windows', '0'], "argument --windows: must be a whole number >= 1, not '0'"),
+    ('window', ['--seconds', '0'], "argument --seconds: must be a finite number > 0, not '0'"),
+    ('window', ['--seconds', 'nan'], "argument --seconds: must be a finite number > 0, not 'nan'"),
+    ('loop', ['--rounds', '0'], "argument --rounds: must be a whole number >= 1, not '0'"),
+    ('loop', ['--seconds', 'nan'], "argument --seconds: must be a finite number > 0, not 'nan'"),
+    ('lockstep', ['--seconds', '-1'], "argument --seconds: must be a finite number > 0, not '-1'"),
+    ('lockstep', ['--rounds', 'two'], "argument --rounds: must be a whole number >= 1, not 'two'"),
+    ('soak', ['--seconds', 'inf'], "argument --seconds: must be a finite number > 0, not 'inf'"),
+    ('soak', ['--sample', '0'], "argument --sample: must be a finite number > 0, not '0'"),
+    ('soak', ['--max-bag-duration', 'nan'], 'argument --max-bag-duration: must be a finite'),
+    ('record', ['--rates', '20000,x'], "argument --rates: must be a finite number > 0, not 'x'"),
+    ('record', ['--rates', '-5'], "argument --rates: must be a finite number > 0, not '-5'"),
+    ('record', ['--seconds', 'inf'], "argument --seconds: must be a finite number > 0, not 'inf'"),
+    ('record', ['--compressions', 'gzip'], '--compressions takes none, zstd or lz4')])
+def test_the_benchmarks_refuse_bad_numbers_by_name(bench, args, says):
     import subprocess
     import sys
     r = subprocess.run([sys.executable, '-m', 'ros_ehs.bench', bench, *args],

@@ -13,7 +13,36 @@
 # limitations under the License.
 """Benchmarks a user can run on their own machine: ``python -m ros_ehs.bench <name>``."""
 
+import argparse
 import json
+import math
+
+
+def positive(text: str) -> float:
+    """Parse a finite number > 0 (an argparse ``type``): NaN, inf, 0 and below are refused."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f'must be a finite number > 0, not {text!r}')
+    return v
+
+
+def count(text: str) -> int:
+    """Parse a whole number >= 1 (an argparse ``type``)."""
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f'must be a whole number >= 1, not {text!r}')
+    return v
+
+
+def positives(text: str) -> list:
+    """Parse a comma-separated list of finite numbers > 0 (an argparse ``type``)."""
+    return [positive(x) for x in text.split(',')]
 
 
 def report(figures: dict) -> int:

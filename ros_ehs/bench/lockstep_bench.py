@@ -42,7 +42,7 @@ import sys
 import time
 
 from domain_coordinator import domain_id
-from ros_ehs.bench import report
+from ros_ehs.bench import count, positive, report
 from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.launch import Launch, loop_placement
 from ros_ehs.params import Params
@@ -91,16 +91,14 @@ def main(argv=None) -> int:
     relay and the serialized ping-pong.
     """
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench lockstep')
-    ap.add_argument('--seconds', type=float, default=5.0, help='sim seconds per round')
-    ap.add_argument('--rounds', type=int, default=3, help='alternating rounds (ours, bare)')
+    ap.add_argument('--seconds', type=positive, default=5.0, help='sim seconds per round')
+    ap.add_argument('--rounds', type=count, default=3, help='alternating rounds (ours, bare)')
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
     ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=True,
                     help='plant and controller on one CPU, the reference on another (as '
                     'Launch.start_loop places a lock-step loop by default), and the bare '
                     'yardsticks placed alike; --no-cpu-affinity: all unpinned')
     a = ap.parse_args(argv)
-    if a.rounds < 1 or not a.seconds > 0:
-        ap.error('--rounds must be >= 1 and --seconds > 0')
     pin = a.cpu_affinity
     ours, bare = [], []
     with domain_id() as dom:

@@ -36,7 +36,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.bench import report
+from ros_ehs.bench import count, positive, report
 from ros_ehs.launch import Launch
 
 
@@ -103,9 +103,9 @@ def _pool(rounds: list[dict], cpus: list[dict]) -> tuple[dict, dict]:
 def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench loop')
-    ap.add_argument('--seconds', type=float, default=20.0,
+    ap.add_argument('--seconds', type=positive, default=20.0,
                     help='seconds of loop for ours and for the bare ping-pong each')
-    ap.add_argument('--rounds', type=int, default=2,
+    ap.add_argument('--rounds', type=count, default=2,
                     help='split the seconds into this many alternating rounds (ours, bare, '
                     'bare, ours, ...), so that a drift in the machine load weighs on both')
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
@@ -113,8 +113,6 @@ def main(argv=None) -> int:
                     help='SCHED_FIFO priority of our loop nodes and of the bare ping-pong alike '
                     '(the rt_priority option of the nodes; 0: the default scheduler)')
     a = ap.parse_args(argv)
-    if a.rounds < 1 or not a.seconds > 0:        # NaN too
-        ap.error('--rounds must be >= 1 and --seconds > 0')
     rt = {'rt_priority': a.rt_priority} if a.rt_priority else {}
     rt_bare = ['--rt-priority', str(a.rt_priority)] if a.rt_priority else []
     per = a.seconds / a.rounds

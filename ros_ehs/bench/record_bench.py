@@ -34,7 +34,7 @@ from domain_coordinator import domain_id
 import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
-from ros_ehs.bench import report
+from ros_ehs.bench import positive, positives, report
 from ros_ehs.launch import Launch
 import ros_ehs_msgs_py as contract
 
@@ -111,15 +111,18 @@ def _raw_writer_rate(compression: str, n: int = 100000) -> float:
 def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench record')
-    ap.add_argument('--seconds', type=float, default=5.0)
-    ap.add_argument('--rates', default='20000,25000,30000')
+    ap.add_argument('--seconds', type=positive, default=5.0)
+    ap.add_argument('--rates', type=positives, default=[20000.0, 25000.0, 30000.0],
+                    help='message rates, comma-separated [1/s]')
     ap.add_argument('--compressions', default='none,zstd')
     a = ap.parse_args(argv)
-    runs = []
     comps = a.compressions.split(',')
+    if not set(comps) <= {'none', 'zstd', 'lz4'}:
+        ap.error('--compressions takes none, zstd or lz4, comma-separated')
+    runs = []
     with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
         for comp in comps:
-            for k, r in enumerate(float(x) for x in a.rates.split(',')):
+            for k, r in enumerate(a.rates):
                 res = _one(dom, r, a.seconds, f'{tmp}/bag_{comp}_{k}', comp)
                 print(f'  {comp:>5} rate {r:>8.0f}/s: {res}', flush=True)
                 runs.append(res)

@@ -39,7 +39,7 @@ from domain_coordinator import domain_id
 import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
-from ros_ehs.bench import report
+from ros_ehs.bench import positive, report
 from ros_ehs.launch import Launch
 import yaml
 
@@ -65,12 +65,12 @@ def _slope_mb_per_h(t_s: np.ndarray, rss: np.ndarray) -> float:
 def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench soak')
-    ap.add_argument('--seconds', type=float, default=600.0,
+    ap.add_argument('--seconds', type=positive, default=600.0,
                     help='run length (real time: wall seconds; lock-step: sim seconds)')
     ap.add_argument('--mode', choices=('realtime', 'lockstep'), default='realtime')
-    ap.add_argument('--max-bag-duration', type=float, default=60.0)
+    ap.add_argument('--max-bag-duration', type=positive, default=60.0)
     ap.add_argument('--compression', choices=('zstd', 'lz4', 'none'), default='zstd')
-    ap.add_argument('--sample', type=float, default=2.0, help='RSS sampling period [s]')
+    ap.add_argument('--sample', type=positive, default=2.0, help='RSS sampling period [s]')
     ap.add_argument('--keep', default=None, help='keep the bag in this directory')
     a = ap.parse_args(argv)
     lock = a.mode == 'lockstep'

@@ -45,7 +45,7 @@ import tempfile
 import time
 
 from domain_coordinator import domain_id
-from ros_ehs.bench import report
+from ros_ehs.bench import count, positive, report
 from ros_ehs.bench.sleeper import coincident, command, STALL_MS
 from ros_ehs.launch import FIGURES, Launch, loop_placement
 
@@ -124,9 +124,9 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
 def main(argv=None) -> int:
     """Run the benchmark; print one line per window, then the figures, the last line JSON."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench window')
-    ap.add_argument('--windows', type=int, default=8,
+    ap.add_argument('--windows', type=count, default=8,
                     help='windows of ours and of the bare loop each')
-    ap.add_argument('--seconds', type=float, default=10.0, help='length of each window')
+    ap.add_argument('--seconds', type=positive, default=10.0, help='length of each window')
     ap.add_argument('--rt-priority', type=int, default=50,
                     help='SCHED_FIFO priority of the loop nodes, the bare ping-pong and the '
                     "probes (the main job's 50; 0: the default scheduler)")
@@ -135,8 +135,6 @@ def main(argv=None) -> int:
                     "main job places them, and the bare ping and pong on the plant's CPU; "
                     '--no-cpu-affinity: all left to the scheduler')
     a = ap.parse_args(argv)
-    if a.windows < 1 or not a.seconds > 0:        # NaN too
-        ap.error('--windows must be >= 1 and --seconds > 0')
     if not BENCH.is_file():
         print(f'window: needs a source checkout ({BENCH} not found)', file=sys.stderr)
         return 2
