@@ -30,6 +30,9 @@ against 8200-9200 with message objects (``bench lockstep`` prints both).
   other ``*_from_msg``.
 * :func:`clock_to_cdr`, :func:`clock_from_cdr`: the lock-step plant's ``/clock``
   (rosgraph_msgs/Clock), which the reference reads raw too.
+* :func:`pressure_to_cdr`: the chamber pressures
+  (sensor_msgs/FluidPressure, empty frame_id, variance 0): half the publish cost of a message
+  object (8 against 16 us on the project's VM).
 * :func:`reference_trajectory_to_cdr`, :func:`reference_trajectory_from_cdr`: the lock-step
   ``reference_trajectory`` (trajectory_msgs/JointTrajectory), the same way: a template per
   point count, and a reader for any JointTrajectory with the last layout cached.
@@ -45,12 +48,12 @@ from typing import NamedTuple, Sequence
 
 from ros_ehs_msgs_py.conversions import (command_from_arrays, joint_index,
                                          reference_from_arrays, state_from_arrays)
-from ros_ehs_msgs_py.records import AxisState, Command, Reference
+from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
 __all__ = ['JointStateData', 'JointStateEncoder', 'clock_from_cdr', 'clock_to_cdr',
            'command_from_cdr', 'command_to_cdr',
-           'decode_joint_state', 'reference_from_cdr', 'reference_to_cdr',
+           'decode_joint_state', 'pressure_to_cdr', 'reference_from_cdr', 'reference_to_cdr',
            'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr', 'state_from_cdr',
            'state_to_cdr']
 
@@ -263,6 +266,16 @@ def clock_from_cdr(data: bytes) -> int:
     """Return the time [ns] of a serialized rosgraph_msgs/Clock (CDR or XCDR2, any order)."""
     sec, nsec = _Reader(data)._take('iI', 8, 4, 'the Clock')
     return sec * _NS + nsec
+
+
+# -- sensor_msgs/FluidPressure (the chamber pressures) ----------------------------------------
+#: encapsulation, stamp, frame_id '' (length 1, its NUL, padding to 8), pressure, variance 0
+_PRESSURE = struct.Struct('<4siII4xdd')
+
+
+def pressure_to_cdr(p: Pressure) -> bytes:
+    """Return ``p`` as a serialized FluidPressure (stamp >= 0, empty frame_id, variance 0)."""
+    return _PRESSURE.pack(b'\x00\x01\x00\x00', *divmod(int(p.stamp_ns), _NS), 1, p.p, 0.0)
 
 
 # -- trajectory_msgs/JointTrajectory (the lock-step reference_trajectory) -----------------------

@@ -428,6 +428,19 @@ def test_wire_clock_is_rclpys_both_ways_and_rejects_what_is_not_a_clock():
         c.clock_from_cdr(b'\x07\x07' + c.clock_to_cdr(5)[2:])
 
 
+def test_wire_pressure_is_read_by_rclpy_as_written():
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import FluidPressure
+    for ns, p in ((0, 0.0), (1, -1.5e5), (10_010_000_007, 2.1e7), (10**9 * (2**31 - 1), 1e308)):
+        data = c.pressure_to_cdr(c.Pressure(ns, p))
+        # the same length as rclpy's (whose padding bytes are not zeroed, so not compared)
+        assert len(data) == len(serialize_message(
+            c.fill_pressure(FluidPressure(), c.Pressure(ns, p))))
+        m = deserialize_message(data, FluidPressure)
+        assert (c.stamp_ns(m.header), m.fluid_pressure, m.variance, m.header.frame_id) == \
+            (ns, p, 0.0, '')
+
+
 def test_the_machine_yardstick_of_bench_loop_ticks_at_1khz_without_ros():
     code = ('import json, sys, contextlib, io\n'
             'from ros_ehs.bench import sleeper\n'

@@ -45,6 +45,11 @@ applied is ignored and counted (``stale_commands``); in lock-step only the answe
 current state counts. A restarted controller therefore needs nothing: its first answer is
 newer than the last applied. States are stamped on the plant's own grid.
 
+The chamber pressures (only when someone listens) carry the stamp of the state they belong
+to. In real time they go out once that state's command has come, or at the next tick if none
+came: off the loop's path, so the controller, which shares the plant's CPU and priority, gets
+the state without waiting behind them.
+
 Every state message also carries the current applied over the period that ended at its stamp
 (joint ``servo_valve``), so a bag shows exactly what the valve got. ``noise_*`` add white
 sensor noise to what is published (the model's own state stays exact).
@@ -179,9 +184,12 @@ class PlantNode(Node):
         self._noise = tuple(float(self.opt[k]) for k in ('noise_z', 'noise_v', 'noise_p'))
         self._pending: Params | None = None
 
-        self._pmsg = (FluidPressure(), FluidPressure())
         self._listen_check = 0.0
         self._listening = [False, False]
+        # real time: the pressures of the latest state, sent once its command has come (or at
+        # the next tick), off the loop's path: the controller shares the plant's CPU and
+        # priority, so work after the state's publish delays the answer
+        self._unsent: deque[list] = deque(maxlen=1)
 
         def out(t):      # lock-step: the loop topics go out reliable (see LOCKSTEP_QOS)
             return qos_profile(t.qos_in(self.lockstep))
@@ -264,6 +272,7 @@ class PlantNode(Node):
         self.i_cmd = min(max(c.i, -self.i_limit), self.i_limit)
         self._last_rx = now     # before arming: the loop thread may tick in between
         self._fresh = True
+        self._send_pressures()
         if not self.armed:
             self.armed = True
             self._t_first = now
@@ -346,6 +355,7 @@ class PlantNode(Node):
         elif self.tripped:
             self.tripped = False
             self.get_logger().debug('watchdog: commands are back')
+        self._send_pressures()       # no command came for the latest state: send them now
         for _ in range(int(n)):
             self._step(i)
             self._publish()
@@ -402,10 +412,23 @@ class PlantNode(Node):
             self._listen_check = now + 0.05
             self._listening = [pub.get_subscription_count() > 0
                                for pub in (self.pub_p, self.pub_t)]
-        for k, pub in ((0, self.pub_p), (1, self.pub_t)):
-            if self._listening[k]:       # only when someone listens
-                p = xs[(self._ipa, self._ipb)[k]] + npr * e[2 + k]
-                pub.publish(contract.fill_pressure(self._pmsg[k], contract.Pressure(st, p)))
+        sends = [(pub, contract.pressure_to_cdr(contract.Pressure(
+            st, xs[(self._ipa, self._ipb)[k]] + npr * e[2 + k])))
+            for k, pub in ((0, self.pub_p), (1, self.pub_t)) if self._listening[k]]
+        if sends:       # only when someone listens
+            if self.lockstep:
+                for pub, data in sends:
+                    pub.publish(data)
+            else:
+                self._unsent.append(sends)
+
+    def _send_pressures(self) -> None:
+        try:
+            sends = self._unsent.popleft()      # atomic: the loop thread may tick meanwhile
+        except IndexError:
+            return
+        for pub, data in sends:
+            pub.publish(data)
 
     # -- parameters and diagnostics ----------------------------------------------------------
     def _check_params(self, changes):
