@@ -217,6 +217,17 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     theirs = [m.ros_msg.fluid_pressure for m in ms]
     assert theirs == [m.fluid_pressure for _, m in ours.decoded(['/pressure/chamber_p'])]
     assert np.all(np.isfinite(theirs)) and np.ptp(theirs) > 1e5
+    # in real time the pressures go out after the state's command, apart from the state:
+    # still stamped as the state they belong to (its force is A_p times their difference)
+    force = {s.stamp_ns: s.force for s in (c.state_from_msg(m) for _, m in
+                                           ours.decoded(['/state']))}
+    pa, pt = ({c.stamp_ns(m.header): m.fluid_pressure for _, m in ours.decoded([t])}
+              for t in ('/pressure/chamber_p', '/pressure/chamber_t'))
+    both = sorted(force.keys() & pa.keys() & pt.keys())
+    assert len(both) > 0.9 * len(force), (len(both), len(force))
+    A_p = Params()['A_p']
+    assert all(abs(A_p * (pa[k] - pt[k]) - force[k]) <= 1e-9 * abs(A_p * pa[k]) + 1e-6
+               for k in both)
 
 
 def test_recorder_sigkill_loses_at_most_100_ms(dom, tmp_path):

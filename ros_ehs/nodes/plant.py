@@ -189,7 +189,7 @@ class PlantNode(Node):
         # real time: the pressures of the latest state, sent once its command has come (or at
         # the next tick), off the loop's path: the controller shares the plant's CPU and
         # priority, so work after the state's publish delays the answer
-        self._unsent: deque[list] = deque(maxlen=1)
+        self._unsent: deque[tuple[int, float, float]] = deque(maxlen=1)
 
         def out(t):      # lock-step: the loop topics go out reliable (see LOCKSTEP_QOS)
             return qos_profile(t.qos_in(self.lockstep))
@@ -412,23 +412,20 @@ class PlantNode(Node):
             self._listen_check = now + 0.05
             self._listening = [pub.get_subscription_count() > 0
                                for pub in (self.pub_p, self.pub_t)]
-        sends = [(pub, contract.pressure_to_cdr(contract.Pressure(
-            st, xs[(self._ipa, self._ipb)[k]] + npr * e[2 + k])))
-            for k, pub in ((0, self.pub_p), (1, self.pub_t)) if self._listening[k]]
-        if sends:       # only when someone listens
+        if self._listening[0] or self._listening[1]:       # only when someone listens
+            self._unsent.append((st, xs[self._ipa] + npr * e[2], xs[self._ipb] + npr * e[3]))
             if self.lockstep:
-                for pub, data in sends:
-                    pub.publish(data)
-            else:
-                self._unsent.append(sends)
+                self._send_pressures()
 
     def _send_pressures(self) -> None:
         try:
-            sends = self._unsent.popleft()      # atomic: the loop thread may tick meanwhile
+            st, pa, pb = self._unsent.popleft()     # atomic: the loop thread may tick meanwhile
         except IndexError:
             return
-        for pub, data in sends:
-            pub.publish(data)
+        for pub, p, listening in ((self.pub_p, pa, self._listening[0]),
+                                  (self.pub_t, pb, self._listening[1])):
+            if listening:
+                pub.publish(contract.pressure_to_cdr(contract.Pressure(st, p)))
 
     # -- parameters and diagnostics ----------------------------------------------------------
     def _check_params(self, changes):
