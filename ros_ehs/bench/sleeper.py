@@ -24,9 +24,15 @@ Prints one JSON line.
 
 ``--seconds 0`` runs until SIGINT or SIGTERM (a probe beside a bench: ``launch_scripts/
 bench.py`` runs one on each CPU); ``--gaps-over MS`` also lists the gaps longer than MS as
-``[end, length]`` (``time.monotonic()`` seconds, ms), the newest ``MAX_GAPS``, so that
-:func:`coincident` can tell whether a watchdog trip of the plant fell in a stall of the
-machine.
+``[end, length, waited]`` (``time.monotonic()`` seconds, ms, ms), the newest ``MAX_GAPS``, so
+that :func:`coincident` can tell whether a watchdog trip of the plant fell in a stall of the
+machine. ``waited`` is the part of the gap the probe spent ready to run but queued behind
+other threads on its CPU (the kernel's ``/proc/thread-self/schedstat``; null where the kernel
+does not keep it). The rest of a gap is the machine's own: the probe's timer fired late, or
+the vCPU was not running. :func:`hiccups` picks the gaps whose own part is over
+``HICCUP_MS``: a probe the machine woke 0.3 ms late or more, which a scheduler trace of two
+of the plant's trips showed to be enough (the vCPU idle with timers due for 0.3-0.6 ms, then
+running ~20x slower: session 13).
 """
 
 import argparse
@@ -37,13 +43,33 @@ import signal
 import sys
 import time
 
-__all__ = ['coincident', 'command', 'main', 'MAX_GAPS', 'STALL_MS']
+__all__ = ['coincident', 'command', 'hiccups', 'HICCUP_MS', 'main', 'MAX_GAPS', 'STALL_MS']
 
 #: Gaps kept by ``--gaps-over`` (the newest): bounded however long the probe runs.
 MAX_GAPS = 1000
 #: A gap this long [ms] is a stall of the machine (``stalls_2ms``): a loop held this long
 #: trips the plant's 3-period watchdog at 1 kHz with a round trip of zero.
 STALL_MS = 2.0
+#: A gap whose own part (not queued behind other threads) is this long [ms] is a hiccup of
+#: the machine: the probe's 1 ms timer fired 0.3 ms late or more.
+HICCUP_MS = 1.3
+
+
+def hiccups(gaps: list, over: float = HICCUP_MS) -> list[tuple[float, float]]:
+    """
+    Return ``(end, ms)`` of the probe gaps ``[end, ms, waited]`` that the machine made.
+
+    A gap counts when its length less the time the probe waited behind other threads on its
+    CPU is over ``over`` [ms]: a probe held by busy threads (ours) is not the machine's.
+    Gaps without ``waited`` (a kernel without schedstat) count whole.
+    """
+    return [(g[0], g[1]) for g in gaps
+            if g[1] - (g[2] if len(g) > 2 and g[2] is not None else 0.0) > over]
+
+
+def _rq_wait(fd: int | None) -> int:
+    """Return this thread's run-queue wait so far [ns] (0 without schedstat)."""
+    return int(os.pread(fd, 64, 0).split()[1]) if fd is not None else 0
 
 
 def command(cpu: int, gaps_over: float, rt_priority: int = 0) -> list[str]:
@@ -102,6 +128,11 @@ def main(argv=None) -> int:
     over = int(a.gaps_over * 1e6) if a.gaps_over else None
     gaps = deque(maxlen=MAX_GAPS)
     stalls, stalled, top, ticks = 0, False, 0, 0
+    try:
+        fd = os.open('/proc/thread-self/schedstat', os.O_RDONLY) if over is not None else None
+    except OSError:
+        fd = None
+    waited = _rq_wait(fd)
     last = nxt = time.monotonic_ns()
     while ticks != n and not stop:
         nxt += period
@@ -116,11 +147,14 @@ def main(argv=None) -> int:
         long = gap > stall
         stalls += long and not stalled
         stalled = long
-        if over is not None and gap > over:
-            gaps.append((now * 1e-9, gap * 1e-6))
+        if over is not None:
+            w, waited = waited, _rq_wait(fd)
+            if gap > over:
+                gaps.append((now * 1e-9, gap * 1e-6, (waited - w) * 1e-6))
     f = {'ticks': ticks, 'stalls_2ms': stalls, 'max_gap_ms': top * 1e-6}
     if over is not None:
-        f['gaps'] = [[round(e, 6), round(g, 4)] for e, g in gaps]
+        f['gaps'] = [[round(e, 6), round(g, 4), round(w, 4) if fd is not None else None]
+                     for e, g, w in gaps]
     if said:
         f['not_applied'] = said
     print(json.dumps(f), flush=True)
