@@ -24,6 +24,10 @@ and which of the loop's targets the run met; the last line is one JSON object. E
 also runs the machine alone (``ros_ehs.bench.sleeper``: a 1 kHz sleep loop without ROS, at
 the same priority): its stalls over 2 ms (``machine_stalls_2ms``) trip any 1 kHz loop's
 watchdog, ours and the bare one alike.
+
+``--cpu-affinity`` (the default) places plant and controller on one CPU, as
+``Launch.start_loop`` places a bench's loop by default, and the bare ping and pong on that
+CPU alike; ``--no-cpu-affinity`` leaves all of them to the scheduler.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ import time
 from domain_coordinator import domain_id
 import psutil
 from ros_ehs.bench import count, positive, report
-from ros_ehs.launch import Launch
+from ros_ehs.launch import Launch, loop_placement
 
 
 def _cpu(pid: int) -> float:
@@ -112,14 +116,22 @@ def main(argv=None) -> int:
     ap.add_argument('--rt-priority', type=int, default=0,
                     help='SCHED_FIFO priority of our loop nodes and of the bare ping-pong alike '
                     '(the rt_priority option of the nodes; 0: the default scheduler)')
+    ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=True,
+                    help='plant and controller on one CPU (as a bench places them), and the '
+                    'bare ping and pong alike; --no-cpu-affinity: all left to the scheduler')
     a = ap.parse_args(argv)
     rt = {'rt_priority': a.rt_priority} if a.rt_priority else {}
     rt_bare = ['--rt-priority', str(a.rt_priority)] if a.rt_priority else []
+    rt_machine = list(rt_bare)
+    if a.cpu_affinity:
+        loop_cpu = loop_placement(True)[0]
+        rt = {**rt, 'cpu_affinity': loop_cpu}
+        rt_bare += ['--cpu', str(loop_cpu)]
     per = a.seconds / a.rounds
     ours, bare, cpu_ours, cpu_b, machine = [], [], [], [], []
     with domain_id() as dom:
         for r in range(a.rounds):
-            machine.append(_machine(per, rt_bare))
+            machine.append(_machine(per, rt_machine))
             runs = [('ours', ours, cpu_ours), ('bare', bare, cpu_b)]
             for kind, figs, cpus in (runs if r % 2 == 0 else runs[::-1]):
                 cpu, f = (_ours(dom, per, a.model, rt) if kind == 'ours'
@@ -130,7 +142,7 @@ def main(argv=None) -> int:
     b, cpu_bare = _pool(bare, cpu_b)
     figures = {
         'model': a.model, 'seconds': a.seconds, 'rounds': a.rounds, 'rate_hz': 1000,
-        'rt_priority': a.rt_priority,
+        'rt_priority': a.rt_priority, 'cpu_affinity': a.cpu_affinity,
         'fresh_cycle_fraction': round(f['fresh_cycle_fraction'], 5),
         'cycles': f['cycles'], 'watchdog_trips': f['watchdog_trips'],
         # of those, at a plant tick so late that an on-time one would not have tripped
