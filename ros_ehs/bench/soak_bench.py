@@ -25,6 +25,10 @@ the recorded time and prints the slope in MB per hour of recorded time. It also 
 bag's bytes per hour as recorded and as the same messages take uncompressed, each node's CPU
 share, the files written, and the plant's watchdog trips per hour. Last line: one JSON
 object. The target of a long run: every node's slope <= 5 MB/hour with splitting on.
+
+``--rt-priority`` (default 50, as the main job's bench runs; 0: the default scheduler) puts
+plant and controller on SCHED_FIFO, with ``launch_scripts/fastdds_rt.xml`` for every node
+when the source checkout has it, as ``launch_scripts/bench.py`` does.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from ros_ehs.launch import Launch
 import yaml
 
 NODES = ('plant', 'controller', 'reference', 'recorder')
+RT_PROFILE = Path(__file__).resolve().parents[2] / 'launch_scripts' / 'fastdds_rt.xml'
 
 
 def _uncompressed_bytes(bag: Path) -> int:
@@ -72,13 +77,19 @@ def main(argv=None) -> int:
     ap.add_argument('--compression', choices=('zstd', 'lz4', 'none'), default='zstd')
     ap.add_argument('--sample', type=positive, default=2.0, help='RSS sampling period [s]')
     ap.add_argument('--keep', default=None, help='keep the bag in this directory')
+    ap.add_argument('--rt-priority', type=int, default=50,
+                    help="SCHED_FIFO priority of plant and controller (the main job's 50; 0: "
+                    'the default scheduler)')
     a = ap.parse_args(argv)
     lock = a.mode == 'lockstep'
+    rt = {'rt_priority': a.rt_priority} if a.rt_priority else {}
+    env = ({'FASTRTPS_DEFAULT_PROFILES_FILE': str(RT_PROFILE)}
+           if rt and RT_PROFILE.is_file() else {})
     with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
         bag = Path(a.keep) if a.keep else Path(tmp) / 'soak'
-        with Launch(dom, Path(tmp) / 'logs') as launch:
-            launch.start_loop(a.mode, bag=bag,
-                              plant={'duration': a.seconds} if lock else {},
+        with Launch(dom, Path(tmp) / 'logs', env=env) as launch:
+            launch.start_loop(a.mode, bag=bag, controller=rt,
+                              plant={**rt, 'duration': a.seconds} if lock else rt,
                               reference={'kind': 'sine', 'rate_hz': 1000.0 if lock else 250.0},
                               recorder={'max_bag_duration': a.max_bag_duration,
                                         'compression': a.compression})
@@ -100,7 +111,9 @@ def main(argv=None) -> int:
                 time.sleep(a.sample)
             wall = time.monotonic() - t0
             cpu = {n: (sum(p.cpu_times()[:2]) - cpu0[n]) / wall for n, p in procs.items()}
-            codes = launch.stop(['recorder', 'reference', 'controller', 'plant'])
+            # the plant before its controller, as bench.py stops them: a plant outliving its
+            # controller counts every period until its exit as stale (and a watchdog trip)
+            codes = launch.stop(['recorder', 'reference', 'plant', 'controller'])
             fig_plant = launch['plant'].figures()
         info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
         rec_h = info['duration']['nanoseconds'] * 1e-9 / 3600.0
@@ -115,7 +128,8 @@ def main(argv=None) -> int:
         plain = _uncompressed_bytes(bag)
     trips = int(fig_plant.get('watchdog_trips', 0))
     fig = {
-        'mode': a.mode, 'recorded_s': round(rec_h * 3600.0, 1), 'wall_s': round(wall, 1),
+        'mode': a.mode, 'rt_priority': a.rt_priority, 'recorded_s': round(rec_h * 3600.0, 1),
+        'wall_s': round(wall, 1),
         'compression': a.compression, 'max_bag_duration_s': a.max_bag_duration,
         'files': len(info['relative_file_paths']), 'messages': info['message_count'],
         'rss_slope_mb_per_h': slopes,
