@@ -336,6 +336,50 @@ def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypat
         rclpy.shutdown(context=ctx)
 
 
+def test_the_pressures_of_every_state_go_out_after_its_command_or_the_next_tick(
+        dom, monkeypatch):
+    """In real time, on a clock the test moves: late ticks catch up without losing any."""
+    import rclpy
+    import ros_ehs.nodes.plant as plant_mod
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import FluidPressure
+    from types import SimpleNamespace
+    clock = [10**12]       # ns
+    monkeypatch.setattr(plant_mod, 'time', SimpleNamespace(
+        monotonic_ns=lambda: clock[0], monotonic=lambda: clock[0] * 1e-9))
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    try:
+        node = plant_mod.PlantNode(context=ctx)
+        sent = []              # (what, stamp) in the order they went out
+        for what, name in (('state', 'pub_state'), ('p', 'pub_p'), ('t', 'pub_t')):
+            setattr(node, name, SimpleNamespace(publish=lambda data, what=what: sent.append(
+                (what, (c.state_from_cdr(data).stamp_ns if what == 'state' else
+                        c.stamp_ns(deserialize_message(data, FluidPressure).header)))),
+                get_subscription_count=lambda: 1))
+        t0 = node._t0_wall
+
+        def tick(ms):
+            clock[0] = t0 + int(round(ms * 1e6))
+            node._tick()
+
+        tick(1.0)
+        node._on_command(c.command_to_cdr(c.Command(node.stamp_ns(), 0.01)))
+        tick(2.0)
+        tick(6.0)                       # 3 periods late: four states at once
+        node._on_command(c.command_to_cdr(c.Command(node.stamp_ns(), 0.01)))
+        tick(7.0)
+        states = [s for w, s in sent if w == 'state']
+        assert len(states) == 7 and len(set(states)) == 7
+        for w in ('p', 't'):            # one of each per state, stamped as it, none lost
+            assert [s for x, s in sent if x == w] == states[:-1]     # the last: not yet
+        # each state's pressures after that state (the loop's message first), in order
+        assert all(sent.index(('p', s)) > sent.index(('state', s)) for s in states[:-1])
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
 def test_bad_messages_crash_nothing(dom, tmp_path, ros):
     from sensor_msgs.msg import JointState
     from ros_ehs.nodes.ros_common import qos_profile

@@ -413,6 +413,8 @@ class PlantNode(Node):
             self._listening = [pub.get_subscription_count() > 0
                                for pub in (self.pub_p, self.pub_t)]
         if self._listening[0] or self._listening[1]:       # only when someone listens
+            if self._unsent:         # a late tick's catch-up: the earlier state's go now
+                self._send_pressures()
             self._unsent.append((st, xs[self._ipa] + npr * e[2], xs[self._ipb] + npr * e[3]))
             if self.lockstep:
                 self._send_pressures()
