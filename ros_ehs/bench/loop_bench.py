@@ -172,6 +172,9 @@ def main(argv=None) -> int:
         'fresh_0.998': figures['fresh_cycle_fraction'] >= 0.998,
         'watchdog_trips_le_1': figures['watchdog_trips'] <= 1,
         'bare_fresh_0.998': figures['bare_fresh_cycle_fraction'] >= 0.998,
+        # whether the yardstick itself kept the trip target in the same run: on a machine
+        # whose own tasks hold the loop's CPU for milliseconds no loop does (docs/nodes.md)
+        'bare_watchdog_trips_le_1': figures['bare_watchdog_trips'] <= 1,
         'rtt_p50_le_1.3x_bare': figures['rtt_ratio_vs_bare_p50'] <= 1.3,
         'rtt_p99_le_1ms': figures['rtt_p99_ms'] <= 1.0,
         'cpu_le_1.5x_bare': max(figures['cpu_ratio_plant_vs_ping'],

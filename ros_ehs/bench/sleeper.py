@@ -61,7 +61,11 @@ def hiccups(gaps: list, over: float = HICCUP_MS) -> list[tuple[float, float]]:
 
     A gap counts when its length less the time the probe waited behind other threads on its
     CPU is over ``over`` [ms]: a probe held by busy threads (ours) is not the machine's.
-    Gaps without ``waited`` (a kernel without schedstat) count whole.
+    Gaps without ``waited`` (a kernel without schedstat) count whole. That holds for a probe
+    on SCHED_FIFO, as ``launch_scripts/bench.py`` runs them with ``--rt-priority``: only
+    threads at its priority or above can keep it waiting. On the default scheduler the
+    machine's own tasks can too (this VM's init and ``kdamond``, docs/nodes.md), and their
+    part of the wait is left out here.
     """
     return [(g[0], g[1]) for g in gaps
             if g[1] - (g[2] if len(g) > 2 and g[2] is not None else 0.0) > over]
