@@ -18,6 +18,7 @@ Lock-step vs the in-process loop, recorder crash safety and external readers, th
 watchdog, bad messages, live parameters, the contract, the player, the identify node.
 """
 
+import contextlib
 import json
 import math
 import os
@@ -281,16 +282,9 @@ def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_pat
         (last_nonzero - last_cmd) / 1e6, len(applied), f)
 
 
-def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypatch):
-    """
-    The plant's real-time tick, on a clock the test moves (in-process, nothing spun).
-
-    A tick that comes 1.8 ms late with the command on time trips (the rule holds whoever is
-    late) and is counted as the plant's lateness alone; a controller that stops trips as a late
-    command; a late tick followed by a stopped controller is re-counted as the controller's.
-    (A stalled plant process cannot show this end to end: the command waiting in its queue is
-    taken, fresh, before the late tick.)
-    """
+@contextlib.contextmanager
+def _plant_on_a_moved_clock(dom, monkeypatch):
+    """Yield a real-time plant node whose clock the test moves, and ``at(ms)``, which sets it."""
     import rclpy
     import ros_ehs.nodes.plant as plant_mod
     from types import SimpleNamespace
@@ -306,6 +300,23 @@ def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypat
         def at(ms):
             clock[0] = t0 + int(round(ms * 1e6))
 
+        yield node, at
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypatch):
+    """
+    The plant's real-time tick, on a clock the test moves (in-process, nothing spun).
+
+    A tick that comes 1.8 ms late with the command on time trips (the rule holds whoever is
+    late) and is counted as the plant's lateness alone; a controller that stops trips as a late
+    command; a late tick followed by a stopped controller is re-counted as the controller's.
+    (A stalled plant process cannot show this end to end: the command waiting in its queue is
+    taken, fresh, before the late tick.)
+    """
+    with _plant_on_a_moved_clock(dom, monkeypatch) as (node, at):
         def answer(ms):          # the controller answers the latest state at t0 + ms
             at(ms)
             node._on_command(c.command_to_cdr(c.Command(node.stamp_ns(), 0.01)))
@@ -331,36 +342,24 @@ def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypat
         log = node._trip_log
         assert [alone for *_, alone in log] == [True, False, False]
         assert log[0][1] == pytest.approx(1.8) and log[0][2] == pytest.approx(2.6)
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
 
 
 def test_the_pressures_of_every_state_go_out_after_its_command_or_the_next_tick(
         dom, monkeypatch):
     """In real time, on a clock the test moves: late ticks catch up without losing any."""
-    import rclpy
-    import ros_ehs.nodes.plant as plant_mod
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import FluidPressure
     from types import SimpleNamespace
-    clock = [10**12]       # ns
-    monkeypatch.setattr(plant_mod, 'time', SimpleNamespace(
-        monotonic_ns=lambda: clock[0], monotonic=lambda: clock[0] * 1e-9))
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=dom)
-    try:
-        node = plant_mod.PlantNode(context=ctx)
+    with _plant_on_a_moved_clock(dom, monkeypatch) as (node, at):
         sent = []              # (what, stamp) in the order they went out
         for what, name in (('state', 'pub_state'), ('p', 'pub_p'), ('t', 'pub_t')):
             setattr(node, name, SimpleNamespace(publish=lambda data, what=what: sent.append(
                 (what, (c.state_from_cdr(data).stamp_ns if what == 'state' else
                         c.stamp_ns(deserialize_message(data, FluidPressure).header)))),
                 get_subscription_count=lambda: 1))
-        t0 = node._t0_wall
 
         def tick(ms):
-            clock[0] = t0 + int(round(ms * 1e6))
+            at(ms)
             node._tick()
 
         tick(1.0)
@@ -375,9 +374,6 @@ def test_the_pressures_of_every_state_go_out_after_its_command_or_the_next_tick(
             assert [s for x, s in sent if x == w] == states[:-1]     # the last: not yet
         # each state's pressures after that state (the loop's message first), in order
         assert all(sent.index(('p', s)) > sent.index(('state', s)) for s in states[:-1])
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
 
 
 def test_bad_messages_crash_nothing(dom, tmp_path, ros):
