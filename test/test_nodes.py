@@ -188,6 +188,11 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     # the recorder listens to it too (a bag once began 1.5 s into the trajectory)
     first_state = c.state_from_msg(next(ours.decoded(['/state']))[1])
     assert first_state.stamp_ns < first.stamp_ns, (first_state.stamp_ns, first.stamp_ns)
+    # from the loop's first period: the plant steps only once the recorder listens, so the
+    # bag holds the states its first commands answer (it once began with 2 s of commands)
+    first_command = c.command_from_msg(next(ours.decoded(['/servo_current']))[1])
+    assert first_command.stamp_ns >= first_state.stamp_ns, (
+        (first_state.stamp_ns - first_command.stamp_ns) * 1e-9)
     counts = {k: v.count for k, v in ours.topics.items()}
     assert counts['/state'] > 1000 and counts['/servo_current'] > 900
     from rosbags.rosbag2 import Reader
@@ -283,9 +288,16 @@ def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_pat
 
 
 @contextlib.contextmanager
-def _plant_on_a_moved_clock(dom, monkeypatch):
-    """Yield a real-time plant node whose clock the test moves, and ``at(ms)``, which sets it."""
+def _plant_on_a_moved_clock(dom, monkeypatch, subscribers=None, **params):
+    """
+    Yield a real-time plant node whose clock the test moves, and ``at(ms)``, which sets it.
+
+    ``state`` counts ``subscribers[0]`` subscribers (a list the test may change), and the
+    plant starts when they are enough; without ``subscribers`` it has started at 0 ms.
+    ``params``: the node's parameters.
+    """
     import rclpy
+    from rclpy.parameter import Parameter
     import ros_ehs.nodes.plant as plant_mod
     from types import SimpleNamespace
     clock = [10**12]       # ns
@@ -294,12 +306,18 @@ def _plant_on_a_moved_clock(dom, monkeypatch):
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=dom)
     try:
-        node = plant_mod.PlantNode(context=ctx)
+        node = plant_mod.PlantNode(context=ctx, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
         t0 = node._t0_wall
 
         def at(ms):
             clock[0] = t0 + int(round(ms * 1e6))
 
+        started = subscribers is None
+        subscribers = subscribers or [node.opt['wait_subscribers']]
+        monkeypatch.setattr(node.pub_state, 'get_subscription_count', lambda: subscribers[0])
+        if started:
+            assert node._start(t0)
         yield node, at
         node.destroy_node()
     finally:
@@ -342,6 +360,35 @@ def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypat
         log = node._trip_log
         assert [alone for *_, alone in log] == [True, False, False]
         assert log[0][1] == pytest.approx(1.8) and log[0][2] == pytest.approx(2.6)
+
+
+def test_a_real_time_plant_starts_when_its_state_has_wait_subscribers(dom, monkeypatch):
+    """No state, step or watchdog before; then time restarts at the tick that saw them."""
+    subscribers = [1]
+    with _plant_on_a_moved_clock(dom, monkeypatch, subscribers,
+                                 wait_subscribers=2) as (node, at):
+        states = []
+        publish = node.pub_state.publish
+        monkeypatch.setattr(node.pub_state, 'publish', lambda data: (
+            states.append(c.state_from_cdr(data).stamp_ns), publish(data)))
+        for ms in (1.0, 2.0, 3.0, 10.0):
+            at(ms)
+            node._tick()
+        assert states == [] and node.k == 0 and not node.armed and node.trips == 0
+        subscribers[0] = 2      # the recorder's reader has matched: start here
+        at(10.4)                # a tick woken 0.4 ms into its period
+        node._tick()
+        t_start = node.t0_ns
+        assert states == [] and node.k == 0
+        at(11.1)                # the next, woken earlier in its period: still one step
+        node._tick()
+        assert states == [t_start + 1_000_000] and node.k == 1     # a period after the start
+        node._on_command(c.command_to_cdr(c.Command(states[-1], 0.01)))
+        assert node.armed
+        at(12.05)
+        node._tick()
+        assert states == [t_start + 1_000_000, t_start + 2_000_000]
+        assert node.trips == 0 and node.applied == pytest.approx(0.01)
 
 
 def test_the_pressures_of_every_state_go_out_after_its_command_or_the_next_tick(

@@ -15,7 +15,10 @@
 The plant node: the servo valve and cylinder model on the bench network.
 
 ``mode: realtime`` steps the model on a steady timer at ``rate_hz`` (zero-order hold of the
-latest command). States are stamped on the sim grid ``t0 + k / rate_hz``: a late tick steps
+latest command), from the tick at which ``state`` has ``wait_subscribers`` subscribers on
+(time restarts there: a recorder gets the loop from its first period, and the middleware's
+first message to each subscriber, which can hold the process for milliseconds, goes out
+before the watchdog guards the loop). States are stamped on the sim grid ``t0 + k / rate_hz``: a late tick steps
 (and publishes) every period it missed, so sim time stays locked to wall time and a bag has
 no gaps. The watchdog never applies a command over a period that ends more than
 ``watchdog_periods`` periods after the command arrived: from the tick where that would
@@ -97,9 +100,10 @@ OPTIONS = (
     Option('start_time', 0.0, 'lock-step: sim time of the first state [s]', 0.0, 1.0e9),
     Option('duration', 0.0, 'lock-step: stop advancing at this sim time after start [s] '
            '(0: never)', 0.0, 1.0e9),
-    Option('wait_subscribers', 1, 'lock-step: start when `state` has this many subscribers '
-           '(2 with a recorder); real time: report the loop running (diagnostics OK, what a '
-           'reference with wait_loop starts on) only then', 0, 100),
+    Option('wait_subscribers', 1, 'start when `state` has this many subscribers (2 with a '
+           'recorder): lock-step, the first step; real time, the first state (time restarts '
+           'there), so a recorder has the loop from its first period and the middleware opens '
+           'its ports to every subscriber before a watchdog guards the loop', 0, 100),
     Option('start_delay', 0.5, 'lock-step: then wait this long, so every node has matched '
            'every other before the first step [s]', 0.0, 60.0),
     Option('clock_period', 0.01, 'lock-step: publish /clock every this much sim time (0: '
@@ -222,6 +226,7 @@ class PlantNode(Node):
         else:
             self.t0_ns = self.get_clock().now().nanoseconds
             self._t0_wall = time.monotonic_ns()
+            self._started = False      # until `state` has wait_subscribers subscribers
             if self.opt['timing'] == 'thread':
                 self._stop = threading.Event()
                 self._loop = threading.Thread(target=self._run_loop, daemon=True)
@@ -306,8 +311,34 @@ class PlantNode(Node):
         if self._duration > 0:      # lock-step only
             self.finished = self.k * self.dt >= self._duration - 1e-12
 
+    def _start(self, now_ns: int) -> bool:
+        """
+        Real time: start once ``state`` has ``wait_subscribers`` subscribers; say if started.
+
+        Sim time restarts there, on the timer's grid (the first state is stamped a period
+        after the last whole period). Fast DDS opens
+        its shared-memory port to a new subscriber at the first message it sends there and
+        meanwhile holds every send of the process (up to a third of the port's healthy-check
+        timeout: 10 ms with fastdds_rt.xml): after the loop closed, that was a watchdog trip
+        (docs/nodes.md).
+        """
+        have = self.pub_state.get_subscription_count()
+        if have < self.opt['wait_subscribers']:
+            return False
+        self._started = True
+        # whole periods on: the timer's phase stays the grid's (a grid started at this tick's
+        # wake-up would put the next on-time wake-ups a little before their period's end)
+        periods = (now_ns - self._t0_wall) // self._dt_ns
+        self._t0_wall += periods * self._dt_ns
+        self.t0_ns += periods * self._dt_ns
+        self.get_logger().info(f'{have} subscriber(s) on state: stepping from now')
+        return True
+
     def _tick(self) -> None:
         now_ns = time.monotonic_ns()
+        if not self._started:
+            self._start(now_ns)
+            return
         n = (now_ns - self._t0_wall) // self._dt_ns - self.k
         if n <= 0:
             return
@@ -480,12 +511,11 @@ class PlantNode(Node):
             level, msg = ERROR, f'{self.faults} model step failures'
         elif self.tripped:
             level, msg = WARN, 'watchdog tripped: valve current zero'
+        elif not self.lockstep and not self._started:
+            have, need = self.pub_state.get_subscription_count(), self.opt['wait_subscribers']
+            level, msg = WARN, f'waiting for {need} subscribers on state ({have} now)'
         elif not self.armed and not self.lockstep:
             level, msg = WARN, 'waiting for the first command'
-        elif not self.lockstep:
-            have, need = self.pub_state.get_subscription_count(), self.opt['wait_subscribers']
-            if have < need:      # a recorder not yet listening: the bag would miss the start
-                level, msg = WARN, f'waiting for {need} subscribers on state ({have} now)'
         self.pub_diag.publish(diagnostics(self, PLANT_STATUS, level, msg, f))
 
 
