@@ -15,19 +15,19 @@
 The plant node: the servo valve and cylinder model on the bench network.
 
 ``mode: realtime`` steps the model on a steady timer at ``rate_hz`` (zero-order hold of the
-latest command), from the tick at which ``state`` has ``wait_subscribers`` subscribers on
-(time restarts there: a recorder gets the loop from its first period, and the middleware's
-first message to each subscriber, which can hold the process for milliseconds, goes out
-before the watchdog guards the loop). States are stamped on the sim grid ``t0 + k /
-rate_hz``: a late tick steps (and publishes) every period it missed, so sim time stays locked
-to wall time and a bag has no gaps. The watchdog never applies a command over a period that
-ends more than ``watchdog_periods`` periods after the command arrived: from the tick where
-that would happen the valve current is zero (the hydraulic fail-safe: spool to null) until
-fresh commands return. So the valve is at zero within ``watchdog_periods`` periods of the
-last fresh command (plus the lateness of that tick). A trip at a tick so late that an on-time one would
-have applied the command is also counted apart (``watchdog_trips_late_tick``: the machine
-did not run the plant in time; the controller was not late), unless a later on-time tick
-finds the command too old as well (a controller that stopped).
+latest command), from the tick at which ``state`` has ``wait_subscribers`` subscribers on (time
+restarts there: a recorder gets the loop from its first period, and the middleware's first
+message to each subscriber, which can hold the process for milliseconds, goes out before the
+watchdog guards the loop). States are stamped on the sim grid ``t0 + k / rate_hz``: a late tick
+steps (and publishes) every period it missed, so sim time stays locked to wall time and a bag
+has no gaps. The watchdog never applies a command over a period that ends more than
+``watchdog_periods`` periods after the command arrived: from the tick where that would happen
+the valve current is zero (the hydraulic fail-safe: spool to null) until fresh commands return.
+So the valve is at zero within ``watchdog_periods`` periods of the last fresh command (plus the
+lateness of that tick). A trip at a tick so late that an on-time one would have applied the
+command is also counted apart (``watchdog_trips_late_tick``: the machine did not run the plant
+in time; the controller was not late), unless a later on-time tick finds the command too old as
+well (a controller that stopped).
 
 ``mode: lockstep`` publishes the state, then waits for the command stamped with that state's
 stamp and steps exactly one period: a closed loop over DDS that is deterministic and runs as
