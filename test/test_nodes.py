@@ -375,6 +375,9 @@ def test_a_real_time_plant_starts_when_its_state_has_wait_subscribers(dom, monke
             at(ms)
             node._tick()
         assert states == [] and node.k == 0 and not node.armed and node.trips == 0
+        # a command before any state (another run's controller) answers none: no arming
+        node._on_command(c.command_to_cdr(c.Command(node.stamp_ns(), 0.01)))
+        assert not node.armed and node.stale_commands == 1
         subscribers[0] = 2      # the recorder's reader has matched: start here
         at(10.4)                # a tick woken 0.4 ms into its period
         node._tick()

@@ -44,9 +44,10 @@ sample; the subscriptions stay best effort and match any publisher.
 Stamp policy for commands (the controller stamps each command with the state it answers): a
 command stamped after the latest state this plant published answers none (a stray publisher,
 another clock) and is ignored and counted (``future_commands``); one no newer than the last
-applied is ignored and counted (``stale_commands``); in lock-step only the answer to the
-current state counts. A restarted controller therefore needs nothing: its first answer is
-newer than the last applied. States are stamped on the plant's own grid.
+applied, or any before a real-time plant's first state, is ignored and counted
+(``stale_commands``); in lock-step only the answer to the current state counts. A restarted
+controller therefore needs nothing: its first answer is newer than the last applied. States
+are stamped on the plant's own grid.
 
 The chamber pressures (only when someone listens) carry the stamp of the state they belong
 to. In real time they go out once that state's command has come, or at the next tick if none
@@ -264,7 +265,9 @@ class PlantNode(Node):
                 f'ignored a command stamped {(c.stamp_ns - self.stamp_ns()) * 1e-9:.6g} s '
                 'after the latest state', throttle_duration_sec=1.0)
             return
-        if c.stamp_ns <= self._last_cmd_stamp:
+        if c.stamp_ns <= self._last_cmd_stamp or (self.k == 0 and not self.lockstep):
+            # older than the last applied, or before this real-time plant's first state (it
+            # answers none: a controller's answer to another run must not arm the watchdog)
             self.stale_commands += 1
             return
         j = (c.stamp_ns - self.t0_ns) // self._dt_ns % _RING
@@ -316,11 +319,10 @@ class PlantNode(Node):
         Real time: start once ``state`` has ``wait_subscribers`` subscribers; say if started.
 
         Sim time restarts there, on the timer's grid (the first state is stamped a period
-        after the last whole period). Fast DDS opens
-        its shared-memory port to a new subscriber at the first message it sends there and
-        meanwhile holds every send of the process (up to a third of the port's healthy-check
-        timeout: 10 ms with fastdds_rt.xml): after the loop closed, that was a watchdog trip
-        (docs/nodes.md).
+        after the last whole period). Fast DDS opens its shared-memory port to a new
+        subscriber at the first message it sends there and meanwhile holds every send of the
+        process (up to a third of the port's healthy-check timeout: 10 ms with
+        fastdds_rt.xml): after the loop closed, that was a watchdog trip (docs/nodes.md).
         """
         have = self.pub_state.get_subscription_count()
         if have < self.opt['wait_subscribers']:
