@@ -298,6 +298,11 @@ class Launch:
             if rec:
                 self._expect('recorder', recording(contract.REFERENCE), timeout,
                              'the recorder did not discover the reference')
+        if rec and not lock:
+            # the controller's commands reach the bag from the loop's first period: matching
+            # took 2 s after discovery at times (a bag began 1.2 s after the sine's start)
+            self._expect('recorder', [f"matched /{contract.COMMAND.name.lstrip('/')} ("],
+                         timeout, "the recorder did not match the controller's commands")
         # lock-step: the plant starts stepping when they listen; real time: it reports the
         # loop running only then, and the reference's time zero waits for that report
         pl = {'mode': mode, 'wait_subscribers': 2 if rec else 1, **(plant or {})}

@@ -19,8 +19,11 @@ to every contract topic of this namespace; other topics named there are subscrib
 they appear on the graph (their type is discovered). As in rosbag2, a topic is subscribed
 when its first publisher is discovered, with QoS adapted to the publishers: reliable if every
 one offers reliable (the loop topics in lock-step), else best effort; depth ``depth``. The
-log line ``recording <topic> (<type>, <reliability>)`` says when. The
-``offered_qos_profiles`` stored are the publishers'.
+log line ``recording <topic> (<type>, <reliability>)`` says when, and ``matched <topic> (<n>
+publisher(s))`` when the subscription has first matched a publisher, from which on that
+publisher's messages reach the bag (matching can take seconds after discovery;
+``Launch.start_loop`` waits for it before the loop starts). The ``offered_qos_profiles``
+stored are the publishers'.
 
 Long runs (a fatigue rig records for days): the bag is split into files of at most
 ``max_bag_size`` bytes or ``max_bag_duration`` seconds (default 600 s), each chunk compressed
@@ -112,6 +115,7 @@ class RecorderNode(Node):
         self.done = Future()
         self.failure = ''
         self._subs = {}
+        self._matched: set[str] = set()      # topics whose subscription has matched a publisher
         self._dirty = False
         self._files = 1
         self._space_warned = -1e9
@@ -175,9 +179,19 @@ class RecorderNode(Node):
         self._subs[full] = sub
         self.get_logger().info(f'recording {full} ({msg_type}, {reliability})')
 
+    def _report_matches(self) -> None:
+        """Log once per topic when its subscription has matched a publisher."""
+        for full, sub in self._subs.items():
+            if sub is not None and full not in self._matched:
+                n = sub.get_publisher_count()
+                if n:
+                    self._matched.add(full)
+                    self.get_logger().info(f'matched {full} ({n} publisher(s))')
+
     def _discover(self) -> None:
         if self.failure:
             return
+        self._report_matches()
         missing = [t for t in self._wanted if t not in self._subs]
         if not missing:
             return
