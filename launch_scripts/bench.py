@@ -19,6 +19,10 @@ Start a bench: plant + controller + reference + recorder, each its own process.
     python launch_scripts/bench.py --mode lockstep --duration 10     # deterministic, fast
     python launch_scripts/bench.py --mode lockstep --duration 60 --no-cpu-affinity
 
+``--controller-param NAME=VALUE`` and ``--plant-param NAME=VALUE`` (repeatable) set one node's
+parameters, e.g. the safety limits (docs/safety.md) or a plant fault to inject. After the run
+the bench prints the safety events the bag holds (topic ``events``).
+
 It runs for ``--duration`` seconds (real time: wall seconds after the loop closes; lock-step:
 sim seconds, as fast as DDS goes) or until Ctrl-C, then stops every child cleanly: the
 recorder first (so the bag closes with the loop intact), then reference, plant, controller.
@@ -111,6 +115,38 @@ def _probe_lines(launch: Launch, probes: list[str], trip_log: list) -> None:
           f'hiccup (a probe the machine woke {HICCUP_MS - 1:.1f} ms late or more)')
 
 
+def _node_param(text: str) -> tuple[str, object]:
+    """Parse ``NAME=VALUE`` (VALUE as YAML: 0.03, true, hold) for --*-param."""
+    import yaml
+    name, sep, value = text.partition('=')
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f'{text!r} is not NAME=VALUE')
+    try:
+        return name.strip(), yaml.safe_load(value)
+    except yaml.YAMLError as err:
+        raise argparse.ArgumentTypeError(f'{text!r}: {err}') from None
+
+
+def _event_lines(bag: Path) -> None:
+    """Print the safety events the bag holds (the controller's ``events`` topic)."""
+    from ros_ehs.bag import open_bag
+    from ros_ehs.errors import BagError
+    import ros_ehs_msgs_py as contract
+    try:
+        b = open_bag(bag)
+        topic = '/' + contract.EVENTS.name
+        events = [contract.event_from_msg(m) for _, m in b.decoded([topic])] \
+            if topic in b.topics else []
+        first = b.start_ns
+    except (BagError, ValueError) as err:
+        print(f'bench: cannot read the safety events: {err}', file=sys.stderr)
+        return
+    print(f'bench: safety events: {len(events)}')
+    for e in events:
+        print(f'bench:   {(e.stamp_ns - first) * 1e-9:9.3f} s  {e.kind} {e.detector} '
+              f'({e.action}): {e.message}')
+
+
 def main(argv=None) -> int:
     """Run the bench; see the module docstring."""
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
@@ -135,6 +171,12 @@ def main(argv=None) -> int:
     ap.add_argument('--machine-probe', action=argparse.BooleanOptionalAction, default=True,
                     help='real time: a 1 kHz sleep loop without ROS on each CPU beside the '
                     "nodes, to tell the machine's stalls from the loop's")
+    ap.add_argument('--controller-param', type=_node_param, action='append', default=[],
+                    metavar='NAME=VALUE', help='a controller parameter (repeatable), e.g. '
+                    'limit_position_max=0.03')
+    ap.add_argument('--plant-param', type=_node_param, action='append', default=[],
+                    metavar='NAME=VALUE', help='a plant parameter (repeatable), e.g. '
+                    'fault=frozen_sensor')
     rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
     rec.add_argument('--max-bag-size', type=int, default=None,
                      help='split once a file holds this many bytes (0: never)')
@@ -173,6 +215,8 @@ def main(argv=None) -> int:
             plant.update(noise_z=noise.z, noise_v=noise.v, noise_p=noise.p)
         if lock:
             plant['duration'] = float(a.duration)
+        plant.update(a.plant_param)
+        controller = {**loop, **dict(a.controller_param)}
         # in real time the reference runs at 250 Hz (the controller extrapolates it with its
         # velocity): a 1 kHz reference costs a quarter of a core for nothing
         recorder = {k: v for k, v in (('max_bag_size', a.max_bag_size),
@@ -181,7 +225,8 @@ def main(argv=None) -> int:
                                       ('min_free_space', a.min_free_space)) if v is not None}
         probes = _start_probes(launch, a.rt_priority) if a.machine_probe and not lock else []
         try:
-            launch.start_loop(a.mode, bag=out, plant=plant, controller=loop, params_file=pf,
+            launch.start_loop(a.mode, bag=out, plant=plant, controller=controller,
+                              params_file=pf,
                               recorder=recorder, pin=a.cpu_affinity,
                               reference={'kind': a.reference,
                                          'rate_hz': 1000.0 if lock else 250.0})
@@ -208,6 +253,7 @@ def main(argv=None) -> int:
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
         codes = launch.stop(['recorder', 'reference', 'plant', 'controller', *probes])
     _recorder_lines(launch)
+    _event_lines(out)
     for line in launch['plant'].output().splitlines():
         if line.startswith(FIGURES):
             print('bench: plant ' + line)

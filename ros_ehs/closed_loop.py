@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ros_ehs.control.axis import AxisController
 from ros_ehs.control.controller import Controller
 from ros_ehs.errors import InputError
 from ros_ehs.model.plant import Plant, StateSeries
@@ -45,6 +46,7 @@ class ClosedLoopResult(StateSeries):
     i: np.ndarray
     state_names: tuple[str, ...]
     z_meas: np.ndarray | None = None   #: the position the controller saw (with z_noise)
+    events: tuple = ()                 #: supervised: the safety events, in order
 
 
 def reference_step(plant: Plant, x, u, dt: float, rtol: float = 1e-10,
@@ -67,7 +69,8 @@ def reference_step(plant: Plant, x, u, dt: float, rtol: float = 1e-10,
 def run_closed_loop(plant_params: Params, reference, duration: float, *,
                     model: str = 'full', controller_params: Params | None = None,
                     dt: float = 1e-3, stepper: str = 'fast', h: float | None = None,
-                    x0=None, z_noise=None) -> ClosedLoopResult:
+                    x0=None, z_noise=None, supervised: bool = False,
+                    fault=None) -> ClosedLoopResult:
     """
     Simulate the position loop for ``duration`` s: ``reference(t) -> (z_ref, v_ref)``.
 
@@ -76,6 +79,13 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     of each period and its command is held for the period (zero-order hold), as on the bench.
     ``z_noise`` (one value [m] per period) is added to the sampled position: sensor noise the
     controller sees; the result's ``z_meas`` is that measured position.
+
+    ``supervised``: the controller node's computation, :class:`~ros_ehs.control.axis.
+    AxisController` (limit detectors, actions, ramp-on; the limits and actions from
+    ``controller_params``), fed with each period's stamp ``k dt`` in ns, the measured
+    position, velocity and hydraulic force; ``events`` lists what it reported.
+    ``fault(k, z, z_dot, force) -> (z, z_dot, force)`` (supervised only) changes what the
+    controller sees in period ``k``: a sensor fault.
     """
     if stepper not in ('fast', 'reference'):
         raise InputError(f'`stepper` = {stepper!r} is not one of [fast, reference]')
@@ -87,8 +97,17 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
         if z_noise.shape != (n,) or not np.all(np.isfinite(z_noise)):
             raise InputError(f'`z_noise` must be {n} finite values [m], got shape '
                              f'{z_noise.shape}')
+    if fault is not None and not supervised:
+        raise InputError('`fault` needs `supervised=True`')
     plant = Plant(plant_params, model, h=h)
-    ctrl = Controller(controller_params or plant_params, dt)
+    cp = controller_params or plant_params
+    axis = AxisController(cp, dt) if supervised else None
+    ctrl = Controller(cp, dt) if not supervised else None
+    dt_ns = int(round(dt * 1e9))
+    iv = plant.state_names.index('z_dot')
+    ipa, ipb = plant.state_names.index('p_CP'), plant.state_names.index('p_CT')
+    a_p = float(plant_params['A_p'])
+    events = []
     t = np.arange(n + 1) * dt
     z_ref, v_ref = reference(t)
     x = plant.equilibrium() if x0 is None else np.asarray(x0, dtype=float)
@@ -100,12 +119,21 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     z_meas = np.empty(n)
     for k in range(n):
         z_meas[k] = x[iz] + (z_noise[k] if z_noise is not None else 0.0)
-        u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]))
+        if axis is None:
+            u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]))
+        else:
+            zm, vm, fm = float(z_meas[k]), float(x[iv]), a_p * float(x[ipa] - x[ipb])
+            if fault is not None:
+                zm, vm, fm = fault(k, zm, vm, fm)
+                z_meas[k] = zm
+            u[0] = axis.step(k * dt_ns, zm, vm, fm, float(z_ref[k]), float(v_ref[k]))
+            events.extend(axis.events)
         cur[k] = u[0]
         x = plant.step(x, u, dt) if stepper == 'fast' else reference_step(plant, x, u, dt)
         xs[k + 1] = x
     cur[n] = cur[n - 1]
-    return ClosedLoopResult(t, z_ref, v_ref, xs, cur, plant.state_names, z_meas)
+    return ClosedLoopResult(t, z_ref, v_ref, xs, cur, plant.state_names, z_meas,
+                            tuple(events))
 
 
 def model_difference(params: Params, reference, duration: float, model: str, *,

@@ -34,6 +34,7 @@ from typing import Iterable, Mapping
 from ros_ehs.errors import ParameterError
 
 __all__ = [
+    'ACTIONS',
     'ALL_SPECS',
     'CONTROL_SPECS',
     'ESTIMATED',
@@ -41,6 +42,7 @@ __all__ = [
     'ParamSpec',
     'Params',
     'PRESETS',
+    'SAFETY_SPECS',
     'load_yaml',
     'preset',
     'save_yaml',
@@ -220,7 +222,61 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'then zero the command', 'safety', 'D'),
 )
 
-ALL_SPECS: tuple[ParamSpec, ...] = PLANT_SPECS + CONTROL_SPECS
+#: What a detector does when it trips (``off``: the detector is disabled), least severe first.
+ACTIONS: tuple[str, ...] = ('off', 'indicate', 'hold', 'stop', 'power_off')
+_ACTION_MEANING = ('off: disabled; indicate: diagnostics WARN and an event; hold: the '
+                   'reference freezes at the measured position; stop: the reference ramps to '
+                   'safe_position at safe_velocity, then holds; power_off: valve current 0 A')
+
+
+def _action(detector: str, default: str, what: str) -> ParamSpec:
+    return ParamSpec(f'{detector}_action', '', default, meaning=f'action of the {what} '
+                     f'detector ({_ACTION_MEANING}); latched until ~/reset', group='safety',
+                     source='D', choices=ACTIONS)
+
+
+# --- safety: limit and error detectors, their actions, ramp-on (ros_ehs.control.safety) -----
+SAFETY_SPECS: tuple[ParamSpec, ...] = (
+    _p('limit_position_max', 'm', 0.095, -2.0, 2.0, 'upper position limit: trips above it',
+       'safety', 'I'),
+    _action('limit_position_max', 'off', 'upper position limit'),
+    _p('limit_position_min', 'm', -0.095, -2.0, 2.0, 'lower position limit: trips below it',
+       'safety', 'I'),
+    _action('limit_position_min', 'off', 'lower position limit'),
+    _p('limit_velocity', 'm/s', 1.0, 1.0e-4, 10.0, 'speed limit: trips when |z_dot| is above '
+       'it (z_dot measured, or differenced from the position)', 'safety', 'I'),
+    _action('limit_velocity', 'off', 'speed limit'),
+    _p('limit_force', 'N', 3.0e4, 1.0, 1.0e7, 'load force limit: trips when |(p_CP - p_CT) '
+       'A_p| is above it (when the state carries the force)', 'safety', 'I'),
+    _action('limit_force', 'off', 'load force limit'),
+    _p('limit_error', 'm', 5.0e-3, 1.0e-6, 1.0, 'tracking error limit: trips when |z_ref - z| '
+       'is above it for longer than limit_error_time', 'safety', 'I'),
+    _p('limit_error_time', 's', 0.05, 0.0, 60.0, 'how long the tracking error must stay '
+       'above limit_error', 'safety', 'I'),
+    _action('limit_error', 'off', 'tracking error'),
+    _p('feedback_timeout', 's', 1.0, 1.0e-3, 60.0, 'real time: no state for this long '
+       'latches the feedback detector (the controller sends 0 A, unlatched, after 10 '
+       'stale_timeout already)', 'safety', 'D'),
+    _p('frozen_periods', '1', 100.0, 2.0, 1.0e6, 'feedback frozen: the same position for '
+       'this many periods while |i| >= frozen_current', 'safety', 'D'),
+    _p('frozen_current', 'A', 3.0e-4, 0.0, 0.1, 'the command above which a frozen position '
+       'counts (a command this large moves a free piston)', 'safety', 'D'),
+    _action('feedback', 'power_off', 'feedback validity (non-finite, lost, frozen)'),
+    _p('limit_saturation_time', 's', 0.5, 0.0, 60.0, 'saturation: the command at its limit '
+       'u_max for longer than this (control lost)', 'safety', 'I'),
+    _action('saturation', 'off', 'command saturation'),
+    _p('limit_hysteresis', '1', 0.05, 0.0, 0.5, 'a tripped limit clears (reset allowed) only '
+       'this fraction of the limit inside it (of the position span for position limits)',
+       'safety', 'D'),
+    _p('safe_position', 'm', 0.0, -2.0, 2.0, 'where the stop action takes the piston',
+       'safety', 'I'),
+    _p('safe_velocity', 'm/s', 0.01, 1.0e-4, 1.0, 'speed of the stop action', 'safety', 'I'),
+    _p('ramp_time', 's', 1.0, 0.0, 600.0, 'ramp-on: on start, enable and reset the reference '
+       'blends from the measured position to the trajectory over this time (0: no ramp)',
+       'safety', 'D'),
+)
+
+ALL_SPECS: tuple[ParamSpec, ...] = PLANT_SPECS + CONTROL_SPECS + SAFETY_SPECS
 _BY_NAME: dict[str, ParamSpec] = {s.name: s for s in ALL_SPECS}
 assert len(_BY_NAME) == len(ALL_SPECS), 'duplicate parameter name'
 
@@ -256,6 +312,11 @@ def _check_cross(v: Mapping[str, float | str]) -> None:
     if 'K_a' in v and 'K_m' in v and not v['K_m'] < v['K_a']:
         raise ParameterError(f"parameter `K_m` = {v['K_m']!r} must be below `K_a` = "
                              f"{v['K_a']!r} (net armature stiffness must be positive)")
+    if 'limit_position_min' in v and 'limit_position_max' in v and \
+            not v['limit_position_min'] < v['limit_position_max']:
+        raise ParameterError(f"parameter `limit_position_min` = {v['limit_position_min']!r} m "
+                             'must be below `limit_position_max` = '
+                             f"{v['limit_position_max']!r} m")
     if 'l_iac' in v and 'stroke' in v and not v['stroke'] < v['l_iac']:
         raise ParameterError(f"parameter `stroke` = {v['stroke']!r} m must be below `l_iac` = "
                              f"{v['l_iac']!r} m (a chamber volume would vanish)")
@@ -348,7 +409,8 @@ def markdown_table() -> str:
              'Generated from `ros_ehs/params.py` by `ehs_sim params-doc`; do not edit by hand.',
              'Source tags: P paper, K textbook/catalogue, D derived (research notes), '
              'I rig assumption.', '']
-    for title, specs in (('Plant', PLANT_SPECS), ('Controller', CONTROL_SPECS)):
+    for title, specs in (('Plant', PLANT_SPECS), ('Controller', CONTROL_SPECS),
+                         ('Safety', SAFETY_SPECS)):
         lines += [f'## {title}', '', '| name | unit | default | range | meaning | source | '
                   'Table 1 initial / bounds / estimate / scale |', '|---|---|---|---|---|---|---|']
         for s in specs:

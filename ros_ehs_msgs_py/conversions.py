@@ -24,10 +24,11 @@ from __future__ import annotations
 import math
 from typing import Any, Callable, Sequence
 
-from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference
+from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference, SafetyEvent
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
-__all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'fill_command',
+__all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'event_from_msg',
+           'event_level', 'fill_command', 'fill_event',
            'joint_index',
            'fill_pressure', 'fill_reference',
            'fill_reference_trajectory', 'fill_state', 'pressure_from_msg',
@@ -75,6 +76,8 @@ def empty_msg(msg_type: str) -> dict[str, Any]:
     if msg_type == 'trajectory_msgs/msg/JointTrajectoryPoint':
         return {'positions': [], 'velocities': [], 'accelerations': [], 'effort': [],
                 'time_from_start': {'sec': 0, 'nanosec': 0}}
+    if msg_type == 'diagnostic_msgs/msg/DiagnosticArray':
+        return {'header': header, 'status': []}
     raise KeyError(f'no empty message for {msg_type!r}')
 
 
@@ -249,3 +252,56 @@ def fill_pressure(msg: Any, p: Pressure) -> Any:
 def pressure_from_msg(msg: Any) -> Pressure:
     """Read a :class:`Pressure` from a FluidPressure."""
     return Pressure(stamp_ns(_get(msg, 'header')), float(_get(msg, 'fluid_pressure')))
+
+
+#: DiagnosticStatus levels (OK, WARN, ERROR) of the events, by kind and action.
+_OK, _WARN, _ERROR = 0, 1, 2
+_EVENT_KEYS = ('kind', 'detector', 'value', 'limit', 'unit', 'action', 'stamp_ns')
+
+
+def event_level(e: SafetyEvent) -> int:
+    """Return the DiagnosticStatus level of an event: ERROR for a trip that acts, else WARN/OK."""
+    if e.kind == 'trip':
+        return _WARN if e.action == 'indicate' else _ERROR
+    return _WARN if e.kind.endswith('refused') or e.kind == 'disabled' else _OK
+
+
+def fill_event(msg: Any, e: SafetyEvent, node: str = 'controller', hardware_id: str = 'axis',
+               status: Any = None, key_value: Callable[[], Any] | None = None) -> Any:
+    """
+    Write ``e`` into a ``diagnostic_msgs/DiagnosticArray`` (one status).
+
+    ``status`` is an empty DiagnosticStatus and ``key_value`` makes an empty KeyValue (the
+    message classes, or dicts for the bag writer).
+    """
+    _set_header(msg, e.stamp_ns)
+    st = status if status is not None else {}
+    _set(st, 'level', bytes([event_level(e)]))
+    _set(st, 'name', f'ros_ehs/{node}/{e.detector or e.kind}')
+    _set(st, 'message', e.message)
+    _set(st, 'hardware_id', hardware_id)
+    values = []
+    for k in _EVENT_KEYS:
+        v = getattr(e, k)
+        kv = key_value() if key_value is not None else {}
+        _set(kv, 'key', k)
+        _set(kv, 'value', f'{v:.9g}' if isinstance(v, float) else str(v))
+        values.append(kv)
+    _set(st, 'values', values)
+    _set(msg, 'status', [st])
+    return msg
+
+
+def event_from_msg(msg: Any) -> SafetyEvent:
+    """Read the event of an ``events`` DiagnosticArray (the first status); ValueError if none."""
+    status = list(_get(msg, 'status'))
+    if not status:
+        raise ValueError('events: a DiagnosticArray without a status')
+    st = status[0]
+    vals = {_get(kv, 'key'): _get(kv, 'value') for kv in _get(st, 'values')}
+    missing = [k for k in _EVENT_KEYS if k not in vals]
+    if missing:
+        raise ValueError(f'events: status {_get(st, "name")!r} lacks the values {missing}')
+    return SafetyEvent(int(vals['stamp_ns']), vals['kind'], vals['detector'],
+                       float(vals['value']), float(vals['limit']), vals['unit'],
+                       vals['action'], _get(st, 'message'))

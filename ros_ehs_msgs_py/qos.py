@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-__all__ = ['CLOCK_QOS', 'LOCKSTEP_QOS', 'LOOP_QOS', 'QosSpec', 'RECORD_QOS']
+__all__ = ['CLOCK_QOS', 'EVENTS_QOS', 'LOCKSTEP_QOS', 'LOOP_QOS', 'QosSpec', 'RECORD_QOS']
 
 
 class QosSpec(NamedTuple):
@@ -68,3 +68,6 @@ CLOCK_QOS = QosSpec('best_effort', 1)
 #: lost 110 states once the loop ran that fast). The history is allocated as it fills: the
 #: nodes' memory is the same as with 1000. Best-effort readers (rclpy's /clock) still match.
 LOCKSTEP_QOS = QosSpec('reliable', 10000)
+#: Safety events: reliable, the newest 100 kept for a late subscriber (a monitor started after
+#: a trip still sees it).
+EVENTS_QOS = QosSpec('reliable', 100, 'transient_local')

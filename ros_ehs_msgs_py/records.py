@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-__all__ = ['AxisState', 'Command', 'Pressure', 'Reference']
+__all__ = ['AxisState', 'Command', 'Pressure', 'Reference', 'SafetyEvent']
 
 
 class AxisState(NamedTuple):
@@ -52,3 +52,22 @@ class Pressure(NamedTuple):
 
     stamp_ns: int
     p: float
+
+
+class SafetyEvent(NamedTuple):
+    """
+    One safety event of the controller: a detector's trip, a reset, hydraulics on or off.
+
+    ``stamp_ns`` is the stamp of the state on which it happened; ``value`` and ``limit`` are
+    in ``unit`` (NaN where none applies); ``action`` is the trip's action (for the other
+    kinds, the action in force).
+    """
+
+    stamp_ns: int
+    kind: str        #: trip, reset, reset_refused, enabled, disabled, enable_refused
+    detector: str    #: the detector (a trip), the detectors concerned, or ''
+    value: float
+    limit: float
+    unit: str
+    action: str      #: off, indicate, hold, stop, power_off
+    message: str

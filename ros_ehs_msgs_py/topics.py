@@ -17,9 +17,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from ros_ehs_msgs_py.qos import CLOCK_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec, RECORD_QOS
+from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
+                                 RECORD_QOS)
 
-__all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'JOINT_PISTON', 'JOINT_SPOOL', 'JOINT_VALVE',
+__all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'EVENTS', 'JOINT_PISTON',
+           'JOINT_SPOOL', 'JOINT_VALVE',
            'LOCKSTEP_NODE_TOPICS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T',
            'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name']
 
@@ -56,6 +58,11 @@ COMMAND = Topic('servo_current', 'sensor_msgs/msg/JointState',
                 'joint `servo_valve`: effort = i [A]')
 DIAGNOSTICS = Topic('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
                     'loop timing, tracking error, watchdog', RECORD_QOS)
+EVENTS = Topic('events', 'diagnostic_msgs/msg/DiagnosticArray',
+               'safety events of the controller, one status each: name '
+               '`ros_ehs/controller/<detector or kind>`, level, message; values kind, '
+               'detector, value, limit, unit, action, stamp_ns (the state it happened on)',
+               EVENTS_QOS)
 CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock',
               'published by the plant in lock-step mode', CLOCK_QOS)
 REFERENCE_TRAJECTORY = Topic(
@@ -64,7 +71,7 @@ REFERENCE_TRAJECTORY = Topic(
     '`piston`: positions z_ref [m], velocities v_ref [m/s], each at header.stamp + '
     'time_from_start', LOCKSTEP_QOS)
 
-TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, CLOCK,
+TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, EVENTS, CLOCK,
           REFERENCE_TRAJECTORY)
 
 
@@ -78,7 +85,7 @@ class NodeTopics(NamedTuple):
 #: What each loop node creates in its default (real-time) mode.
 NODE_TOPICS = {
     'plant': NodeTopics((STATE, PRESSURE_P, PRESSURE_T, DIAGNOSTICS), (COMMAND,)),
-    'controller': NodeTopics((COMMAND, DIAGNOSTICS), (STATE, REFERENCE)),
+    'controller': NodeTopics((COMMAND, DIAGNOSTICS, EVENTS), (STATE, REFERENCE)),
     'reference': NodeTopics((REFERENCE, DIAGNOSTICS), ()),
 }
 
@@ -87,7 +94,7 @@ NODE_TOPICS = {
 #: coming periods as one REFERENCE_TRAJECTORY, which is what the controller reads.
 LOCKSTEP_NODE_TOPICS = {
     'plant': NodeTopics((STATE, PRESSURE_P, PRESSURE_T, DIAGNOSTICS, CLOCK), (COMMAND,)),
-    'controller': NodeTopics((COMMAND, DIAGNOSTICS), (STATE, REFERENCE_TRAJECTORY)),
+    'controller': NodeTopics((COMMAND, DIAGNOSTICS, EVENTS), (STATE, REFERENCE_TRAJECTORY)),
     'reference': NodeTopics((REFERENCE, REFERENCE_TRAJECTORY, DIAGNOSTICS), (CLOCK,)),
 }
 

@@ -100,7 +100,8 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     loop = ('/state', '/servo_current', '/reference', '/reference_trajectory')
     assert {k: tp.qos[0]['reliability'] for k, tp in open_bag(bag).topics.items()
             if k in loop} == dict.fromkeys(loop, 'reliable')
-    ref = run_closed_loop(Params(), Sine(0.04, 1.0), duration, model='simplified', dt=1e-3)
+    ref = run_closed_loop(Params(), Sine(0.04, 1.0), duration, model='simplified', dt=1e-3,
+                          supervised=True)      # the node's computation, ramp-on included
     # what the controller read, decoded by a reader we did not write: every period of the
     # run covered, each sample the sine at its stamp; /clock every 10 periods (clock_period)
     from rosbags.typesys import get_typestore, Stores
@@ -657,7 +658,8 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
     assert 'bench: Fast DDS profile' in res.stdout and 'fastdds_rt.xml' in res.stdout
     t, z, i = _states(out)
     assert len(t) == 1001 and np.all(np.diff(t) == 1_000_000)
-    ref = run_closed_loop(Params(), Sine(0.04, 1.0), 1.0, model='simplified', dt=1e-3)
+    ref = run_closed_loop(Params(), Sine(0.04, 1.0), 1.0, model='simplified', dt=1e-3,
+                          supervised=True)
     np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
     logs = tmp_path / 'out' / 'logs' / 'bench'
     assert sorted(p.name for p in logs.iterdir()) == ['controller.log', 'plant.log',

@@ -151,7 +151,7 @@ def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, r
         # the held position: z = 0 (resent, a repeated stamp, until our subscription matched)
         assert ros.spin(until=lambda: t100 in got or send(t100, 0.0) and False, timeout=20)
         for k in range(1, 200):             # then 10 mm off it: the integral winds up
-            send(t100 + k * 10**6, 0.01)
+            send(t100 + k * 10**6, 0.01 + k * 1e-9)     # a live sensor: never frozen
             ros.spin(0.002)
         assert ros.spin(until=lambda: t100 + 199 * 10**6 in got, timeout=10)
         sent = send(10**9, 0.0)             # 99 s back: a new run

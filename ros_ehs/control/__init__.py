@@ -11,12 +11,21 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Controller core: PID (eq. 19), feedforward (eqs. 9-20) and their combination (eq. 18)."""
+"""
+Controller core: PID (eq. 19), feedforward (eqs. 9-20), their combination (eq. 18), safety.
 
+:class:`AxisController` is what the controller node runs: the safety :class:`Supervisor`
+(limit and error detectors, latched actions, ramp-on) in front of :class:`Controller`.
+"""
+
+from ros_ehs.control.axis import AxisController
 from ros_ehs.control.controller import Controller
 from ros_ehs.control.feedforward import (
     DelayLine, Feedforward, psc_force, stribeck_estimate, xi_blend)
 from ros_ehs.control.pid import Pid, PidGains
+from ros_ehs.control.safety import (braking_distance, DETECTORS, SafetyConfig,
+                                    Supervisor)
 
-__all__ = ['Controller', 'DelayLine', 'Feedforward', 'Pid', 'PidGains', 'psc_force',
+__all__ = ['AxisController', 'Controller', 'DETECTORS', 'DelayLine', 'Feedforward', 'Pid',
+           'PidGains', 'SafetyConfig', 'Supervisor', 'braking_distance', 'psc_force',
            'stribeck_estimate', 'xi_blend']

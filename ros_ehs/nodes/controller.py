@@ -21,7 +21,15 @@ a live change is validated as a whole and rejected with the reason.
 
 Edge-case policy (tested in ``test/test_nodes.py`` and ``test/test_stamps.py``):
 
-* non-finite state or reference: 0 A and ``fault`` (the PID's policy), until a finite one;
+* safety (:mod:`ros_ehs.control.safety`, docs/safety.md): limit and error detectors run on
+  every state, inside the command that answers it; each trip is latched, logged once,
+  published on ``events`` and counted in diagnostics; ``~/reset`` (std_srvs/Trigger) clears
+  the latches (refused, with the reason, while a detector still trips), ``~/enable``
+  (std_srvs/SetBool) turns the hydraulics on (ramp-on from the measured position) or off
+  (0 A). In real time a state older than ``feedback_timeout`` (checked every 10 ms) trips
+  the feedback detector;
+* non-finite position: the feedback detector (default action power_off: 0 A, latched);
+  non-finite reference: 0 A and ``fault`` (the PID's policy), until a finite one;
 * malformed message (no ``piston`` joint, empty arrays): ignored and counted;
 * stamps (any publisher on the bench network can send a ``state``: a bag player, a rig
   driver with another clock, a restarted plant):
@@ -57,18 +65,19 @@ from __future__ import annotations
 import math
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from ros_ehs.control.controller import Controller
+from ros_ehs.control.axis import AxisController
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.nodes.loop_stats import Window
 from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs, diagnostics,
                                       EPOCH_PERIODS, ERROR, node_params, OK, Option,
                                       qos_profile, read_msg, RT_PRIORITY, run, steady_clock,
                                       update_options, validate_changes, WARN)
-from ros_ehs.params import CONTROL_SPECS, Params, spec
+from ros_ehs.params import CONTROL_SPECS, Params, SAFETY_SPECS, spec
 import ros_ehs_msgs_py as contract
 from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['OPTIONS', 'ControllerNode', 'SPECS', 'main']
@@ -79,8 +88,9 @@ LOST_FACTOR = 10
 #: Lock-step references kept ahead of the states (stamps; 4 s at 1 kHz).
 REF_BUFFER = 4096
 
-#: The parameters the controller declares: its own and the plant values its feedforward uses.
-SPECS = CONTROL_SPECS + tuple(spec(n) for n in MODEL_PARAMS)
+#: The parameters the controller declares: its own, the safety layer's and the plant values
+#: its feedforward uses.
+SPECS = CONTROL_SPECS + SAFETY_SPECS + tuple(spec(n) for n in MODEL_PARAMS)
 
 OPTIONS = (
     Option('rate_hz', 1000.0, 'control period rate [Hz]; must match the plant', 10.0, 5000.0),
@@ -91,6 +101,8 @@ OPTIONS = (
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
     Option('future_tolerance', 0.05, 'real time: a state stamped further ahead of this '
            "node's clock is dropped and counted [s]", 1.0e-4, 3600.0, read_only=False),
+    Option('start_enabled', True, 'hydraulics on at start (ramp-on from the first measured '
+           'position); false: 0 A until ~/enable'),
     RT_PRIORITY,
     CPU_AFFINITY,
 )
@@ -107,7 +119,9 @@ class ControllerNode(Node):
         declare_specs(self, SPECS, Params())
         self.params = node_params(self, Params(), SPECS)
         self.dt = 1.0 / float(self.opt['rate_hz'])
-        self.ctrl = Controller(self.params, self.dt)
+        self.axis = AxisController(self.params, self.dt, bool(self.opt['start_enabled']))
+        self.ctrl = self.axis.ctrl
+        self._meas = (-1, math.nan, math.nan, math.nan)    # newest state: stamp, z, z_dot, F
         self.lockstep = bool(self.opt['lockstep'])
         # staleness is a wall-clock notion: off under sim time and in lock-step (where the
         # plant waits for us, so nothing can be stale)
@@ -122,7 +136,7 @@ class ControllerNode(Node):
         self._lost = False
         self.counts = dict.fromkeys(('answered', 'bad', 'nonfinite', 'stale', 'out_of_order',
                                      'future', 'epochs', 'repeated', 'state_lost_events',
-                                     'param_rejects'), 0)
+                                     'param_rejects', 'events'), 0)
         self._dt_ns = int(round(self.dt * 1e9))
         self._diag_future = 0
         self.err = Window(2000)
@@ -132,6 +146,10 @@ class ControllerNode(Node):
         self.pub_cmd = self.create_publisher(JointState, contract.COMMAND.name, cmd_qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               qos_profile(contract.DIAGNOSTICS.qos))
+        self.pub_events = self.create_publisher(DiagnosticArray, contract.EVENTS.name,
+                                                qos_profile(contract.EVENTS.qos))
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_service(SetBool, '~/enable', self._on_enable)
         # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire, the fast path)
         self.create_subscription(JointState, contract.STATE.name, self._on_state,
                                  qos_profile(contract.STATE.qos), raw=True)
@@ -233,7 +251,7 @@ class ControllerNode(Node):
         """Start a new run at ``stamp_ns``: PID from rest, lock-step references forgotten."""
         back = (self._last_stamp - stamp_ns) * 1e-9
         self.counts['epochs'] += 1
-        self.ctrl.reset()
+        self.axis.restart()
         self._last_stamp = -1
         self._refs.clear()
         self._waiting = None
@@ -247,22 +265,77 @@ class ControllerNode(Node):
             self._lost = False
             self.ctrl.reset()
             self.get_logger().info('states are back; PID restarted from rest')
+        i = self.axis.step(s.stamp_ns, s.z, s.z_dot, s.force, z_ref, v_ref)
         if not (math.isfinite(s.z) and math.isfinite(z_ref) and math.isfinite(v_ref)):
             self.counts['nonfinite'] += 1
-            self.get_logger().warning('non-finite state or reference: command 0 A',
-                                      throttle_duration_sec=1.0)
-        i = self.ctrl.step(z_ref, v_ref, s.z)
+            if not self.axis.supervisor.latches['feedback'].tripped:   # else reported once
+                self.get_logger().warning('non-finite state or reference: command 0 A',
+                                          throttle_duration_sec=1.0)
+        self._meas = (s.stamp_ns, s.z, s.z_dot, s.force)
         self._last_stamp = s.stamp_ns
         self.counts['answered'] += 1
         self._publish(s.stamp_ns, i)
+        if self.axis.events:     # after the command: off the loop's path
+            self._report(self.axis.events)
         if math.isfinite(s.z) and math.isfinite(z_ref):
             self.err.add(z_ref - s.z)
         self.compute.add(time.perf_counter() - t0)
+
+    # -- safety ------------------------------------------------------------------------------
+    def _report(self, events) -> None:
+        """Log each event once, publish it on ``events``, count it."""
+        log = self.get_logger()
+        ns = self.get_namespace().strip('/') or 'axis'
+        for e in events:
+            self.counts['events'] += 1
+            msg = contract.fill_event(DiagnosticArray(), e, 'controller', ns,
+                                      DiagnosticStatus(), KeyValue)
+            self.pub_events.publish(msg)
+            level = contract.event_level(e)
+            text = f'safety {e.kind} {e.detector}: {e.message}' if e.detector else \
+                f'safety {e.kind}: {e.message}'
+            # rclpy ties a severity to its call site: one call per level
+            if level == ERROR:
+                log.error(text)
+            elif level == WARN:
+                log.warning(text)
+            else:
+                log.info(text)
+
+    def _feedback_age(self) -> float:
+        """Return the age of the newest state [s] (0 where staleness is off: lock-step)."""
+        return time.monotonic() - self._last_rx if self.wall else 0.0
+
+    def _on_reset(self, request, response):
+        stamp, z, z_dot, force = self._meas
+        ok, why, ev = self.axis.supervisor.reset(stamp, z, z_dot, force, self._feedback_age())
+        if ok:
+            self.ctrl.reset()
+        self._report([ev])
+        response.success, response.message = ok, why
+        return response
+
+    def _on_enable(self, request, response):
+        stamp = self._meas[0]
+        ok, why, ev = self.axis.supervisor.enable(bool(request.data), stamp)
+        if ok:
+            self.ctrl.reset()
+        self._report([ev])
+        response.success, response.message = ok, why
+        return response
 
     def _publish(self, stamp_ns: int, i: float) -> None:
         self.pub_cmd.publish(contract.command_to_cdr(contract.Command(stamp_ns, i)))
 
     def _check_lost(self) -> None:
+        if self._last_stamp >= 0:
+            ev = self.axis.supervisor.feedback_lost(self._feedback_age(), self._meas[0])
+            if ev:
+                self._report(ev)
+                if not self.axis.supervisor.enabled or self.axis.supervisor.action == \
+                        'power_off':
+                    self.ctrl.reset()
+                    self._publish(self.get_clock().now().nanoseconds, 0.0)
         limit = LOST_FACTOR * float(self.params['stale_timeout'])
         if self._last_stamp < 0 or self._lost or time.monotonic() - self._last_rx < limit:
             return
@@ -285,7 +358,7 @@ class ControllerNode(Node):
         new, self._pending = self._pending, None
         if new is not None and new != self.params:
             self.params = new
-            self.ctrl.set_params(new)
+            self.axis.set_params(new)
             self.get_logger().info('parameters changed: ' + ', '.join(
                 f'{p.name}={p.value}' for p in changes))
         update_options(self.opt, changes, OPTIONS)
@@ -306,11 +379,22 @@ class ControllerNode(Node):
                  command_a=float(self.ctrl.output), fault=self.ctrl.fault,
                  saturated=self.ctrl.pid.saturated, feedforward_a=float(self.ctrl.last_ff),
                  compute_p99_us=self.compute.pct(99) * 1e6, state_lost=self._lost)
+        sup = self.axis.supervisor
+        f.update(mode=sup.mode, interlock=sup.action, tripped=','.join(sup.tripped()),
+                 **{f'trips_{d}': n for d, n in sup.counts.items()})
         return f
 
     def _diagnose(self) -> None:
         level, msg = OK, 'running'
-        if self.ctrl.fault:
+        sup = self.axis.supervisor
+        act = sup.action
+        if act in ('hold', 'stop', 'power_off'):
+            level, msg = ERROR, f'interlock {act}: {", ".join(sup.tripped())} (~/reset)'
+        elif not sup.enabled:
+            level, msg = WARN, 'hydraulics off: 0 A (~/enable)'
+        elif act == 'indicate':
+            level, msg = WARN, f'limit indicated: {", ".join(sup.tripped())} (~/reset)'
+        elif self.ctrl.fault:
             level, msg = ERROR, 'non-finite input: command 0 A'
         elif self._lost:
             level, msg = WARN, 'no state: command 0 A'

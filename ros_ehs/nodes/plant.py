@@ -57,6 +57,13 @@ the state without waiting behind them.
 Every state message also carries the current applied over the period that ended at its stamp
 (joint ``servo_valve``), so a bag shows exactly what the valve got. ``noise_*`` add white
 sensor noise to what is published (the model's own state stays exact).
+
+Faults for tests and demonstrations (``fault``, from ``fault_time`` of sim time after the
+start, or at once when set live): ``frozen_sensor`` publishes the position and velocity of
+the fault's start from then on (a driver repeating its last sample); ``nan_sensor`` publishes
+NaN position and velocity; ``stuck_valve`` applies the current of the fault's start whatever
+the commands say (a spool stuck open); ``lost_pressure`` drops the supply to 1 MPa (a pump
+trip or burst hose). ``none`` ends a fault.
 """
 
 from __future__ import annotations
@@ -83,6 +90,11 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 
 __all__ = ['OPTIONS', 'PlantNode', 'main']
+
+#: The faults the plant can inject (option ``fault``).
+FAULTS = ('none', 'frozen_sensor', 'nan_sensor', 'stuck_valve', 'lost_pressure')
+#: The supply pressure of the ``lost_pressure`` fault [Pa] (the lowest p_s allows).
+LOST_SUPPLY = 1.0e6
 
 OPTIONS = (
     Option('model', 'simplified', 'plant model: full (10 states), reduced (6: the simplified '
@@ -116,6 +128,11 @@ OPTIONS = (
     Option('noise_v', 0.0, 'white noise on the published velocity [m/s]', 0.0, 1.0),
     Option('noise_p', 0.0, 'white noise on the published chamber pressures [Pa]', 0.0, 1.0e6),
     Option('seed', 0, 'seed of the sensor noise', 0, 2**31 - 1),
+    Option('fault', 'none', 'inject a fault from fault_time on (tests, demonstrations): '
+           'frozen_sensor, nan_sensor, stuck_valve (the current at the start stays applied), '
+           'lost_pressure (supply to 1 MPa)', choices=FAULTS, read_only=False),
+    Option('fault_time', 0.0, 'sim time after the start at which `fault` begins [s]', 0.0,
+           1.0e9, read_only=False),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
     RT_PRIORITY,
     CPU_AFFINITY,
@@ -188,6 +205,8 @@ class PlantNode(Node):
         self._rng = np.random.default_rng(int(self.opt['seed']))
         self._noise = tuple(float(self.opt[k]) for k in ('noise_z', 'noise_v', 'noise_p'))
         self._pending: Params | None = None
+        self._fault_on = False          # the fault is active
+        self._fault_hold = (0.0, 0.0, 0.0)    # frozen z, z_dot; stuck current
 
         self._listen_check = 0.0
         self._listening = [False, False]
@@ -298,7 +317,28 @@ class PlantNode(Node):
             return
 
     # -- stepping ----------------------------------------------------------------------------
+    def _fault_check(self) -> None:
+        """Start or end the injected fault at this period (``fault``, ``fault_time``)."""
+        want = self.opt['fault'] != 'none' and self.k * self.dt >= float(self.opt['fault_time'])
+        if want == self._fault_on:
+            return
+        self._fault_on = want
+        xs = self.x.tolist()
+        self._fault_hold = (xs[self._iz], xs[self._iv], self.applied)
+        fault = self.opt['fault']
+        p = self.params
+        if fault == 'lost_pressure' or self.plant.params['p_s'] != p['p_s']:
+            sup = LOST_SUPPLY if want and fault == 'lost_pressure' else p['p_s']
+            self.plant = Plant(p.replace(p_s=sup, p_t=min(p['p_t'], 0.5 * sup)),
+                               self.opt['model'])
+        self.get_logger().warning(f'fault {fault} injected at {self.k * self.dt:.6g} s' if want
+                                  else 'injected fault ended')
+
     def _step(self, i: float) -> None:
+        if self.opt['fault'] != 'none' or self._fault_on:
+            self._fault_check()
+            if self._fault_on and self.opt['fault'] == 'stuck_valve':
+                i = self._fault_hold[2]
         self.u[0] = self.applied = i
         nxt = self._x_next
         nxt[:] = self.x
@@ -430,9 +470,15 @@ class PlantNode(Node):
         xv = xs[self._ixv] if self._ixv >= 0 else math.nan
         nz, nv, npr = self._noise
         e = self._rng.standard_normal(4).tolist() if (nz or nv or npr) else _ZEROS
+        z, v = xs[self._iz] + nz * e[0], xs[self._iv] + nv * e[1]
+        if self._fault_on:
+            fault = self.opt['fault']
+            if fault == 'frozen_sensor':
+                z, v = self._fault_hold[0], self._fault_hold[1]
+            elif fault == 'nan_sensor':
+                z = v = math.nan
         data = contract.state_to_cdr(contract.AxisState(
-            st, xs[self._iz] + nz * e[0], xs[self._iv] + nv * e[1],
-            self._A_p * (xs[self._ipa] - xs[self._ipb]), xv, self.applied))
+            st, z, v, self._A_p * (xs[self._ipa] - xs[self._ipb]), xv, self.applied))
         j = (st - self.t0_ns) // self._dt_ns % _RING
         self._sent_stamp[j] = st
         # the round trip starts here, at the publish, as the bare ping-pong's does: the
@@ -492,7 +538,8 @@ class PlantNode(Node):
                  current_a=float(self.u[0]), bad_commands=self.bad_commands,
                  stale_commands=self.stale_commands, future_commands=self.future_commands,
                  model_faults=self.faults,
-                 overruns=self.overruns, resends=self.resends, finished=self.finished)
+                 overruns=self.overruns, resends=self.resends, finished=self.finished,
+                 fault=self.opt['fault'] if self._fault_on else 'none')
         if self.lockstep:
             end = self._t_last if self.finished else time.monotonic()
             f['steps_per_s'] = (self.k - 1) / (end - self._t_first) if self.k > 1 else math.nan

@@ -1,0 +1,356 @@
+"""
+The safety layer in process: ros_ehs.control.safety and ros_ehs.control.axis.
+
+Each detector at its limit, each action, the latch and its reset, ramp-on, NaN in every input.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from ros_ehs.closed_loop import run_closed_loop
+from ros_ehs.control.axis import AxisController
+from ros_ehs.control.safety import (braking_distance, DETECTORS, ramp_weight, SafetyConfig,
+                                    Supervisor)
+from ros_ehs.errors import ParameterError
+from ros_ehs.params import Params, preset
+from ros_ehs.reference import Sine
+import ros_ehs_msgs_py as c
+
+MS = 1_000_000   # one 1 kHz period [ns]
+
+
+def _sup(**kw):
+    """Return a Supervisor with no ramp-on, the given limits and actions (name_action=...)."""
+    actions = {d: kw.pop(d + '_action') for d in DETECTORS if d + '_action' in kw}
+    cfg = SafetyConfig(**{'ramp_time': 0.0, **kw},
+                       actions={**SafetyConfig().actions, **actions})
+    return Supervisor(cfg, 1e-3)
+
+
+def _feed(sup, k, z=0.0, z_dot=0.0, force=0.0, z_traj=0.0, v_traj=0.0, i=0.0, sat=False):
+    return sup.update(k * MS, z, z_dot, force, z_traj, v_traj, i, sat)
+
+
+# -- each detector at its limit ----------------------------------------------------------------
+@pytest.mark.parametrize('det,field,limit,inside,beyond', [
+    ('limit_position_max', 'z', 0.03, 0.03, 0.03 + 1e-12),
+    ('limit_position_min', 'z', -0.02, -0.02, -0.02 - 1e-12),
+    ('limit_velocity', 'z_dot', 0.5, -0.5, -0.5 - 1e-12),
+    ('limit_force', 'force', 2e4, 2e4, 2e4 + 1e-6),
+])
+def test_a_limit_trips_above_it_not_at_it_and_reports_once(det, field, limit, inside, beyond):
+    sup = _sup(**{det: limit, det + '_action': 'indicate'})
+    d, ev = _feed(sup, 0, **{field: inside})
+    assert ev == [] and sup.tripped() == []
+    d, ev = _feed(sup, 1, **{field: beyond})
+    assert [(e.kind, e.detector, e.action) for e in ev] == [('trip', det, 'indicate')]
+    assert ev[0].stamp_ns == MS and ev[0].value == beyond and ev[0].limit == limit
+    # latched, reported once, and indicate changes nothing
+    for k in range(2, 5):
+        d, ev = _feed(sup, k, **{field: beyond}, z_traj=0.001)
+        assert ev == [] and d.mode == 'run' and d.z_ref == 0.001
+    assert sup.tripped() == [det] and sup.counts[det] == 1
+
+
+def test_an_off_detector_never_trips_and_feedback_is_the_one_on_by_default():
+    cfg = SafetyConfig()
+    assert {d: cfg.action(d) for d in DETECTORS} == {
+        **dict.fromkeys(DETECTORS, 'off'), 'feedback': 'power_off'}
+    assert cfg.actions == SafetyConfig.from_params(Params()).actions
+    sup = Supervisor(SafetyConfig(ramp_time=0.0))
+    d, ev = _feed(sup, 0, z=5.0, z_dot=50.0, force=1e7)
+    assert ev == [] and d.power
+
+
+@pytest.mark.parametrize('det', ['limit_error', 'saturation'])
+def test_a_timed_detector_trips_only_after_longer_than_its_time(det):
+    t_lim = 0.005                     # 5 periods
+    if det == 'limit_error':
+        sup = _sup(limit_error=1e-3, limit_error_time=t_lim, limit_error_action='hold')
+
+        def period(k):
+            return _feed(sup, k, z=0.0, z_traj=0.002)
+    else:
+        sup = _sup(limit_saturation_time=t_lim, saturation_action='hold')
+
+        def period(k):
+            return _feed(sup, k, sat=True, i=0.015)
+    for k in range(5):                # held for 1..5 periods: 5 dt is not longer than 5 ms
+        d, ev = period(k)
+        assert ev == [], k
+    d, ev = period(5)                 # 6 periods: longer
+    assert [e.detector for e in ev] == [det] and d.mode == 'hold'
+
+
+def test_a_timed_detector_restarts_its_time_when_the_condition_breaks():
+    sup = _sup(limit_error=1e-3, limit_error_time=0.003, limit_error_action='hold')
+    for k in range(3):
+        assert _feed(sup, k, z_traj=0.002)[1] == []
+    assert _feed(sup, 3, z_traj=0.0)[1] == []
+    for k in range(4, 7):
+        assert _feed(sup, k, z_traj=0.002)[1] == []
+    assert _feed(sup, 7, z_traj=0.002)[1][0].detector == 'limit_error'
+
+
+# -- actions ------------------------------------------------------------------------------------
+def test_hold_freezes_the_reference_at_the_measured_position_of_the_trip():
+    sup = _sup(limit_position_max=0.03, limit_position_max_action='hold')
+    d, _ = _feed(sup, 0, z=0.02, z_traj=0.02, v_traj=0.1)
+    assert (d.mode, d.z_ref, d.v_ref) == ('run', 0.02, 0.1)
+    d, ev = _feed(sup, 1, z=0.0301, z_traj=0.035, v_traj=0.1)
+    assert ev and (d.mode, d.z_ref, d.v_ref, d.power) == ('hold', 0.0301, 0.0, True)
+    d, _ = _feed(sup, 2, z=0.0302, z_traj=0.04, v_traj=0.1)       # stays where it tripped
+    assert (d.z_ref, d.v_ref) == (0.0301, 0.0)
+
+
+def test_stop_ramps_to_the_safe_position_at_the_safe_velocity_then_holds():
+    sup = _sup(limit_position_max=0.03, limit_position_max_action='stop', safe_position=0.0,
+               safe_velocity=0.01)
+    d, ev = _feed(sup, 0, z=0.031, z_traj=0.04)
+    refs = [d.z_ref]
+    for k in range(1, 3200):
+        d, _ = _feed(sup, k, z=refs[-1], z_traj=0.04)
+        refs.append(d.z_ref)
+        if d.v_ref == 0.0:
+            break
+    steps = -np.diff(refs)
+    assert d.mode == 'stop' and d.z_ref == 0.0 and d.v_ref == 0.0
+    assert steps.max() == pytest.approx(1e-5, abs=1e-15)
+    assert len(refs) == pytest.approx(3101, abs=1)
+
+
+def test_power_off_zeroes_the_current_in_the_period_after_the_condition():
+    p = Params().replace(limit_position_max=0.03, limit_position_max_action='power_off')
+    r = run_closed_loop(p, Sine(0.04, 1.0), 1.5, model='simplified', supervised=True)
+    k = int(np.argmax(r.z_meas > 0.03))         # the first state beyond the limit
+    assert [(e.kind, e.stamp_ns) for e in r.events] == [('trip', k * MS)]
+    assert r.i[k - 1] != 0.0 and np.all(r.i[k:-1] == 0.0)   # its own command is 0 A
+    # stays off (latched): the valve at null holds the piston where it stopped
+    assert np.ptp(r.z[k + 50:]) < 1e-6
+    assert r.z.max() - 0.03 < braking_distance(p, r.z_dot[k], 1e-3, periods=1)
+
+
+def test_the_most_severe_action_rules_and_escalates_from_the_measured_position():
+    sup = _sup(limit_position_max=0.03, limit_position_max_action='hold',
+               limit_velocity=0.2, limit_velocity_action='stop',
+               limit_force=1e4, limit_force_action='indicate')
+    d, _ = _feed(sup, 0, z=0.031, z_dot=0.1, force=2e4)
+    assert d.mode == 'hold' and sup.action == 'hold'
+    d, ev = _feed(sup, 1, z=0.032, z_dot=0.3)
+    assert [e.detector for e in ev] == ['limit_velocity'] and d.mode == 'stop'
+    assert d.z_ref == pytest.approx(0.032 - 1e-5)     # from where it is, towards safe
+    assert sup.action == 'stop' and set(sup.tripped()) == {
+        'limit_position_max', 'limit_velocity', 'limit_force'}
+
+
+# -- latch, reset, hysteresis ------------------------------------------------------------------
+def test_reset_is_refused_while_a_limit_still_trips_and_has_hysteresis():
+    sup = _sup(limit_position_max=0.03, limit_position_min=-0.03, limit_hysteresis=0.05,
+               limit_position_max_action='hold')
+    _feed(sup, 0, z=0.0305)
+    ok, why, ev = sup.reset(MS, 0.0305)
+    assert not ok and 'limit_position_max' in why and 'z = 0.0305' in why
+    assert ev.kind == 'reset_refused'
+    ok, why, _ = sup.reset(MS, 0.0299)      # inside, but not by 5 % of the 60 mm span
+    assert not ok
+    ok, why, ev = sup.reset(MS, 0.0269)     # 3.1 mm inside
+    assert ok and ev.kind == 'reset' and 'limit_position_max' in why
+    assert sup.tripped() == [] and sup.action == 'off'
+
+
+def test_after_a_reset_the_axis_ramps_on_from_the_measured_position():
+    sup = Supervisor(SafetyConfig(ramp_time=0.1, limit_position_max=0.03,
+                                  actions={**SafetyConfig().actions,
+                                           'limit_position_max': 'power_off'}), 1e-3)
+    _feed(sup, 0, z=0.0, z_traj=0.0)
+    _feed(sup, 1, z=0.031, z_traj=0.04)
+    assert not _feed(sup, 2, z=0.025, z_traj=0.04)[0].power
+    assert sup.reset(3 * MS, 0.02)[0]
+    d, _ = _feed(sup, 3, z=0.02, z_traj=0.028, v_traj=0.3)
+    assert (d.mode, d.z_ref, d.v_ref) == ('ramp', 0.02, 0.0)
+    d, _ = _feed(sup, 53, z=0.02, z_traj=0.028, v_traj=0.3)    # half way: w = 0.5
+    assert d.z_ref == pytest.approx(0.024) and d.v_ref == pytest.approx(0.15 + 1.875 * 0.08)
+    d, _ = _feed(sup, 103, z=0.028, z_traj=0.028, v_traj=0.3)
+    assert (d.mode, d.z_ref, d.v_ref) == ('run', 0.028, 0.3)
+
+
+def test_feedback_reset_needs_a_finite_fresh_position():
+    sup = _sup()
+    d, ev = _feed(sup, 0, z=math.nan)
+    assert ev[0].detector == 'feedback' and ev[0].action == 'power_off' and not d.power
+    assert not sup.reset(MS, math.nan)[0]
+    assert not sup.reset(MS, 0.0, feedback_age_s=1.5)[0]
+    assert sup.reset(MS, 0.0, feedback_age_s=0.001)[0]
+
+
+def test_enable_and_disable():
+    sup = _sup(limit_position_max=0.03, limit_position_max_action='power_off')
+    ok, _, ev = sup.enable(False, 0)
+    assert ok and ev.kind == 'disabled'
+    d, _ = _feed(sup, 0, z=0.0)
+    assert (d.mode, d.power) == ('disabled', False)
+    assert sup.enable(True, MS)[0] and _feed(sup, 1)[0].power
+    _feed(sup, 2, z=0.031)
+    ok, why, ev = sup.enable(True, 3 * MS)     # on already; still answers
+    sup.enable(False, 3 * MS)
+    ok, why, ev = sup.enable(True, 3 * MS)
+    assert not ok and 'reset first' in why and ev.kind == 'enable_refused'
+
+
+# -- feedback: NaN in every input, frozen, lost ------------------------------------------------
+def test_nan_in_every_input():
+    sup = _sup(limit_velocity=0.5, limit_velocity_action='indicate', limit_force=1e4,
+               limit_force_action='indicate')
+    _feed(sup, 0, z=0.0)
+    d, ev = _feed(sup, 1, z=0.001, z_dot=math.nan, force=math.nan)   # z_dot from z: 1 m/s
+    assert [e.detector for e in ev] == ['limit_velocity'] and ev[0].value == pytest.approx(1.0)
+    assert d.power
+    d, ev = _feed(sup, 2, z=0.001, z_traj=math.nan, v_traj=math.nan)
+    assert ev == [] and d.power and math.isnan(d.z_ref)   # the PID's policy handles it
+    ax = AxisController(Params().replace(ramp_time=0.0), 1e-3)
+    assert ax.step(0, 0.0, 0.0, 0.0, math.nan, 0.0) == 0.0 and ax.ctrl.fault
+    assert ax.step(MS, 0.0, 0.0, 0.0, 0.001, 0.0) != 0.0 and not ax.ctrl.fault
+    assert ax.step(2 * MS, math.nan, 0.0, 0.0, 0.001, 0.0) == 0.0
+    assert [e.detector for e in ax.events] == ['feedback']
+    assert ax.step(3 * MS, 0.0, 0.0, 0.0, 0.001, 0.0) == 0.0      # latched power off
+
+
+def test_a_frozen_position_trips_only_while_the_command_drives_the_valve():
+    sup = _sup(frozen_periods=10, frozen_current=3e-4)
+    for k in range(30):             # identical, but no command: a piston at rest
+        assert _feed(sup, k, z=0.01, i=1e-4)[1] == []
+    for k in range(30, 39):         # unchanged while |i| >= 0.3 mA: 9 periods, then 10
+        d, ev = _feed(sup, k, z=0.01, i=-1e-3)
+        assert ev == [] and d.power, k
+    d, ev = _feed(sup, 39, z=0.01, i=-1e-3)
+    assert ev[0].detector == 'feedback' and 'frozen' in ev[0].message and not d.power
+    rng = np.random.default_rng(0)  # a live sensor's noise never repeats
+    sup = _sup(frozen_periods=10)
+    assert all(_feed(sup, k, z=0.01 + 5e-6 * rng.standard_normal(), i=1e-3)[1] == []
+               for k in range(200))
+
+
+def test_lost_feedback_trips_after_the_timeout():
+    sup = _sup(feedback_timeout=0.02)
+    assert sup.feedback_lost(0.02, 0) == []
+    ev = sup.feedback_lost(0.021, 5)
+    assert ev[0].detector == 'feedback' and ev[0].stamp_ns == 5 and sup.action == 'power_off'
+    assert sup.feedback_lost(1.0, 6) == []        # once
+
+
+def test_bad_configuration_names_the_parameter():
+    with pytest.raises(ParameterError, match='limit_error_action'):
+        SafetyConfig(actions={'limit_error': 'explode'})
+    with pytest.raises(ValueError, match='limit_position_min'):
+        SafetyConfig(limit_position_min=0.05, limit_position_max=0.04)
+    with pytest.raises(ParameterError, match='limit_position_min'):
+        Params().replace(limit_position_min=0.05, limit_position_max=0.04)
+    with pytest.raises(ParameterError, match='ramp_time'):
+        SafetyConfig(ramp_time=math.nan)
+
+
+# -- ramp-on -------------------------------------------------------------------------------------
+def test_ramp_weight_is_smooth_at_both_ends():
+    assert ramp_weight(0.0) == (0.0, 0.0) and ramp_weight(1.0) == (1.0, 0.0)
+    assert ramp_weight(-1.0) == (0.0, 0.0) and ramp_weight(2.0) == (1.0, 0.0)
+    assert ramp_weight(0.5) == (0.5, 1.875)
+    s = np.linspace(0.0, 1.0, 10001)
+    w = np.array([ramp_weight(x)[0] for x in s])
+    assert np.all(np.diff(w) >= 0.0)
+
+
+def test_ramp_on_starts_a_loop_80_mm_away_without_a_current_jump():
+    """The trajectory starts at +40 mm, the piston at -40 mm: a 30 mA P kick without ramp."""
+    p = Params()
+
+    def ref(t):
+        return np.full_like(t, 0.04), np.zeros_like(t)
+
+    x0 = None
+    from ros_ehs.model.plant import Plant
+    x0 = Plant(p, 'simplified').equilibrium(z=-0.04)
+    ramp = run_closed_loop(p, ref, 2.0, model='simplified', supervised=True, x0=x0)
+    jump = run_closed_loop(p, ref, 2.0, model='simplified', supervised=True, x0=x0,
+                           controller_params=p.replace(ramp_time=0.0))
+    assert abs(jump.i[0]) == p['u_max']                  # without: full current at once
+    assert abs(ramp.i[0]) < 1e-5                         # with: nothing at first
+    assert np.abs(np.diff(ramp.i)).max() < 0.02 * p['u_max']     # no step over 0.3 mA
+    assert abs(ramp.z[-1] - 0.04) < 1e-3                 # and it gets there
+
+
+def test_the_supervised_loop_is_the_plain_loop_once_the_ramp_is_over():
+    a = run_closed_loop(Params(), Sine(0.04, 1.0), 2.0, model='simplified')
+    b = run_closed_loop(Params(), Sine(0.04, 1.0), 2.0, model='simplified', supervised=True)
+    late = a.t > 1.5
+    assert np.abs(a.z - b.z)[late].max() < 1e-5 and b.events == ()
+    assert np.abs(a.z - b.z)[a.t < 1.0].max() > 1e-3     # the ramp did something
+
+
+# -- physics: braking distance, the error detector on a failed axis ----------------------------
+@pytest.mark.parametrize('action', ['hold', 'stop', 'power_off'])
+def test_the_piston_stops_within_the_limit_plus_the_braking_distance(action):
+    """The full model as the rig; the 40 mm sine against a 30 mm fixture limit."""
+    p = preset('table1_estimated')
+    cp = p.replace(limit_position_max=0.03, limit_position_max_action=action)
+    r = run_closed_loop(p, Sine(0.04, 1.0), 2.5, model='full', controller_params=cp,
+                        supervised=True)
+    k = int(np.argmax(r.z_meas > 0.03))
+    v = r.z_dot[k]
+    assert [e.detector for e in r.events] == ['limit_position_max'] and v > 0.1
+    over = r.z.max() - 0.03
+    assert 0.0 < over <= braking_distance(p, v, 1e-3, periods=1)
+    assert r.z.max() < p['stroke']
+    if action == 'stop':
+        assert abs(r.z[-1] - 0.03 + 0.01 * (r.t[-1] - r.t[k])) < 2e-3   # on its way to 0
+
+
+def test_the_error_detector_catches_a_lost_supply():
+    """Supply at 1 MPa: the valve cannot move the piston at the sine's speed."""
+    p = preset('table1_estimated')
+    rig = p.replace(p_s=1.0e6)
+    cp = p.replace(limit_error=2e-3, limit_error_time=0.05, limit_error_action='power_off')
+    r = run_closed_loop(rig, Sine(0.04, 1.0), 2.0, model='simplified', controller_params=cp,
+                        supervised=True)
+    assert [e.detector for e in r.events] == ['limit_error']
+    k = r.events[0].stamp_ns // MS
+    assert np.all(r.i[k:-1] == 0.0)
+    ok = run_closed_loop(p, Sine(0.04, 1.0), 2.0, model='simplified', controller_params=cp,
+                         supervised=True)
+    assert ok.events == ()
+
+
+def test_sensor_faults_in_the_closed_loop():
+    p = Params().replace(ramp_time=0.0)
+
+    def frozen(k, z, v, f):
+        return (0.01, v, f) if k >= 300 else (z, v, f)
+
+    r = run_closed_loop(p, Sine(0.04, 1.0), 1.0, model='simplified', supervised=True,
+                        fault=frozen)
+    ev = r.events[0]
+    assert ev.detector == 'feedback' and 'frozen' in ev.message
+    assert 300 + 100 <= ev.stamp_ns // MS <= 300 + 110 and np.all(r.i[ev.stamp_ns // MS:-1] == 0)
+
+
+# -- the contract's record over a reader we did not write --------------------------------------
+def test_an_event_round_trips_through_a_diagnostic_array_and_rosbags():
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    e = c.SafetyEvent(1_234_000_000, 'trip', 'limit_position_max', 0.0301, 0.03, 'm',
+                      'hold', 'limit_position_max: 0.0301 m beyond 0.03 m; action hold')
+    d = c.fill_event(c.empty_msg('diagnostic_msgs/msg/DiagnosticArray'), e)
+    assert c.event_from_msg(d) == e
+    DA = ts.types['diagnostic_msgs/msg/DiagnosticArray']
+    DS = ts.types['diagnostic_msgs/msg/DiagnosticStatus']
+    KV = ts.types['diagnostic_msgs/msg/KeyValue']
+    st = d['status'][0]
+    msg = DA(header=ts.types['std_msgs/msg/Header'](
+        stamp=ts.types['builtin_interfaces/msg/Time'](sec=1, nanosec=234_000_000), frame_id=''),
+        status=[DS(level=2, name=st['name'], message=st['message'],
+                   hardware_id=st['hardware_id'],
+                   values=[KV(key=kv['key'], value=kv['value']) for kv in st['values']])])
+    back = ts.deserialize_cdr(ts.serialize_cdr(msg, DA.__msgtype__), DA.__msgtype__)
+    assert c.event_from_msg(back) == e and c.event_level(e) == 2
+    with pytest.raises(ValueError, match='without a status'):
+        c.event_from_msg({'status': []})

@@ -1,0 +1,229 @@
+"""
+The safety layer over real DDS, with the real nodes.
+
+The controller node's detectors, ``~/reset``, ``~/enable``, the plant's injected faults, the
+events in the bag (read by rosbags, a reader we did not write), and lock-step exactness
+against the in-process supervised loop.
+"""
+
+import math
+from pathlib import Path
+import time
+
+import numpy as np
+import pytest
+from ros_ehs.closed_loop import run_closed_loop
+from ros_ehs.control.safety import braking_distance
+from ros_ehs.launch import Launch
+from ros_ehs.params import Params
+from ros_ehs.reference import Sine
+import ros_ehs_msgs_py as c
+
+pytestmark = pytest.mark.ros
+PERIOD = 1_000_000
+
+
+def _bag(bag):
+    """Return (states {stamp: AxisState}, commands {stamp: A}, events) decoded by rosbags."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    states, cmds, events = {}, {}, []
+    with Reader(bag) as r:
+        conns = [x for x in r.connections if x.topic in ('/state', '/servo_current', '/events')]
+        for conn, _, raw in r.messages(conns):
+            m = ts.deserialize_cdr(raw, conn.msgtype)
+            if conn.topic == '/state':
+                s = c.state_from_msg(m)
+                states[s.stamp_ns] = s
+            elif conn.topic == '/servo_current':
+                k = c.command_from_msg(m)
+                cmds[k.stamp_ns] = k.i
+            else:
+                events.append(c.event_from_msg(m))
+    return states, cmds, events
+
+
+def _call(ros, srv_type, name, request, timeout=20.0):
+    cli = ros.create_client(srv_type, name)
+    assert ros.spin(until=cli.service_is_ready, timeout=timeout), f'no service {name}'
+    fut = cli.call_async(request)
+    assert ros.spin(until=fut.done, timeout=timeout), f'{name} did not answer'
+    return fut.result()
+
+
+def _wait_event(launch, text, timeout=30.0):
+    assert launch.wait_for_log('controller', text, timeout), \
+        launch['controller'].output()[-3000:]
+
+
+def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance(
+        dom, tmp_path, ros):
+    """
+    The paper's 40 mm sine on an axis whose fixture allows 30 mm (action hold).
+
+    Then: reset refused while the piston is still beyond the limit; the limit raised live;
+    reset accepted, and the axis ramps back onto the sine without a current step.
+    """
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    from std_srvs.srv import Trigger
+    bag = tmp_path / 'bag'
+    p = Params()
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('realtime', bag=bag,
+                          controller={'limit_position_max': 0.03,
+                                      'limit_position_max_action': 'hold'})
+        _wait_event(launch, 'safety trip limit_position_max')
+        time.sleep(0.3)
+        res = _call(ros, Trigger, '/controller/reset', Trigger.Request())
+        assert not res.success and 'limit_position_max' in res.message \
+            and 'z = 0.03' in res.message, res.message
+        val = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.05)
+        req = SetParameters.Request(parameters=[Parameter(name='limit_position_max',
+                                                          value=val)])
+        assert _call(ros, SetParameters, '/controller/set_parameters', req).results[0].successful
+        res = _call(ros, Trigger, '/controller/reset', Trigger.Request())
+        assert res.success and 'limit_position_max' in res.message, res.message
+        t_reset = time.time_ns()
+        time.sleep(2.0)
+        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+    states, cmds, events = _bag(bag)
+    stamps = np.array(sorted(states))
+    z = np.array([states[k].z for k in stamps])
+    trip = [e for e in events if e.kind == 'trip']
+    assert [(e.detector, e.action) for e in trip] == [('limit_position_max', 'hold')]
+    assert [e.kind for e in events] == ['trip', 'reset_refused', 'reset']
+    first = stamps[np.argmax(z > 0.03)]
+    # acted on the state that crossed, or at most two periods on (real time)
+    assert 0 <= trip[0].stamp_ns - first <= 2 * PERIOD
+    k = int(np.argmax(z > 0.03))
+    v = (z[k] - z[k - 1]) / ((stamps[k] - stamps[k - 1]) * 1e-9)
+    held = (stamps >= first) & (stamps < t_reset)
+    assert z[held].max() - 0.03 <= braking_distance(p, v, 1e-3, periods=2) + 15e-6, \
+        (z[held].max(), v)       # plus three sigma of the bench's 5 um sensor noise
+    assert z.max() < p['stroke'] - 0.05
+    # after the reset: back on the sine, and no current step on the way
+    after = sorted(s for s in cmds if s > events[2].stamp_ns)
+    i_after = np.array([cmds[s] for s in after])
+    assert np.abs(i_after[:20]).max() < 0.02 * p['u_max']
+    assert np.abs(np.diff(i_after)).max() < 0.1 * p['u_max']
+    assert z[stamps > t_reset].max() > 0.035      # the limit is 50 mm now: the full sine
+
+
+@pytest.mark.parametrize('fault', ['frozen_sensor', 'nan_sensor'])
+def test_a_failed_sensor_powers_the_valve_off(dom, tmp_path, fault):
+    bag = tmp_path / 'bag'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('realtime', bag=bag, plant={'fault': fault, 'fault_time': 1.0})
+        _wait_event(launch, 'safety trip feedback')
+        time.sleep(0.5)
+        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+    states, cmds, events = _bag(bag)
+    assert [(e.kind, e.detector, e.action) for e in events] == [
+        ('trip', 'feedback', 'power_off')]
+    ev = events[0]
+    assert ('frozen' if fault == 'frozen_sensor' else 'non-finite') in ev.message
+    stamps = sorted(states)
+    t0 = stamps[0]
+    if fault == 'nan_sensor':
+        bad = [s for s in stamps if not math.isfinite(states[s].z)]
+        assert ev.stamp_ns - bad[0] <= 2 * PERIOD
+    else:        # 100 unchanged periods (the default frozen_periods) after the fault began
+        same = [a for a, b in zip(stamps, stamps[1:]) if states[a].z == states[b].z]
+        assert 0.9e9 < same[0] - t0 < 1.1e9        # fault_time 1 s (the bag starts early)
+        assert 99 * PERIOD <= ev.stamp_ns - same[0] <= 110 * PERIOD   # a state may be lost
+    # the valve got 0 A from at most two periods after the trip, and kept it
+    applied = [states[s].i for s in stamps if s > ev.stamp_ns + 2 * PERIOD]
+    assert len(applied) > 300 and all(i == 0.0 for i in applied)
+    assert all(cmds[s] == 0.0 for s in cmds if s >= ev.stamp_ns)
+
+
+def test_a_stuck_valve_trips_the_error_detector(dom, tmp_path):
+    bag = tmp_path / 'bag'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('realtime', bag=bag,
+                          plant={'fault': 'stuck_valve', 'fault_time': 1.0},
+                          controller={'limit_error': 0.002, 'limit_error_time': 0.02,
+                                      'limit_error_action': 'power_off'})
+        _wait_event(launch, 'safety trip limit_error')
+        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+        assert 'fault stuck_valve injected' in launch['plant'].output()
+    states, cmds, events = _bag(bag)
+    assert [(e.kind, e.detector) for e in events] == [('trip', 'limit_error')]
+    assert events[0].value > 0.002 or events[0].value < -0.002
+    assert events[0].stamp_ns - min(states) > 1.0e9
+
+
+def test_hydraulics_off_and_on_ramps_without_a_jump(dom, tmp_path, ros):
+    """Start off with the piston 30 mm from the sine; enable: ramp-on from where it is."""
+    from std_srvs.srv import SetBool, Trigger
+    bag = tmp_path / 'bag'
+    p = Params()
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('realtime', bag=bag, plant={'initial_z': -0.03},
+                          controller={'start_enabled': False})
+        time.sleep(1.0)
+        res = _call(ros, Trigger, '/controller/reset', Trigger.Request())
+        assert res.success and res.message == 'nothing was latched'
+        t_on = time.time_ns()
+        res = _call(ros, SetBool, '/controller/enable', SetBool.Request(data=True))
+        assert res.success and 'ramping on' in res.message
+        time.sleep(2.0)
+        res = _call(ros, SetBool, '/controller/enable', SetBool.Request(data=False))
+        assert res.success
+        time.sleep(0.3)
+        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+    states, cmds, events = _bag(bag)
+    assert [e.kind for e in events] == ['reset', 'enabled', 'disabled']
+    before = [cmds[s] for s in cmds if s < t_on - 50 * PERIOD]
+    assert before and all(i == 0.0 for i in before)          # off: 0 A
+    on = [s for s in sorted(cmds) if events[1].stamp_ns <= s <= events[2].stamp_ns]
+    i_on = np.array([cmds[s] for s in on])
+    # no kick at the enable (30 mm from the sine: P alone would ask 22 mA); on the way, no
+    # step beyond what a lost state or a late reference makes in real time (0.2-0.8 mA)
+    assert np.abs(i_on[:20]).max() < 0.02 * p['u_max']
+    assert np.abs(np.diff(i_on)).max() < 0.1 * p['u_max']
+    assert np.abs(i_on).max() > 0.2 * p['u_max']             # while it really moved
+    stamps = sorted(states)
+    assert states[stamps[-1]].i == 0.0
+
+
+def test_lockstep_acts_in_exactly_the_period_after_and_matches_the_in_process_loop(
+        dom, tmp_path):
+    duration = 1.5
+    bag = tmp_path / 'bag'
+    limits = {'limit_position_max': 0.03, 'limit_position_max_action': 'power_off'}
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('lockstep', bag=bag, plant={'duration': duration},
+                          controller=limits)
+        assert launch.wait_for_log('plant', 'lock-step run complete', 120)
+        time.sleep(0.5)
+        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+    states, cmds, events = _bag(bag)
+    stamps = sorted(states)
+    z = np.array([states[s].z for s in stamps])
+    i = np.array([states[s].i for s in stamps])
+    ref = run_closed_loop(Params(), Sine(0.04, 1.0), duration, model='simplified',
+                          controller_params=Params().replace(**limits), supervised=True)
+    np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(i[1:], ref.i[:-1], rtol=0, atol=1e-9)
+    k = int(np.argmax(z > 0.03))
+    assert [(e.kind, e.stamp_ns - stamps[0]) for e in events] == [('trip', k * PERIOD)]
+    assert [(e.kind, e.stamp_ns) for e in ref.events] == [('trip', k * PERIOD)]
+    assert cmds[stamps[k - 1]] != 0.0 and cmds[stamps[k]] == 0.0     # exactly the next period
+
+
+def test_the_events_stay_in_the_diagnostics_and_the_bench_prints_them(dom, tmp_path):
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / 'bench'
+    r = subprocess.run([sys.executable, str(root / 'launch_scripts' / 'bench.py'),
+                        '--duration', '2', '--out', str(out), '--no-machine-probe',
+                        '--controller-param', 'limit_position_max=0.02',
+                        '--controller-param', 'limit_position_max_action=indicate'],
+                       capture_output=True, text=True, timeout=180,
+                       env={**__import__('os').environ, 'ROS_DOMAIN_ID': str(dom)})
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert 'safety events: 1' in r.stdout and 'trip limit_position_max' in r.stdout, r.stdout
