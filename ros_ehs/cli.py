@@ -74,6 +74,11 @@ def _print_identification(result, files, held) -> None:
     for n in result.free:
         v, se, v0 = result.x[n], result.stderr[n], result.x0[n]
         print(f'  {n:>7} = {v:12.6g} +- {se:9.3g}  (start {v0:g})')
+    d = result.input_delay
+    if d:
+        how = (f'+- {d["stderr_s"] * 1e3:.3g} ms (estimated)' if d.get('estimated')
+               else '(given)')
+        print(f'  input delay = {d["value_s"] * 1e3:.4g} ms {how}')
     for name, sig in result.metrics.items():
         fits = [f'{k} R2 {m["r2"]:.5f} NRMSE {m["nrmse"]:.4f}' for k, m in sig.items()]
         print(f'  {name}: ' + ', '.join(fits))
@@ -96,6 +101,28 @@ def _print_identification(result, files, held) -> None:
         print(f'wrote {p}')
 
 
+def _topic_map(args):
+    """Return the bags' topic map: --topics FILE (or the contract), then the options."""
+    from ros_ehs.bag.mapping import load_topic_map, TopicMap
+    from ros_ehs.errors import InputError
+    delay = args.input_delay
+    if delay is not None and delay.strip().lower() != 'auto':
+        try:
+            delay = float(delay)
+        except ValueError:
+            raise InputError(f'--input-delay {args.input_delay!r}: give seconds or auto') \
+                from None
+    given = {'state': args.state_topic, 'joint': args.joint, 'command': args.command_topic,
+             'command_index': args.command_index, 'pressure_p': args.pressure_p,
+             'pressure_t': args.pressure_t, 'input_delay': delay}
+    given = {k: v for k, v in given.items() if v is not None}
+    if args.topics:
+        tmap = load_topic_map(args.topics, **given)
+    else:
+        tmap = TopicMap.from_dict(given, where='the command line')
+    return tmap.without_pressures() if args.no_pressures else tmap
+
+
 def _cmd_identify(args) -> int:
     from ros_ehs.identify.run import run_identification
 
@@ -105,9 +132,8 @@ def _cmd_identify(args) -> int:
     result, files, held = run_identification(
         args.bags, args.out, free=[f for f in args.free.split(',') if f], model=args.model,
         cost=args.cost, holdout=args.holdout or (), initial=args.initial,
-        state_topic=args.state_topic, command_topic=args.command_topic,
-        pressure_topics=None if args.no_pressures else (args.pressure_p, args.pressure_t),
-        workers=args.workers, figures=not args.no_figures, start=args.start, end=args.end,
+        topics=_topic_map(args), workers=args.workers, figures=not args.no_figures,
+        start=args.start, end=args.end,
         starts=args.starts, seed=args.seed, advise=not args.no_advice,
         progress=None if args.quiet else progress)
     _print_identification(result, files, held)
@@ -171,11 +197,24 @@ def main(argv=None) -> int:
     i.add_argument('--cost', choices=['sae', 'sse'], default='sae')
     i.add_argument('--holdout', nargs='*', help='bags scored with the fitted parameters')
     i.add_argument('--initial', help='parameters YAML to start from (default Table 1 initial)')
-    i.add_argument('--state-topic', default='state')
-    i.add_argument('--command-topic', default='servo_current')
-    i.add_argument('--pressure-p', default='pressure/chamber_p')
-    i.add_argument('--pressure-t', default='pressure/chamber_t')
+    i.add_argument('--topics', metavar='RIG.yaml', help='where the signals are in the bags: '
+                   "a rig's topic map (docs/identification.md, section: your rig's bag); the "
+                   'options below override its entries')
+    i.add_argument('--state-topic', default=None, help='sensor_msgs/JointState (default state)')
+    i.add_argument('--joint', default=None, help="the axis's joint in the state (default "
+                   'piston)')
+    i.add_argument('--command-topic', default=None, help='JointState, Float64 or '
+                   'Float64MultiArray (default servo_current)')
+    i.add_argument('--command-index', type=int, default=None,
+                   help="Float64MultiArray commands: this axis's element (default 0)")
+    i.add_argument('--pressure-p', default=None, help='chamber P pressure topic (default '
+                   'pressure/chamber_p)')
+    i.add_argument('--pressure-t', default=None, help='chamber T pressure topic (default '
+                   'pressure/chamber_t)')
     i.add_argument('--no-pressures', action='store_true', help='fit without pressures')
+    i.add_argument('--input-delay', default=None, metavar='SECONDS|auto',
+                   help='from a command to the valve acting on it; auto (the default) '
+                   'estimates it where the bags record commands, not the applied current')
     i.add_argument('--start', type=float, default=None,
                    help="fit from this time on [s from each bag's first message]")
     i.add_argument('--end', type=float, default=None,

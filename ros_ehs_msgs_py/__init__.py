@@ -40,7 +40,10 @@ from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, DIAGNOSTICS, EVENTS
                                     REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
 from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr,
                                   command_to_cdr, decode_joint_state,
-                                  JointStateData, JointStateEncoder, pressure_to_cdr,
+                                  float64_array_from_cdr, float64_array_to_cdr,
+                                  float64_from_cdr,
+                                  fluid_pressure_from_cdr, JointStateData,
+                                  JointStateEncoder, pressure_to_cdr,
                                   reference_from_cdr,
                                   reference_to_cdr, reference_trajectory_from_cdr,
                                   reference_trajectory_to_cdr, state_from_cdr, state_to_cdr)
@@ -53,7 +56,8 @@ __all__ = [
     'REFERENCE', 'REFERENCE_TRAJECTORY', 'Reference', 'STATE', 'TOPICS', 'Topic', 'by_name',
     'JointStateData', 'JointStateEncoder', 'clock_from_cdr', 'clock_to_cdr',
     'command_from_cdr', 'command_to_cdr',
-    'decode_joint_state', 'pressure_to_cdr', 'reference_from_cdr', 'reference_to_cdr',
+    'decode_joint_state', 'float64_array_from_cdr', 'float64_array_to_cdr', 'float64_from_cdr',
+    'fluid_pressure_from_cdr', 'pressure_to_cdr', 'reference_from_cdr', 'reference_to_cdr',
     'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr',
     'state_from_cdr', 'state_to_cdr',
     'command_from_msg', 'empty_msg', 'fill_command', 'fill_pressure', 'fill_reference',

@@ -118,10 +118,17 @@ def fill_state(msg: Any, s: AxisState) -> Any:
 
 
 def state_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float],
-                      velocity: Sequence[float], effort: Sequence[float]) -> AxisState:
-    """Read an :class:`AxisState` from a ``state`` JointState's fields (ValueError if bad)."""
+                      velocity: Sequence[float], effort: Sequence[float],
+                      joint: str = JOINT_PISTON) -> AxisState:
+    """
+    Read an :class:`AxisState` from a ``state`` JointState's fields (ValueError if bad).
+
+    ``joint``: the axis's joint (a rig driver's ``/joint_states`` names its own); its position
+    is required, and its velocity too for the contract's ``piston``; a rig's joint without
+    a velocity gives NaN (the controller then differences the position).
+    """
     names = list(names)
-    k = joint_index(names, JOINT_PISTON, 'state')
+    k = joint_index(names, joint, 'state')
     force = float(effort[k]) if len(effort) > k else math.nan
     x = i = math.nan
     if JOINT_SPOOL in names:
@@ -130,10 +137,13 @@ def state_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float
     if JOINT_VALVE in names:
         j = names.index(JOINT_VALVE)
         i = float(effort[j]) if len(effort) > j else math.nan
-    for field, arr in (('position', position), ('velocity', velocity)):
+    required = (('position', position), ('velocity', velocity)) if joint == JOINT_PISTON \
+        else (('position', position),)
+    for field, arr in required:
         if len(arr) <= k:
             raise ValueError(f'`state` message has no {field}[{k}] (length {len(arr)})')
-    return AxisState(stamp, float(position[k]), float(velocity[k]), force, x, i)
+    v = float(velocity[k]) if len(velocity) > k else math.nan
+    return AxisState(stamp, float(position[k]), v, force, x, i)
 
 
 def state_from_msg(msg: Any) -> AxisState:

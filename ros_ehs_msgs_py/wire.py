@@ -30,6 +30,9 @@ against 8200-9200 with message objects (``bench lockstep`` prints both).
   other ``*_from_msg``.
 * :func:`clock_to_cdr`, :func:`clock_from_cdr`: the lock-step plant's ``/clock``
   (rosgraph_msgs/Clock), which the reference reads raw too.
+* :func:`float64_from_cdr`, :func:`float64_array_from_cdr`, :func:`fluid_pressure_from_cdr`:
+  what a rig driver publishes (std_msgs/Float64, std_msgs/Float64MultiArray,
+  sensor_msgs/FluidPressure), for reading its bags fast.
 * :func:`pressure_to_cdr`: the chamber pressures
   (sensor_msgs/FluidPressure, empty frame_id, variance 0): half the publish cost of a message
   object (8 against 16 us on the project's VM).
@@ -53,7 +56,9 @@ from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
 __all__ = ['JointStateData', 'JointStateEncoder', 'clock_from_cdr', 'clock_to_cdr',
            'command_from_cdr', 'command_to_cdr',
-           'decode_joint_state', 'pressure_to_cdr', 'reference_from_cdr', 'reference_to_cdr',
+           'decode_joint_state', 'float64_array_from_cdr', 'float64_array_to_cdr',
+           'float64_from_cdr',
+           'fluid_pressure_from_cdr', 'pressure_to_cdr', 'reference_from_cdr', 'reference_to_cdr',
            'reference_trajectory_from_cdr', 'reference_trajectory_to_cdr', 'state_from_cdr',
            'state_to_cdr']
 
@@ -235,10 +240,10 @@ def decode_joint_state(data: bytes) -> JointStateData:
     return _decode_slow(data)
 
 
-def state_from_cdr(data: bytes) -> AxisState:
-    """Read an :class:`AxisState` from a serialized ``state`` JointState."""
+def state_from_cdr(data: bytes, joint: str = JOINT_PISTON) -> AxisState:
+    """Read an :class:`AxisState` from a serialized ``state`` JointState (``joint``'s)."""
     m = decode_joint_state(data)
-    return state_from_arrays(m.stamp_ns, m.name, m.position, m.velocity, m.effort)
+    return state_from_arrays(m.stamp_ns, m.name, m.position, m.velocity, m.effort, joint)
 
 
 def reference_from_cdr(data: bytes) -> Reference:
@@ -266,6 +271,41 @@ def clock_from_cdr(data: bytes) -> int:
     """Return the time [ns] of a serialized rosgraph_msgs/Clock (CDR or XCDR2, any order)."""
     sec, nsec = _Reader(data)._take('iI', 8, 4, 'the Clock')
     return sec * _NS + nsec
+
+
+# -- what rig drivers publish: std_msgs/Float64, Float64MultiArray, sensor_msgs/FluidPressure --
+def float64_from_cdr(data: bytes) -> float:
+    """Return the value of a serialized std_msgs/Float64."""
+    return _Reader(data)._take('d', 8, 8, 'Float64.data')[0]
+
+
+def float64_array_to_cdr(values: Sequence[float]) -> bytes:
+    """Return a serialized std_msgs/Float64MultiArray of ``values`` (no layout dimensions)."""
+    n = len(values)
+    # encapsulation, layout.dim (empty), layout.data_offset, data: length, pad to 8, doubles
+    pad = '4x' if n else ''
+    return struct.pack(f'<4sIII{pad}{n}d', b'\x00\x01\x00\x00', 0, 0, n, *values)
+
+
+def float64_array_from_cdr(data: bytes) -> tuple[float, ...]:
+    """Return the ``data`` of a serialized std_msgs/Float64MultiArray (layout skipped)."""
+    r = _Reader(data)
+    n = r.u32('layout.dim')
+    if n > len(data):
+        raise ValueError(f'CDR payload: layout.dim claims {n} dimensions')
+    for k in range(n):
+        r.string(f'layout.dim[{k}].label')
+        r._take('II', 8, 4, f'layout.dim[{k}].size/stride')
+    r.u32('layout.data_offset')
+    return r.doubles('data')
+
+
+def fluid_pressure_from_cdr(data: bytes) -> tuple[int, float]:
+    """Return (stamp [ns], pressure [Pa]) of a serialized sensor_msgs/FluidPressure."""
+    r = _Reader(data)
+    sec, nsec = r._take('iI', 8, 4, 'header.stamp')
+    r.string('header.frame_id')
+    return sec * _NS + nsec, r._take('d', 8, r.align8, 'fluid_pressure')[0]
 
 
 # -- sensor_msgs/FluidPressure (the chamber pressures) ----------------------------------------

@@ -12,28 +12,53 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Extract an identification experiment (arrays on one time grid) from a bag's contract topics.
+Extract identification experiments (arrays on one uniform time grid) from a bag.
 
-The time base is the ``state`` topic's header stamps. Stamp policy: states are sorted by
-stamp and a repeated stamp (a lock-step resend) is kept once; a state closer than 3/4 of the
-median period to the one before it (a stray publisher, another clock) is dropped and the
-experiment's name says how many; a gap (missed samples, a stamp far ahead or behind) splits
-the record into runs (:func:`load_experiments`), and runs too short to fit are dropped.
-The servo current of each period is,
-when the plant reports it, the current it applied (joint ``servo_valve`` of ``state``: what
-the valve really got, watchdog and late commands included). Otherwise it is the latest
-``servo_current`` command stamped at or before the state sample (the controller stamps its
-answer with the state it answered, and the plant holds it for the period). Chamber pressures
-are used when the bag has them.
+Where the signals are comes from a :class:`~ros_ehs.bag.mapping.TopicMap`: by default this
+package's contract (``state``, ``servo_current``, the chamber pressures), or a rig driver's
+topics (``/joint_states`` with a named joint, ``Float64MultiArray`` commands, pressures in
+bar, ...). Messages are read from their CDR bytes (:mod:`ros_ehs_msgs_py.wire`), not decoded
+into message objects.
+
+Time policy:
+
+* the time base is the ``state`` topic's header stamps (its receive times when the driver
+  does not stamp them); states are sorted by stamp, a repeated stamp (a lock-step resend) is
+  kept once, and a state closer than 3/4 of the median period to the one before it (a stray
+  publisher, another clock) is dropped, the experiment's name says how many;
+* a gap (a missed sample: more than 1.5 periods) splits the record into runs
+  (:func:`load_experiments`), and runs too short to fit are dropped;
+* a run whose stamps jitter (a driver's timestamps: up to a quarter of the period) is
+  resampled onto a uniform grid at its mean period, the position (and velocity) linearly;
+* messages without a header (``Float64``, ``Float64MultiArray``) carry their receive time,
+  moved onto the state's clock by the median difference between the states' stamps and their
+  receive times (the driver's clock against the recorder's).
+
+Signals:
+
+* the current of each period is, when the state reports it (our plant's joint
+  ``servo_valve``: what the valve really got, watchdog and late commands included), that
+  current; otherwise the command in force, averaged over the period, ``input_delay`` later
+  than its stamp (or receive time) - with ``input_delay`` unknown, the fit estimates it
+  (:func:`ros_ehs.identify.run.run_identification`);
+* the velocity is the state's when it has one; otherwise it is derived from the position by a
+  Savitzky-Golay derivative (quadratic, about 5 ms wide, at least 3 samples) and its noise,
+  which the fit's verdict compares the residual with, is the position's noise times that
+  filter's gain (``Experiment.noise``), not estimated from the derived signal itself;
+* chamber pressures (or one load pressure) are interpolated onto the grid when mapped.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+import math
 import os
 
 import numpy as np
 
+from ros_ehs.bag.mapping import (COMMAND_TYPES, FLOAT64, FLUID_PRESSURE, JOINT_STATE,
+                                 PRESSURE_TYPES, PRESSURE_UNITS, STATE_TYPES,
+                                 TopicMap)
 from ros_ehs.bag.reader import Bag, open_bag
 from ros_ehs.errors import BagError, DataError
 import ros_ehs_msgs_py as contract
@@ -43,11 +68,21 @@ __all__ = ['Experiment', 'MIN_SAMPLES', 'experiment_from_arrays', 'load_experime
 
 #: Fewer state samples than this is "too little data" for a 7-parameter fit.
 MIN_SAMPLES = 500
+#: Width of the Savitzky-Golay derivative that derives a missing velocity [s] (>= 5 samples).
+DERIVATIVE_WIDTH = 5.0e-3
 
 
 @dataclass(frozen=True)
 class Experiment:
-    """One recorded run on a uniform grid: ``t`` [s], ``i`` [A], ``z`` [m], ``v`` [m/s], ..."""
+    """
+    One recorded run on a uniform grid: ``t`` [s], ``i`` [A], ``z`` [m], ``v`` [m/s], ...
+
+    ``noise`` holds a known noise level [unit] per signal (the derived velocity's), used
+    instead of an estimate from the signal; ``derived`` names the signals computed rather
+    than measured. ``commands`` (times [s] on ``t``'s clock, values [A]) is the command
+    series ``i`` was built from with ``delay`` [s], kept so the fit can try another delay
+    (:meth:`with_delay`); None when ``i`` is the current the valve got.
+    """
 
     name: str
     t: np.ndarray
@@ -56,6 +91,15 @@ class Experiment:
     v: np.ndarray
     p_a: np.ndarray | None = None
     p_b: np.ndarray | None = None
+    noise: dict | None = None
+    derived: tuple[str, ...] = ()
+    commands: tuple[np.ndarray, np.ndarray] | None = None
+    delay: float = 0.0
+    p_load: np.ndarray | None = None
+    t0_ns: int = 0      #: the state clock's stamp of ``t = 0`` [ns]
+    #: the run starts after a gap in the record, mid-motion: the fit settles the valve's
+    #: states for the first sample instead of starting them at rest
+    after_gap: bool = False
 
     @property
     def dt(self) -> float:
@@ -75,6 +119,14 @@ class Experiment:
             out['p_CT'] = self.p_b
         return out
 
+    def with_delay(self, delay: float) -> 'Experiment':
+        """Return this run with the current rebuilt from its commands ``delay`` [s] later."""
+        if self.commands is None:
+            raise DataError(f'{self.name}: the current is the one the valve got; it has no '
+                            'command series to delay')
+        tc, vc = self.commands
+        return replace(self, i=_held_average(tc, vc, self.t, delay), delay=float(delay))
+
 
 class _NoExcitation(DataError):
     """A run in which the piston did not move (a hold before the trajectory started)."""
@@ -82,7 +134,7 @@ class _NoExcitation(DataError):
 
 def resolve_topic(bag: Bag, name: str, required: bool = True) -> str | None:
     """
-    Find contract topic ``name`` in ``bag``, in any namespace (``/axis1/state``).
+    Find topic ``name`` in ``bag``, in any namespace (``/axis1/state``).
 
     A missing topic raises :class:`BagError` listing the bag's topics, or gives None when
     not ``required``; an ambiguous one always raises.
@@ -102,24 +154,33 @@ def resolve_topic(bag: Bag, name: str, required: bool = True) -> str | None:
                    '(pass the full name)')
 
 
-def _check_type(bag: Bag, topic: str, expected: str) -> None:
+def _check_type(bag: Bag, topic: str, allowed: tuple[str, ...], role: str) -> str:
     got = bag.topics[topic].msg_type
-    if got != expected:
-        raise BagError(f'topic {topic!r} in {str(bag.path)!r} has type {got}, '
-                       f'expected {expected}')
+    if got not in allowed:
+        want = allowed[0] if len(allowed) == 1 else f'one of {list(allowed)}'
+        raise BagError(f'{role} topic {topic!r} in {str(bag.path)!r} has type {got}, '
+                       f'expected {want}; the bag has: {bag.describe()}')
+    return got
 
 
-def _series(bag: Bag, topic: str, read) -> tuple[np.ndarray, np.ndarray]:
-    ts, vs = [], []
-    for m, msg in bag.decoded([topic]):
-        try:
-            rec = read(msg)
-        except (ValueError, AttributeError, KeyError, IndexError) as e:
-            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {e}') \
-                from None
-        ts.append(rec[0])
-        vs.append(rec[1:])
-    return np.asarray(ts, dtype=np.int64), np.asarray(vs, dtype=float)
+def _held_average(tc: np.ndarray, vc: np.ndarray, t: np.ndarray, delay: float) -> np.ndarray:
+    """
+    Return the mean over each period ``[t_k, t_k+1]`` of the command ``delay`` earlier.
+
+    ``tc`` (sorted) / ``vc``: when each command took over and its value; before the first
+    command, the first value. The last sample repeats the last period's value.
+    """
+    if t.size < 2:
+        return np.full(t.shape, vc[0] if vc.size else math.nan)
+    # the cumulative integral of the held command: piecewise linear, exact under np.interp
+    edges = np.concatenate([[min(tc[0], t[0] - delay) - 1.0], tc[1:],
+                            [max(tc[-1], t[-1] - delay) + 1.0]])
+    area = np.concatenate([[0.0], np.cumsum(vc * np.diff(edges))])
+    a = np.interp(t - delay, edges, area)
+    out = np.empty(t.shape)
+    out[:-1] = np.diff(a) / np.diff(t)
+    out[-1] = out[-2]
+    return out
 
 
 def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experiment:
@@ -177,8 +238,127 @@ def _on_grid(ts: np.ndarray) -> np.ndarray:
     return keep
 
 
-def _read(path, state, command, pressure_p, pressure_t, bag, start=None, end=None):
-    """Return the bag's series on the state stamps: name, ts [ns], command, state, pressures."""
+def _joint_of(names: tuple[str, ...], joint: str, cache: dict) -> int:
+    k = cache.get(names)
+    if k is None:
+        k = cache[names] = names.index(joint) if joint in names else -1
+    return k
+
+
+def _decode_states(bag: Bag, topic: str, joint: str):
+    """Return stamps [ns], receive times [ns], z, v, applied current of the joint's states."""
+    js = contract.decode_joint_state
+    idx: dict = {}
+    valve: dict = {}
+    seen: set = set()
+    stamps, recv, z, v, cur = [], [], [], [], []
+    for m in bag.messages([topic]):
+        try:
+            d = js(m.data)
+        except ValueError as err:
+            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {err}') \
+                from None
+        k = _joint_of(d.name, joint, idx)
+        if k < 0:
+            if len(seen) < 20:
+                seen.update(d.name)
+            continue
+        if k >= len(d.position):
+            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: joint '
+                           f'{joint!r} has no position ({len(d.position)} positions for '
+                           f'{len(d.name)} joints)')
+        stamps.append(d.stamp_ns)
+        recv.append(m.log_time_ns)
+        z.append(d.position[k])
+        v.append(d.velocity[k] if k < len(d.velocity) else math.nan)
+        j = _joint_of(d.name, contract.JOINT_VALVE, valve)
+        cur.append(d.effort[j] if 0 <= j < len(d.effort) else math.nan)
+    if not stamps and seen:
+        raise BagError(f'state topic {topic!r} in {str(bag.path)!r} has no joint {joint!r}; '
+                       f'its joints: {sorted(seen)} (set `joint`)')
+    return (np.asarray(stamps, dtype=np.int64), np.asarray(recv, dtype=np.int64),
+            np.asarray(z, dtype=float), np.asarray(v, dtype=float),
+            np.asarray(cur, dtype=float))
+
+
+def _decode_commands(bag: Bag, topic: str, msg_type: str, tmap: TopicMap):
+    """Return (times [ns], values [A], stamped): header stamps or receive times."""
+    ts, vs = [], []
+    idx: dict = {}
+    seen: set = set()
+    for m in bag.messages([topic]):
+        try:
+            if msg_type == JOINT_STATE:
+                d = contract.decode_joint_state(m.data)
+                k = _joint_of(d.name, tmap.command_joint, idx)
+                if k < 0 or k >= len(d.effort):
+                    seen.update(d.name)
+                    continue
+                ts.append(d.stamp_ns)
+                vs.append(d.effort[k])
+            elif msg_type == FLOAT64:
+                ts.append(m.log_time_ns)
+                vs.append(contract.float64_from_cdr(m.data))
+            else:
+                data = contract.float64_array_from_cdr(m.data)
+                if tmap.command_index >= len(data):
+                    raise BagError(f'command topic {topic!r}: `command_index` = '
+                                   f'{tmap.command_index} but its Float64MultiArray at '
+                                   f'{m.log_time_ns} ns has {len(data)} values')
+                ts.append(m.log_time_ns)
+                vs.append(data[tmap.command_index])
+        except ValueError as err:
+            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {err}') \
+                from None
+    if not ts and seen:
+        raise BagError(f'command topic {topic!r} in {str(bag.path)!r} has no joint '
+                       f'{tmap.command_joint!r} with an effort; its joints: {sorted(seen)} '
+                       '(set `command_joint`)')
+    return (np.asarray(ts, dtype=np.int64),
+            np.asarray(vs, dtype=float) * float(tmap.command_scale), msg_type == JOINT_STATE)
+
+
+def _decode_pressure(bag: Bag, topic: str, msg_type: str, unit: str):
+    """Return (times [ns], values [Pa], stamped)."""
+    ts, vs = [], []
+    for m in bag.messages([topic]):
+        try:
+            if msg_type == FLUID_PRESSURE:
+                st, p = contract.fluid_pressure_from_cdr(m.data)
+            else:
+                st, p = m.log_time_ns, contract.float64_from_cdr(m.data) * PRESSURE_UNITS[unit]
+        except ValueError as err:
+            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {err}') \
+                from None
+        ts.append(st)
+        vs.append(p)
+    return np.asarray(ts, dtype=np.int64), np.asarray(vs, dtype=float), \
+        msg_type == FLUID_PRESSURE
+
+
+def _sorted(t: np.ndarray, *vals: np.ndarray):
+    o = np.argsort(t, kind='stable')
+    return (t[o],) + tuple(v[o] for v in vals)
+
+
+@dataclass
+class _Record:
+    """A bag's series, on the state's clock [ns]: what the runs are cut from."""
+
+    name: str
+    ts: np.ndarray
+    z: np.ndarray
+    v: np.ndarray
+    applied: np.ndarray
+    tc: np.ndarray
+    vc: np.ndarray
+    pressures: list        # [(t [ns], Pa)] per chamber, one (load), or none
+    load: bool
+    delay: float
+
+
+def _read(path, tmap: TopicMap, bag: Bag | None, start=None, end=None) -> _Record:
+    """Read the mapped series of the bag at ``path`` (see the module docstring)."""
     bag = bag or open_bag(path, start=start, end=end)
     name = os.path.basename(os.path.normpath(str(path)))
     if start is not None or end is not None:
@@ -186,83 +366,190 @@ def _read(path, state, command, pressure_p, pressure_t, bag, start=None, end=Non
     if bag.message_count == 0 and (start is not None or end is not None):
         raise DataError(f'{name}: the window holds no message (is it past the end of the '
                         'bag?)')
-    st = resolve_topic(bag, state)
-    cm = resolve_topic(bag, command)
-    _check_type(bag, st, contract.STATE.msg_type)
-    _check_type(bag, cm, contract.COMMAND.msg_type)
-    ts, sv = _series(bag, st, lambda m: (lambda s: (s.stamp_ns, s.z, s.z_dot, s.i))(
-        contract.state_from_msg(m)))
-    tc, cv = _series(bag, cm, lambda m: tuple(contract.command_from_msg(m)))
+    st = resolve_topic(bag, tmap.state)
+    cm = resolve_topic(bag, tmap.command)
+    _check_type(bag, st, STATE_TYPES, 'state')
+    ctype = _check_type(bag, cm, COMMAND_TYPES, 'command')
+    ts, recv, z, v, applied = _decode_states(bag, st, tmap.joint)
+    tc, vc, stamped = _decode_commands(bag, cm, ctype, tmap)
     if ts.size == 0 or tc.size == 0:
         raise DataError(f'{name}: too little data: {ts.size} state and {tc.size} command '
                         'messages')
-    order = np.argsort(ts, kind='stable')
-    ts, sv = ts[order], sv[order]
+    if not np.any(ts):         # a driver that does not stamp: its receive times
+        ts = recv.copy()
+    # the driver's clock against the recorder's: receive times onto the state's clock
+    offset = int(np.median(ts - recv))
+    if not stamped:
+        tc = tc + offset
+    ts, recv, z, v, applied = _sorted(ts, recv, z, v, applied)
     keep = np.concatenate([[True], np.diff(ts) > 0])
-    ts, sv = ts[keep], sv[keep]
+    ts, z, v, applied = ts[keep], z[keep], v[keep], applied[keep]
     keep = _on_grid(ts)
     if not keep.all():
         name += f' ({int(keep.size - keep.sum())} off-grid states dropped)'
-        ts, sv = ts[keep], sv[keep]
-    oc = np.argsort(tc, kind='stable')
-    tc, cv = tc[oc], cv[oc]
-    k = np.searchsorted(tc, ts, side='right') - 1
-    ok = k >= 0
-    ts, sv, k = ts[ok], sv[ok], k[ok]
-    cur = cv[k, 0]
-    pa = pb = None
-    have = [resolve_topic(bag, p, required=False) if p else None
-            for p in (pressure_p, pressure_t)]
-    if have[0] and have[1]:
-        for top, tp in zip(have, (contract.PRESSURE_P, contract.PRESSURE_T)):
-            _check_type(bag, top, tp.msg_type)
-        series = [_series(bag, top, lambda m: tuple(contract.pressure_from_msg(m)))
-                  for top in have]
-        vals = []
-        for tp, pv in series:
-            o = np.argsort(tp, kind='stable')
-            tp, pv = tp[o], pv[o, 0]
-            j = np.clip(np.searchsorted(tp, ts, side='right') - 1, 0, tp.size - 1)
-            vals.append(pv[j])
-        pa, pb = vals
+        ts, z, v, applied = ts[keep], z[keep], v[keep], applied[keep]
+    tc, vc = _sorted(tc, vc)
+    pressures = []
+    defaults = (contract.PRESSURE_P.name, contract.PRESSURE_T.name)
+    wanted = [tmap.pressure_load] if tmap.pressure_load else \
+        [p for p in (tmap.pressure_p, tmap.pressure_t) if p]
+    # the contract's own pressure topics are optional (a bag may lack them); a rig's are not
+    found = [resolve_topic(bag, p, required=p not in defaults) for p in wanted]
+    if found and all(found):
+        for top in found:
+            ptype = _check_type(bag, top, PRESSURE_TYPES, 'pressure')
+            tp, pv, pst = _decode_pressure(bag, top, ptype, tmap.pressure_unit)
+            if not pst:
+                tp = tp + offset
+            pressures.append(_sorted(tp, pv))
     if bag.truncated:
         name += ' (truncated)'
-    return name, ts, cur, sv, pa, pb
+    delay = 0.0 if tmap.input_delay is None else float(tmap.input_delay)
+    return _Record(name, ts, z, v, applied, tc, vc, pressures, bool(tmap.pressure_load), delay)
 
 
-def _experiment(name, ts, cur, sv, pa, pb, a: int, b: int) -> Experiment:
+def _noise(t: np.ndarray, y: np.ndarray) -> float:
+    """
+    White-noise level of ``y`` sampled at the (possibly jittered) times ``t`` [s].
+
+    As :func:`ros_ehs.identify.estimator.noise_sigma`, from the third difference, but the
+    divided one scaled by ``6 h^3`` (``h`` the mean step): zero for a quadratic at any sample
+    times, so a driver's jitter does not pass for noise, and taken on the raw samples, before
+    the interpolation onto the grid averages neighbours.
+    """
+    from ros_ehs.identify.estimator import noise_sigma
+    if t.size < 8 or np.all(np.abs(np.diff(t, 2)) <= 1e-9 * (t[-1] - t[0])):
+        return noise_sigma(y)
+    d = y.astype(float)
+    x = t.astype(float)
+    for order in (1, 2, 3):
+        d = (d[1:] - d[:-1]) / (x[order:] - x[:-order])
+    h = float(np.mean(np.diff(x)))
+    d3 = 6.0 * h ** 3 * d
+    mad = float(np.median(np.abs(d3 - np.median(d3)))) * 1.4826
+    floor = 1e-6 * max(float(np.ptp(y)), np.finfo(float).tiny)
+    return max(mad / math.sqrt(20.0), floor)
+
+
+def _savgol_width(dt: float) -> int:
+    n = max(3, int(round(DERIVATIVE_WIDTH / dt)))
+    return n + 1 - n % 2
+
+
+def _experiment(rec: _Record, a: int, b: int, name: str) -> Experiment:
     """Build the experiment of samples ``a:b`` (one contiguous run)."""
-    c = cur[a:b]
-    applied = sv[a:b, 2]
+    ts = rec.ts[a:b]
+    span = (ts - ts[0]) * 1e-9
+    dts = np.diff(span)
+    dt = float(span[-1] / (span.size - 1)) if span.size > 1 else 1e-3
+    z, v, applied = rec.z[a:b], rec.v[a:b], rec.applied[a:b]
+    exact = dts.size == 0 or float(np.max(np.abs(dts - np.median(dts)))) <= 1e-6 * dt
+    # each measured signal's noise, on its raw samples (see _noise)
+    noise = {'z': _noise(span, z)}
+    if np.all(np.isfinite(v)):
+        noise['z_dot'] = _noise(span, v)
+    for key, (tp, pv) in zip(('p_CP', 'p_CT') if not rec.load else ('p_L',), rec.pressures):
+        m = (tp >= ts[0]) & (tp <= ts[-1])
+        if m.sum() >= 8:
+            noise[key] = _noise((tp[m] - ts[0]) * 1e-9, pv[m])
+    if exact:
+        t = span
+    else:        # a driver's jittered stamps: onto a uniform grid at the mean period
+        t = np.arange(span.size) * dt
+        z = np.interp(t, span, z)
+        v = np.interp(t, span, v) if np.all(np.isfinite(v)) else np.full(t.shape, np.nan)
+        applied = np.full(t.shape, np.nan)
+    t0_ns = int(ts[0])
+    commands = None
     if applied.size > 1 and np.all(np.isfinite(applied)):
         # state k reports the current of the period that ended at it: shift by one
         c = np.append(applied[1:], applied[-1])
-    return experiment_from_arrays(name, (ts[a:b] - ts[a]) * 1e-9, c, sv[a:b, 0], sv[a:b, 1],
-                                  None if pa is None else pa[a:b],
-                                  None if pb is None else pb[a:b])
+    else:
+        tc = (rec.tc - t0_ns) * 1e-9
+        commands = (tc, rec.vc)
+        first = tc[0] + rec.delay        # no command in force before this
+        k0 = int(np.searchsorted(t, first - 1e-12))
+        if k0:
+            t, z, v = t[k0:] - t[k0], z[k0:], v[k0:]
+            t0_ns += int(round(span[k0] * 1e9)) if exact else int(round(k0 * dt * 1e9))
+            commands = (tc - (t0_ns - int(ts[0])) * 1e-9, rec.vc)
+        c = _held_average(commands[0], commands[1], t, rec.delay)
+    derived = ()
+    if not np.all(np.isfinite(v)) and np.all(np.isfinite(z)) and t.size >= 5:
+        from scipy.signal import savgol_coeffs, savgol_filter
+        w = min(_savgol_width(dt), t.size - (1 - t.size % 2))
+        v = savgol_filter(z, w, 2, deriv=1, delta=dt, mode='interp')
+        gain = float(np.sqrt(np.sum(savgol_coeffs(w, 2, deriv=1) ** 2))) / dt
+        noise['z_dot'], derived = noise['z'] * gain, ('z_dot',)
+    pa = pb = pl = None
+    tt = t0_ns + np.round(t * 1e9).astype(np.int64)
+    if rec.pressures:
+        vals = [np.interp(tt, tp, pv) for tp, pv in rec.pressures]
+        if rec.load:
+            pl = vals[0]
+        else:
+            pa, pb = vals
+    e = experiment_from_arrays(name, t, c, z, v, pa, pb)
+    return replace(e, noise=noise, derived=derived, commands=commands, delay=rec.delay,
+                   p_load=pl, t0_ns=t0_ns, after_gap=a > 0)
 
 
-def load_experiment(path: str | os.PathLike, *, state: str = contract.STATE.name,
+def _topic_map(topics: TopicMap | None, state, command, pressure_p, pressure_t) -> TopicMap:
+    if topics is not None:
+        if not isinstance(topics, TopicMap):
+            raise DataError(f'`topics` must be a TopicMap, got {type(topics).__name__}')
+        return topics
+    if (pressure_p is None) != (pressure_t is None):
+        pressure_p = pressure_t = None
+    return TopicMap(state=state, command=command, pressure_p=pressure_p,
+                    pressure_t=pressure_t)
+
+
+def _runs(ts: np.ndarray) -> tuple[list[tuple[int, int]], list[int]]:
+    d = np.diff(ts)
+    cuts = np.flatnonzero(d > 1.5 * np.median(d)) + 1 if d.size else np.array([], int)
+    edges = [0, *cuts.tolist(), ts.size]
+    return list(zip(edges[:-1], edges[1:])), cuts.tolist()
+
+
+def load_experiment(path: str | os.PathLike, *, topics: TopicMap | None = None,
+                    state: str = contract.STATE.name,
                     command: str = contract.COMMAND.name,
                     pressure_p: str | None = contract.PRESSURE_P.name,
                     pressure_t: str | None = contract.PRESSURE_T.name,
                     bag: Bag | None = None, start: float | None = None,
                     end: float | None = None) -> Experiment:
     """
-    Read an experiment from the bag at ``path`` using the contract topic names.
+    Read one experiment from the bag at ``path`` (the whole record, which must have no gap).
 
-    Pressures are optional (pass None to ignore them); a bag without them gives an
-    experiment without pressures. ``start``/``end`` [s from the bag's first message] take a
-    window of the record (a split bag reads only the files it needs). Raises
+    ``topics`` says where the signals are (default: the contract; ``state``, ``command``,
+    ``pressure_p``, ``pressure_t`` are shorthands for a contract-like map). Pressures are
+    optional (pass None to ignore them); a bag without the contract's pressure topics gives
+    an experiment without pressures. ``start``/``end`` [s from the bag's first message] take
+    a window of the record (a split bag reads only the files it needs). Raises
     :class:`BagError` / :class:`DataError` naming the problem (missing topics with the topics
-    the bag has, wrong types, too little data, no excitation, samples missing from the grid:
-    see :func:`load_experiments` for those).
+    the bag has, wrong types, missing joints with the joints the topic has, too little data,
+    no excitation, samples missing from the grid: see :func:`load_experiments` for those).
     """
-    data = _read(path, state, command, pressure_p, pressure_t, bag, start, end)
-    return _experiment(*data, 0, data[1].size)
+    rec = _read(path, _topic_map(topics, state, command, pressure_p, pressure_t), bag, start,
+                end)
+    if rec.ts.size < 2:
+        raise DataError(f'{rec.name}: too little data: {rec.ts.size} samples (need at least '
+                        f'{MIN_SAMPLES})')
+    runs, cuts = _runs(rec.ts)
+    if cuts:
+        d = np.diff(rec.ts)
+        k = cuts[0] - 1
+        raise DataError(f'{rec.name}: samples are not on a uniform grid (period '
+                        f'{np.median(d) * 1e-9:g} s, but {d[k] * 1e-9:g} s between t = '
+                        f'{(rec.ts[k] - rec.ts[0]) * 1e-9:g} and '
+                        f'{(rec.ts[k + 1] - rec.ts[0]) * 1e-9:g} s); load_experiments splits '
+                        'such a record into its runs')
+    return _experiment(rec, 0, rec.ts.size, rec.name)
 
 
-def load_experiments(path: str | os.PathLike, *, state: str = contract.STATE.name,
+def load_experiments(path: str | os.PathLike, *, topics: TopicMap | None = None,
+                     state: str = contract.STATE.name,
                      command: str = contract.COMMAND.name,
                      pressure_p: str | None = contract.PRESSURE_P.name,
                      pressure_t: str | None = contract.PRESSURE_T.name,
@@ -275,29 +562,25 @@ def load_experiments(path: str | os.PathLike, *, state: str = contract.STATE.nam
     in the sample grid; each gap splits the record, and runs shorter than
     :data:`MIN_SAMPLES` are dropped, as are runs in which the piston does not move (a hold
     before the trajectory started) when another run does. Names get ``[k/n]`` when there is
-    more than one run.
-    Irregular timing that is not a gap still raises, as :func:`load_experiment` does.
-    ``start``/``end``: a window of the bag, as in :func:`load_experiment`.
+    more than one run. ``topics``, ``start``/``end``: as in :func:`load_experiment`.
     """
-    name, ts, cur, sv, pa, pb = _read(path, state, command, pressure_p, pressure_t, bag,
-                                      start, end)
-    d = np.diff(ts)
-    cuts = np.flatnonzero(d > 1.5 * np.median(d)) + 1 if d.size else np.array([], int)
-    edges = [0, *cuts.tolist(), ts.size]
-    runs = [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b - a >= MIN_SAMPLES]
-    if not runs:
-        longest = max(b - a for a, b in zip(edges[:-1], edges[1:]))
-        raise DataError(f'{name}: too little data: the longest run without missing samples '
-                        f'has {longest} samples (need at least {MIN_SAMPLES}); '
+    rec = _read(path, _topic_map(topics, state, command, pressure_p, pressure_t), bag, start,
+                end)
+    runs, cuts = _runs(rec.ts)
+    long_ = [(a, b) for a, b in runs if b - a >= MIN_SAMPLES]
+    if not long_:
+        longest = max(b - a for a, b in runs)
+        raise DataError(f'{rec.name}: too little data: the longest run without missing '
+                        f'samples has {longest} samples (need at least {MIN_SAMPLES}); '
                         f'{len(cuts)} gaps')
-    if len(runs) == 1:
-        return [_experiment(name, ts, cur, sv, pa, pb, *runs[0])]
+    if len(long_) == 1:
+        return [_experiment(rec, *long_[0], rec.name)]
     out, still = [], []
-    for k, (a, b) in enumerate(runs):
+    for k, (a, b) in enumerate(long_):
         try:
-            out.append(_experiment(f'{name} [{k + 1}/{len(runs)}]', ts, cur, sv, pa, pb, a, b))
+            out.append(_experiment(rec, a, b, f'{rec.name} [{k + 1}/{len(long_)}]'))
         except _NoExcitation as err:      # e.g. the hold before the reference started
             still.append(str(err))
     if not out:
-        raise DataError(f'{name}: no run moves the piston: ' + '; '.join(still))
+        raise DataError(f'{rec.name}: no run moves the piston: ' + '; '.join(still))
     return out

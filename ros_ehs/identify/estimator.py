@@ -59,7 +59,9 @@ from scipy.optimize import least_squares
 __all__ = ['IdentificationResult', 'NOISE_RATIO_LIMIT', 'Problem', 'adequacy', 'identify',
            'multistart', 'noise_sigma', 'score']
 
-SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT')
+SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT', 'p_L')
+#: the load pressure p_CP - p_CT: fitted where a rig records only that (not a state)
+LOAD = 'p_L'
 _FD_STEP = 1e-3
 
 
@@ -88,6 +90,8 @@ class _Exp:
     edges: list[int]             # segment k covers samples edges[k] .. edges[k+1] - 1
     dt: float
     x0: np.ndarray               # full initial state (unmeasured from equilibrium)
+    load: np.ndarray | None = None    # measured load pressure p_CP - p_CT (chambers not)
+    load_sigma: float = 1.0
 
     def segments(self):
         """Yield (first, end) sample indices of each replay segment; the last ends at N+1."""
@@ -131,16 +135,35 @@ class Problem:
             y = np.zeros((e.t.size, plant.n))
             for s in use:
                 y[:, self.names.index(s)] = sig[s]
-            sigma = np.array([noise_sigma(sig[s]) for s in use])
+            # a derived signal's noise is known from what it was derived from (the
+            # experiment's ``noise``); a measured one's is estimated from the signal
+            known = getattr(e, 'noise', None) or {}
+            sigma = np.array([known[s] if s in known else noise_sigma(sig[s]) for s in use])
             x0 = plant.equilibrium(z=float(e.z[0]), i=float(e.i[0]))
             x0[measured] = y[0, measured]
+            load = getattr(e, 'p_load', None)
+            if load is not None and (LOAD not in signals or 'p_CP' in use):
+                load = None
+            if load is not None:      # only the difference is measured: split it evenly
+                self._split(x0, float(load[0]))
+            if getattr(e, 'after_gap', False):      # it starts mid-motion
+                x0 = plant.settle_valve(x0, float(e.i[0]))
             seg = max(1, int(round(segment / e.dt))) if segment else e.t.size
             edges = list(range(0, e.t.size - 1, seg)) + [e.t.size]
             self.exps.append(_Exp(name, np.column_stack([e.i[:-1], np.zeros(e.t.size - 1)]),
-                                  y, measured, sigma, edges, e.dt, x0))
+                                  y, measured, sigma, edges, e.dt, x0, load,
+                                  known.get(LOAD) or (noise_sigma(load) if load is not None
+                                                      else 1.0)))
+        self.ipa, self.ipb = self.names.index('p_CP'), self.names.index('p_CT')
         self.nsub = [max(1, int(math.ceil(ex.dt / plant.h - 1e-9))) for ex in self.exps]
         self.nfev = 0
         self._last: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _split(self, x: np.ndarray, p_load: float) -> None:
+        """Set the chamber pressures to a measured load pressure, keeping their sum."""
+        a, b = self.names.index('p_CP'), self.names.index('p_CT')
+        total = x[a] + x[b]
+        x[a], x[b] = 0.5 * (total + p_load), 0.5 * (total - p_load)
 
     def values(self, theta: np.ndarray) -> dict[str, float]:
         """Scaled vector -> parameter values."""
@@ -159,6 +182,8 @@ class Problem:
             for k0, end in ex.segments():
                 k1 = min(n, end)
                 x[ex.measured] = ex.y[k0, ex.measured]
+                if ex.load is not None:
+                    self._split(x, float(ex.load[k0]))
                 buf = o[k0:k1 + 1]
                 ok = K.simulate(self.mid, x.copy(), ex.u[k0:k1], c, ex.dt, nsub, self.xscale,
                                 self.jac_every, buf)
@@ -180,6 +205,9 @@ class Problem:
             if iz in cols:
                 j = cols.index(iz)
                 r[:, j] = ex.offset_free(r[:, j])
+            if ex.load is not None:
+                r = np.column_stack([r, (o[:, self.ipa] - o[:, self.ipb] - ex.load) /
+                                     ex.load_sigma])
             bad = ~np.isfinite(r)
             if bad.any():
                 r[bad] = 1e3     # diverged: a large, finite penalty keeps TRF going
@@ -193,7 +221,7 @@ class Problem:
             n = ex.y.shape[0]
             per = max(1, int(round(seconds / ex.dt)))
             b = np.arange(n) // per
-            out.append(np.repeat(first + b, len(ex.measured)))
+            out.append(np.repeat(first + b, len(ex.measured) + (ex.load is not None)))
             first += int(b[-1]) + 1
         return np.concatenate(out)
 
@@ -277,6 +305,10 @@ class IdentificationResult:
     #: :func:`ros_ehs.identify.design.recommend`'s answer when it was run: what the bags pin
     #: down and the excitation that would pin down the rest
     excitation: dict = field(default_factory=dict)
+    #: the input delay the current was built with: ``value_s``, and when the fit estimated
+    #: it (:mod:`ros_ehs.identify.delay`) ``stderr_s`` and the profile; empty when every run
+    #: records the current the valve got
+    input_delay: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """Return a JSON-ready summary."""
@@ -294,10 +326,23 @@ class IdentificationResult:
                             'matrix': np.round(self.correlation, 4).tolist()},
             'adequate': self.adequate, 'inadequacy': self.inadequacy, 'advice': self.advice,
             'stderr_widening': self.stderr_widening, 'starts': self.starts,
-            'excitation': self.excitation,
+            'excitation': self.excitation, 'input_delay': self.input_delay,
             'fit': self.metrics, 'noise_sigma': self.sigma, 'warnings': self.warnings,
             'history': self.history,
         }
+
+
+def _signal_metrics(y: np.ndarray, e: np.ndarray, sigma: float) -> dict[str, float]:
+    """Fit figures of one signal ``y`` with residual ``e`` and sensor noise ``sigma``."""
+    sst = float(np.sum((y - y.mean()) ** 2))
+    sse = float(np.sum(e ** 2))
+    c = e - e.mean()
+    cc = float(np.dot(c, c))
+    return {'nrmse': math.sqrt(sse / y.size) / (float(np.std(y)) or 1.0),
+            'r2': 1.0 - sse / sst if sst > 0 else math.nan,
+            'rms': math.sqrt(sse / y.size),
+            'noise_ratio': math.sqrt(sse / y.size) / float(sigma),
+            'acf1': float(np.dot(c[1:], c[:-1])) / cc if cc > 0 else math.nan}
 
 
 def _metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
@@ -314,15 +359,11 @@ def _metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
             if name == 'z':
                 ex.offset_free(e)
                 fit['z'] = y + e     # position is fitted up to an offset per segment
-            sst = float(np.sum((y - y.mean()) ** 2))
-            sse = float(np.sum(e ** 2))
-            c = e - e.mean()
-            cc = float(np.dot(c, c))
-            m[name] = {'nrmse': math.sqrt(sse / y.size) / (float(np.std(y)) or 1.0),
-                       'r2': 1.0 - sse / sst if sst > 0 else math.nan,
-                       'rms': math.sqrt(sse / y.size),
-                       'noise_ratio': math.sqrt(sse / y.size) / float(sigma),
-                       'acf1': float(np.dot(c[1:], c[:-1])) / cc if cc > 0 else math.nan}
+            m[name] = _signal_metrics(y, e, sigma)
+        if ex.load is not None:
+            y, f = ex.load, o[:, problem.ipa] - o[:, problem.ipb]
+            fit[LOAD] = f
+            m[LOAD] = _signal_metrics(y, f - y, ex.load_sigma)
         out[ex.name] = m
         if fitted is not None:
             fitted[ex.name] = fit
@@ -545,7 +586,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         njev=njev[0], iterations=njev[0], history=history,
         stderr={n: float(s) for n, s in zip(free, se)}, correlation=corr, free=free,
         metrics=metrics, fitted=fitted,
-        sigma={ex.name: {problem.names[j]: float(s) for j, s in zip(ex.measured, ex.sigma)}
+        sigma={ex.name: {**{problem.names[j]: float(s) for j, s in zip(ex.measured, ex.sigma)},
+                         **({LOAD: float(ex.load_sigma)} if ex.load is not None else {})}
                for ex in problem.exps},
         warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost,
         adequate=not inadequacy, inadequacy=inadequacy, advice=advice,

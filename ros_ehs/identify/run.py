@@ -21,7 +21,9 @@ from typing import Callable, Sequence
 import warnings
 
 from ros_ehs.bag.experiment import load_experiments
+from ros_ehs.bag.mapping import TopicMap
 from ros_ehs.errors import IdentificationWarning, InputError
+from ros_ehs.identify.delay import estimate_delay, with_delay
 from ros_ehs.identify.design import identifiability, recommend
 from ros_ehs.identify.estimator import (IdentificationResult, identify, multistart, score,
                                         SIGNALS)
@@ -30,6 +32,12 @@ from ros_ehs.params import ESTIMATED, load_yaml, preset
 import ros_ehs_msgs_py as contract
 
 __all__ = ['run_identification']
+
+
+def _contract_commands(topics: TopicMap) -> bool:
+    """Return True for the contract's commands: stamped with the state they answer."""
+    return (topics.command.lstrip('/').split('/')[-1] == contract.COMMAND.name
+            and topics.command_joint == contract.JOINT_VALVE)
 
 
 def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike, *,
@@ -41,6 +49,7 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
                        command_topic: str = contract.COMMAND.name,
                        pressure_topics: tuple[str, str] | None = (
                            contract.PRESSURE_P.name, contract.PRESSURE_T.name),
+                       topics: TopicMap | None = None,
                        segment: float | None = 1.0, workers: int | None = None,
                        max_nfev: int = 100,
                        start: float | None = None, end: float | None = None,
@@ -58,24 +67,54 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
     ``advise``: name the parameters the bags do not pin down and the excitation that would
     (:func:`ros_ehs.identify.design.recommend`; ``result.excitation``): an adequate fit only,
     since the standard errors of another mean little; 5-10 s when some parameter is weak.
+    ``topics``: where the signals are in the bags (:class:`~ros_ehs.bag.mapping.TopicMap`: a
+    rig driver's topics, joint, message types, units); default the contract, named by
+    ``state_topic``, ``command_topic`` and ``pressure_topics``. When the bags record
+    commands, not the current the valve got, and the map gives no ``input_delay``, the fit
+    estimates it (:mod:`ros_ehs.identify.delay`): a fit at no delay, the delay that best
+    replays it, a warm refit there, and the delay again with its standard error
+    (``result.input_delay``).
     Returns the result, the written files and the hold-out metrics.
     """
     if not bags:
         raise InputError('`bags`: give at least one bag to identify from')
-    pp, pt = pressure_topics or (None, None)
+    if topics is None:
+        pp, pt = pressure_topics or (None, None)
+        topics = TopicMap(state=state_topic, command=command_topic, pressure_p=pp,
+                          pressure_t=pt)
 
     def load(b):
-        return load_experiments(b, state=state_topic, command=command_topic, pressure_p=pp,
-                                pressure_t=pt, start=start, end=end)
+        return load_experiments(b, topics=topics, start=start, end=end)
 
     exps = [e for b in bags for e in load(b)]      # a bag with gaps gives several runs
     held = [e for b in holdout for e in load(b)]
     base = load_yaml(initial, preset('table1_initial')) if initial else preset('table1_initial')
+    commanded = any(e.commands is not None for e in exps)
+    kw = {'free': free, 'model': model, 'cost': cost, 'signals': signals,
+          'segment': segment, 'workers': workers, 'max_nfev': max_nfev}
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', IdentificationWarning)   # kept in result.warnings
-        result = identify(exps, free=free, model=model, cost=cost, signals=signals,
-                          base=base, segment=segment, workers=workers, max_nfev=max_nfev,
-                          progress=progress)
+        result = identify(exps, base=base, progress=progress, **kw)
+        delay = {}
+        if commanded and topics.input_delay is None and not _contract_commands(topics):
+            first = estimate_delay(exps, result.params or base, model=model,
+                                   signals=signals, segment=segment, n_free=len(free))
+            exps = with_delay(exps, first.value)
+            result = identify(exps, base=base, x0=dict(result.x), progress=progress, **kw)
+            est = estimate_delay(exps, result.params or base, model=model, signals=signals,
+                                 segment=segment, n_free=len(free),
+                                 widening=result.stderr_widening)
+            if abs(est.value - first.value) > 0.5 * est.stderr:
+                exps = with_delay(exps, est.value)
+                result = identify(exps, base=base, x0=dict(result.x), progress=progress, **kw)
+            delay = est.as_dict()
+        elif commanded and topics.input_delay is None:    # the contract's own commands
+            delay = {'value_s': 0.0, 'estimated': False,
+                     'why': 'the contract: each command answers the state it is stamped with'}
+        elif commanded:
+            delay = {'value_s': float(topics.input_delay), 'estimated': False}
+        result.input_delay = delay
+        held = with_delay(held, delay['value_s']) if delay else held
     if starts:
         result.starts = multistart(exps, result, starts=starts, seed=seed, free=free,
                                    model=model, cost=cost, signals=signals, base=base,

@@ -260,6 +260,41 @@ class Plant:
         t = np.arange(u.shape[0] + 1) * dt
         return SimResult(t, out, u, self.state_names, self.params)
 
+    def settle_valve(self, x, i: float = 0.0) -> np.ndarray:
+        """
+        Return ``x`` with the valve's states at rest for current ``i`` [A], the rest held.
+
+        The state a record starts in when it starts mid-motion: position, velocity and
+        chamber pressures as measured, the valve (armature, pilot pressures, spool) settled for
+        the current and those pressures (its rates zero). The simplified model has no valve
+        states: ``x`` comes back unchanged.
+        """
+        from scipy.optimize import root
+
+        x = np.array(x, dtype=float)
+        names = self.state_names
+        free = [k for k, s in enumerate(names) if s in ('theta', 'p_tL', 'p_tR', 'x')]
+        if not free:
+            return x
+        rate_of = {'theta': 'theta_dot', 'x': 'x_dot'}
+        for k in free:
+            if rate_of.get(names[k]) in names:
+                x[names.index(rate_of[names[k]])] = 0.0
+        eqs = [names.index(rate_of[names[k]]) if rate_of.get(names[k]) in names
+               else k for k in free]
+        scale = self._xscale[free]
+        u = np.array([i, 0.0])
+        f = np.empty(self.n)
+
+        def resid(y):
+            x[free] = y * scale
+            K.rhs(self._id, x, u, self._c, f)
+            return f[eqs] / np.maximum(np.abs(scale), 1.0) * 1e-3
+
+        sol = root(resid, x[free] / scale, method='hybr', options={'xtol': 1e-12})
+        x[free] = sol.x * scale
+        return x
+
     def equilibrium(self, z: float = 0.0, i: float = 0.0) -> np.ndarray:
         """
         Return the rest state at piston position ``z`` [m] with current ``i`` [A] held.

@@ -62,6 +62,7 @@ Edge-case policy (tested in ``test/test_nodes.py`` and ``test/test_stamps.py``):
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
@@ -69,6 +70,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from ros_ehs.control.axis import AxisController
 from ros_ehs.control.feedforward import MODEL_PARAMS
+from ros_ehs.errors import ParameterError
 from ros_ehs.nodes.loop_stats import Window
 from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs, diagnostics,
                                       EPOCH_PERIODS, ERROR, node_params, OK, Option,
@@ -77,6 +79,7 @@ from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_spe
 from ros_ehs.params import CONTROL_SPECS, Params, SAFETY_SPECS, spec
 import ros_ehs_msgs_py as contract
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 
@@ -84,6 +87,9 @@ __all__ = ['OPTIONS', 'ControllerNode', 'SPECS', 'main']
 
 #: States missing for this many ``stale_timeout`` mean the plant is gone (see the policy).
 LOST_FACTOR = 10
+
+#: ros2_control's forward command controller's input (``<controller>/commands``), relative.
+FORWARD_TOPIC = 'servo_valve_controller/commands'
 
 #: Lock-step references kept ahead of the states (stamps; 4 s at 1 kHz).
 REF_BUFFER = 4096
@@ -103,6 +109,21 @@ OPTIONS = (
            "node's clock is dropped and counted [s]", 1.0e-4, 3600.0, read_only=False),
     Option('start_enabled', True, 'hydraulics on at start (ramp-on from the first measured '
            'position); false: 0 A until ~/enable'),
+    Option('state_topic', contract.STATE.name, "sensor_msgs/JointState with the axis's "
+           "joint: the contract's `state`, or a rig driver's /joint_states"),
+    Option('joint', contract.JOINT_PISTON, "the axis's joint in the state (a rig's own name; "
+           'position required, velocity optional)'),
+    Option('command_interface', 'joint_state', "joint_state: the contract's servo_current "
+           '(JointState, stamped with the state it answers); forward_command: a ros2_control '
+           "forward command controller's Float64MultiArray (no header)",
+           choices=('joint_state', 'forward_command')),
+    Option('command_topic', '', 'where commands go (default: servo_current, or '
+           'servo_valve_controller/commands for forward_command)'),
+    Option('command_index', 0, "forward_command: this axis's element of the array", 0, 255),
+    Option('command_size', 1, "forward_command: length of the array (the controller's "
+           'joints; the others get 0 A)', 1, 256),
+    Option('command_scale', 1.0, 'forward_command: units per A the driver takes (1000: mA)',
+           1.0e-6, 1.0e6),
     RT_PRIORITY,
     CPU_AFFINITY,
 )
@@ -142,8 +163,23 @@ class ControllerNode(Node):
         self.err = Window(2000)
         self.compute = Window(2000)
 
-        cmd_qos = qos_profile(contract.COMMAND.qos_in(self.lockstep))
-        self.pub_cmd = self.create_publisher(JointState, contract.COMMAND.name, cmd_qos)
+        self.forward = self.opt['command_interface'] == 'forward_command'
+        if self.forward:      # ros2_control's ~/commands: reliable (SystemDefaultsQoS), so
+            # a forward command controller's reliable subscription matches
+            self._cmd = [0.0] * int(self.opt['command_size'])
+            if int(self.opt['command_index']) >= len(self._cmd):
+                raise ParameterError(f"`command_index` = {self.opt['command_index']} is not "
+                                     f"below `command_size` = {self.opt['command_size']}")
+            self.pub_cmd = self.create_publisher(
+                Float64MultiArray, self.opt['command_topic'] or FORWARD_TOPIC,
+                qos_profile(contract.RECORD_QOS))
+        else:
+            cmd_qos = qos_profile(contract.COMMAND.qos_in(self.lockstep))
+            self.pub_cmd = self.create_publisher(JointState, self.opt['command_topic'] or
+                                                 contract.COMMAND.name, cmd_qos)
+        joint = self.opt['joint']
+        self._read_state = (contract.state_from_cdr if joint == contract.JOINT_PISTON else
+                            functools.partial(contract.state_from_cdr, joint=joint))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               qos_profile(contract.DIAGNOSTICS.qos))
         self.pub_events = self.create_publisher(DiagnosticArray, contract.EVENTS.name,
@@ -151,7 +187,7 @@ class ControllerNode(Node):
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(SetBool, '~/enable', self._on_enable)
         # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire, the fast path)
-        self.create_subscription(JointState, contract.STATE.name, self._on_state,
+        self.create_subscription(JointState, self.opt['state_topic'], self._on_state,
                                  qos_profile(contract.STATE.qos), raw=True)
         self._last_rx = time.monotonic()
         if self.wall:     # a timer, not a QoS deadline: that would need every
@@ -213,7 +249,7 @@ class ControllerNode(Node):
     # -- states ------------------------------------------------------------------------------
     def _on_state(self, data: bytes) -> None:
         self._last_rx = time.monotonic()
-        s = read_msg(self, contract.state_from_cdr, data, 'state')
+        s = read_msg(self, self._read_state, data, 'state')
         if s is None:
             self.counts['bad'] += 1
             return
@@ -325,7 +361,16 @@ class ControllerNode(Node):
         return response
 
     def _publish(self, stamp_ns: int, i: float) -> None:
+        if self.forward:      # no header: the driver applies the newest at its next write
+            self._cmd[self.opt['command_index']] = i * self.opt['command_scale']
+            self.pub_cmd.publish(contract.float64_array_to_cdr(self._cmd))
+            return
         self.pub_cmd.publish(contract.command_to_cdr(contract.Command(stamp_ns, i)))
+
+    def close(self) -> None:
+        """Send 0 A once on the way out: a forward command controller holds the last one."""
+        if self.forward:
+            self._publish(0, 0.0)
 
     def _check_lost(self) -> None:
         if self._last_stamp >= 0:

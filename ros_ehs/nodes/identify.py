@@ -32,6 +32,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
+from ros_ehs.bag.mapping import load_topic_map, TopicMap
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.errors import EhsError
 from ros_ehs.identify.run import run_identification
@@ -56,6 +57,11 @@ OPTIONS = (
     Option('pressure_p_topic', contract.PRESSURE_P.name, 'chamber P pressure topic'),
     Option('pressure_t_topic', contract.PRESSURE_T.name, 'chamber T pressure topic'),
     Option('use_pressures', True, 'fit the chamber pressures when the bags have them'),
+    Option('topic_map', '', "a rig's topic map (YAML: docs/identification.md); when given, "
+           'the four topic options above are not used'),
+    Option('joint', '', "the axis's joint in the state (default: the map's, or piston)"),
+    Option('input_delay', -1.0, 'from a command to the valve acting on it [s]; -1: the map '
+           'says, or estimated where the bags record commands (auto)', -1.0, 0.5),
     Option('max_nfev', 100, 'most model evaluations', 1, 100000),
     Option('starts', 0, 'also refit from this many seeded random starts and report how many '
            'reach the same optimum', 0, 1000),
@@ -91,6 +97,20 @@ class IdentifyNode(Node):
         self.result = None
         threading.Thread(target=self._job, daemon=True).start()
 
+    def topic_map(self) -> TopicMap:
+        """Return where the signals are in the bags, from the options."""
+        o = self.opt
+        over = {'joint': o['joint'] or None,
+                'input_delay': o['input_delay'] if o['input_delay'] >= 0 else None}
+        if o['topic_map']:
+            tmap = load_topic_map(o['topic_map'], **over)
+        else:
+            tmap = TopicMap.from_dict({
+                'state': o['state_topic'], 'command': o['command_topic'],
+                'pressure_p': o['pressure_p_topic'], 'pressure_t': o['pressure_t_topic'],
+                **{k: v for k, v in over.items() if v is not None}}, where='the options')
+        return tmap if o['use_pressures'] else tmap.without_pressures()
+
     def _job(self) -> None:
         log = self.get_logger()
         o = self.opt
@@ -98,9 +118,7 @@ class IdentifyNode(Node):
             result, files, _ = run_identification(
                 o['bags'], o['out'], free=o['free'], model=o['model'], cost=o['cost'],
                 holdout=o['holdout'], initial=o['initial'] or None,
-                state_topic=o['state_topic'], command_topic=o['command_topic'],
-                pressure_topics=((o['pressure_p_topic'], o['pressure_t_topic'])
-                                 if o['use_pressures'] else None),
+                topics=self.topic_map(),
                 max_nfev=int(o['max_nfev']), figures=bool(o['figures']),
                 start=float(o['start']) or None, end=float(o['end']) or None,
                 starts=int(o['starts']), seed=int(o['seed']), advise=bool(o['advise']),

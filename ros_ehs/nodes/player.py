@@ -23,6 +23,13 @@ replayed topic has that many subscribers, then ``start_delay`` passes. Each topi
 with the QoS it was recorded with. Topics whose message type is not installed are skipped
 with a warning naming them. The node exits when the bag is done (unless ``loop``).
 
+With ``topic_map`` (a rig's map, docs/identification.md) it replays a rig driver's bag as
+this package's contract instead: ``state`` (joint ``piston``: the position, the velocity as
+recorded or derived, and joint ``servo_valve``: the current of each period, built from the
+commands with the map's ``input_delay``, 0 when it says auto), ``servo_current`` and the
+chamber pressures, on a uniform grid, stamped on the driver's clock: what identification reads
+from that bag, so any node of ours can follow a rig's recording.
+
 A split bag (rosbag2's or ours) plays as one bag, in file order; sqlite3 bags play too. The
 bag is read into memory first: for a long recording, replay a window (``start``/``end``,
 seconds from its first message), which reads only the files it overlaps.
@@ -30,12 +37,16 @@ seconds from its first message), which reads only the files it overlaps.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 
+import numpy as np
 from rclpy.node import Node
 from rclpy.task import Future
-from ros_ehs.bag.reader import open_bag
+from ros_ehs.bag.experiment import load_experiments
+from ros_ehs.bag.mapping import load_topic_map
+from ros_ehs.bag.reader import BagMessage, open_bag
 from ros_ehs.errors import BagError
 from ros_ehs.nodes.ros_common import declare_options, msg_class, Option, qos_profile, run
 import ros_ehs_msgs_py as contract
@@ -59,7 +70,29 @@ OPTIONS = (
            0.0, 1e9),
     Option('end', 0.0, 'replay up to this time (0: to the end) [s from the first message]',
            0.0, 1e9),
+    Option('topic_map', '', "a rig's topic map (YAML): replay its signals as the contract's "
+           'topics (see the module docstring)'),
 )
+
+
+def contract_messages(experiments) -> list[BagMessage]:
+    """Return a rig's runs as the contract's messages, in time order (the player's map)."""
+    out = []
+    for e in experiments:
+        stamps = e.t0_ns + np.round(e.t * 1e9).astype(np.int64)
+        held = np.concatenate([[e.i[0]], e.i[:-1]])   # state k: the period that ended there
+        for k, st in enumerate(stamps.tolist()):
+            out.append(BagMessage('/' + contract.STATE.name, st, st, contract.state_to_cdr(
+                contract.AxisState(st, float(e.z[k]), float(e.v[k]), math.nan, math.nan,
+                                   float(held[k]))), contract.STATE.msg_type))
+            out.append(BagMessage('/' + contract.COMMAND.name, st, st, contract.command_to_cdr(
+                contract.Command(st, float(e.i[k]))), contract.COMMAND.msg_type))
+            if e.p_a is not None:
+                for tp, p in ((contract.PRESSURE_P, e.p_a[k]), (contract.PRESSURE_T, e.p_b[k])):
+                    out.append(BagMessage('/' + tp.name, st, st, contract.pressure_to_cdr(
+                        contract.Pressure(st, float(p))), tp.msg_type))
+    out.sort(key=lambda m: m.log_time_ns)
+    return out
 
 
 class PlayerNode(Node):
@@ -76,20 +109,32 @@ class PlayerNode(Node):
         if self.bag.truncated:
             self.get_logger().warning(f'bag is truncated ({self.bag.problem}); replaying what '
                                       'it holds')
-        wanted = list(self.opt['topics']) or list(self.bag.topics)
-        missing = [t for t in wanted if t not in self.bag.topics]
+        self._mapped: list[BagMessage] | None = None
+        available = {n: (i.msg_type, i.qos[0] if i.qos else None)
+                     for n, i in self.bag.topics.items()}
+        if self.opt['topic_map']:
+            tmap = load_topic_map(self.opt['topic_map'])
+            if tmap.input_delay is None:
+                self.get_logger().warning('the map says input_delay: auto; the player replays '
+                                          'the commands undelayed (give it in the map)')
+            exps = load_experiments(self.opt['bag'], topics=tmap, bag=self.bag)
+            self._mapped = contract_messages(exps)
+            available = {m.topic: (m.msg_type, None) for m in self._mapped[:8]}
+        wanted = list(self.opt['topics']) or list(available)
+        missing = [t for t in wanted if t not in available]
         if missing:
             raise BagError(f'bag {self.opt["bag"]!r} has no topic {missing}; it has: '
-                           f'{self.bag.describe()}')
+                           + (', '.join(sorted(available)) if self._mapped is not None
+                              else self.bag.describe()))
         self.pubs = {}
         for name in wanted:
-            info = self.bag.topics[name]
+            msg_type, qos = available[name]
             try:
-                cls = msg_class(info.msg_type)
+                cls = msg_class(msg_type)
             except KeyError as err:
                 self.get_logger().warning(f'skipping {name}: {err}')
                 continue
-            offered = contract.QosSpec.from_rosbag2(info.qos[0] if info.qos else None)
+            offered = contract.QosSpec.from_rosbag2(qos)
             self.pubs[name] = self.create_publisher(cls, name, qos_profile(offered))
         if not self.pubs:
             raise BagError(f'nothing to replay: no topic of {wanted} has an installed type')
@@ -119,7 +164,10 @@ class PlayerNode(Node):
             self.done.set_result(1)
 
     def _replay(self) -> None:
-        msgs = list(self.bag.messages(list(self.pubs)))
+        if self._mapped is not None:
+            msgs = [m for m in self._mapped if m.topic in self.pubs]
+        else:
+            msgs = list(self.bag.messages(list(self.pubs)))
         rate = float(self.opt['rate'])
         clock_step = int(1e9 / float(self.opt['clock_hz']))
         need = int(self.opt['wait_subscribers'])

@@ -1,0 +1,83 @@
+"""
+A rig driver written to ros2_control's conventions, for the tests (not our plant node).
+
+One process: a hardware interface whose "hardware" is the model (``Plant``), a
+joint_state_broadcaster and a forward command controller, in ros2_control's cycle at
+``--rate`` Hz: read (sample the piston), update (publish ``/joint_states``: every joint, the
+piston among others, position only, stamped with the cycle's time; take the newest
+``/<controller>/commands`` Float64MultiArray), write (apply it over the coming period). Both
+topics use ROS 2's system-default QoS (reliable, keep last 10), as ros2_control's do, and no
+watchdog: the last command holds, as a forward command controller holds it. At SIGINT it
+prints one JSON line: cycles, commands taken, and the state it ended in.
+"""
+
+import argparse
+import json
+import signal
+import sys
+import time
+
+import numpy as np
+import rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument('--rate', type=float, default=500.0)
+    ap.add_argument('--joint', default='actuator_z')
+    ap.add_argument('--controller', default='servo_valve_controller')
+    ap.add_argument('--model', default='simplified')
+    ap.add_argument('--seconds', type=float, default=0.0)
+    a = ap.parse_args()
+    from ros_ehs.model.plant import Plant
+    from ros_ehs.params import Params
+    rclpy.init()
+    node = rclpy.create_node('rig_driver')
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    pub = node.create_publisher(JointState, '/joint_states', qos)
+    latest = {'cmd': 0.0, 'n': 0}
+
+    def on_cmd(msg: Float64MultiArray) -> None:
+        if len(msg.data) >= 1:
+            latest['cmd'] = float(msg.data[0])
+            latest['n'] += 1
+
+    node.create_subscription(Float64MultiArray, f'/{a.controller}/commands', on_cmd, qos)
+    plant = Plant(Params(), a.model)
+    x = plant.equilibrium()
+    iz = plant.state_names.index('z')
+    dt = 1.0 / a.rate
+    names = ['table_pitch', a.joint, 'table_roll']
+    u = np.zeros(2)
+    cycles = [0]
+    stop = []
+    signal.signal(signal.SIGINT, lambda *_: stop.append(1))
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+
+    def cycle() -> None:
+        nonlocal x
+        msg = JointState()                       # read + joint_state_broadcaster
+        msg.header.stamp = node.get_clock().now().to_msg()
+        msg.name = names
+        msg.position = [0.0, float(x[iz]), 0.0]
+        pub.publish(msg)
+        u[0] = latest['cmd']                     # forward command controller + write
+        x = plant.step(x, u, dt)
+        cycles[0] += 1
+
+    node.create_timer(dt, cycle)
+    t_end = time.monotonic() + a.seconds if a.seconds > 0 else float('inf')
+    while not stop and time.monotonic() < t_end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    print(json.dumps({'cycles': cycles[0], 'commands': latest['n'], 'z': float(x[iz]),
+                      'last_command_a': latest['cmd']}), flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
