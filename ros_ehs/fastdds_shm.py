@@ -20,12 +20,12 @@ Fast DDS's shared-memory transport keeps, in ``/dev/shm``, each listening port a
 ``fastrtps_<16 characters>`` with a lock file ``_el``. A live process holds a lock on the
 lock file of every port it listens on and of its segment (tested). A process that does not
 exit cleanly (killed, crashed) leaves its files behind. Ports without any lock file were
-found too, left by runs of an earlier session (how they lost it was not traced).
+found too, left by earlier runs (how they lost it was not traced).
 
 Why it matters to a real-time bench: a participant that later takes the same port number
 reuses such a port, with the timeouts its first creator stored in it. Fast DDS waits on a
 port for a third of its ``healthy_check_timeout_ms`` (1000 ms by default): 333 ms. Measured on
-this project's VM (session 10), with stale ports from earlier runs in ``/dev/shm``, the
+this project's VM, with stale ports from earlier runs in ``/dev/shm``, the
 reference joining a running loop (all nodes with ``launch_scripts/fastdds_rt.xml``, whose
 30 ms applies only to ports created under it) reused a port created without that profile,
 and the plant's publish blocked 333 ms: a watchdog trip in 5 of 8 main-job benches. With

@@ -240,7 +240,7 @@ class Launch:
         * real time: the recorder, the controller and the reference; once the recorder
           records the reference, the plant. Every participant is then discovered before
           the loop closes: one joining a running loop held its CPU at times (a watchdog trip
-          in the loop's first 4-5 s in 3 of 10 runs; started first, 0 of 12; session 12).
+          in the loop's first 4-5 s in 3 of 10 runs; started first, 0 of 12).
           The reference's time zero waits for its subscribers (the controller and the
           recorder) and for the plant's diagnostics to report the loop closed, with the
           recorder listening to ``state`` (``wait_loop``, the plant's ``wait_subscribers``):

@@ -21,7 +21,8 @@ and the parameter reference in ``docs/parameters.md``.
 
 Provenance tags in ``source``: ``P`` the Li & Zhang paper, ``K`` textbook / catalogue
 knowledge (Merritt 1967, Moog G761 catalogue), ``D`` derived for a consistent G761-class
-baseline in ``shared/research/physics_and_peers.md``, ``I`` an assumption for the test rig.
+baseline (catalogue values made consistent with each other), ``I`` an assumption for the
+test rig.
 """
 
 from __future__ import annotations

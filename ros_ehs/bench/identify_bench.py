@@ -18,7 +18,7 @@ Records a fresh noisy bag (simplified plant, Table 1 estimated values, 1 Hz / 0.
 then refits the seven parameters from Table 1's initial values, once with the Jacobian
 columns on 2 processes and once serially, side by side. Prints the figures and, last, one
 JSON line with ``wall_s``, ``iterations``, ``nfev`` and each parameter's relative error.
-Targets (issue #5): ``wall_s`` <= 10 s, ``iterations`` <= 24.
+Targets: ``wall_s`` <= 10 s, ``iterations`` <= 24 (the paper's).
 
 The ``mismatch`` case: a rig that is not the fitted model. A 10 s bag from the *full* plant
 with a parameter set away from Table 1's (``MISMATCH``), fitted with the simplified model

@@ -20,7 +20,7 @@ second of wall time the loop made. In the same run, two yardsticks: the in-proce
 DDS, :func:`ros_ehs.closed_loop.run_closed_loop`), and a bare rclpy ping-pong sending each
 message as soon as the last echo is back (the most round trips per second rclpy makes on this
 machine over JointState objects), best effort and with the lock-step QoS; and the barest
-lock-step of the topology the bench had until session 8 (``--relay``: a third process turns
+lock-step of the bench's earlier topology (``--relay``: a third process turns
 a clock every period into the reference the pong waits for, reliable; the bench now sends
 ``/clock`` every 10 periods and the references as one ``reference_trajectory`` per clock),
 none of our code in any of them. And, for reference, the bare ping-pong over serialized

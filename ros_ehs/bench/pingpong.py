@@ -27,14 +27,14 @@ plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointSt
 * ``volley``: the next ping goes out as soon as the echo of the last is back (a bare
   lock-step): round trips per second.
 * ``relay`` and ``--relay``: the barest lock-step *with a reference process*, the lock-step
-  bench's topology until session 8 (a clock and a reference every period). The volley also
+  bench's earlier topology (a clock and a reference every period). The volley also
   publishes a ``rosgraph_msgs/Clock`` with each ping (as the plant then did); the relay
   answers each clock k with a JointState stamped k + 1 (and k itself first); the pong echoes
   ping k only once it holds the relay's message k (as the controller waits for the
   reference of the state's stamp).
 
 ``--raw`` sends serialized messages (``publish`` of bytes, ``raw=True`` subscriptions), the
-path the loop nodes take since session 8 (ping, pong, volley). ``--reliable`` uses the
+path the loop nodes take (ping, pong, volley). ``--reliable`` uses the
 lock-step loop's QoS (reliable, depth 10000) instead;
 ``--rt-priority N`` puts every thread on SCHED_FIFO priority N, as the loop nodes' option
 ``rt_priority`` does; ``--cpu N`` keeps them on CPU N, as ``cpu_affinity`` does. On SIGINT

@@ -32,7 +32,7 @@ does not keep it). The rest of a gap is the machine's own: the probe's timer fir
 the vCPU was not running. :func:`hiccups` picks the gaps whose own part is over
 ``HICCUP_MS``: a probe the machine woke 0.3 ms late or more, which a scheduler trace of two
 of the plant's trips showed to be enough (the vCPU idle with timers due for 0.3-0.6 ms, then
-running ~20x slower: session 13).
+running ~20x slower).
 """
 
 import argparse

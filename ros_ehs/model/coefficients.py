@@ -46,7 +46,7 @@ def flow_gain_kq(p: Params) -> float:
     Linearised flow gain K_q of eq. (8), corrected [m^2/s].
 
     ``K_q = C_d * pi * (d_s + d_c/2) * sqrt((p_s - p_t) / rho)``: the paper prints
-    ``sqrt(rho * (p_P - p_T))``, which is not m^2/s (DESIGN.md section 4). This is the
+    ``sqrt(rho * (p_P - p_T))``, which is not m^2/s (docs/model.md). This is the
     flow per metre of spool travel into a chamber at half supply pressure.
     """
     w = math.pi * (p['d_s'] + p['d_c'] / 2.0)

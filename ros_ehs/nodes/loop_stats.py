@@ -63,7 +63,7 @@ class Window:
 
         A partial sort, not ``np.percentile``: numpy's first percentile call in a process
         takes ~6 ms (its lazy imports), and it fell in the controller's first diagnostics,
-        a period after the loop had closed (a watchdog trip per run, session 9).
+        a period after the loop had closed (a watchdog trip per run).
         """
         v = self.values()
         if not v.size:
@@ -83,7 +83,7 @@ class Window:
         ranking a 20000-sample window costs ~0.2 ms, and the diagnostics take two of them
         once a second from the executor thread of a 1 kHz loop: that delayed the plant's tick
         by 0.7-0.9 ms, enough for the next tick to come before the command (measured under
-        SCHED_FIFO, session 9). They now rank the newest 2000.
+        SCHED_FIFO). They now rank the newest 2000.
         """
         v = self.values(last)
         if not v.size:

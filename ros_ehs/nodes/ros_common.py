@@ -321,7 +321,7 @@ def _thread_ids() -> list[int]:
 #: Fast DDS threads (by name) that carry no message of the loop, which goes over shared
 #: memory: UDP receptions (discovery; a peer on another host), timed events (announcements,
 #: heartbeats), the asynchronous writer, the shared-memory watchdog. ``set_cpu_affinity``
-#: keeps them off the loop's CPU: measured (session 12, 12 alternating pairs of 10 s
+#: keeps them off the loop's CPU: measured (12 alternating pairs of 10 s
 #: main-job benches), 8 of 12 windows without a watchdog trip against 3 of 12 with them on it.
 SIDE_THREADS = ('dds.udp.', 'dds.ev.', 'dds.asyn.', 'dds.shm.wdog')
 
