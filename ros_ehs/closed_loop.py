@@ -74,6 +74,10 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     """
     Simulate the position loop for ``duration`` s: ``reference(t) -> (z_ref, v_ref)``.
 
+    A ``reference`` with ``measure(t, z)`` and ``reference(t)`` methods (amplitude/phase
+    control, :class:`ros_ehs.control.apc.AmplitudePhaseControl`) is run online: each period it
+    takes the measured position, then gives the period's reference.
+
     ``plant_params`` sets the plant (e.g. Table 1 estimated); ``controller_params`` the
     controller (defaults to the same set). The controller samples the position at the start
     of each period and its command is held for the period (zero-order hold), as on the bench.
@@ -109,7 +113,11 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     a_p = float(plant_params['A_p'])
     events = []
     t = np.arange(n + 1) * dt
-    z_ref, v_ref = reference(t)
+    online = hasattr(reference, 'measure')      # corrected from the response (APC)
+    if online:
+        z_ref, v_ref = np.empty(n + 1), np.empty(n + 1)
+    else:
+        z_ref, v_ref = reference(t)
     x = plant.equilibrium() if x0 is None else np.asarray(x0, dtype=float)
     xs = np.empty((n + 1, plant.n))
     cur = np.zeros(n + 1)
@@ -119,6 +127,9 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     z_meas = np.empty(n)
     for k in range(n):
         z_meas[k] = x[iz] + (z_noise[k] if z_noise is not None else 0.0)
+        if online:
+            reference.measure(float(t[k]), float(z_meas[k]))
+            z_ref[k], v_ref[k] = reference.reference(float(t[k]))
         if axis is None:
             u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]))
         else:
@@ -132,6 +143,8 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
         x = plant.step(x, u, dt) if stepper == 'fast' else reference_step(plant, x, u, dt)
         xs[k + 1] = x
     cur[n] = cur[n - 1]
+    if online:
+        z_ref[n], v_ref[n] = reference.reference(float(t[n]))
     return ClosedLoopResult(t, z_ref, v_ref, xs, cur, plant.state_names, z_meas,
                             tuple(events))
 

@@ -1,0 +1,88 @@
+"""Amplitude/phase control in process (ros_ehs.control.apc): convergence, freeze, bad input."""
+
+import math
+
+import numpy as np
+import pytest
+from ros_ehs.closed_loop import run_closed_loop
+from ros_ehs.control.apc import AmplitudePhaseControl
+from ros_ehs.errors import InputError
+from ros_ehs.params import preset
+from ros_ehs.reference import Sine
+
+
+def _fundamental(t, z, f):
+    w = 2 * np.pi * f
+    return 2j * np.sum(z * np.exp(-1j * w * t)) / t.size
+
+
+def test_on_a_linear_loop_the_error_shrinks_by_one_minus_the_gain_every_other_cycle():
+    """A loop that halves the amplitude and lags 30 deg: the command learns its inverse."""
+    f, dt = 2.0, 1e-3
+    apc = AmplitudePhaseControl(0.01, f, mean=0.002, gain=0.5)
+    lag = math.radians(30)
+    for k in range(int(30 / f / dt)):            # 30 cycles
+        t = k * dt
+        c, m, _, _ = apc._blend(t)
+        # the plant: 0.5 e^{-i 30 deg} on the sine, 0.8 on the mean
+        z = (0.5 * c * np.exp(-1j * lag) * np.exp(1j * apc.omega * t)).imag + 0.8 * m
+        apc.measure(t, z)
+    # the complex error R/D - 1 of the cycles measured after each correction (every other
+    # cycle: the one that blends a correction in is not used)
+    err = [abs(h['amp_ratio'] * np.exp(1j * np.radians(h['phase_deg'])) - 1)
+           for h in apc.history[::2]]
+    assert err[0] == pytest.approx(abs(0.5 * np.exp(-1j * lag) - 1), rel=1e-6)
+    ratios = np.array(err[1:]) / np.array(err[:-1])
+    assert np.all(np.abs(ratios - 0.5) < 0.03), ratios
+    assert apc.converged_at == 19
+    last = apc.history[-1]
+    assert abs(last['amp_ratio'] - 1) < 1e-4 and abs(last['phase_deg']) < 0.01
+    assert abs(last['mean_err']) < 1e-6
+
+
+@pytest.mark.parametrize('f', [5.0, 20.0])
+def test_apc_meets_the_targets_on_the_full_model_rig(f):
+    """0.25 m/s peak: amplitude within 0.5 %, phase within 1 deg, RMS <= 1 %, <= 30 cycles."""
+    p = preset('table1_estimated')
+    a = 0.25 / (2 * np.pi * f)
+    apc = AmplitudePhaseControl(a, f)
+    r = run_closed_loop(p, apc, 40 / f, model='full')
+    last = r.t >= r.t[-1] - 2 / f
+    resp = _fundamental(r.t[last], r.z[last], f)
+    want = _fundamental(r.t[last], apc.desired(r.t[last]), f)
+    rms = np.sqrt(np.mean((r.z[last] - apc.desired(r.t[last])) ** 2)) / a
+    assert abs(abs(resp / want) - 1) < 0.005 and abs(np.degrees(np.angle(resp / want))) < 1
+    assert rms < 0.01 and apc.converged_at <= 30
+    plain = run_closed_loop(p, Sine(a, f), 40 / f, model='full')      # what APC corrects
+    assert abs(abs(_fundamental(r.t[last], plain.z[last], f) / want) - 1) > 0.03
+
+
+def test_freeze_stops_the_corrections_and_the_command_does_not_jump():
+    f, dt = 5.0, 1e-3
+    apc = AmplitudePhaseControl(0.008, f)
+    zs = []
+    for k in range(int(3 / dt)):
+        t = k * dt
+        if k == int(1.0 / dt):
+            apc.freeze()
+            before = (apc._c_new, apc.cycles)
+        if k == int(2.0 / dt):
+            assert (apc._c_new, apc.cycles) == before       # nothing learnt while frozen
+            apc.freeze(False)
+        apc.measure(t, 0.7 * apc.reference(t)[0])
+        zs.append(apc.reference(t)[0])
+    step = np.abs(np.diff(zs)).max()
+    assert step <= 1.05 * 2 * np.pi * f * 0.008 / 0.7 * dt      # never more than the slope
+    apc.measure(3.0, math.nan)                                  # a bad sample: cycle dropped
+    n = apc.cycles
+    for k in range(1, 500):
+        apc.measure(3.0 + k * dt, 0.0)
+    assert apc.cycles == n + 1                                  # the next whole one counts
+
+
+@pytest.mark.parametrize('kw,match', [
+    ({'amplitude': 0.0}, 'amplitude'), ({'frequency': math.nan}, 'frequency'),
+    ({'gain': 1.5}, 'gain'), ({'mean': math.inf}, 'mean')])
+def test_bad_settings_name_the_argument(kw, match):
+    with pytest.raises(InputError, match=match):
+        AmplitudePhaseControl(**{'amplitude': 0.01, 'frequency': 1.0, **kw})
