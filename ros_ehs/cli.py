@@ -140,6 +140,21 @@ def _cmd_identify(args) -> int:
     return 0 if result.success and result.adequate else 1
 
 
+def _cmd_drive(args) -> int:
+    from ros_ehs.drive_file import iterate, load_drive
+    from ros_ehs.params import preset
+    t, z = load_drive(args.target)
+    res = iterate(preset(args.plant), t, z, args.out, controller_params=preset(args.controller),
+                  model=args.model, iterations=args.iterations, rms_target_pct=args.rms,
+                  frf_bag=args.frf_bag,
+                  progress=lambda k, e: print(f'  iteration {k}: RMS error {e:.3f} %',
+                                              flush=True))
+    print(f"first pass {res['rms_err_pct'][0]:.3f} %, best {res['best_pct']:.3f} %; last "
+          f"response/target within {res['band_db_max']:.3f} dB, {res['band_deg_max']:.2f} "
+          f"deg; drive {res['drive']} (the reference node plays it: kind:=csv csv_path:=...)")
+    return 0 if res['best_pct'] <= args.rms else 1
+
+
 def _cmd_record(args) -> int:
     from ros_ehs.params import preset
     from ros_ehs.reference import Sine
@@ -187,6 +202,18 @@ def main(argv=None) -> int:
     r.add_argument('--seed', type=int, default=0)
     r.add_argument('--no-noise', dest='noise', action='store_false')
     r.set_defaults(func=_cmd_record)
+    dv = sub.add_parser('drive', help='drive-file iteration in process: a drive that makes the '
+                        'axis reproduce a target time history (each run a bag)')
+    dv.add_argument('target', help='target CSV (header t,z; seconds, metres)')
+    dv.add_argument('--out', default='out/drive', help='folder for the bags and drive files')
+    dv.add_argument('--frf-bag', default=None, help='a recorded broadband run (reference and '
+                    'state) to take the FRF from (default: play and record one)')
+    dv.add_argument('--iterations', type=int, default=6)
+    dv.add_argument('--rms', type=float, default=1.0, help='stop at this RMS error [%%]')
+    dv.add_argument('--plant', default='table1_estimated', help='the rig: a parameter preset')
+    dv.add_argument('--controller', default='table1_estimated', help='controller preset')
+    dv.add_argument('--model', choices=['full', 'reduced', 'simplified'], default='full')
+    dv.set_defaults(func=_cmd_drive)
     i = sub.add_parser('identify', help="refit Table 1's parameters from bags (report folder)")
     i.add_argument('bags', nargs='+', help='bag directories (split or not, mcap or sqlite3) '
                    'or .mcap/.db3 files, fitted jointly')

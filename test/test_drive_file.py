@@ -1,0 +1,108 @@
+"""Drive-file iteration (ros_ehs.drive_file): on a known linear loop, then on the full model."""
+
+import numpy as np
+import pytest
+from ros_ehs.closed_loop import run_closed_loop
+from ros_ehs.drive_file import (band_error, DriveIteration, frf, frf_from_bag, load_drive,
+                                multisine,
+                                rms_error_pct, Samples, save_drive)
+from ros_ehs.errors import DataError, InputError
+from ros_ehs.params import preset
+from ros_ehs.reference import CsvTrajectory
+
+FS = 1000.0
+
+
+def _loop(x):
+    """Play ``x`` through a linear 'loop': a 30 Hz, 0.3-damped low-pass and 3 ms of delay."""
+    from scipy.signal import bilinear, lfilter
+    w = 2 * np.pi * 30.0
+    b, a = bilinear([w * w], [1, 2 * 0.3 * w, w * w], FS)
+    return np.concatenate([np.zeros(3), lfilter(b, a, x)[:-3]])
+
+
+def test_multisine_has_the_asked_velocity_and_band():
+    t, z = multisine(10.0, FS, 0.5, 20.0, 0.08, seed=4)
+    v = np.gradient(z, t)
+    assert z[0] == 0.0 and abs(z[-1]) < 1e-6
+    assert np.sqrt(np.mean(v[1000:-1000] ** 2)) == pytest.approx(0.08, rel=1e-6)
+    spec = np.abs(np.fft.rfft(np.gradient(z, t)))
+    f = np.fft.rfftfreq(t.size, 1 / FS)
+    assert spec[f > 25].max() < 0.05 * spec[(f > 1) & (f < 19)].min() * 20
+
+
+def test_the_frf_of_a_known_filter_and_the_iteration_on_it():
+    _, d = multisine(20.0, FS, 0.2, 60.0, 0.08, seed=2)
+    f, h, coh = frf(d, _loop(d), FS)
+    k = np.argmin(abs(f - 10.0))
+    w = 2 * np.pi * 30.0
+    s = 2j * np.pi * f[k]
+    exact = w * w / (s * s + 2 * 0.3 * w * s + w * w) * np.exp(-s * 3e-3)
+    assert abs(h[k] / exact - 1) < 0.02 and coh[k] > 0.99
+    _, r = multisine(20.0, FS, 0.5, 20.0, 0.08, seed=1)
+    it = DriveIteration(r, FS, f, h, coherence=coh)
+    drive = it.first()
+    for _ in range(5):
+        drive = it.update(drive, _loop(drive))
+    assert it.history[0] > 10 * it.history[-1] and it.history[-1] < 0.5   # [%]
+    db, deg = band_error(r, _loop(drive), FS, 0.5, 20.0)
+    assert db < 0.1 and deg < 1.0
+
+
+def test_the_full_model_rig_within_six_iterations():
+    """The road-like target: 20 s, velocity flat over 0.5-20 Hz at 0.08 m/s RMS."""
+    p = preset('table1_estimated')
+    t, r = multisine(20.0, FS, 0.5, 20.0, 0.08, seed=1)
+    _, d = multisine(20.0, FS, 0.2, 40.0, 0.08, seed=2)
+    run = run_closed_loop(p, Samples(t, d), t.size / FS, model='full')
+    f, h, coh = frf(run.z_ref[:-1], run.z[:-1], FS)
+    plain = run_closed_loop(p, Samples(t, r), t.size / FS, model='full').z[:-1]
+    it = DriveIteration(r, FS, f, h, coherence=coh)
+    drive = it.first()
+    for _ in range(6):
+        y = run_closed_loop(p, Samples(t, drive), t.size / FS, model='full').z[:-1]
+        drive = it.update(drive, y)
+    first = rms_error_pct(r, plain)
+    assert first > 3.0 and min(it.history) < 0.3 * first
+    db, deg = band_error(r, y, FS, 0.5, 20.0)
+    assert db < 0.5 and deg < 3.0
+
+
+def test_drive_files_round_trip_and_play_as_a_csv_reference(tmp_path):
+    t, z = multisine(2.0, FS, 1.0, 20.0, 0.05)
+    path = save_drive(tmp_path / 'd' / 'drive.csv', t, z)
+    t2, z2 = load_drive(path)
+    np.testing.assert_allclose(z2, z, atol=1e-12)
+    zc, _ = CsvTrajectory(path)(t[100:110])
+    np.testing.assert_allclose(zc, z[100:110], atol=1e-12)
+
+
+def test_bad_input_is_named():
+    with pytest.raises(DataError, match='frf'):
+        frf(np.zeros(10), np.zeros(10), FS)
+    with pytest.raises(InputError, match='multisine'):
+        multisine(1.0, FS, 30.0, 20.0, 0.1)
+    with pytest.raises(InputError, match='beta'):
+        DriveIteration(np.zeros(100), FS, np.arange(3.0), np.ones(3), beta=0.0)
+    with pytest.raises(InputError, match='increasing'):
+        Samples([0.0, 0.0], [1.0, 2.0])
+
+
+def test_the_cli_iterates_a_target_and_keeps_every_run_as_a_bag(tmp_path):
+    import subprocess
+    import sys
+    from rosbags.rosbag2 import Reader
+    t, z = multisine(5.0, FS, 0.5, 20.0, 0.08, seed=1, taper=0.5)
+    save_drive(tmp_path / 'target.csv', t, z)
+    out = tmp_path / 'drive'
+    p = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'drive', str(tmp_path / 'target.csv'),
+                        '--out', str(out), '--model', 'simplified', '--iterations', '4'],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert 'iteration 1: RMS error' in p.stdout and (out / 'drive.csv').exists()
+    for run in ('broadband', 'target_pass', 'iteration_1'):
+        with Reader(out / run) as r:                 # a reader we did not write
+            assert {c.topic for c in r.connections} == {'/reference', '/state'}
+            assert sum(c.msgcount for c in r.connections) == 2 * t.size
+    f, h, coh, fs = frf_from_bag(out / 'broadband')
+    assert fs == pytest.approx(FS) and coh[np.argmin(abs(f - 5.0))] > 0.99
