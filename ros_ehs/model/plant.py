@@ -260,26 +260,18 @@ class Plant:
         t = np.arange(u.shape[0] + 1) * dt
         return SimResult(t, out, u, self.state_names, self.params)
 
-    def settle_valve(self, x, i: float = 0.0) -> np.ndarray:
-        """
-        Return ``x`` with the valve's states at rest for current ``i`` [A], the rest held.
+    #: each state solved for rest, and the state whose rate must then vanish
+    _RATE_OF = {'theta': 'theta_dot', 'x': 'x_dot'}
 
-        The state a record starts in when it starts mid-motion: position, velocity and
-        chamber pressures as measured, the valve (armature, pilot pressures, spool) settled for
-        the current and those pressures (its rates zero). The simplified model has no valve
-        states: ``x`` comes back unchanged.
-        """
+    def _at_rest(self, x: np.ndarray, i: float, solved: tuple[str, ...]) -> np.ndarray:
+        """Solve the states named ``solved`` in ``x`` (in place) for zero rate at ``i``."""
         from scipy.optimize import root
 
-        x = np.array(x, dtype=float)
         names = self.state_names
-        free = [k for k, s in enumerate(names) if s in ('theta', 'p_tL', 'p_tR', 'x')]
+        free = [k for k, s in enumerate(names) if s in solved]
         if not free:
             return x
-        rate_of = {'theta': 'theta_dot', 'x': 'x_dot'}
-        for k in free:
-            if rate_of.get(names[k]) in names:
-                x[names.index(rate_of[names[k]])] = 0.0
+        rate_of = self._RATE_OF
         eqs = [names.index(rate_of[names[k]]) if rate_of.get(names[k]) in names
                else k for k in free]
         scale = self._xscale[free]
@@ -295,6 +287,22 @@ class Plant:
         x[free] = sol.x * scale
         return x
 
+    def settle_valve(self, x, i: float = 0.0) -> np.ndarray:
+        """
+        Return ``x`` with the valve's states at rest for current ``i`` [A], the rest held.
+
+        The state a record starts in when it starts mid-motion: position, velocity and
+        chamber pressures as measured, the valve (armature, pilot pressures, spool) settled for
+        the current and those pressures (its rates zero). The simplified model has no valve
+        states: ``x`` comes back unchanged.
+        """
+        x = np.array(x, dtype=float)
+        names = self.state_names
+        for s, rate in self._RATE_OF.items():
+            if s in names and rate in names:
+                x[names.index(rate)] = 0.0
+        return self._at_rest(x, float(i), ('theta', 'p_tL', 'p_tR', 'x'))
+
     def equilibrium(self, z: float = 0.0, i: float = 0.0) -> np.ndarray:
         """
         Return the rest state at piston position ``z`` [m] with current ``i`` [A] held.
@@ -302,8 +310,6 @@ class Plant:
         The piston is held still (friction permitting); pressures and, for the full model,
         the valve states are solved for zero rate with a Newton iteration.
         """
-        from scipy.optimize import root
-
         p = self.params
         pm = 0.5 * (p['p_s'] + p['p_t'])
         x = np.zeros(self.n)
@@ -312,20 +318,5 @@ class Plant:
             if s in names:
                 x[names.index(s)] = pm
         x[names.index('z')] = z
-        u = np.array([i, 0.0])
         solved = ('theta', 'p_tL', 'p_tR', 'x', 'p_CP', 'p_CT')
-        free = [k for k, s in enumerate(names) if s in solved]
-        rate_of = {'theta': 'theta_dot', 'x': 'x_dot'}
-        eqs = [names.index(rate_of[names[k]]) if rate_of.get(names[k]) in names
-               else k for k in free]
-        scale = self._xscale[free]
-        f = np.empty(self.n)
-
-        def resid(y):
-            x[free] = y * scale
-            K.rhs(self._id, x, u, self._c, f)
-            return f[eqs] / np.maximum(np.abs(scale), 1.0) * 1e-3
-
-        sol = root(resid, x[free] / scale, method='hybr', options={'xtol': 1e-12})
-        x[free] = sol.x * scale
-        return x.copy()
+        return self._at_rest(x, float(i), solved).copy()
