@@ -77,7 +77,7 @@ def _print_identification(result, files, held) -> None:
     d = result.input_delay
     if d:
         how = (f'+- {d["stderr_s"] * 1e3:.3g} ms (estimated)' if d.get('estimated')
-               else '(given)')
+               else f'({d["why"]})' if 'why' in d else '(given)')
         print(f'  input delay = {d["value_s"] * 1e3:.4g} ms {how}')
     for name, sig in result.metrics.items():
         fits = [f'{k} R2 {m["r2"]:.5f} NRMSE {m["nrmse"]:.4f}' for k, m in sig.items()]
