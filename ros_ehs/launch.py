@@ -320,10 +320,24 @@ class Launch:
                          'for, or no diagnostics from the plant saying its loop is closed')
 
     def _expect(self, name: str, texts: list[str], timeout: float, what: str) -> None:
-        if not self.wait_for_logs(name, texts, timeout):
-            missing = [t for t in texts if t not in self.procs[name].output()]
-            raise LaunchError(f'{what} (no {missing!r} from {name} in {timeout:g} s); '
-                              f'{name} log:\n' + self.procs[name].output()[-3000:])
+        """Wait for ``texts`` from ``name``; any child that exits meanwhile fails it at once."""
+        end = time.monotonic() + timeout
+        while True:
+            out = self.procs[name].output()
+            missing = [t for t in texts if t not in out]
+            if not missing:
+                return
+            dead = [n for n, p in self.procs.items() if not p.alive()]
+            if dead:
+                n = dead[0]
+                code = self.procs[n].popen.returncode
+                raise LaunchError(f'{n} exited with code {code} while the bench was starting '
+                                  f'(waiting: {what}); {n} log:\n' +
+                                  self.procs[n].output()[-3000:])
+            if time.monotonic() >= end:
+                raise LaunchError(f'{what} (no {missing!r} from {name} in {timeout:g} s); '
+                                  f'{name} log:\n' + out[-3000:])
+            time.sleep(0.05)
 
     def __enter__(self) -> 'Launch':
         """Return self."""

@@ -740,3 +740,17 @@ def test_a_reference_waiting_for_the_loop_starts_on_the_plants_ok_only(dom, tmp_
         assert 'the plant reports its loop closed' in launch['reference'].output()
     first = c.reference_from_msg(got[0])
     assert first.z_ref == 0.0 and first.v_ref == pytest.approx(2 * math.pi * 0.04)
+
+
+def test_the_bench_reports_a_child_that_exits_at_start_at_once(dom, tmp_path):
+    """Too little disk: the recorder refuses, and the bench says so with its error, at once."""
+    import subprocess
+    import sys
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, str(ROOT / 'launch_scripts' / 'bench.py'),
+                        '--duration', '5', '--out', str(tmp_path / 'bag'), '--no-machine-probe',
+                        '--min-free-space', str(2 ** 62)], capture_output=True, text=True,
+                       timeout=120, env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
+    assert r.returncode == 1
+    assert 'recorder exited with code 2 while the bench was starting' in r.stderr, r.stderr
+    assert 'below min_free_space' in r.stderr and time.monotonic() - t0 < 30
