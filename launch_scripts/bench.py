@@ -34,11 +34,12 @@ The bag goes to ``--out`` (default ``bags/ehs_<UTC time>``), the node logs to
 reaches them all, ``plant:`` only the plant). Exit code 0 when every node ran and stopped
 cleanly, 1 otherwise (their logs say why).
 
-In real time, beside the nodes, a machine probe runs on each CPU (``ros_ehs.bench.sleeper``: a
-1 kHz sleep loop without ROS, at the same ``--rt-priority``; ``--no-machine-probe`` leaves
-them out): the summary says how many of the plant's watchdog trips fell in a stall of the
-machine that a probe saw in the same run (a gap over 2 ms), and how many more in a shorter
-hiccup of the machine (``ros_ehs.bench.sleeper.hiccups``).
+With ``--machine-probe`` (real time), beside the nodes a probe runs on each CPU
+(``ros_ehs.bench.sleeper``: a 1 kHz sleep loop without ROS, at the same ``--rt-priority``),
+a diagnostic for a machine you do not trust: the summary says how many of the plant's
+watchdog trips fell in a stall of the machine that a probe saw in the same run (a gap over 2
+ms), and how many more in a shorter hiccup of the machine
+(``ros_ehs.bench.sleeper.hiccups``).
 """
 
 from __future__ import annotations
@@ -168,9 +169,10 @@ def main(argv=None) -> int:
                     help='SCHED_FIFO priority of the plant and controller (their rt_priority '
                     'option; needs CAP_SYS_NICE or ulimit -r, else they warn and run on); '
                     'the nodes then get the Fast DDS profile fastdds_rt.xml beside this script')
-    ap.add_argument('--machine-probe', action=argparse.BooleanOptionalAction, default=True,
-                    help='real time: a 1 kHz sleep loop without ROS on each CPU beside the '
-                    "nodes, to tell the machine's stalls from the loop's")
+    ap.add_argument('--machine-probe', action=argparse.BooleanOptionalAction, default=False,
+                    help='real time: also a 1 kHz sleep loop without ROS on each CPU beside the '
+                    "nodes, to tell the machine's stalls from the loop's (a diagnostic for a "
+                    'machine you do not trust; off by default)')
     ap.add_argument('--controller-param', type=_node_param, action='append', default=[],
                     metavar='NAME=VALUE', help='a controller parameter (repeatable), e.g. '
                     'limit_position_max=0.03')
