@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The main job: set up (if needed), run a bench over DDS (plant, controller, reference and
+# The demo run: set up (if needed), run a bench over DDS (plant, controller, reference and
 # recorder nodes, 10 s in real time) recording a bag, then identify on that bag jointly with
 # the synthetic sample bag in bags/.
 set -euo pipefail

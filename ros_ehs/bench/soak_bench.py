@@ -26,7 +26,7 @@ bag's bytes per hour as recorded and as the same messages take uncompressed, eac
 share, the files written, and the plant's watchdog trips per hour. Last line: one JSON
 object. The target of a long run: every node's slope <= 5 MB/hour with splitting on.
 
-``--rt-priority`` (default 50, as the main job's bench runs; 0: the default scheduler) puts
+``--rt-priority`` (default 50, as the demo run's bench runs; 0: the default scheduler) puts
 plant and controller on SCHED_FIFO, with ``launch_scripts/fastdds_rt.xml`` for every node
 when the source checkout has it, as ``launch_scripts/bench.py`` does.
 """
@@ -78,7 +78,7 @@ def main(argv=None) -> int:
     ap.add_argument('--sample', type=positive, default=2.0, help='RSS sampling period [s]')
     ap.add_argument('--keep', default=None, help='keep the bag in this directory')
     ap.add_argument('--rt-priority', type=int, default=50,
-                    help="SCHED_FIFO priority of plant and controller (the main job's 50; 0: "
+                    help="SCHED_FIFO priority of plant and controller (the demo run's 50; 0: "
                     'the default scheduler)')
     a = ap.parse_args(argv)
     lock = a.mode == 'lockstep'

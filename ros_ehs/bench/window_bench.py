@@ -12,13 +12,13 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench window``: the main job's bench, window by window, beside bare rclpy.
+``python -m ros_ehs.bench window``: the demo run's bench, window by window, beside bare rclpy.
 
-The main job's target is that a 10 s bench has no watchdog trip *on a quiet machine*. This
+The demo run's target is that a 10 s bench has no watchdog trip *on a quiet machine*. This
 benchmark says which windows were quiet. It runs ``--windows`` pairs of ``--seconds`` long
 windows, alternating (ours first, then the bare loop first, ...):
 
-* **ours**: ``launch_scripts/bench.py`` as the main job runs it (plant, controller,
+* **ours**: ``launch_scripts/bench.py`` as the demo run runs it (plant, controller,
   reference and recorder, real time, ``--rt-priority``), from its ``loop running`` to its
   ``stopping``; the trips of the start-up before that are counted apart
   (``ours_trips_in_start_up``, and of those the ones in a machine stall or hiccup that the
@@ -101,7 +101,7 @@ def _explained(trips: list[tuple], stalls: list[tuple], hics: list[tuple],
 def _ours(dom: int, seconds: float, prio: int, pin: bool, tmp: Path,
           i: int) -> tuple[list, float, float]:
     """
-    Run the main job's bench; return its trips ``(t, ms)`` and the window's span.
+    Run the demo run's bench; return its trips ``(t, ms)`` and the window's span.
 
     The window runs from the bench's ``loop running`` (the loop closed, the reference and the
     recorder in) to its ``stopping``; the plant's trip log also holds the trips of the
@@ -156,10 +156,10 @@ def main(argv=None) -> int:
     ap.add_argument('--seconds', type=positive, default=10.0, help='length of each window')
     ap.add_argument('--rt-priority', type=int, default=50,
                     help='SCHED_FIFO priority of the loop nodes, the bare ping-pong and the '
-                    "probes (the main job's 50; 0: the default scheduler)")
+                    "probes (the demo run's 50; 0: the default scheduler)")
     ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=True,
                     help='plant and controller on one CPU, the reference on another, as the '
-                    "main job places them, and the bare ping and pong on the plant's CPU; "
+                    "demo run places them, and the bare ping and pong on the plant's CPU; "
                     '--no-cpu-affinity: all left to the scheduler')
     a = ap.parse_args(argv)
     if not BENCH.is_file():
@@ -215,7 +215,7 @@ def main(argv=None) -> int:
     figures['ours_start_up_trips_in_hiccups'] = start_up[2]
     figures['machine_stalled_windows'] = sum(x[1] > 0 for r in rows.values() for x in r)
     figures['targets_met'] = {
-        # the main job's target: on a quiet machine a 10 s run has no trip
+        # the demo run's target: on a quiet machine a 10 s run has no trip
         'quiet_windows_trip_free': figures['ours_quiet_trip_free_windows']
         == figures['ours_quiet_windows'],
     }
