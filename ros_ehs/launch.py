@@ -38,11 +38,33 @@ from ros_ehs.errors import EhsError
 from ros_ehs.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
-__all__ = ['FIGURES', 'Launch', 'LaunchError', 'loop_placement', 'NodeProcess',
+__all__ = ['FIGURES', 'Launch', 'LaunchError', 'launch_script', 'loop_placement', 'NodeProcess',
            'node_command', 'NODES']
 
 #: What the plant prints before its JSON figures at shutdown (one line).
 FIGURES = 'figures '
+
+
+def launch_script(name: str) -> Path:
+    """
+    Return the path of ``launch_scripts/<name>``: in this source tree, or installed.
+
+    A colcon install puts them in the package's share directory
+    (``share/ros_ehs/launch_scripts``, found through the ament index), not beside the code.
+    """
+    here = Path(__file__).resolve().parents[1] / 'launch_scripts' / name
+    if here.exists():
+        return here
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        installed = Path(get_package_share_directory('ros_ehs')) / 'launch_scripts' / name
+    except (ImportError, LookupError, ValueError):
+        installed = None
+    if installed is None or not installed.exists():
+        raise FileNotFoundError(f'launch_scripts/{name} is neither beside the code ({here}) '
+                                'nor installed in the ros_ehs share directory')
+    return installed
+
 
 #: The node executables of the package (``ros2 run ros_ehs <name>``).
 NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify')

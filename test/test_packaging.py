@@ -99,3 +99,20 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     where = subprocess.run([str(lib / 'identify'), '--ros-args', '-p', 'bags:=[nope]'],
                            env=dict(env, PYTHONPATH=str(site)), capture_output=True, text=True)
     assert where.returncode == 2 and 'no bag at' in where.stderr, where.stderr
+
+
+def test_launch_scripts_are_found_from_the_source_tree_or_the_install(tmp_path, monkeypatch):
+    """Benches find launch_scripts/ beside the code, else in the ament share directory."""
+    import ros_ehs.launch as launch
+    assert launch.launch_script('bench.py') == ROOT / 'launch_scripts' / 'bench.py'
+    share = tmp_path / 'share' / 'ros_ehs' / 'launch_scripts'
+    share.mkdir(parents=True)
+    (share / 'bench.py').write_text('')
+    fake = tmp_path / 'site' / 'ros_ehs' / 'launch.py'       # an installed copy of the code
+    fake.parent.mkdir(parents=True)
+    monkeypatch.setattr(launch, '__file__', str(fake))
+    monkeypatch.setattr('ament_index_python.packages.get_package_share_directory',
+                        lambda name: str(tmp_path / 'share' / name))
+    assert launch.launch_script('bench.py') == share / 'bench.py'
+    with pytest.raises(FileNotFoundError, match='launch_scripts/nothing.py'):
+        launch.launch_script('nothing.py')

@@ -44,11 +44,11 @@ import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
 from ros_ehs.bench import positive, report
-from ros_ehs.launch import Launch
+from ros_ehs.launch import Launch, launch_script
 import yaml
 
 NODES = ('plant', 'controller', 'reference', 'recorder')
-RT_PROFILE = Path(__file__).resolve().parents[2] / 'launch_scripts' / 'fastdds_rt.xml'
+RT_PROFILE = launch_script('fastdds_rt.xml')
 
 
 def _uncompressed_bytes(bag: Path) -> int:

@@ -54,9 +54,9 @@ import time
 from domain_coordinator import domain_id
 from ros_ehs.bench import count, positive, report
 from ros_ehs.bench.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
-from ros_ehs.launch import FIGURES, Launch, loop_placement
+from ros_ehs.launch import FIGURES, Launch, launch_script, loop_placement
 
-BENCH = Path(__file__).resolve().parents[2] / 'launch_scripts' / 'bench.py'
+BENCH = launch_script('bench.py')
 RT_PROFILE = BENCH.with_name('fastdds_rt.xml')
 
 
