@@ -290,3 +290,36 @@ def test_the_player_replays_a_rig_bag_as_the_contract(rig_bags, tmp_path):
     assert {m.topic for m in msgs} == {'/state', '/servo_current', '/pressure/chamber_p',
                                        '/pressure/chamber_t'}
     shutil.rmtree(tmp_path, ignore_errors=True)
+
+
+def test_symmetric_jitter_is_kept_and_states_before_the_first_command_are_not_a_run(tmp_path):
+    """A quarter period either way; the recorder started 1.5 s before the controller."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    rng = np.random.default_rng(9)
+    n, fs = 4000, 1000.0
+    t = (np.arange(n) + rng.uniform(-0.25, 0.25, n)) / fs
+    with Writer(tmp_path / 'b', version=9) as w:
+        cs = w.add_connection('/joint_states', 'sensor_msgs/msg/JointState', typestore=ts)
+        cc = w.add_connection('/cmd', 'std_msgs/msg/Float64MultiArray', typestore=ts)
+        for k in range(n):
+            ns = 10**9 + int(t[k] * 1e9)
+            m = T['sensor_msgs/msg/JointState'](
+                header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
+                    sec=ns // 10**9, nanosec=ns % 10**9), frame_id=''), name=['z'],
+                position=np.array([0.02 * np.sin(2 * np.pi * t[k])]), velocity=np.zeros(0),
+                effort=np.zeros(0))
+            w.write(cs, ns + 100_000, ts.serialize_cdr(m, m.__msgtype__))
+            if t[k] >= 1.5:
+                a = T['std_msgs/msg/Float64MultiArray'](
+                    layout=T['std_msgs/msg/MultiArrayLayout'](dim=[], data_offset=0),
+                    data=np.array([0.005 * np.cos(2 * np.pi * t[k])]))
+                w.write(cc, ns + 300_000, ts.serialize_cdr(a, a.__msgtype__))
+    runs = load_experiments(tmp_path / 'b', topics=TopicMap(
+        state='/joint_states', joint='z', command='/cmd', pressure_p=None, pressure_t=None,
+        input_delay=0.0))
+    assert len(runs) == 1 and 'off-grid' not in runs[0].name
+    assert runs[0].t.size == pytest.approx(2500, abs=3)      # from the first command on
+    assert (runs[0].t0_ns - 10**9) * 1e-9 == pytest.approx(1.5, abs=2e-3)

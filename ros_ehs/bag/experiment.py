@@ -24,8 +24,9 @@ Time policy:
 
 * the time base is the ``state`` topic's header stamps (its receive times when the driver
   does not stamp them); states are sorted by stamp, a repeated stamp (a lock-step resend) is
-  kept once, and a state closer than 3/4 of the median period to the one before it (a stray
-  publisher, another clock) is dropped, the experiment's name says how many;
+  kept once, and a state closer than 0.45 of the median period to the one before it (a stray
+  publisher, another clock) is dropped, the experiment's name says how many (a driver's
+  jitter of a quarter period either way brings two states within 0.5 of it: kept);
 * a gap (a missed sample: more than 1.5 periods) splits the record into runs
   (:func:`load_experiments`), and runs too short to fit are dropped;
 * a run whose stamps jitter (a driver's timestamps: up to a quarter of the period) is
@@ -219,14 +220,14 @@ def _on_grid(ts: np.ndarray) -> np.ndarray:
     """
     Mask of the states on the record's sample grid (sorted, distinct stamps [ns]).
 
-    A state closer than 3/4 of the median period to the one kept before it is a stranger (a
+    A state closer than 0.45 of the median period to the one kept before it is a stranger (a
     stray publisher, another clock, a replay into a live bench) and is dropped.
     """
     keep = np.ones(ts.size, dtype=bool)
     d = np.diff(ts)
     if d.size == 0:
         return keep
-    close = 0.75 * np.median(d)
+    close = 0.45 * np.median(d)
     if not np.any(d < close):
         return keep
     last = ts[0]
@@ -469,6 +470,9 @@ def _experiment(rec: _Record, a: int, b: int, name: str) -> Experiment:
         commands = (tc, rec.vc)
         first = tc[0] + rec.delay        # no command in force before this
         k0 = int(np.searchsorted(t, first - 1e-12))
+        if k0 and t.size - k0 < MIN_SAMPLES:     # (nearly) all before the first command
+            raise _NoExcitation(f'{name}: {k0} of its {t.size} samples come before the first '
+                                'command; too few are left')
         if k0:
             t, z, v = t[k0:] - t[k0], z[k0:], v[k0:]
             t0_ns += int(round(span[k0] * 1e9)) if exact else int(round(k0 * dt * 1e9))
