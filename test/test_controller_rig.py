@@ -84,8 +84,9 @@ def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
     print(f'tracking RMS: ros2_control driver {rms_rig * 1e3:.4f} mm, '
           f'our plant {rms_ours * 1e3:.4f} mm')
     # ros2_control writes a command at the cycle after it came (our plant applies it on
-    # arrival): up to a period more delay, 2 ms at 500 Hz; measured 0.16 against 0.11 mm
-    assert rms_rig < 1e-3 and 0.6 < rms_rig / rms_ours < 2.0, (rms_rig, rms_ours)
+    # arrival): up to a period more delay, 2 ms at 500 Hz; measured 0.16-0.19 mm against
+    # 0.10-0.11 mm (ratios 1.5-1.8 over three runs)
+    assert rms_rig < 1e-3 and 0.6 < rms_rig / rms_ours < 2.5, (rms_rig, rms_ours)
     # and the rig's bag, recorded by our recorder in the driver's layout, reads as a rig's
     runs = load_experiments(rig_bag, topics=RIG)
     assert runs and all(e.derived == ('z_dot',) and e.commands is not None for e in runs)
