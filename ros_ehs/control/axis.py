@@ -38,8 +38,7 @@ class AxisController:
 
     def __init__(self, params: Params, dt: float = 1e-3, enabled: bool = True) -> None:
         self.ctrl = Controller(params, dt)
-        self.supervisor = Supervisor(SafetyConfig.from_params(params), dt,
-                                     float(params['u_max']), enabled)
+        self.supervisor = Supervisor(SafetyConfig.from_params(params), dt, enabled)
         self.demand = Demand('waiting', math.nan, 0.0, False)
         self.events: list[Event] = []     # the newest step's events
 
@@ -52,7 +51,6 @@ class AxisController:
         """Apply new gains, feedforward values, limits and actions (latches stay)."""
         self.ctrl.set_params(params)
         self.supervisor.set_config(SafetyConfig.from_params(params))
-        self.supervisor.u_max = float(params['u_max'])
 
     def restart(self) -> None:
         """Start a new run (epoch): PID from rest, ramp on again; latches stay."""

@@ -181,13 +181,12 @@ def braking_distance(params: Mapping[str, object], v: float, dt: float,
 
 
 class _Latch:
-    """One detector's state: latched, value at the trip, periods the condition has held."""
+    """One detector's state: latched, and the periods its condition has held."""
 
-    __slots__ = ('tripped', 'value', 'count')
+    __slots__ = ('tripped', 'count')
 
     def __init__(self) -> None:
         self.tripped = False
-        self.value = math.nan
         self.count = 0
 
 
@@ -195,14 +194,13 @@ class Supervisor:
     """Detectors, latched actions, hydraulics on/off and ramp-on (see the module docstring)."""
 
     def __init__(self, config: SafetyConfig | None = None, dt: float = 1e-3,
-                 u_max: float = 0.015, enabled: bool = True) -> None:
+                 enabled: bool = True) -> None:
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
             raise InputError(f'`dt` = {dt!r} s must be finite and > 0')
         if config is not None and not isinstance(config, SafetyConfig):
             raise InputError(f'`config` must be SafetyConfig, got {type(config).__name__}')
         self.config = config or SafetyConfig()
         self.dt = float(dt)
-        self.u_max = float(spec('u_max').check(u_max))
         self.latches = {d: _Latch() for d in DETECTORS}
         self.enabled = bool(enabled)
         self.counts = dict.fromkeys(DETECTORS, 0)
@@ -291,8 +289,8 @@ class Supervisor:
         # saturation: the previous command at its limit for longer than the time
         sat = self.latches['saturation']
         sat.count = sat.count + 1 if (saturated and powered) else 0
-        self._check('saturation', sat.count * dt > cfg.limit_saturation_time and sat.count > 0,
-                    stamp_ns, sat.count * dt, '', events)
+        self._check('saturation', sat.count * dt > cfg.limit_saturation_time, stamp_ns,
+                    sat.count * dt, '', events)
         self._last_z = z if finite else self._last_z
         self._last_stamp = stamp_ns
         demand = self._demand(stamp_ns, z, z_traj, v_traj)
@@ -315,7 +313,6 @@ class Supervisor:
         if not cond or act == 'off' or s.tripped:
             return False
         s.tripped = True
-        s.value = value
         self.counts[det] += 1
         lim = self.config.limit(det)
         unit = _UNITS[det]
@@ -434,7 +431,6 @@ class Supervisor:
         for s in self.latches.values():
             s.tripped = False
             s.count = 0
-            s.value = math.nan
         self._same = 0
         was = self._mode
         self._mode = 'run'
