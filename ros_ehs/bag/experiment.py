@@ -246,19 +246,24 @@ def _joint_of(names: tuple[str, ...], joint: str, cache: dict) -> int:
     return k
 
 
+def _each(bag: Bag, topic: str, decode):
+    """Yield ``(message, decode(its CDR bytes))``; a payload that will not decode is a BagError."""
+    for m in bag.messages([topic]):
+        try:
+            d = decode(m.data)
+        except ValueError as err:
+            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {err}') \
+                from None
+        yield m, d
+
+
 def _decode_states(bag: Bag, topic: str, joint: str):
     """Return stamps [ns], receive times [ns], z, v, applied current of the joint's states."""
-    js = contract.decode_joint_state
     idx: dict = {}
     valve: dict = {}
     seen: set = set()
     stamps, recv, z, v, cur = [], [], [], [], []
-    for m in bag.messages([topic]):
-        try:
-            d = js(m.data)
-        except ValueError as err:
-            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {err}') \
-                from None
+    for m, d in _each(bag, topic, contract.decode_joint_state):
         k = _joint_of(d.name, joint, idx)
         if k < 0:
             if len(seen) < 20:
@@ -285,36 +290,33 @@ def _decode_states(bag: Bag, topic: str, joint: str):
 def _decode_commands(bag: Bag, topic: str, msg_type: str, tmap: TopicMap):
     """Return (times [ns], values [A], stamped): header stamps or receive times."""
     ts, vs = [], []
-    idx: dict = {}
-    seen: set = set()
-    for m in bag.messages([topic]):
-        try:
-            if msg_type == JOINT_STATE:
-                d = contract.decode_joint_state(m.data)
-                k = _joint_of(d.name, tmap.command_joint, idx)
-                if k < 0 or k >= len(d.effort):
-                    seen.update(d.name)
-                    continue
-                ts.append(d.stamp_ns)
-                vs.append(d.effort[k])
-            elif msg_type == FLOAT64:
-                ts.append(m.log_time_ns)
-                vs.append(contract.float64_from_cdr(m.data))
-            else:
-                data = contract.float64_array_from_cdr(m.data)
-                if tmap.command_index >= len(data):
-                    raise BagError(f'command topic {topic!r}: `command_index` = '
-                                   f'{tmap.command_index} but its Float64MultiArray at '
-                                   f'{m.log_time_ns} ns has {len(data)} values')
-                ts.append(m.log_time_ns)
-                vs.append(data[tmap.command_index])
-        except ValueError as err:
-            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {err}') \
-                from None
-    if not ts and seen:
-        raise BagError(f'command topic {topic!r} in {str(bag.path)!r} has no joint '
-                       f'{tmap.command_joint!r} with an effort; its joints: {sorted(seen)} '
-                       '(set `command_joint`)')
+    if msg_type == JOINT_STATE:
+        idx: dict = {}
+        seen: set = set()
+        for _, d in _each(bag, topic, contract.decode_joint_state):
+            k = _joint_of(d.name, tmap.command_joint, idx)
+            if k < 0 or k >= len(d.effort):
+                seen.update(d.name)
+                continue
+            ts.append(d.stamp_ns)
+            vs.append(d.effort[k])
+        if not ts and seen:
+            raise BagError(f'command topic {topic!r} in {str(bag.path)!r} has no joint '
+                           f'{tmap.command_joint!r} with an effort; its joints: '
+                           f'{sorted(seen)} (set `command_joint`)')
+    elif msg_type == FLOAT64:
+        for m, value in _each(bag, topic, contract.float64_from_cdr):
+            ts.append(m.log_time_ns)
+            vs.append(value)
+    else:
+        k = tmap.command_index
+        for m, data in _each(bag, topic, contract.float64_array_from_cdr):
+            if k >= len(data):
+                raise BagError(f'command topic {topic!r}: `command_index` = {k} but its '
+                               f'Float64MultiArray at {m.log_time_ns} ns has {len(data)} '
+                               'values')
+            ts.append(m.log_time_ns)
+            vs.append(data[k])
     return (np.asarray(ts, dtype=np.int64),
             np.asarray(vs, dtype=float) * float(tmap.command_scale), msg_type == JOINT_STATE)
 
@@ -322,17 +324,15 @@ def _decode_commands(bag: Bag, topic: str, msg_type: str, tmap: TopicMap):
 def _decode_pressure(bag: Bag, topic: str, msg_type: str, unit: str):
     """Return (times [ns], values [Pa], stamped)."""
     ts, vs = [], []
-    for m in bag.messages([topic]):
-        try:
-            if msg_type == FLUID_PRESSURE:
-                st, p = contract.fluid_pressure_from_cdr(m.data)
-            else:
-                st, p = m.log_time_ns, contract.float64_from_cdr(m.data) * PRESSURE_UNITS[unit]
-        except ValueError as err:
-            raise BagError(f'malformed message on {topic!r} at {m.log_time_ns} ns: {err}') \
-                from None
-        ts.append(st)
-        vs.append(p)
+    if msg_type == FLUID_PRESSURE:
+        for _, (st, p) in _each(bag, topic, contract.fluid_pressure_from_cdr):
+            ts.append(st)
+            vs.append(p)
+    else:
+        scale = PRESSURE_UNITS[unit]
+        for m, p in _each(bag, topic, contract.float64_from_cdr):
+            ts.append(m.log_time_ns)
+            vs.append(p * scale)
     return np.asarray(ts, dtype=np.int64), np.asarray(vs, dtype=float), \
         msg_type == FLUID_PRESSURE
 
@@ -409,29 +409,6 @@ def _read(path, tmap: TopicMap, bag: Bag | None, start=None, end=None) -> _Recor
     return _Record(name, ts, z, v, applied, tc, vc, pressures, bool(tmap.pressure_load), delay)
 
 
-def _noise(t: np.ndarray, y: np.ndarray) -> float:
-    """
-    White-noise level of ``y`` sampled at the (possibly jittered) times ``t`` [s].
-
-    As :func:`ros_ehs.identify.estimator.noise_sigma`, from the third difference, but the
-    divided one scaled by ``6 h^3`` (``h`` the mean step): zero for a quadratic at any sample
-    times, so a driver's jitter does not pass for noise, and taken on the raw samples, before
-    the interpolation onto the grid averages neighbours.
-    """
-    from ros_ehs.identify.estimator import noise_sigma
-    if t.size < 8 or np.all(np.abs(np.diff(t, 2)) <= 1e-9 * (t[-1] - t[0])):
-        return noise_sigma(y)
-    d = y.astype(float)
-    x = t.astype(float)
-    for order in (1, 2, 3):
-        d = (d[1:] - d[:-1]) / (x[order:] - x[:-order])
-    h = float(np.mean(np.diff(x)))
-    d3 = 6.0 * h ** 3 * d
-    mad = float(np.median(np.abs(d3 - np.median(d3)))) * 1.4826
-    floor = 1e-6 * max(float(np.ptp(y)), np.finfo(float).tiny)
-    return max(mad / math.sqrt(20.0), floor)
-
-
 def _savgol_width(dt: float) -> int:
     n = max(3, int(round(DERIVATIVE_WIDTH / dt)))
     return n + 1 - n % 2
@@ -445,14 +422,15 @@ def _experiment(rec: _Record, a: int, b: int, name: str) -> Experiment:
     dt = float(span[-1] / (span.size - 1)) if span.size > 1 else 1e-3
     z, v, applied = rec.z[a:b], rec.v[a:b], rec.applied[a:b]
     exact = dts.size == 0 or float(np.max(np.abs(dts - np.median(dts)))) <= 1e-6 * dt
-    # each measured signal's noise, on its raw samples (see _noise)
-    noise = {'z': _noise(span, z)}
+    # each measured signal's noise, on its raw samples, before the grid averages neighbours
+    from ros_ehs.identify.estimator import noise_sigma
+    noise = {'z': noise_sigma(z, span)}
     if np.all(np.isfinite(v)):
-        noise['z_dot'] = _noise(span, v)
+        noise['z_dot'] = noise_sigma(v, span)
     for key, (tp, pv) in zip(('p_CP', 'p_CT') if not rec.load else ('p_L',), rec.pressures):
         m = (tp >= ts[0]) & (tp <= ts[-1])
         if m.sum() >= 8:
-            noise[key] = _noise((tp[m] - ts[0]) * 1e-9, pv[m])
+            noise[key] = noise_sigma(pv[m], (tp[m] - ts[0]) * 1e-9)
     if exact:
         t = span
     else:        # a driver's jittered stamps: onto a uniform grid at the mean period
