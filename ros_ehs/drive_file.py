@@ -43,31 +43,12 @@ from pathlib import Path
 import numpy as np
 
 from ros_ehs.errors import DataError, InputError
+from ros_ehs.reference import CsvTrajectory, Samples
 
 __all__ = ['DriveIteration', 'Samples', 'band_error', 'frf', 'frf_from_bag', 'iterate',
            'load_drive', 'multisine', 'record_run', 'rms_error_pct', 'save_drive']
 
 T0_NS = 1_700_000_000_000_000_000     # the bags' epoch, so equal runs give equal bags
-
-
-class Samples:
-    """A sampled trajectory as a reference: ``(z, v)`` at any times, linearly interpolated."""
-
-    def __init__(self, t, z) -> None:
-        self.t = np.asarray(t, dtype=float)
-        self.z = np.asarray(z, dtype=float)
-        if self.t.shape != self.z.shape or self.t.size < 2 or not np.all(np.diff(self.t) > 0):
-            raise InputError('`t`, `z`: one increasing time per position, at least two')
-        if not np.all(np.isfinite(self.z)):
-            raise InputError('`z` is not finite everywhere')
-        self.v = np.gradient(self.z, self.t)
-
-    def __call__(self, t):
-        """Return ``(z, v)`` at ``t`` [s]; before and after the record, its ends at rest."""
-        t = np.asarray(t, dtype=float)
-        z = np.interp(t, self.t, self.z)
-        v = np.interp(t, self.t, self.v, left=0.0, right=0.0)
-        return z, v
 
 
 def _taper(n: int, fs: float, seconds: float) -> np.ndarray:
@@ -225,7 +206,6 @@ def save_drive(path: str | os.PathLike, t, z) -> Path:
 
 def load_drive(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a drive CSV written by :func:`save_drive` (or any ``t, z`` CSV with a header)."""
-    from ros_ehs.reference import CsvTrajectory
     c = CsvTrajectory(path)
     return c.t, c.z
 

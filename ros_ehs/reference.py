@@ -28,7 +28,8 @@ import numpy as np
 from ros_ehs.errors import DataError, InputError, ParameterError
 from ros_ehs.params import ParamSpec
 
-__all__ = ['Chirp', 'CsvTrajectory', 'KINDS', 'REFERENCE_SPECS', 'Sine', 'Step', 'make']
+__all__ = ['Chirp', 'CsvTrajectory', 'KINDS', 'REFERENCE_SPECS', 'Samples', 'Sine', 'Step',
+           'make']
 
 
 def _finite(name: str, value: float) -> float:
@@ -113,12 +114,33 @@ class Chirp:
         return self.amplitude * np.sin(phase), self.amplitude * 2 * math.pi * f * np.cos(phase)
 
 
-class CsvTrajectory:
+class Samples:
     """
-    Trajectory from a CSV file with columns ``t`` [s] and ``z`` [m] (header row required).
+    A sampled trajectory ``z`` [m] at times ``t`` [s] as a reference (a drive file's).
 
     Linear interpolation; velocity by central differences. Holds the end values outside.
     """
+
+    def __init__(self, t, z) -> None:
+        t, z = np.asarray(t, dtype=float), np.asarray(z, dtype=float)
+        if t.shape != z.shape or t.ndim != 1 or t.size < 2:
+            raise InputError(f'`t`, `z`: one time per position, at least two (got shapes '
+                             f'{t.shape}, {z.shape})')
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(z))):
+            raise InputError('`t`, `z` must be finite everywhere')
+        if np.any(np.diff(t) <= 0):
+            raise InputError('`t` must be increasing strictly')
+        self.t, self.z = t, z
+        self.v = np.gradient(z, t)
+
+    def __call__(self, t):
+        """Return (z_ref, v_ref) at times ``t``."""
+        t = np.asarray(t, dtype=float)
+        return np.interp(t, self.t, self.z), np.interp(t, self.t, self.v)
+
+
+class CsvTrajectory(Samples):
+    """Trajectory from a CSV file with columns ``t`` [s] and ``z`` [m] (header row required)."""
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
@@ -134,13 +156,7 @@ class CsvTrajectory:
             raise DataError(f'{path}: need >= 2 finite rows')
         if np.any(np.diff(t) <= 0):
             raise DataError(f'{path}: column `t` must increase strictly')
-        self.t, self.z = t, z
-        self.v = np.gradient(z, t)
-
-    def __call__(self, t):
-        """Return (z_ref, v_ref) at times ``t``."""
-        t = np.asarray(t, dtype=float)
-        return np.interp(t, self.t, self.z), np.interp(t, self.t, self.v)
+        super().__init__(t, z)
 
 
 KINDS = ('sine', 'step', 'chirp', 'csv')
