@@ -103,7 +103,7 @@ def _print_identification(result, files, held) -> None:
 
 def _topic_map(args):
     """Return the bags' topic map: --topics FILE (or the contract), then the options."""
-    from ros_ehs.bag.mapping import load_topic_map, TopicMap
+    from ros_ehs.bag.mapping import topic_map
     from ros_ehs.errors import InputError
     delay = args.input_delay
     if delay is not None and delay.strip().lower() != 'auto':
@@ -112,14 +112,10 @@ def _topic_map(args):
         except ValueError:
             raise InputError(f'--input-delay {args.input_delay!r}: give seconds or auto') \
                 from None
-    given = {'state': args.state_topic, 'joint': args.joint, 'command': args.command_topic,
-             'command_index': args.command_index, 'pressure_p': args.pressure_p,
-             'pressure_t': args.pressure_t, 'input_delay': delay}
-    given = {k: v for k, v in given.items() if v is not None}
-    if args.topics:
-        tmap = load_topic_map(args.topics, **given)
-    else:
-        tmap = TopicMap.from_dict(given, where='the command line')
+    tmap = topic_map(args.topics, 'the command line', state=args.state_topic,
+                     joint=args.joint, command=args.command_topic,
+                     command_index=args.command_index, pressure_p=args.pressure_p,
+                     pressure_t=args.pressure_t, input_delay=delay)
     return tmap.without_pressures() if args.no_pressures else tmap
 
 

@@ -248,6 +248,25 @@ def test_a_bad_topic_map_file_names_the_key(tmp_path, text, match):
 
 
 @pytest.mark.ros
+def test_the_identify_node_reads_a_rig_bag_through_its_topic_map(rig_bags, tmp_path, dom):
+    """The node's `topic_map` and `joint` parameters, as `ehs_sim identify --topics`."""
+    from ros_ehs.launch import Launch
+    bag, lay, truth = rig_bags['mcap-2kHz-array-fluid']
+    rig = tmp_path / 'rig.yaml'
+    m = {**lay.topic_map(0.0003).as_dict(), 'joint': 'wrong_joint'}
+    rig.write_text(''.join(f'{k}: {json.dumps(v)}\n' for k, v in m.items()))
+    out = tmp_path / 'id'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        p = launch.start('identify', {'bags': [str(bag)], 'out': str(out), 'topic_map': str(rig),
+                                      'joint': lay.joint, 'max_nfev': 2, 'advise': False,
+                                      'figures': False})
+        assert p.popen.wait(300) in (0, 1), p.output()[-3000:]
+    s = json.loads((out / 'summary.json').read_text())
+    assert s['input_delay'] == {'value_s': 0.0003, 'estimated': False}   # from the file
+    assert len(s['fit']) >= 2                    # the runs of the joint the option named
+
+
+@pytest.mark.ros
 def test_the_player_node_replays_a_rig_bag_as_our_topics(rig_bags, tmp_path, dom, ros):
     """Over DDS: the player with the rig's map publishes ``state`` (joint piston)."""
     from rclpy.qos import QoSProfile

@@ -46,7 +46,8 @@ from typing import Any, Mapping
 from ros_ehs.errors import InputError
 import ros_ehs_msgs_py as contract
 
-__all__ = ['COMMAND_TYPES', 'PRESSURE_TYPES', 'STATE_TYPES', 'TopicMap', 'load_topic_map']
+__all__ = ['COMMAND_TYPES', 'PRESSURE_TYPES', 'STATE_TYPES', 'TopicMap', 'load_topic_map',
+           'topic_map']
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 FLOAT64 = 'std_msgs/msg/Float64'
@@ -174,3 +175,17 @@ def load_topic_map(path: str | os.PathLike, **overrides: Any) -> TopicMap:
     doc = {**doc, **{k: v for k, v in overrides.items() if v is not None}} \
         if isinstance(doc, dict) else doc
     return TopicMap.from_dict(doc, where=f'topic map {str(p)!r}')
+
+
+def topic_map(path: str | os.PathLike | None = None, where: str = 'the options',
+              **overrides: Any) -> TopicMap:
+    """
+    Return the map in the YAML file ``path`` (none: the contract's), then ``overrides``.
+
+    An override of None is not given. ``where`` names the overrides' source in errors when
+    there is no file (a command line, a node's parameters).
+    """
+    if path:
+        return load_topic_map(path, **overrides)
+    return TopicMap.from_dict({k: v for k, v in overrides.items() if v is not None},
+                              where=where)

@@ -32,7 +32,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
-from ros_ehs.bag.mapping import load_topic_map, TopicMap
+from ros_ehs.bag.mapping import topic_map, TopicMap
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.errors import EhsError
 from ros_ehs.identify.run import run_identification
@@ -97,18 +97,15 @@ class IdentifyNode(Node):
         self.result = None
         threading.Thread(target=self._job, daemon=True).start()
 
-    def topic_map(self) -> TopicMap:
+    def bag_topics(self) -> TopicMap:
         """Return where the signals are in the bags, from the options."""
         o = self.opt
-        over = {'joint': o['joint'] or None,
-                'input_delay': o['input_delay'] if o['input_delay'] >= 0 else None}
-        if o['topic_map']:
-            tmap = load_topic_map(o['topic_map'], **over)
-        else:
-            tmap = TopicMap.from_dict({
-                'state': o['state_topic'], 'command': o['command_topic'],
-                'pressure_p': o['pressure_p_topic'], 'pressure_t': o['pressure_t_topic'],
-                **{k: v for k, v in over.items() if v is not None}}, where='the options')
+        topics = {} if o['topic_map'] else {      # a map file replaces the topic options
+            'state': o['state_topic'], 'command': o['command_topic'],
+            'pressure_p': o['pressure_p_topic'], 'pressure_t': o['pressure_t_topic']}
+        tmap = topic_map(o['topic_map'] or None, 'the options', joint=o['joint'] or None,
+                         input_delay=o['input_delay'] if o['input_delay'] >= 0 else None,
+                         **topics)
         return tmap if o['use_pressures'] else tmap.without_pressures()
 
     def _job(self) -> None:
@@ -118,7 +115,7 @@ class IdentifyNode(Node):
             result, files, _ = run_identification(
                 o['bags'], o['out'], free=o['free'], model=o['model'], cost=o['cost'],
                 holdout=o['holdout'], initial=o['initial'] or None,
-                topics=self.topic_map(),
+                topics=self.bag_topics(),
                 max_nfev=int(o['max_nfev']), figures=bool(o['figures']),
                 start=float(o['start']) or None, end=float(o['end']) or None,
                 starts=int(o['starts']), seed=int(o['seed']), advise=bool(o['advise']),
