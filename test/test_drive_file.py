@@ -86,6 +86,10 @@ def test_bad_input_is_named():
         DriveIteration(np.zeros(100), FS, np.arange(3.0), np.ones(3), beta=0.0)
     with pytest.raises(InputError, match='increasing'):
         Samples([0.0, 0.0], [1.0, 2.0])
+    with pytest.raises(InputError, match='finite'):
+        Samples([0.0, 1.0], [0.0, np.nan])
+    with pytest.raises(InputError, match='one time per position'):
+        Samples([0.0, 1.0, 2.0], [0.0, 1.0])
 
 
 def test_the_cli_iterates_a_target_and_keeps_every_run_as_a_bag(tmp_path):

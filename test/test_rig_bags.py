@@ -29,6 +29,18 @@ from ros_ehs.synthetic_rig import record_rig_bag, RigLayout
 TRUTH = preset('table1_estimated')
 FIVE = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')
 
+
+def _joint_state(ts, ns: int, names, position, velocity=(), effort=()) -> bytes:
+    """Return a sensor_msgs/JointState stamped ``ns``, serialized by rosbags (not by us)."""
+    T = ts.types
+    m = T['sensor_msgs/msg/JointState'](
+        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
+            sec=int(ns // 10**9), nanosec=int(ns % 10**9)), frame_id=''), name=list(names),
+        position=np.asarray(position, dtype=float), velocity=np.asarray(velocity, dtype=float),
+        effort=np.asarray(effort, dtype=float))
+    return ts.serialize_cdr(m, m.__msgtype__)
+
+
 LAYOUTS = {
     # 2 kHz, position only, Float64MultiArray in mA (element 1), FluidPressure at 1 kHz
     'mcap-2kHz-array-fluid': RigLayout(),
@@ -130,13 +142,9 @@ def test_our_own_bags_need_no_delay(tmp_path):
             st = 10**9 + k * 10**6
             s = c.fill_state(c.empty_msg(c.STATE.msg_type), c.AxisState(
                 st, 0.01 * np.sin(k / 50), 0.2 * np.cos(k / 50), 0.0, 0.0, 0.001 * np.sin(k / 40)))
-            msg = ts.types[c.STATE.msg_type](
-                header=ts.types['std_msgs/msg/Header'](stamp=ts.types[
-                    'builtin_interfaces/msg/Time'](sec=1, nanosec=k * 10**6), frame_id=''),
-                name=s['name'], position=np.array(s['position']),
-                velocity=np.array(s['velocity']), effort=np.array(s['effort']))
-            w.write(conn, st, ts.serialize_cdr(msg, c.STATE.msg_type))
-            w.write(cmd, st, ts.serialize_cdr(msg, c.STATE.msg_type))
+            data = _joint_state(ts, st, s['name'], s['position'], s['velocity'], s['effort'])
+            w.write(conn, st, data)
+            w.write(cmd, st, data)
     e = load_experiment(tmp_path / 'applied', pressure_p=None, pressure_t=None)
     assert e.commands is None                         # the current the valve got
     with pytest.raises(DataError, match='no command series'):
@@ -160,12 +168,8 @@ def test_derived_velocity_noise_is_the_position_noise_through_the_filter(
         cc = w.add_connection('/cmd', 'std_msgs/msg/Float64', typestore=ts)
         for k in range(n):
             ns = 10**9 + int(t[k] * 1e9)
-            m = T['sensor_msgs/msg/JointState'](
-                header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
-                    sec=ns // 10**9, nanosec=ns % 10**9), frame_id=''), name=['z'],
-                position=np.array([0.04 * np.sin(w_ * t[k]) + sigma * rng.standard_normal()]),
-                velocity=np.zeros(0), effort=np.zeros(0))
-            w.write(cs, ns, ts.serialize_cdr(m, m.__msgtype__))
+            w.write(cs, ns, _joint_state(ts, ns, ['z'], [0.04 * np.sin(w_ * t[k]) +
+                                                         sigma * rng.standard_normal()]))
             f = T['std_msgs/msg/Float64'](data=0.01 * np.sin(w_ * t[k]))
             w.write(cc, ns, ts.serialize_cdr(f, f.__msgtype__))
     e, = load_experiments(tmp_path / 'b', topics=TopicMap(
@@ -325,12 +329,8 @@ def test_symmetric_jitter_is_kept_and_states_before_the_first_command_are_not_a_
         cc = w.add_connection('/cmd', 'std_msgs/msg/Float64MultiArray', typestore=ts)
         for k in range(n):
             ns = 10**9 + int(t[k] * 1e9)
-            m = T['sensor_msgs/msg/JointState'](
-                header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
-                    sec=ns // 10**9, nanosec=ns % 10**9), frame_id=''), name=['z'],
-                position=np.array([0.02 * np.sin(2 * np.pi * t[k])]), velocity=np.zeros(0),
-                effort=np.zeros(0))
-            w.write(cs, ns + 100_000, ts.serialize_cdr(m, m.__msgtype__))
+            w.write(cs, ns + 100_000,
+                    _joint_state(ts, ns, ['z'], [0.02 * np.sin(2 * np.pi * t[k])]))
             if t[k] >= 1.5:
                 a = T['std_msgs/msg/Float64MultiArray'](
                     layout=T['std_msgs/msg/MultiArrayLayout'](dim=[], data_offset=0),
