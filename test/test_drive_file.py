@@ -110,3 +110,14 @@ def test_the_cli_iterates_a_target_and_keeps_every_run_as_a_bag(tmp_path):
             assert sum(c.msgcount for c in r.connections) == 2 * t.size
     f, h, coh, fs = frf_from_bag(out / 'broadband')
     assert fs == pytest.approx(FS) and coh[np.argmin(abs(f - 5.0))] > 0.99
+
+
+def test_the_cli_refuses_a_bad_target_by_name(tmp_path):
+    import subprocess
+    import sys
+    (tmp_path / 'bad.csv').write_text('t,z\n0,0\n0,1\n')
+    p = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'drive', str(tmp_path / 'bad.csv'),
+                        '--out', str(tmp_path / 'o')], capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 2 and 'column `t` must increase strictly' in p.stderr, p.stderr
+    assert not (tmp_path / 'o').exists()

@@ -342,3 +342,9 @@ def test_symmetric_jitter_is_kept_and_states_before_the_first_command_are_not_a_
     assert len(runs) == 1 and 'off-grid' not in runs[0].name
     assert runs[0].t.size == pytest.approx(2500, abs=3)      # from the first command on
     assert (runs[0].t0_ns - 10**9) * 1e-9 == pytest.approx(1.5, abs=2e-3)
+
+
+def test_the_cli_refuses_a_bad_input_delay_by_name(tmp_path):
+    p = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'identify', str(tmp_path / 'x'),
+                        '--input-delay', 'soon'], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "--input-delay 'soon': give seconds or auto" in p.stderr
