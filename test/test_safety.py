@@ -354,3 +354,14 @@ def test_an_event_round_trips_through_a_diagnostic_array_and_rosbags():
     assert c.event_from_msg(back) == e and c.event_level(e) == 2
     with pytest.raises(ValueError, match='without a status'):
         c.event_from_msg({'status': []})
+
+
+def test_an_absurd_finite_position_gives_a_defined_state_not_an_exception():
+    """A sensor fault reading 1e300 m: the ramp-on from there must not overflow the law."""
+    ax = AxisController(Params(), 1e-3)
+    i = ax.step(0, 1e300, math.nan, math.nan, 0.0, 0.0)     # ramp-on starts at that position
+    i = ax.step(MS, 1e300, math.nan, math.nan, 0.0, 0.0)
+    assert i == 0.0 and ax.ctrl.fault                     # the PID's policy: 0 A, fault
+    for k in range(2, 1200):            # the sensor recovers; the ramp-on ends at 1 s
+        i = ax.step(k * MS, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assert math.isfinite(i) and not ax.ctrl.fault

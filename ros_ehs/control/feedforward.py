@@ -123,13 +123,22 @@ class Feedforward:
         return self.k_vel * self.i_per_speed * v_ref
 
     def update(self, v_ref: float, i_prev: float) -> float:
-        """Return i_sc [A] for reference velocity ``v_ref`` [m/s] (eq. 20)."""
+        """
+        Return i_sc [A] for reference velocity ``v_ref`` [m/s] (eq. 20).
+
+        A period whose force estimate or law comes out non-finite (an absurd reference)
+        returns NaN, which the PID answers with 0 A and ``fault``, and leaves the estimate
+        and the derivative's memory as they were: one such period does not poison the next.
+        """
         self.v_d = self.delay.push(v_ref)
         # eq. (11) with the flow of the moving piston removed, and a leak
         i_force = i_prev - self.i_per_speed * self.v_d
-        self.f_p += self.dt * (self.k_ff * i_force - self.f_p / self.leak_tau)
-        g = psc_force(self.v_d, self.f_p, self.f_cc, self.f_sc, self.v_c, self.eps_v,
+        f_p = self.f_p + self.dt * (self.k_ff * i_force - self.f_p / self.leak_tau)
+        g = psc_force(self.v_d, f_p, self.f_cc, self.f_sc, self.v_c, self.eps_v,
                       self.c_visc, self.renormalised)
+        if not (math.isfinite(f_p) and math.isfinite(g)):
+            return math.nan
+        self.f_p = f_p
         if self.g_prev is None:
             self.g_prev = g
         i_sc = (g - self.g_prev) / (self.k_ff * self.dt)

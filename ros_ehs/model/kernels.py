@@ -55,10 +55,14 @@ def smooth_clip(f, lim):
     Saturate ``f`` to +-``lim`` smoothly (corner width 1 % of ``lim``).
 
     Plain Python, so the controller calls it without numba's dispatch cost; the kernels use
-    the compiled twin ``_smooth_clip`` of this same function.
+    the compiled twin ``_smooth_clip`` of this same function. Squares are products: Python's
+    ``**`` raises OverflowError for ``|f|`` over 1e154 where a product gives inf (then NaN,
+    which the PID answers with 0 A and ``fault``); an absurd sensor reading must not crash the
+    controller.
     """
     d = 0.01 * lim + 1e-9
-    return 0.5 * (math.sqrt((f + lim) ** 2 + d * d) - math.sqrt((f - lim) ** 2 + d * d))
+    a, b = f + lim, f - lim
+    return 0.5 * (math.sqrt(a * a + d * d) - math.sqrt(b * b + d * d))
 
 
 _smooth_clip = njit(**_JIT)(smooth_clip)
