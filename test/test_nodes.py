@@ -189,12 +189,14 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     # the recorder listens to it too (a bag once began 1.5 s into the trajectory)
     first_state = c.state_from_msg(next(ours.decoded(['/state']))[1])
     assert first_state.stamp_ns < first.stamp_ns, (first_state.stamp_ns, first.stamp_ns)
-    # both from the loop's first period: the plant steps only once the recorder listens, and
-    # start_loop starts it only once the recorder has matched the controller's commands (a
-    # bag once began with 2 s of commands, another with its commands 2 s late)
+    # the loop closed before the sine began, and the bag holds it: the reference's time zero
+    # waits for the plant's diagnostics to report a first command, and start_loop starts the
+    # plant only once the recorder has matched the controller's commands (a bag once began with
+    # 2 s of commands, another with its commands 2 s late). How soon after the plant's first
+    # state the controller answers is the middleware's discovery (0.3 s once on a loaded
+    # machine): the plant steps at 0 A until then, and the bag shows it
     first_command = c.command_from_msg(next(ours.decoded(['/servo_current']))[1])
-    late = (first_command.stamp_ns - first_state.stamp_ns) * 1e-9
-    assert 0.0 <= late <= 0.1, late
+    assert first_state.stamp_ns <= first_command.stamp_ns < first.stamp_ns
     counts = {k: v.count for k, v in ours.topics.items()}
     assert counts['/state'] > 1000 and counts['/servo_current'] > 900
     from rosbags.rosbag2 import Reader
