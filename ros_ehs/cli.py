@@ -250,8 +250,8 @@ def main(argv=None) -> int:
                    help='skip the excitation advice (which parameters the bags do not pin '
                    'down, and the reference trajectory that would)')
     i.add_argument('--workers', type=int, default=None,
-                   help='processes for the Jacobian (default: 1 for the simplified model, '
-                   'else 2)')
+                   help='threads for the Jacobian columns (default: 2 on a machine with 2 '
+                   'or more CPUs)')
     i.add_argument('--no-figures', action='store_true')
     i.add_argument('--quiet', action='store_true')
     i.set_defaults(func=_cmd_identify)

@@ -31,7 +31,7 @@ How the fit works (docs/identification.md):
 * Parameters are scaled by Table 1's scale gains and bounded by its bounds. The Jacobian is
   a forward difference in scaled units with a step of 1e-3 (the simulator's round-off makes
   scipy's default 1.5e-8 step useless); its columns run in parallel on ``workers``
-  processes.
+  threads.
 * ``cost='sae'`` (the paper) is the pseudo-Huber ``soft_l1`` loss with ``f_scale`` 0.1 noise
   sigma: |r| to within 5 % above 0.1 sigma, smooth for the Gauss-Newton model at zero.
   ``cost='sse'`` is plain least squares.
@@ -39,9 +39,9 @@ How the fit works (docs/identification.md):
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 import math
-import multiprocessing as mp
 import os
 import time
 from typing import Callable, Sequence
@@ -63,6 +63,12 @@ SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT', 'p_L')
 #: the load pressure p_CP - p_CT: fitted where a rig records only that (not a state)
 LOAD = 'p_L'
 _FD_STEP = 1e-3
+#: Relative step and cost-change tolerances (``xtol``, ``ftol``) of the solve and of the SSE
+#: stage before an SAE one. The parameters' standard errors are 4e-4 to 1e-2 of their values
+#: on a 10 s bag, and a cost change of 1e-8 of some 2e4 is far below one unit of noise: the
+#: last iterations at 1e-10 moved no value by more than 2e-4 of its standard error.
+_TOL = 1e-8
+_TOL_FIRST = 1e-5
 
 
 def noise_sigma(y: np.ndarray, t: np.ndarray | None = None) -> float:
@@ -241,37 +247,34 @@ class Problem:
         if self._last is not None and np.array_equal(self._last[0], theta):
             return self._last[1]          # the Jacobian reuses the step's simulation
         self.nfev += 1
-        r = np.concatenate([p.ravel() for p in self.residual_parts(theta)])
+        r = self.evaluate(theta)
         self._last = (np.array(theta, dtype=float), r)
         return r
 
+    def evaluate(self, theta: np.ndarray) -> np.ndarray:
+        """:meth:`residual` without its cache or count: safe from several threads at once."""
+        return np.concatenate([p.ravel() for p in self.residual_parts(theta)])
+
 
 # -- parallel Jacobian ---------------------------------------------------------------------
-_WORKER: Problem | None = None
-
-
-def _init_worker(problem: Problem) -> None:
-    global _WORKER
-    _WORKER = problem
-
-
-def _column(args) -> np.ndarray:
-    theta, k, hk, r0 = args
-    t = theta.copy()
-    t[k] += hk
-    return (_WORKER.residual(t) - r0) / hk
-
-
 def _fd_jacobian(problem: Problem, theta: np.ndarray, hi: np.ndarray, pool) -> np.ndarray:
-    """Forward-difference Jacobian in scaled units (steps turn back at an upper bound)."""
+    """
+    Forward-difference Jacobian in scaled units (steps turn back at an upper bound).
+
+    ``pool``: a thread pool, or None for serial columns. The kernels release the GIL
+    (``nogil``), so the columns' replays run on as many cores as the pool has threads.
+    """
     r0 = problem.residual(theta)
     steps = [_FD_STEP * max(1.0, abs(t)) for t in theta]
     steps = [-h if t + h > b else h for t, h, b in zip(theta, steps, hi)]
-    tasks = [(theta, k, h, r0) for k, h in enumerate(steps)]
-    if pool is not None:
-        return np.column_stack(pool.map(_column, tasks))
-    _init_worker(problem)
-    return np.column_stack([_column(t) for t in tasks])
+
+    def column(k: int) -> np.ndarray:
+        t = theta.copy()
+        t[k] += steps[k]
+        return (problem.evaluate(t) - r0) / steps[k]
+
+    run = pool.map if pool is not None else map
+    return np.column_stack(list(run(column, range(len(steps)))))
 
 
 @dataclass
@@ -452,6 +455,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
              signals: Sequence[str] = SIGNALS, cost: str = 'sae', base: Params | None = None,
              x0: dict[str, float] | None = None, segment: float | None = 1.0,
              h: float | None = None, workers: int | None = None, max_nfev: int = 100,
+             warm: bool = False,
              progress: Callable[[dict], None] | None = None) -> IdentificationResult:
     """
     Fit the ``free`` parameters of ``model`` to ``experiments`` (jointly).
@@ -480,12 +484,16 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     h : float, optional
         Integration step [s] (default ``FIT_H[model]``).
     workers : int or None
-        Processes for the Jacobian columns. None (default): 2 for the full and reduced
-        models (their columns measured 1.6x and 1.35x faster on the 2-core bench machine),
-        1 for the simplified one (1.08x: not worth a pool; ``python -m ros_ehs.bench
-        identify``).
+        Threads for the Jacobian's columns (the kernels release the GIL). None (default):
+        2 where the machine has 2 CPUs (the simplified model's cold fit of a 10 s bag
+        measured 0.65-0.8 s against 0.8-1.0 s serially, ``python -m ros_ehs.bench
+        identify``). A live refit beside a running loop takes 1, so it keeps to its CPU.
     max_nfev : int
         Limit on residual evaluations (not counting Jacobian columns).
+    warm : bool
+        The starting values are a recent estimate of the same system (a live refit): the
+        SAE solve starts from them directly, without the SSE stage that brings a cold start
+        close first.
     progress : callable, optional
         Called with ``{'iteration', 'cost', 'x'}`` after each iteration.
 
@@ -495,8 +503,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     experiments, free, base = _check(experiments, free, model, signals, cost, base, x0,
                                      segment, h, workers, max_nfev)
     h = FIT_H[model] if h is None else h
-    if workers is None:       # measured: the full model's columns 1.6x faster on 2 cores
-        workers = min(2, os.cpu_count() or 1) if model != 'simplified' else 1
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1)
     lo, hi = _bounds(free, base)
     problem = Problem(experiments, base, free, model, signals, segment, h)
     sc = problem.scale
@@ -505,10 +513,10 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     history: list[dict] = []
     njev = [0]
     last_jac: list[np.ndarray] = []
-    problem.residual(theta0)   # compile/warm the kernels before forking the workers
+    problem.residual(theta0)   # compile/warm the kernels before the threads use them
     pool = None
     if workers > 1 and len(free) > 1:
-        pool = mp.get_context('fork').Pool(min(workers, len(free)), _init_worker, (problem,))
+        pool = ThreadPoolExecutor(min(workers, len(free)), thread_name_prefix='ehs-jac')
 
     def jac(theta: np.ndarray) -> np.ndarray:
         J = _fd_jacobian(problem, theta, hi_s, pool)
@@ -521,26 +529,28 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
             progress(entry)
         return J
 
-    def solve(start, loss, budget):
+    def solve(start, loss, budget, tol):
         return least_squares(problem.residual, start, jac=jac, bounds=(lo_s, hi_s),
                              method='trf', loss=loss, f_scale=0.1 if loss != 'linear' else 1.0,
-                             max_nfev=budget, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+                             max_nfev=budget, xtol=tol, ftol=tol, gtol=1e-10)
 
     try:
-        if cost == 'sae':
+        if cost == 'sae' and warm:
+            sol = solve(theta0, 'soft_l1', max_nfev, _TOL)
+        elif cost == 'sae':
             # Continuation: far from the optimum nearly every residual sits in soft_l1's
             # linear (L1) branch and TRF can stall in a poor point (seen on real-time bench
             # bags). An SSE solve first brings the parameters close, then SAE refines.
             # Both stages count in the iterations and evaluations.
-            first = solve(theta0, 'linear', max(1, max_nfev // 2))
-            sol = solve(first.x, 'soft_l1', max(1, max_nfev - first.nfev))
+            # The first stage only has to come close: its tolerance is looser.
+            first = solve(theta0, 'linear', max(1, max_nfev // 2), _TOL_FIRST)
+            sol = solve(first.x, 'soft_l1', max(1, max_nfev - first.nfev), _TOL)
             sol.nfev += first.nfev
         else:
-            sol = solve(theta0, 'linear', max_nfev)
+            sol = solve(theta0, 'linear', max_nfev, _TOL)
     finally:
         if pool is not None:
-            pool.close()
-            pool.join()
+            pool.shutdown()
     theta = sol.x
     r = sol.fun
     if last_jac and np.array_equal(last_jac[1], theta):

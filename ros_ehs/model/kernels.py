@@ -385,6 +385,117 @@ def valve_reduction(c):
     c[C_A2V] = max(tau * tau - b[5] / g0, 1e-3 * tau * tau)   # > 0: a proper lag
 
 
+# --- the simplified model's exact state Jacobian ------------------------------------------
+@njit(**_JIT)
+def _dsroot(dp, p_cr, smooth):
+    """Return the derivative of :func:`sroot` by the pressure drop."""
+    if smooth > 0.5:
+        q = dp * dp + p_cr * p_cr
+        return (1.0 - 0.5 * dp * dp / q) / math.sqrt(math.sqrt(q))
+    return 0.5 / math.sqrt(max(abs(dp), 1e-300))
+
+
+@njit(**_JIT)
+def _dsoft_clip(f, lim, smooth):
+    """Return the derivative of :func:`soft_clip` by ``f``."""
+    if smooth > 0.5:
+        d = 0.01 * lim + 1e-9
+        a, b = f + lim, f - lim
+        return 0.5 * (a / math.sqrt(a * a + d * d) - b / math.sqrt(b * b + d * d))
+    return 1.0 if -lim < f < lim else 0.0
+
+
+@njit(**_JIT)
+def rhs_jacobian_simplified(x, u, c, out, jac):
+    """
+    :func:`rhs_simplified` into ``out`` and its exact ``d/dx`` into ``jac`` (4, 4), at once.
+
+    The integrator's W at the cost of about one more right-hand side, where forward
+    differences cost four (and their round-off). Differentiated case by case as
+    :func:`rhs_simplified` computes (smooth or exact forms); tested against differences.
+    """
+    pA, pB, zd, z = x[0], x[1], x[2], x[3]
+    sm = c[C_SMOOTH]
+    ap, beta, kc = c[C_AP], c[C_BETA_E], c[C_KC]
+    xv = spool_static(u[0], c)
+    if c[C_LINEAR] > 0.5:
+        qa = c[C_KQ] * xv
+        qb = -qa
+        dqa = 0.0
+        dqb = 0.0
+    else:
+        qa, qb = main_stage_flows(xv, pA, pB, c)
+        k = c[C_CD] * c[C_W] * math.sqrt(2.0 / c[C_RHO])
+        xe = xv + c[C_XBIAS]
+        h_pa = edge_gap(xe, c[C_CLR], c[C_RC])
+        h_pb = edge_gap(-xe, c[C_CLR], c[C_RC])
+        ps, pt, pcr = c[C_PS], c[C_PT], c[C_PCR]
+        dqa = -k * (h_pa * _dsroot(ps - pA, pcr, sm) + h_pb * _dsroot(pA - pt, pcr, sm))
+        dqb = -k * (h_pb * _dsroot(ps - pB, pcr, sm) + h_pa * _dsroot(pB - pt, pcr, sm))
+    leak = kc * (pA - pB)
+    va = ap * (c[C_LIAC] + z)
+    vb = ap * (c[C_LIAC] - z)
+    ga, gb = beta / va, beta / vb
+    fa = ga * (qa - ap * zd - leak)
+    fb = gb * (qb + ap * zd + leak)
+    jac[0, 0] = ga * (dqa - kc)
+    jac[0, 1] = ga * kc
+    jac[0, 2] = -ga * ap
+    jac[0, 3] = -fa * ap / va
+    jac[1, 0] = gb * kc
+    jac[1, 1] = gb * (dqb - kc)
+    jac[1, 2] = gb * ap
+    jac[1, 3] = fb * ap / vb
+    # piston: f_oc, the friction of eqs. (14)-(15) (see :func:`friction`), the end stop
+    mp = c[C_MP]
+    f_oc = ap * (pA - pB) - c[C_CC] * zd - c[C_KL] * z + u[1]
+    eps = c[C_EPSV]
+    vcs = c[C_VCS]
+    if sm > 0.5:
+        r = math.sqrt(zd * zd + eps * eps)
+        sabs, dsabs = r - eps, zd / r
+        th_s = math.tanh(zd / eps)
+        sgn, dsgn = th_s, (1.0 - th_s * th_s) / eps
+    else:
+        sabs, dsabs = abs(zd), (1.0 if zd > 0.0 else (-1.0 if zd < 0.0 else 0.0))
+        sgn, dsgn = dsabs, 0.0
+    th = math.tanh(sabs / vcs - 1.0)
+    xi = 0.5 * (th + 1.0)
+    dxi = 0.5 * (1.0 - th * th) * dsabs / vcs
+    f_hold = f_oc
+    dhold_dv = 0.0
+    if c[C_RENORM] > 0.5:
+        xi0 = c[C_XI0]
+        xi = (xi - xi0) / (1.0 - xi0)
+        dxi = dxi / (1.0 - xi0)
+        f_hold = f_oc + mp * zd / c[C_TAUST]
+        dhold_dv = mp / c[C_TAUST]
+    fsc, fcc = c[C_FSC], c[C_FCC]
+    dclip = _dsoft_clip(f_hold, fsc, sm)
+    df_doc = 1.0 - (1.0 - xi) * dclip            # d (f_oc + f_c) / d f_oc
+    df_dv = -(-dxi * soft_clip(f_hold, fsc, sm) + (1.0 - xi) * dclip * dhold_dv
+              + dxi * sgn * fcc + xi * dsgn * fcc)
+    stroke = c[C_STROKE]
+    dstop_z = 0.0
+    dstop_v = 0.0
+    if z > stroke or z < -stroke:
+        dstop_z = -c[C_KSTOP]
+        dstop_v = -1.4 * math.sqrt(c[C_KSTOP] * mp)
+    jac[2, 0] = df_doc * ap / mp
+    jac[2, 1] = -df_doc * ap / mp
+    jac[2, 2] = (-df_doc * c[C_CC] + df_dv + dstop_v) / mp
+    jac[2, 3] = (-df_doc * c[C_KL] + dstop_z) / mp
+    jac[3, 0] = 0.0
+    jac[3, 1] = 0.0
+    jac[3, 2] = 1.0
+    jac[3, 3] = 0.0
+    f_c = -((1.0 - xi) * soft_clip(f_hold, fsc, sm) + xi * sgn * fcc)
+    out[0] = fa
+    out[1] = fb
+    out[2] = (f_oc + f_c + _stop(z, zd, stroke, c[C_KSTOP], mp)) / mp
+    out[3] = zd
+
+
 # --- fixed-step linearly implicit integrator ---------------------------------------------
 @njit(**_JIT)
 def _jacobian(model, x, u, c, f0, xscale, jac, xt, ft):
@@ -468,9 +579,13 @@ def advance_ws(model, x, u, c, h, nsub, xscale, w, piv, refresh):
     ft = np.empty(n)
     k1 = np.empty(n)
     k2 = np.empty(n)
-    rhs(model, x, u, c, f0)
+    if refresh and model == SIMPLIFIED:
+        rhs_jacobian_simplified(x, u, c, f0, w)
+    else:
+        rhs(model, x, u, c, f0)
     if refresh:
-        _jacobian(model, x, u, c, f0, xscale, w, xt, ft)
+        if model != SIMPLIFIED:
+            _jacobian(model, x, u, c, f0, xscale, w, xt, ft)
         for r in range(n):
             for j in range(n):
                 w[r, j] = -GAMMA * h * w[r, j]
