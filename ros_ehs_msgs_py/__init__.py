@@ -24,16 +24,18 @@ which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain
 :mod:`~ros_ehs_msgs_py.wire` (the loop's JointStates to and from CDR bytes, the fast path).
 """
 
-from ros_ehs_msgs_py.conversions import (command_from_msg, empty_msg, event_from_msg,
-                                         event_level, fill_command, fill_event,
-                                         fill_pressure, fill_reference,
-                                         fill_reference_trajectory, fill_state, pressure_from_msg,
-                                         reference_from_msg, reference_trajectory_from_msg,
-                                         stamp_ns, state_from_msg)
+from ros_ehs_msgs_py.conversions import (command_from_msg, empty_msg, estimate_from_msg,
+                                         event_from_msg, event_level, fill_command,
+                                         fill_estimate, fill_event, fill_pressure,
+                                         fill_reference, fill_reference_trajectory, fill_state,
+                                         pressure_from_msg, reference_from_msg,
+                                         reference_trajectory_from_msg, stamp_ns,
+                                         state_from_msg)
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
-from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference, SafetyEvent
-from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, DIAGNOSTICS, EVENTS,
+from ros_ehs_msgs_py.records import (AxisState, Command, ParameterEstimate, Pressure,
+                                     Reference, SafetyEvent)
+from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, DIAGNOSTICS, ESTIMATES, EVENTS,
                                     JOINT_PISTON,
                                     JOINT_SPOOL, JOINT_VALVE, LOCKSTEP_NODE_TOPICS,
                                     NODE_TOPICS, NodeTopics, PRESSURE_P, PRESSURE_T, REFERENCE,
@@ -49,7 +51,8 @@ from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr
                                   reference_trajectory_to_cdr, state_from_cdr, state_to_cdr)
 
 __all__ = [
-    'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'EVENTS',
+    'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'ESTIMATES',
+    'EVENTS', 'ParameterEstimate', 'estimate_from_msg', 'fill_estimate',
     'EVENTS_QOS', 'JOINT_PISTON', 'SafetyEvent', 'event_from_msg', 'event_level', 'fill_event',
     'JOINT_SPOOL', 'JOINT_VALVE', 'LOCKSTEP_NODE_TOPICS', 'LOCKSTEP_QOS', 'LOOP_QOS',
     'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T', 'Pressure', 'QosSpec', 'RECORD_QOS',

@@ -24,10 +24,12 @@ from __future__ import annotations
 import math
 from typing import Any, Callable, Sequence
 
-from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference, SafetyEvent
+from ros_ehs_msgs_py.records import (AxisState, Command, ParameterEstimate, Pressure,
+                                     Reference, SafetyEvent)
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
-__all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'event_from_msg',
+__all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'estimate_from_msg',
+           'event_from_msg', 'fill_estimate',
            'event_level', 'fill_command', 'fill_event',
            'joint_index',
            'fill_pressure', 'fill_reference',
@@ -315,3 +317,60 @@ def event_from_msg(msg: Any) -> SafetyEvent:
     return SafetyEvent(int(vals['stamp_ns']), vals['kind'], vals['detector'],
                        float(vals['value']), float(vals['limit']), vals['unit'],
                        vals['action'], _get(st, 'message'))
+
+
+_ESTIMATE_KEYS = ('adequate', 'pushed', 'reason', 'window_s', 'wall_s', 'iterations')
+_STDERR = '.stderr'
+
+
+def fill_estimate(msg: Any, e: ParameterEstimate, status: Any = None,
+                  key_value: Callable[[], Any] | None = None) -> Any:
+    """
+    Write ``e`` into a ``diagnostic_msgs/DiagnosticArray`` (one status; see ``ESTIMATES``).
+
+    ``status`` and ``key_value`` as in :func:`fill_event`.
+    """
+    _set_header(msg, e.stamp_ns)
+    st = status if status is not None else {}
+    _set(st, 'level', bytes([_OK if e.adequate else _WARN]))
+    _set(st, 'name', 'ros_ehs/identify/estimate')
+    _set(st, 'message', e.verdict)
+    _set(st, 'hardware_id', 'axis')
+    pairs = []
+    for n, v in e.values.items():
+        pairs += [(n, f'{v:.9g}'), (n + _STDERR, f'{e.stderr.get(n, math.nan):.9g}')]
+    pairs += [('adequate', str(bool(e.adequate)).lower()), ('pushed', str(bool(e.pushed)).lower()),
+              ('reason', e.reason), ('window_s', f'{e.window_s:.9g}'),
+              ('wall_s', f'{e.wall_s:.9g}'), ('iterations', str(int(e.iterations)))]
+    values = []
+    for k, v in pairs:
+        kv = key_value() if key_value is not None else {}
+        _set(kv, 'key', k)
+        _set(kv, 'value', v)
+        values.append(kv)
+    _set(st, 'values', values)
+    _set(msg, 'status', [st])
+    return msg
+
+
+def estimate_from_msg(msg: Any) -> ParameterEstimate:
+    """Read the estimate of a ``parameter_estimates`` DiagnosticArray; ValueError if malformed."""
+    status = list(_get(msg, 'status'))
+    if not status:
+        raise ValueError('parameter_estimates: a DiagnosticArray without a status')
+    st = status[0]
+    vals = {_get(kv, 'key'): _get(kv, 'value') for kv in _get(st, 'values')}
+    missing = [k for k in _ESTIMATE_KEYS if k not in vals]
+    if missing:
+        raise ValueError(f'parameter_estimates: status {_get(st, "name")!r} lacks the values '
+                         f'{missing}')
+    names = [k for k in vals if k not in _ESTIMATE_KEYS and not k.endswith(_STDERR)]
+    try:
+        return ParameterEstimate(
+            stamp_ns(_get(msg, 'header')), {n: float(vals[n]) for n in names},
+            {n: float(vals.get(n + _STDERR, 'nan')) for n in names},
+            vals['adequate'] == 'true', _get(st, 'message'), vals['pushed'] == 'true',
+            vals['reason'], float(vals['window_s']), float(vals['wall_s']),
+            int(vals['iterations']))
+    except ValueError as err:
+        raise ValueError(f'parameter_estimates: a value is not a number: {err}') from None

@@ -18,7 +18,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-__all__ = ['AxisState', 'Command', 'Pressure', 'Reference', 'SafetyEvent']
+__all__ = ['AxisState', 'Command', 'ParameterEstimate', 'Pressure', 'Reference',
+           'SafetyEvent']
 
 
 class AxisState(NamedTuple):
@@ -71,3 +72,26 @@ class SafetyEvent(NamedTuple):
     unit: str
     action: str      #: off, indicate, hold, stop, power_off
     message: str
+
+
+class ParameterEstimate(NamedTuple):
+    """
+    One live refit of the plant's parameters over a window of the running loop.
+
+    ``stamp_ns`` is the window's last state stamp; ``values`` and ``stderr`` map each fitted
+    parameter to its value and standard error (SI units of the parameter table);
+    ``adequate`` is the fit's verdict (the sensor noise explains the residuals) and
+    ``verdict`` says why or why not; ``pushed`` whether these values were set on the
+    controller, and ``reason`` why (or why not).
+    """
+
+    stamp_ns: int
+    values: dict
+    stderr: dict
+    adequate: bool
+    verdict: str
+    pushed: bool = False
+    reason: str = ''
+    window_s: float = math.nan      #: the data fitted [s]
+    wall_s: float = math.nan        #: the refit's wall time [s]
+    iterations: int = 0

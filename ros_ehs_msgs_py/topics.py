@@ -20,7 +20,7 @@ from typing import NamedTuple
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
 
-__all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'EVENTS', 'JOINT_PISTON',
+__all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'ESTIMATES', 'EVENTS', 'JOINT_PISTON',
            'JOINT_SPOOL', 'JOINT_VALVE',
            'LOCKSTEP_NODE_TOPICS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T',
            'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name']
@@ -63,6 +63,11 @@ EVENTS = Topic('events', 'diagnostic_msgs/msg/DiagnosticArray',
                '`ros_ehs/controller/<detector or kind>`, level, message; values kind, '
                'detector, value, limit, unit, action, stamp_ns (the state it happened on)',
                EVENTS_QOS)
+ESTIMATES = Topic('parameter_estimates', 'diagnostic_msgs/msg/DiagnosticArray',
+                  'live identification, one status per refit: name '
+                  '`ros_ehs/identify/estimate`, level OK (adequate) or WARN (not), message '
+                  'the verdict; values `<parameter>` and `<parameter>.stderr` (SI), adequate, '
+                  'pushed, reason, window_s, wall_s, iterations', EVENTS_QOS)
 CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock',
               'published by the plant in lock-step mode', CLOCK_QOS)
 REFERENCE_TRAJECTORY = Topic(
@@ -71,8 +76,8 @@ REFERENCE_TRAJECTORY = Topic(
     '`piston`: positions z_ref [m], velocities v_ref [m/s], each at header.stamp + '
     'time_from_start', LOCKSTEP_QOS)
 
-TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, EVENTS, CLOCK,
-          REFERENCE_TRAJECTORY)
+TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, EVENTS, ESTIMATES,
+          CLOCK, REFERENCE_TRAJECTORY)
 
 
 class NodeTopics(NamedTuple):

@@ -64,8 +64,8 @@ from ros_ehs.bag.reader import Bag, open_bag
 from ros_ehs.errors import BagError, DataError
 import ros_ehs_msgs_py as contract
 
-__all__ = ['Experiment', 'MIN_SAMPLES', 'experiment_from_arrays', 'load_experiment',
-           'load_experiments', 'resolve_topic']
+__all__ = ['Experiment', 'MIN_SAMPLES', 'experiment_from_arrays', 'experiments_from_series',
+           'load_experiment', 'load_experiments', 'resolve_topic']
 
 #: Fewer state samples than this is "too little data" for a 7-parameter fit.
 MIN_SAMPLES = 500
@@ -548,6 +548,42 @@ def load_experiments(path: str | os.PathLike, *, topics: TopicMap | None = None,
     """
     rec = _read(path, _topic_map(topics, state, command, pressure_p, pressure_t), bag, start,
                 end)
+    return _split(rec)
+
+
+def experiments_from_series(name: str, ts, z, v, applied=None, commands=None,
+                            pressures=(), load: bool = False,
+                            delay: float = 0.0) -> list[Experiment]:
+    """
+    Cut the contiguous runs of series held in memory, as :func:`load_experiments` cuts a bag's.
+
+    What a live refit fits: ``ts`` [ns] are the states' stamps (sorted or not) with position
+    ``z`` [m], velocity ``v`` [m/s] (NaN: derived from the position) and ``applied`` current
+    [A] (NaN or None: unknown, then ``commands`` = (stamps [ns, the state's clock], currents
+    [A]) held ``delay`` [s] later are used); ``pressures``: (stamps [ns], values [Pa]) per
+    chamber, or one load pressure with ``load``. Raises :class:`DataError` as the bag path
+    does (too little data, no excitation).
+    """
+    ts = np.asarray(ts, dtype=np.int64)
+    z = np.asarray(z, dtype=float)
+    v = np.asarray(v, dtype=float)
+    applied = np.full(z.shape, np.nan) if applied is None else np.asarray(applied, float)
+    order = np.argsort(ts, kind='stable')
+    ts, z, v, applied = ts[order], z[order], v[order], applied[order]
+    keep = np.concatenate([[True], np.diff(ts) > 0]) if ts.size else np.zeros(0, bool)
+    ts, z, v, applied = ts[keep], z[keep], v[keep], applied[keep]
+    tc, vc = (np.zeros(0, np.int64), np.zeros(0)) if commands is None else (
+        np.asarray(commands[0], dtype=np.int64), np.asarray(commands[1], dtype=float))
+    if ts.size < 2 or (tc.size == 0 and not np.all(np.isfinite(applied))):
+        raise DataError(f'{name}: too little data: {ts.size} states and {tc.size} commands')
+    tc, vc = _sorted(tc, vc)
+    press = [_sorted(np.asarray(t, dtype=np.int64), np.asarray(p, dtype=float))
+             for t, p in pressures]
+    return _split(_Record(name, ts, z, v, applied, tc, vc, press, load, float(delay)))
+
+
+def _split(rec: _Record) -> list[Experiment]:
+    """Return the experiments of a record's contiguous runs (see :func:`load_experiments`)."""
     runs, cuts = _runs(rec.ts)
     long_ = [(a, b) for a, b in runs if b - a >= MIN_SAMPLES]
     if not long_:

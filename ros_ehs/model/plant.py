@@ -153,6 +153,16 @@ class Plant:
         self._iz = self.state_names.index('z')
         self._l_iac = float(params['l_iac'])
 
+    def set_params(self, params: Params) -> None:
+        """Take a new parameter set from the next step on (a rig that drifts; the state stays)."""
+        if not isinstance(params, Params):
+            raise ParameterError(f'`params` must be a Params, got {type(params).__name__}')
+        smooth = bool(self._c[K.C_SMOOTH] > 0.5)
+        self._c = pack(params, smooth=smooth)
+        self.params = params
+        self._l_iac = float(params['l_iac'])
+        self._calls = 0          # the integrator's W from the new set at once
+
     # -- checks ------------------------------------------------------------------------
     def _check_x(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float)
