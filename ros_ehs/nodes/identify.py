@@ -22,22 +22,42 @@ valve values its feedforward uses) on the running controller ``controller`` thro
 ``set_parameters_atomically`` service, so the cross-checks (F_cc <= F_sc) see the whole set,
 and logs what the controller accepted or why it refused. The node exits when done: 0 on
 success, 1 if the fit or the push failed, 2 for bad input (missing bag, foreign topics...).
+
+**Live mode** (``live: true``, :mod:`ros_ehs.identify.live`): no bags; the node listens to the
+running loop (``state``, the pressures and, where the state does not carry the applied
+current, the commands: our contract, or a rig's topics and joint from the same options or
+``topic_map``), keeps the last ``window`` seconds and every ``period`` seconds of the state
+clock refits them on one low-priority thread (SCHED_IDLE, one Jacobian thread; place the node
+with ``cpu_affinity`` on the CPU the loop does not use), warm from its last adequate
+estimate. Each refit is published on ``parameter_estimates`` (values, standard errors,
+verdict, whether and why it was pushed: the recorder keeps it) and logged in one line. With
+``push: true`` an adequate fit whose values are all inside their bounds and change by more
+than ``sigmas`` standard errors and ``rel_change`` is set on the controller, at most once per
+``push_period``; a refusal is logged with the controller's reason. It runs until stopped.
 """
 
 from __future__ import annotations
 
+from collections import deque
+import functools
+import math
+import os
 import threading
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
-from ros_ehs.bag.mapping import topic_map, TopicMap
+from ros_ehs.bag.mapping import (FLOAT64, FLOAT64_ARRAY, FLUID_PRESSURE, JOINT_STATE,
+                                 PRESSURE_UNITS, topic_map, TopicMap)
 from ros_ehs.control.feedforward import MODEL_PARAMS
-from ros_ehs.errors import EhsError
+from ros_ehs.errors import DataError, EhsError
+from ros_ehs.identify.live import LiveIdentifier, SampleWindow
 from ros_ehs.identify.run import run_identification
-from ros_ehs.nodes.ros_common import declare_options, Option, run
-from ros_ehs.params import CONTROL_SPECS, ESTIMATED
+from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, msg_class, Option,
+                                      qos_profile, read_msg, run, steady_clock)
+from ros_ehs.params import CONTROL_SPECS, ESTIMATED, load_yaml, preset
 import ros_ehs_msgs_py as contract
 
 __all__ = ['OPTIONS', 'IdentifyNode', 'main', 'pushable']
@@ -75,7 +95,23 @@ OPTIONS = (
     Option('push', False, 'set the fitted values on the running controller'),
     Option('controller', 'controller', 'name of the controller node to push to'),
     Option('push_timeout', 10.0, 'wait this long for the controller [s]', 0.1, 600.0),
+    Option('live', False, 'refit the running loop continuously instead of bags'),
+    Option('window', 10.0, 'live: the last seconds refitted [s]', 1.0, 600.0),
+    Option('period', 5.0, 'live: a refit every this many seconds of the state clock [s]',
+           0.5, 3600.0),
+    Option('push_period', 30.0, 'live: at most one push per this many seconds [s]', 0.0,
+           1e6),
+    Option('sigmas', 3.0, 'live: push only a change beyond this many standard errors', 0.0,
+           100.0),
+    Option('rel_change', 0.02, "live: and beyond this fraction of the controller's value",
+           0.0, 10.0),
+    Option('max_rate', 4000.0, 'live: the fastest state rate to buffer for [Hz]', 10.0,
+           100000.0),
+    CPU_AFFINITY,
 )
+
+#: Live mode: how often to look for the mapped topics' types [s].
+DISCOVERY_PERIOD = 0.5
 
 
 def pushable(names) -> list[str]:
@@ -90,11 +126,16 @@ class IdentifyNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('identify', **kwargs)
         self.opt = declare_options(self, OPTIONS)
+        self.cpu_affinity = int(self.opt['cpu_affinity'])
+        self.result = None
+        if self.opt['live']:
+            self.done = None        # runs until stopped
+            self._start_live()
+            return
         if not self.opt['bags']:
             raise EhsError('parameter `bags` is empty: give the bags to fit '
                            '(-p bags:=[bags/sample_sine_1hz])')
         self.done = Future()
-        self.result = None
         threading.Thread(target=self._job, daemon=True).start()
 
     def bag_topics(self) -> TopicMap:
@@ -174,6 +215,237 @@ class IdentifyNode(Node):
         log.info(f'pushed to `{self.opt["controller"]}`: ' + ', '.join(
             f'{p.name}={p.value:.6g}' for p in params))
         return 0
+
+    # -- live mode ---------------------------------------------------------------------------
+    def _start_live(self) -> None:
+        o = self.opt
+        self.tmap = self.bag_topics()
+        base = load_yaml(o['initial']) if o['initial'] else preset('table1_initial')
+        self.live = LiveIdentifier(base, free=o['free'], model=o['model'],
+                                   pushable=pushable(o['free']), sigmas=float(o['sigmas']),
+                                   rel_change=float(o['rel_change']),
+                                   push_period=float(o['push_period']),
+                                   max_nfev=int(o['max_nfev']))
+        cap = int(math.ceil(float(o['window']) * float(o['max_rate']) * 1.5))
+        self.window = SampleWindow(float(o['window']), max(cap, 16))
+        self._lock = threading.Lock()        # the window: filled here, read by the refit
+        self._offsets: deque = deque(maxlen=101)     # state stamp - receive time [ns]
+        self._next_refit = None
+        self._busy = False
+        self.counts = {'states': 0, 'bad': 0, 'refits': 0, 'pushes': 0, 'refused': 0}
+        self.pub_est = self.create_publisher(DiagnosticArray, contract.ESTIMATES.name,
+                                             qos_profile(contract.ESTIMATES.qos))
+        self._read_state = functools.partial(contract.state_from_cdr, joint=self.tmap.joint)
+        self._subscribed: dict[str, str] = {}
+        self._wanted = {self.tmap.state: 'state', self.tmap.command: 'command'}
+        if self.tmap.pressure_p:
+            self._wanted.update({self.tmap.pressure_p: 'p0', self.tmap.pressure_t: 'p1'})
+        self.create_timer(DISCOVERY_PERIOD, self._discover, clock=steady_clock())
+        self._client = AsyncParameterClient(self, o['controller']) if o['push'] else None
+        self._refit_done = threading.Event()
+        self._worker = threading.Thread(target=self._refits, daemon=True, name='ehs-refit')
+        self._todo = threading.Event()
+        self._worker.start()
+        self._discover()
+        self.get_logger().info(
+            f'live: refit the last {o["window"]:g} s every {o["period"]:g} s ({o["model"]} '
+            f'model, {len(self.live.free)} parameters), push '
+            + (f'to `{o["controller"]}` at most every {o["push_period"]:g} s'
+               if o['push'] else 'off'))
+
+    def _discover(self) -> None:
+        """Subscribe to each mapped topic once its type is known (a rig's, or ours)."""
+        if len(self._subscribed) == len(self._wanted):
+            return
+        types = dict(self.get_topic_names_and_types())
+        for name, role in self._wanted.items():
+            full = self.resolve_topic_name(name)
+            if full in self._subscribed or full not in types:
+                continue
+            msg_type = types[full][0]
+            try:
+                cb = self._callback(role, msg_type)
+            except EhsError as err:
+                self.get_logger().error(f'live: {err}')
+                self._subscribed[full] = msg_type        # said once
+                continue
+            qos = contract.STATE.qos if role == 'state' else contract.PRESSURE_P.qos
+            self.create_subscription(msg_class(msg_type), name, cb, qos_profile(qos), raw=True)
+            self._subscribed[full] = msg_type
+            self.get_logger().info(f'live: {role} from {full} ({msg_type})')
+
+    def _callback(self, role: str, msg_type: str):
+        if role == 'state':
+            if msg_type != JOINT_STATE:
+                raise EhsError(f'state topic {self.tmap.state!r} has type {msg_type}, '
+                               f'expected {JOINT_STATE}')
+            return self._on_state
+        if role == 'command':
+            if msg_type == JOINT_STATE:
+                k = self.tmap.command_joint
+
+                def dec(data):
+                    d = contract.decode_joint_state(data)
+                    return d.stamp_ns, d.effort[d.name.index(k)]
+                return functools.partial(self._on_command, dec, True)
+            if msg_type == FLOAT64:
+                return functools.partial(self._on_command,
+                                         lambda d: (0, contract.float64_from_cdr(d)), False)
+            if msg_type == FLOAT64_ARRAY:
+                k = self.tmap.command_index
+                return functools.partial(
+                    self._on_command, lambda d: (0, contract.float64_array_from_cdr(d)[k]),
+                    False)
+            raise EhsError(f'command topic {self.tmap.command!r} has type {msg_type}')
+        chamber = int(role[1])
+        if msg_type == FLUID_PRESSURE:
+            return functools.partial(self._on_pressure, chamber, contract.fluid_pressure_from_cdr,
+                                     True)
+        if msg_type == FLOAT64:
+            scale = PRESSURE_UNITS[self.tmap.pressure_unit]
+            return functools.partial(self._on_pressure, chamber,
+                                     lambda d: (0, contract.float64_from_cdr(d) * scale), False)
+        raise EhsError(f'pressure topic has type {msg_type}, expected {FLUID_PRESSURE} or '
+                       f'{FLOAT64}')
+
+    def _receive_stamp(self) -> int:
+        """Return a headerless message's time on the state's clock (receive time + offset)."""
+        now = self.get_clock().now().nanoseconds
+        return now + (int(sorted(self._offsets)[len(self._offsets) // 2])
+                      if self._offsets else 0)
+
+    def _on_state(self, data: bytes) -> None:
+        s = read_msg(self, self._read_state, data, 'state')
+        if s is None:
+            self.counts['bad'] += 1
+            return
+        self.counts['states'] += 1
+        self._offsets.append(s.stamp_ns - self.get_clock().now().nanoseconds)
+        with self._lock:
+            runs = self.window.runs
+            self.window.add_state(s.stamp_ns, s.z, s.z_dot, s.i)
+            if self.window.runs != runs:
+                self._next_refit = None
+                self.get_logger().info('live: the state stamp jumped back: a new run, the '
+                                       'window starts again')
+        if self._next_refit is None:
+            self._next_refit = s.stamp_ns + int(float(self.opt['window']) * 1e9)
+        if s.stamp_ns >= self._next_refit and not self._busy:
+            self._next_refit = s.stamp_ns + int(float(self.opt['period']) * 1e9)
+            self._busy = True
+            self._todo.set()
+
+    def _on_command(self, decode, stamped: bool, data: bytes) -> None:
+        try:
+            stamp, i = decode(data)
+        except (ValueError, IndexError) as err:
+            self.counts['bad'] += 1
+            self.get_logger().warning(f'ignored a malformed command: {err}',
+                                      throttle_duration_sec=1.0)
+            return
+        stamp = stamp if stamped else self._receive_stamp()
+        with self._lock:
+            self.window.add_command(stamp, i * float(self.tmap.command_scale))
+
+    def _on_pressure(self, chamber: int, decode, stamped: bool, data: bytes) -> None:
+        try:
+            stamp, p = decode(data)
+        except (ValueError, IndexError) as err:
+            self.counts['bad'] += 1
+            self.get_logger().warning(f'ignored a malformed pressure: {err}',
+                                      throttle_duration_sec=1.0)
+            return
+        stamp = stamp if stamped else self._receive_stamp()
+        with self._lock:
+            self.window.add_pressure(chamber, stamp, p)
+
+    def _refits(self) -> None:
+        """Run the refits: idle priority, so they take only CPU time nobody else wants."""
+        try:
+            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        except (OSError, AttributeError):
+            os.nice(19)
+        while True:
+            self._todo.wait()
+            self._todo.clear()
+            try:
+                self._refit_once()
+            except Exception as err:      # a refit must never end the live node
+                self.get_logger().error(f'live: refit failed: {type(err).__name__}: {err}')
+            finally:
+                self._busy = False
+
+    def _refit_once(self) -> None:
+        log = self.get_logger()
+        with self._lock:
+            stamp = self.window.last_stamp_ns
+            try:
+                exps = self.window.experiments('live')
+            except DataError as err:
+                exps, why = None, str(err)
+        self.counts['refits'] += 1
+        if exps is None:
+            est = contract.ParameterEstimate(stamp, {}, {}, False, f'no fit: {why}',
+                                             reason=f'no fit: {why}',
+                                             window_s=float(self.opt['window']))
+            self._publish(est)
+            log.warning(f'live: no fit: {why}', throttle_duration_sec=30.0)
+            return
+        if self._client is not None and self.live.controller is None:
+            self._ask_controller()
+        est, _ = self.live.refit(exps, stamp, float(self.opt['window']))
+        vals = ', '.join(f'{n}={est.values[n]:.5g}' for n in self.live.free)
+        verdict = 'adequate' if est.adequate else 'NOT adequate'
+        log.info(f'live refit at {stamp * 1e-9:.3f} s: {verdict}, {est.iterations} '
+                 f'iterations, {est.wall_s:.2f} s; {vals}; '
+                 f'{"push" if est.pushed else "no push"}: {est.reason}')
+        if est.pushed and self._client is not None:
+            est = est._replace(pushed=self._push_live(est))
+        else:
+            est = est._replace(pushed=False)
+        self._publish(est)
+
+    def _publish(self, est) -> None:
+        msg = contract.fill_estimate(DiagnosticArray(), est, DiagnosticStatus(), KeyValue)
+        self.pub_est.publish(msg)
+
+    def _wait(self, fut, timeout: float):
+        ev = threading.Event()
+        fut.add_done_callback(lambda f: ev.set())
+        return fut.result() if ev.wait(timeout) else None
+
+    def _ask_controller(self) -> None:
+        """Take the controller's current values of the pushed parameters (once)."""
+        names = list(self.live.pushable)
+        if not names or not self._client.services_are_ready():
+            return
+        res = self._wait(self._client.get_parameters(names), float(self.opt['push_timeout']))
+        if res is None:
+            return
+        vals = [v.double_value for v in res.values]
+        if len(vals) == len(names):
+            self.live.controller = dict(zip(names, vals))
+            self.get_logger().info('live: the controller has ' + ', '.join(
+                f'{n}={v:.6g}' for n, v in self.live.controller.items()))
+
+    def _push_live(self, est) -> bool:
+        log = self.get_logger()
+        values = {n: est.values[n] for n in self.live.pushable}
+        params = [Parameter(n, Parameter.Type.DOUBLE, float(v)) for n, v in values.items()]
+        res = self._wait(self._client.set_parameters_atomically(params),
+                         float(self.opt['push_timeout']))
+        if res is None:
+            self.counts['refused'] += 1
+            log.error(f'live push: `{self.opt["controller"]}` did not answer')
+            return False
+        if not res.result.successful:
+            self.counts['refused'] += 1
+            log.error(f'live push refused by `{self.opt["controller"]}`: {res.result.reason}')
+            return False
+        self.live.pushed(values, est.stamp_ns)
+        self.counts['pushes'] += 1
+        log.info(f'live push to `{self.opt["controller"]}`: {est.reason}')
+        return True
 
 
 def main(args=None) -> int:

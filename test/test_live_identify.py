@@ -1,0 +1,93 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The identify node's live mode over DDS: pushes reach a running controller, and a rig that
+is not the fitted model is never pushed."""
+
+import time
+
+import pytest
+from ros_ehs.launch import Launch
+from ros_ehs.params import preset
+import ros_ehs_msgs_py as c
+
+pytestmark = pytest.mark.ros
+
+NOISE = {'noise_z': 5e-6, 'noise_v': 1e-3, 'noise_p': 2e4, 'seed': 3}
+#: the controller starts with friction and damping 30 % off the plant's (Table 1 estimated)
+WRONG = {'F_cc': 730.0, 'F_sc': 1540.0, 'c_c': 12000.0}
+LIVE = {'live': True, 'push': True, 'window': 6.0, 'period': 3.0, 'push_period': 0.0,
+        'cpu_affinity': -1}
+
+
+def _estimates(bag):
+    """Return the bag's parameter estimates, decoded by rosbags (not our reader)."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as r:
+        conns = [x for x in r.connections if x.topic == '/parameter_estimates']
+        return [c.estimate_from_msg(ts.deserialize_cdr(raw, conn.msgtype))
+                for conn, _, raw in r.messages(conns)]
+
+
+def _controller_values(ros, names):
+    from rclpy.parameter_client import AsyncParameterClient
+    cli = AsyncParameterClient(ros, 'controller')
+    assert ros.spin(until=cli.services_are_ready, timeout=20)
+    fut = cli.get_parameters(names)
+    assert ros.spin(until=fut.done, timeout=10)
+    return dict(zip(names, (v.double_value for v in fut.result().values)))
+
+
+def _run(launch, bag, plant, seconds, ros):
+    launch.start_loop('realtime', bag=bag, plant={**NOISE, **plant}, controller=WRONG,
+                      reference={'cpu_affinity': -1})
+    launch.start('identify', LIVE)
+    assert launch.wait_for_log('identify', 'live: state from /state', 30)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        ros.spin(0.5)
+    values = _controller_values(ros, list(WRONG))
+    launch.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
+    return values, launch['identify'].output()
+
+
+def test_live_fits_are_pushed_to_the_running_controller(dom, tmp_path, ros):
+    bag = tmp_path / 'bag'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        values, out = _run(launch, bag, {}, 20.0, ros)
+    true = preset('table1_estimated')
+    assert 'live push to `controller`' in out, out[-3000:]
+    for n in WRONG:       # the controller now has the plant's values, not its wrong ones
+        assert values[n] == pytest.approx(true[n], rel=0.03), (n, values, out[-3000:])
+    est = _estimates(bag)
+    assert est and any(e.pushed for e in est)
+    pushed = [e for e in est if e.pushed]
+    assert all(e.adequate for e in pushed)
+    for e in pushed:       # each pushed estimate carries its standard errors
+        assert set(e.values) == set(e.stderr) and all(s > 0 for s in e.stderr.values())
+    assert 'Traceback' not in out
+
+
+def test_a_rig_that_is_not_the_fitted_model_is_never_pushed(dom, tmp_path, ros):
+    """The full 10-state plant, fitted with the simplified model: inadequate, never pushed."""
+    bag = tmp_path / 'bag'
+    with Launch(dom, tmp_path / 'logs') as launch:
+        values, out = _run(launch, bag, {'model': 'full'}, 16.0, ros)
+    assert values == pytest.approx(WRONG)       # untouched
+    est = [e for e in _estimates(bag) if e.values]
+    assert est, out[-3000:]
+    assert not any(e.pushed for e in est)
+    assert all(not e.adequate and 'not adequate' in e.verdict for e in est), est
+    assert 'live push to' not in out
