@@ -11,8 +11,11 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The identify node's live mode over DDS: pushes reach a running controller, and a rig that
-is not the fitted model is never pushed."""
+"""
+The identify node's live mode over DDS.
+
+Pushes reach a running controller, and a rig that is not the fitted model is never pushed.
+"""
 
 import time
 
