@@ -1,0 +1,171 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Live re-identification without ROS: the window, the push policy, drift, the estimate record."""
+
+import math
+
+import numpy as np
+import pytest
+from ros_ehs.bag.experiment import load_experiment
+from ros_ehs.bench.drift_bench import run
+from ros_ehs.errors import DataError, InputError, ParameterError
+from ros_ehs.identify.live import LiveIdentifier, SampleWindow
+from ros_ehs.model import Plant
+from ros_ehs.model.drift import Drift, DriftStage, smoothstep
+from ros_ehs.params import ESTIMATED, preset
+from ros_ehs.synthetic import record_experiment
+import ros_ehs_msgs_py as c
+
+TRUE = preset('table1_estimated')
+PUSHABLE = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')
+
+
+def _fill(win, seconds, t0_ns=0, rate=1000.0):
+    """A 1 Hz, 0.04 m motion with a current that drives it."""
+    for k in range(int(seconds * rate)):
+        t = k / rate
+        win.add_state(t0_ns + int(round(t * 1e9)), 0.04 * math.sin(2 * math.pi * t),
+                      0.08 * math.pi * math.cos(2 * math.pi * t),
+                      0.01 * math.cos(2 * math.pi * t))
+
+
+def test_the_window_is_bounded_and_keeps_only_its_last_seconds():
+    win = SampleWindow(2.0, capacity=3000)
+    _fill(win, 5.0)
+    assert len(win._states) == 3000                      # never more than its capacity
+    (exp,) = win.experiments()
+    assert exp.t[-1] == pytest.approx(2.0) and exp.t.size == 2001     # the last 2 s only
+    assert exp.z[-1] == pytest.approx(0.04 * math.sin(2 * math.pi * 4.999))
+
+
+def test_the_window_drops_non_finite_states_and_restarts_on_a_stamp_jumping_back():
+    win = SampleWindow(2.0, capacity=5000)
+    _fill(win, 3.0, t0_ns=10_000_000_000)
+    win.add_state(13_000_000_000, math.nan, 0.0, 0.0)
+    win.add_state(13_001_000_000, math.inf, 0.0, 0.0)
+    assert win.dropped == 2
+    _fill(win, 1.0)           # a restarted plant: stamps from zero again
+    assert win.runs == 2 and win.span() == pytest.approx(0.999)
+
+
+def test_the_window_names_what_is_missing():
+    win = SampleWindow(2.0, capacity=5000)
+    with pytest.raises(DataError, match='no state received'):
+        win.experiments()
+    for k in range(2000):       # a piston that does not move
+        win.add_state(k * 1_000_000, 0.01, 0.0, 0.0)
+    with pytest.raises(DataError, match='no excitation'):
+        win.experiments()
+    with pytest.raises(InputError, match='seconds'):
+        SampleWindow(0.0, 10)
+    with pytest.raises(InputError, match='capacity'):
+        SampleWindow(1.0, 1)
+
+
+@pytest.fixture(scope='module')
+def exps(tmp_path_factory):
+    d = tmp_path_factory.mktemp('live')
+    record_experiment(d / 'rig', seed=7)
+    record_experiment(d / 'full', seed=7, model='full')
+    return load_experiment(d / 'rig'), load_experiment(d / 'full')
+
+
+def _identifier(**kw):
+    args = dict(free=ESTIMATED, pushable=PUSHABLE, model='simplified', sigmas=3.0,
+                rel_change=0.02, push_period=10.0)
+    args.update(kw)
+    return LiveIdentifier(preset('table1_initial'), **args)
+
+
+def test_an_adequate_significant_fit_is_pushed_then_held_by_the_push_period(exps):
+    live = _identifier()
+    est, r = live.refit([exps[0]], 10_000_000_000, 10.0)
+    assert est.adequate and not est.pushed
+    assert "not known" in est.reason           # no push before the controller's values
+    live.controller = {n: 0.7 * TRUE[n] for n in PUSHABLE}
+    est, r = live.refit([exps[0]], 15_000_000_000, 10.0)
+    assert r.iterations < 8                     # warm from the first estimate
+    assert est.pushed and 'F_cc' in est.reason and '+42.' in est.reason
+    for n in ESTIMATED:
+        assert est.values[n] == pytest.approx(TRUE[n], rel=0.05)
+    live.pushed({n: est.values[n] for n in PUSHABLE}, est.stamp_ns)
+    live.controller['F_cc'] = 0.7 * TRUE['F_cc']         # as if it drifted again
+    est, _ = live.refit([exps[0]], 20_000_000_000, 10.0)
+    assert not est.pushed and 'push_period' in est.reason
+    est, _ = live.refit([exps[0]], 25_000_000_000, 10.0)
+    assert est.pushed and est.reason.startswith('F_cc')     # only what changed is named
+    live.pushed({n: est.values[n] for n in PUSHABLE}, est.stamp_ns)
+    est, _ = live.refit([exps[0]], 40_000_000_000, 10.0)
+    assert not est.pushed and 'no significant change' in est.reason
+
+
+def test_an_inadequate_fit_is_never_pushed_nor_started_from(exps):
+    live = _identifier(sigmas=0.0, rel_change=0.0, push_period=0.0)
+    live.controller = {n: 0.5 * TRUE[n] for n in PUSHABLE}
+    est, r = live.refit([exps[1]], 10_000_000_000, 10.0)     # the full model's rig
+    assert not r.adequate and not est.adequate and not est.pushed
+    assert est.reason.startswith('not adequate') and live.estimate is None
+    assert live.pushes == 0
+
+
+def test_the_estimate_record_round_trips_and_a_malformed_one_is_named():
+    e = c.ParameterEstimate(123_456_789_012, {'F_cc': 1046.9, 'c_c': 16100.0},
+                            {'F_cc': 1.2, 'c_c': 7.0}, True, 'adequate: 1.00x',
+                            True, 'F_cc 700 -> 1046.9', 10.0, 0.31, 4)
+    back = c.estimate_from_msg(c.fill_estimate({'header': {'stamp': {}}}, e))
+    assert back == e
+    msg = c.fill_estimate({'header': {'stamp': {}}}, e)
+    msg['status'][0]['values'] = [kv for kv in msg['status'][0]['values']
+                                  if kv['key'] != 'pushed']
+    with pytest.raises(ValueError, match="lacks the values \\['pushed'\\]"):
+        c.estimate_from_msg(msg)
+    with pytest.raises(ValueError, match='without a status'):
+        c.estimate_from_msg({'header': {'stamp': {'sec': 0, 'nanosec': 0}}, 'status': []})
+
+
+def test_drift_follows_a_smooth_curve_and_checks_its_stages():
+    assert smoothstep(0.0) == 0.0 and smoothstep(1.0) == 1.0 and smoothstep(0.5) == 0.5
+    assert smoothstep(-1.0) == 0.0 and smoothstep(2.0) == 1.0
+    d = Drift([DriftStage(10.0, 20.0, {'F_cc': -0.3}), DriftStage(40.0, 10.0, {'F_cc': 0.1})])
+    assert d.at(TRUE, 0.0)['F_cc'] == TRUE['F_cc']
+    assert d.at(TRUE, 20.0)['F_cc'] == pytest.approx(0.85 * TRUE['F_cc'])
+    assert d.at(TRUE, 60.0)['F_cc'] == pytest.approx(0.8 * TRUE['F_cc'])
+    with pytest.raises(ParameterError, match='duration'):
+        Drift([DriftStage(0.0, 0.0, {'F_cc': -0.3})])
+    with pytest.raises(ParameterError, match='> -1'):
+        Drift([DriftStage(0.0, 1.0, {'F_cc': -1.5})])
+    with pytest.raises(ParameterError, match='F_xx'):
+        Drift([DriftStage(0.0, 1.0, {'F_xx': 0.1})])
+
+
+def test_a_plant_takes_new_parameters_from_its_next_step():
+    a, b = Plant(TRUE, 'simplified'), Plant(TRUE, 'simplified')
+    b.set_params(TRUE.replace(F_sc=0.5 * TRUE['F_sc'], F_cc=0.5 * TRUE['F_cc']))
+    u = np.tile([0.002, 0.0], (300, 1))
+    za, zb = a.simulate(1e-3, u).z, b.simulate(1e-3, u).z
+    assert zb[-1] > za[-1] + 1e-4        # less friction: the same current moves it further
+
+
+def test_live_updates_follow_a_drifting_rig_in_process():
+    """A short, fast version of ``bench drift``: friction falls 30 % over 15 s."""
+    drift = Drift([DriftStage(15.0, 15.0, {'F_cc': -0.3, 'F_sc': -0.3})])
+    res = run('live', 60.0, drift=drift)
+    fits = [r for r in res['refits'] if 'estimates' in r]
+    last = fits[-1]
+    for n in ('F_cc', 'F_sc', 'c_c'):
+        assert last['estimates'][n] == pytest.approx(last['truth'][n], rel=0.02), n
+    assert res['pushes'] and res['pushes'][-1]['values']['F_cc'] == pytest.approx(
+        0.7 * TRUE['F_cc'], rel=0.03)
+    # while the friction changes inside a window the model does not fit it: never pushed
+    assert all(r['adequate'] for r in fits if r['pushed'])
