@@ -32,7 +32,7 @@ PUSHABLE = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')
 
 
 def _fill(win, seconds, t0_ns=0, rate=1000.0):
-    """A 1 Hz, 0.04 m motion with a current that drives it."""
+    """Add a 1 Hz, 0.04 m motion with a current that drives it."""
     for k in range(int(seconds * rate)):
         t = k / rate
         win.add_state(t0_ns + int(round(t * 1e9)), 0.04 * math.sin(2 * math.pi * t),
@@ -82,8 +82,8 @@ def exps(tmp_path_factory):
 
 
 def _identifier(**kw):
-    args = dict(free=ESTIMATED, pushable=PUSHABLE, model='simplified', sigmas=3.0,
-                rel_change=0.02, push_period=10.0)
+    args = {'free': ESTIMATED, 'pushable': PUSHABLE, 'model': 'simplified', 'sigmas': 3.0,
+            'rel_change': 0.02, 'push_period': 10.0}
     args.update(kw)
     return LiveIdentifier(preset('table1_initial'), **args)
 
@@ -92,7 +92,7 @@ def test_an_adequate_significant_fit_is_pushed_then_held_by_the_push_period(exps
     live = _identifier()
     est, r = live.refit([exps[0]], 10_000_000_000, 10.0)
     assert est.adequate and not est.pushed
-    assert "not known" in est.reason           # no push before the controller's values
+    assert 'not known' in est.reason           # no push before the controller's values
     live.controller = {n: 0.7 * TRUE[n] for n in PUSHABLE}
     est, r = live.refit([exps[0]], 15_000_000_000, 10.0)
     assert r.iterations < 8                     # warm from the first estimate
