@@ -151,6 +151,17 @@ def _cmd_drive(args) -> int:
     return 0 if res['best_pct'] <= args.rms else 1
 
 
+def _cmd_trend(args) -> int:
+    from ros_ehs.identify.trend import plot_trend, read_estimates, trend_table
+    est = read_estimates(args.bag)
+    print(trend_table(est))
+    pushed = sum(e.pushed for e in est)
+    print(f'{len(est)} refits, {sum(e.adequate for e in est)} adequate, {pushed} pushed')
+    if args.out:
+        print(f'wrote {plot_trend(est, args.out, sigmas=args.sigmas)}')
+    return 0
+
+
 def _cmd_record(args) -> int:
     from ros_ehs.params import preset
     from ros_ehs.reference import Sine
@@ -255,6 +266,12 @@ def main(argv=None) -> int:
     i.add_argument('--no-figures', action='store_true')
     i.add_argument('--quiet', action='store_true')
     i.set_defaults(func=_cmd_identify)
+    tr = sub.add_parser('trend', help='the live estimates of a long run over time, from its bag '
+                        '(topic parameter_estimates)')
+    tr.add_argument('bag', help='the bag (directory, .mcap or .db3)')
+    tr.add_argument('--out', default='', help='PNG of each parameter against time, with its band')
+    tr.add_argument('--sigmas', type=float, default=3.0, help='band width in standard errors')
+    tr.set_defaults(func=_cmd_trend)
     args = ap.parse_args(argv)
     try:
         return args.func(args)

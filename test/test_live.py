@@ -169,3 +169,53 @@ def test_live_updates_follow_a_drifting_rig_in_process():
         0.7 * TRUE['F_cc'], rel=0.03)
     # while the friction changes inside a window the model does not fit it: never pushed
     assert all(r['adequate'] for r in fits if r['pushed'])
+
+
+def _rosbags_estimates(out, estimates, storage='mcap'):
+    """Write ``estimates`` as the live node does, with rosbags' writer (not ours)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    arr_t = T['diagnostic_msgs/msg/DiagnosticArray']
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    with Writer(out, version=9, storage_plugin=plugin) as w:
+        conn = w.add_connection('/axis1/parameter_estimates', arr_t.__msgtype__, typestore=ts)
+        for e in estimates:
+            d = c.fill_estimate({'header': {'stamp': {}}}, e)
+            st = d['status'][0]
+            msg = arr_t(
+                header=T['std_msgs/msg/Header'](
+                    stamp=T['builtin_interfaces/msg/Time'](**d['header']['stamp']),
+                    frame_id=''),
+                status=[T['diagnostic_msgs/msg/DiagnosticStatus'](
+                    level=st['level'][0], name=st['name'], message=st['message'],
+                    hardware_id=st['hardware_id'],
+                    values=[T['diagnostic_msgs/msg/KeyValue'](key=kv['key'], value=kv['value'])
+                            for kv in st['values']])])
+            w.write(conn, e.stamp_ns, ts.serialize_cdr(msg, arr_t.__msgtype__))
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_the_trend_reads_a_bag_from_another_writer_and_plots_each_parameter(tmp_path, storage):
+    from ros_ehs.cli import main
+    from ros_ehs.identify.trend import read_estimates, trend_table
+    est = [c.ParameterEstimate(int(5e9 * k) + 7, {'F_cc': 1000.0 - 10 * k, 'c_c': 16000.0},
+                               {'F_cc': 2.0, 'c_c': 9.0}, k != 2, 'v', k == 3, 'r', 10.0,
+                               0.3, 4) for k in range(6)]
+    est.insert(1, c.ParameterEstimate(7_000_000_007, {}, {}, False, 'no fit: no excitation',
+                                      window_s=10.0, wall_s=0.0))
+    _rosbags_estimates(tmp_path / 'run', est, storage)
+    back = read_estimates(tmp_path / 'run')
+    assert back == sorted(est, key=lambda e: e.stamp_ns)
+    table = trend_table(back)
+    assert 'no fit: no excitation' in table and table.count('True') >= 5
+    assert main(['trend', str(tmp_path / 'run'), '--out', str(tmp_path / 'trend.png')]) == 0
+    assert (tmp_path / 'trend.png').stat().st_size > 10_000
+
+
+def test_the_trend_of_a_bag_without_estimates_names_the_topics_it_has(tmp_path, capsys):
+    from ros_ehs.cli import main
+    assert main(['trend', 'bags/sample_sine_1hz']) == 2
+    err = capsys.readouterr().err
+    assert "no topic 'parameter_estimates'" in err and '/state' in err
