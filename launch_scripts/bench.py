@@ -179,6 +179,10 @@ def main(argv=None) -> int:
     ap.add_argument('--plant-param', type=_node_param, action='append', default=[],
                     metavar='NAME=VALUE', help='a plant parameter (repeatable), e.g. '
                     'fault=frozen_sensor')
+    ap.add_argument('--live-identify', action='store_true',
+                    help='also run the identify node in live mode: refit the last 10 s every '
+                    '5 s and push significant fits to the controller; its estimates go into '
+                    'the bag (ehs_sim trend BAG; docs/identification.md, "Live mode")')
     rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
     rec.add_argument('--max-bag-size', type=int, default=None,
                      help='split once a file holds this many bytes (0: never)')
@@ -236,6 +240,12 @@ def main(argv=None) -> int:
             print(f'bench: {err}', file=sys.stderr)
             _recorder_lines(launch, errors_only=True)
             return 1
+        live = []
+        if a.live_identify:
+            ref_cpu = -1 if launch.placement is None else launch.placement[1]
+            launch.start('identify', {'live': True, 'push': True, 'cpu_affinity': ref_cpu,
+                                      'use_sim_time': lock}, params_file=pf)
+            live = ['identify']
         where = ('' if launch.placement is None else
                  '; plant and controller on CPU {}, reference on CPU {}'.format(
                      *launch.placement))
@@ -253,9 +263,12 @@ def main(argv=None) -> int:
         # the recorder first (it drains while the writers still run), then the plant before
         # its controller: a plant outliving the controller would count every period until
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
-        codes = launch.stop(['recorder', 'reference', 'plant', 'controller', *probes])
+        codes = launch.stop(['recorder', *live, 'reference', 'plant', 'controller', *probes])
     _recorder_lines(launch)
     _event_lines(out)
+    for line in (launch['identify'].output().splitlines() if live else []):
+        if 'live refit at' in line or 'live push' in line:
+            print('bench: identify ' + line.split('] ', 1)[-1])
     for line in launch['plant'].output().splitlines():
         if line.startswith(FIGURES):
             print('bench: plant ' + line)

@@ -19,7 +19,7 @@ import sys
 BENCHES = {'model': 'model_bench', 'paper': 'paper_bench', 'identify': 'identify_bench',
            'loop': 'loop_bench', 'lockstep': 'lockstep_bench', 'record': 'record_bench',
            'soak': 'soak_bench', 'window': 'window_bench', 'tracking': 'tracking_bench',
-           'drift': 'drift_bench'}
+           'drift': 'drift_bench', 'live': 'live_bench'}
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,102 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+``python -m ros_ehs.bench live``: whether the live identify node disturbs the real-time loop.
+
+The bench's loop (plant, controller and the reference's 1 Hz sine, placed as
+``Launch.start_loop`` places them: plant and controller on one CPU, the reference on the
+other) runs in real time for ``--seconds`` per round, in ``--rounds`` rounds that alternate
+without and with the identify node in live mode (window 10 s, period 5 s, pushing to the
+controller), placed on the reference's CPU, its refits at idle priority. Prints each round's
+fresh-cycle fraction and watchdog trips, the live node's CPU share and refits; the last line
+is one JSON object with the figures pooled per kind, the spread of the rounds without it
+(``fresh_spread_without``) and ``fresh_ratio_with_vs_without``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from domain_coordinator import domain_id
+import psutil
+from ros_ehs.bench import count, positive, report
+from ros_ehs.launch import Launch, loop_placement
+
+LIVE = {'live': True, 'push': True, 'window': 10.0, 'period': 5.0}
+
+
+def _cpu(pid: int) -> float:
+    t = psutil.Process(pid).cpu_times()
+    return t.user + t.system
+
+
+def _round(dom: int, seconds: float, with_live: bool) -> dict:
+    with Launch(dom) as launch:
+        launch.start_loop('realtime')
+        live_cpu = 0.0
+        if with_live:
+            ref_cpu = (loop_placement(True) or (-1, -1))[1]
+            launch.start('identify', {**LIVE, 'cpu_affinity': ref_cpu})
+            launch.wait_for_log('identify', 'live: state from', 30)
+            c0 = _cpu(launch['identify'].pid)
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        if with_live:
+            live_cpu = (_cpu(launch['identify'].pid) - c0) / (time.monotonic() - t0)
+        launch.stop(['identify'] if with_live else [])
+        launch.stop(['plant', 'controller', 'reference'])     # the plant first: no stale tail
+        f = launch['plant'].figures()
+        out = launch['identify'].output() if with_live else ''
+    return {'with_live': with_live, 'cycles': f['cycles'],
+            'fresh_cycle_fraction': f['fresh_cycle_fraction'],
+            'watchdog_trips': f['watchdog_trips'], 'live_cpu_frac': round(live_cpu, 3),
+            'refits': out.count('live refit at'), 'pushes': out.count('live push to')}
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; print figures, the last line JSON."""
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench live')
+    ap.add_argument('--seconds', type=positive, default=40.0, help='seconds per round')
+    ap.add_argument('--rounds', type=count, default=4,
+                    help='rounds, alternating without and with the live node')
+    a = ap.parse_args(argv)
+    rounds = []
+    with domain_id() as dom:
+        for r in range(a.rounds):
+            res = _round(dom, a.seconds, with_live=r % 2 == 1)
+            rounds.append(res)
+            print(f'round {r + 1}: live node {"on " if res["with_live"] else "off"}  fresh '
+                  f'{res["fresh_cycle_fraction"]:.5f}  watchdog trips {res["watchdog_trips"]}'
+                  f'  live CPU {res["live_cpu_frac"]:.3f}  refits {res["refits"]}  pushes '
+                  f'{res["pushes"]}', flush=True)
+    figures = {'seconds': a.seconds, 'rounds': a.rounds, 'per_round': rounds}
+    for kind, on in (('with', True), ('without', False)):
+        rs = [r for r in rounds if r['with_live'] == on]
+        n = sum(r['cycles'] for r in rs)
+        figures[f'fresh_{kind}'] = round(sum(r['fresh_cycle_fraction'] * r['cycles']
+                                             for r in rs) / max(n, 1), 5)
+        figures[f'watchdog_trips_{kind}'] = sum(r['watchdog_trips'] for r in rs)
+        fr = [r['fresh_cycle_fraction'] for r in rs]
+        figures[f'fresh_spread_{kind}'] = round(max(fr) - min(fr), 5) if fr else None
+    figures['fresh_ratio_with_vs_without'] = round(figures['fresh_with'] /
+                                                   figures['fresh_without'], 5)
+    figures['refits'] = sum(r['refits'] for r in rounds)
+    figures['live_cpu_frac'] = max(r['live_cpu_frac'] for r in rounds)
+    return report(figures)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
