@@ -72,3 +72,18 @@ def sigkilled():
         p.wait()
         return written
     return run
+
+
+@pytest.fixture
+def python_lines():
+    """
+    Return ``run(code, *args)``: the output lines of ``code`` in a fresh interpreter.
+
+    A fresh interpreter has its own threads, scheduler and imports.
+    """
+    def run(code: str, *args: str) -> list[str]:
+        out = subprocess.run([sys.executable, '-c', code, *args], capture_output=True,
+                             text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.strip().splitlines()
+    return run

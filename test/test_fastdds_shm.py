@@ -103,6 +103,7 @@ def _files_of(pid: int) -> set:
     return names
 
 
+@pytest.mark.ros
 @pytest.mark.skipif(not SHM_DIR.is_dir(), reason='no /dev/shm on this machine')
 def test_real_fast_dds_files_are_kept_while_alive_and_removed_once_killed(dom):
     """A bare rclpy participant's own files: kept while it runs; stale after SIGKILL."""

@@ -246,39 +246,47 @@ def test_the_unchecked_advance_is_step_to_the_bit_and_says_when_the_state_leaves
     assert not fast.advance(out, np.zeros(2), 1e-3)
 
 
+@pytest.mark.parametrize('model', ['simplified', 'reduced'])
 @pytest.mark.parametrize('law,flow,smooth', [('renormalised', 'orifice', True),
                                              ('paper', 'orifice', True),
                                              ('renormalised', 'linear', True),
                                              ('renormalised', 'orifice', False)])
-def test_the_simplified_models_exact_jacobian_matches_central_differences(law, flow, smooth):
-    """The integrator's W for the simplified model: the exact derivative and the same rhs."""
+def test_the_exact_jacobians_match_central_differences(model, law, flow, smooth):
+    """The integrator's W for the simplified and reduced models: exact, and the same rhs."""
+    from ros_ehs.model import kernels as K
     from ros_ehs.model.coefficients import pack
-    from ros_ehs.model.kernels import rhs_jacobian_simplified, rhs_simplified
     c = pack(EST.replace(friction_law=law, flow_law=flow), smooth=smooth)
+    rhs, both = ((K.rhs_simplified, K.rhs_jacobian_simplified) if model == 'simplified' else
+                 (K.rhs_reduced, K.rhs_jacobian_reduced))
     rng = np.random.default_rng(3)
+    n = 4 if model == 'simplified' else 6
     scale = np.array([1e5, 1e5, 1e-3, 1e-3])
+    if n == 6:
+        scale = np.concatenate([[1e-3, 1e-6], scale])
     worst = 0.0
     for _ in range(200):
         # chambers across the supply range, speeds from sticking to fast, in and beyond stroke
         x = np.array([rng.uniform(1e6, 2e7), rng.uniform(1e6, 2e7),
                       rng.normal(0.0, 0.05) * rng.choice([1.0, 1e-3, 1e-5]),
                       rng.uniform(-0.12, 0.12)])
+        if n == 6:        # spool speed and opening, inside and at its stops
+            x = np.concatenate([[rng.normal(0.0, 0.05), rng.normal(0.0, 2e-4)], x])
         u = np.array([rng.normal(0.0, 0.01), rng.normal(0.0, 1000.0)])
-        f, jac = np.empty(4), np.empty((4, 4))
-        rhs_jacobian_simplified(x, u, c, f, jac)
-        ref = np.empty(4)
-        rhs_simplified(x, u, c, ref)
+        f, jac = np.empty(n), np.empty((n, n))
+        both(x, u, c, f, jac)
+        ref = np.empty(n)
+        rhs(x, u, c, ref)
         np.testing.assert_allclose(f, ref, rtol=1e-12, atol=0.0)
-        fp, fm, num = np.empty(4), np.empty(4), np.empty((4, 4))
-        for j in range(4):
+        fp, fm, num = np.empty(n), np.empty(n), np.empty((n, n))
+        for j in range(n):
             d = 1e-6 * max(abs(x[j]), scale[j])
             xp, xm = x.copy(), x.copy()
             xp[j] += d
             xm[j] -= d
-            rhs_simplified(xp, u, c, fp)
-            rhs_simplified(xm, u, c, fm)
+            rhs(xp, u, c, fp)
+            rhs(xm, u, c, fm)
             num[:, j] = (fp - fm) / (2.0 * d)
-        if not smooth and abs(x[2]) < 1e-4:
+        if not smooth and abs(x[n - 2]) < 1e-4:
             continue         # the exact sign's kink: differences straddle it
         # relative to each row's largest entry (entries near zero carry round-off)
         err = np.abs(jac - num) / (np.abs(num).max(axis=1, keepdims=True) + 1e-300)

@@ -57,6 +57,7 @@ def test_pip_install_puts_working_console_scripts_on_path(tmp_path):
     assert 'Traceback' not in bad.stderr
 
 
+@pytest.mark.ros
 @pytest.mark.skipif(shutil.which('colcon') is None, reason='colcon not installed')
 def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     src = tmp_path / 'src' / 'ros_ehs'

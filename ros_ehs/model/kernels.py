@@ -406,49 +406,71 @@ def _dsoft_clip(f, lim, smooth):
 
 
 @njit(**_JIT)
-def rhs_jacobian_simplified(x, u, c, out, jac):
+def _flows_jacobian(xv, pA, pB, c, linear):
     """
-    :func:`rhs_simplified` into ``out`` and its exact ``d/dx`` into ``jac`` (4, 4), at once.
+    Main-stage flows and their derivatives: ``qa, qb, dqa/dpA, dqb/dpB, dqa/dxv, dqb/dxv``.
 
-    The integrator's W at the cost of about one more right-hand side, where forward
-    differences cost four (and their round-off). Differentiated case by case as
-    :func:`rhs_simplified` computes (smooth or exact forms); tested against differences.
+    :func:`main_stage_flows` differentiated, or with ``linear`` the law ``K_q x`` (which
+    only the simplified model offers).
     """
-    pA, pB, zd, z = x[0], x[1], x[2], x[3]
+    if linear:
+        qa = c[C_KQ] * xv
+        return qa, -qa, 0.0, 0.0, c[C_KQ], -c[C_KQ]
+    sm = c[C_SMOOTH]
+    k = c[C_CD] * c[C_W] * math.sqrt(2.0 / c[C_RHO])
+    xe = xv + c[C_XBIAS]
+    clr, rc = c[C_CLR], c[C_RC]
+    h_pa = edge_gap(xe, clr, rc)
+    h_pb = edge_gap(-xe, clr, rc)
+    ps, pt, pcr = c[C_PS], c[C_PT], c[C_PCR]
+    sa1, sa2 = sroot(ps - pA, pcr, sm), sroot(pA - pt, pcr, sm)
+    sb1, sb2 = sroot(ps - pB, pcr, sm), sroot(pB - pt, pcr, sm)
+    qa = k * (h_pa * sa1 - h_pb * sa2)
+    qb = k * (h_pb * sb1 - h_pa * sb2)
+    dqa = -k * (h_pa * _dsroot(ps - pA, pcr, sm) + h_pb * _dsroot(pA - pt, pcr, sm))
+    dqb = -k * (h_pb * _dsroot(ps - pB, pcr, sm) + h_pa * _dsroot(pB - pt, pcr, sm))
+    ea = _dedge(xe, clr, rc)          # d h_pa / d xv
+    eb = -_dedge(-xe, clr, rc)        # d h_pb / d xv
+    return qa, qb, dqa, dqb, k * (ea * sa1 - eb * sa2), k * (eb * sb1 - ea * sb2)
+
+
+@njit(**_JIT)
+def _dedge(x, clr, rc):
+    """Return the derivative of :func:`edge_gap` by the opening ``x``."""
+    if x <= -rc:
+        return 0.0
+    s = x + rc
+    q = clr + rc
+    return s / math.sqrt(s * s + q * q)
+
+
+@njit(**_JIT)
+def _cylinder_jacobian(pA, pB, zd, z, qa, qb, dqa, dqb, f_load, c, out, jac, o):
+    """
+    Write :func:`_cylinder` into ``out[o:o+4]`` and its derivatives into ``jac``.
+
+    The derivatives by its own four states go to ``jac[o:o+4, o:o+4]``; ``dqa``/``dqb`` are
+    the flows' derivatives by their own chamber's pressure.
+    """
     sm = c[C_SMOOTH]
     ap, beta, kc = c[C_AP], c[C_BETA_E], c[C_KC]
-    xv = spool_static(u[0], c)
-    if c[C_LINEAR] > 0.5:
-        qa = c[C_KQ] * xv
-        qb = -qa
-        dqa = 0.0
-        dqb = 0.0
-    else:
-        qa, qb = main_stage_flows(xv, pA, pB, c)
-        k = c[C_CD] * c[C_W] * math.sqrt(2.0 / c[C_RHO])
-        xe = xv + c[C_XBIAS]
-        h_pa = edge_gap(xe, c[C_CLR], c[C_RC])
-        h_pb = edge_gap(-xe, c[C_CLR], c[C_RC])
-        ps, pt, pcr = c[C_PS], c[C_PT], c[C_PCR]
-        dqa = -k * (h_pa * _dsroot(ps - pA, pcr, sm) + h_pb * _dsroot(pA - pt, pcr, sm))
-        dqb = -k * (h_pb * _dsroot(ps - pB, pcr, sm) + h_pa * _dsroot(pB - pt, pcr, sm))
     leak = kc * (pA - pB)
     va = ap * (c[C_LIAC] + z)
     vb = ap * (c[C_LIAC] - z)
     ga, gb = beta / va, beta / vb
     fa = ga * (qa - ap * zd - leak)
     fb = gb * (qb + ap * zd + leak)
-    jac[0, 0] = ga * (dqa - kc)
-    jac[0, 1] = ga * kc
-    jac[0, 2] = -ga * ap
-    jac[0, 3] = -fa * ap / va
-    jac[1, 0] = gb * kc
-    jac[1, 1] = gb * (dqb - kc)
-    jac[1, 2] = gb * ap
-    jac[1, 3] = fb * ap / vb
+    jac[o, o + 0] = ga * (dqa - kc)
+    jac[o, o + 1] = ga * kc
+    jac[o, o + 2] = -ga * ap
+    jac[o, o + 3] = -fa * ap / va
+    jac[o + 1, o + 0] = gb * kc
+    jac[o + 1, o + 1] = gb * (dqb - kc)
+    jac[o + 1, o + 2] = gb * ap
+    jac[o + 1, o + 3] = fb * ap / vb
     # piston: f_oc, the friction of eqs. (14)-(15) (see :func:`friction`), the end stop
     mp = c[C_MP]
-    f_oc = ap * (pA - pB) - c[C_CC] * zd - c[C_KL] * z + u[1]
+    f_oc = ap * (pA - pB) - c[C_CC] * zd - c[C_KL] * z + f_load
     eps = c[C_EPSV]
     vcs = c[C_VCS]
     if sm > 0.5:
@@ -481,19 +503,65 @@ def rhs_jacobian_simplified(x, u, c, out, jac):
     if z > stroke or z < -stroke:
         dstop_z = -c[C_KSTOP]
         dstop_v = -1.4 * math.sqrt(c[C_KSTOP] * mp)
-    jac[2, 0] = df_doc * ap / mp
-    jac[2, 1] = -df_doc * ap / mp
-    jac[2, 2] = (-df_doc * c[C_CC] + df_dv + dstop_v) / mp
-    jac[2, 3] = (-df_doc * c[C_KL] + dstop_z) / mp
-    jac[3, 0] = 0.0
-    jac[3, 1] = 0.0
-    jac[3, 2] = 1.0
-    jac[3, 3] = 0.0
+    jac[o + 2, o + 0] = df_doc * ap / mp
+    jac[o + 2, o + 1] = -df_doc * ap / mp
+    jac[o + 2, o + 2] = (-df_doc * c[C_CC] + df_dv + dstop_v) / mp
+    jac[o + 2, o + 3] = (-df_doc * c[C_KL] + dstop_z) / mp
+    jac[o + 3, o + 0] = 0.0
+    jac[o + 3, o + 1] = 0.0
+    jac[o + 3, o + 2] = 1.0
+    jac[o + 3, o + 3] = 0.0
     f_c = -((1.0 - xi) * soft_clip(f_hold, fsc, sm) + xi * sgn * fcc)
-    out[0] = fa
-    out[1] = fb
-    out[2] = (f_oc + f_c + _stop(z, zd, stroke, c[C_KSTOP], mp)) / mp
-    out[3] = zd
+    out[o] = fa
+    out[o + 1] = fb
+    out[o + 2] = (f_oc + f_c + _stop(z, zd, stroke, c[C_KSTOP], mp)) / mp
+    out[o + 3] = zd
+
+
+@njit(**_JIT)
+def rhs_jacobian_simplified(x, u, c, out, jac):
+    """
+    :func:`rhs_simplified` into ``out`` and its exact ``d/dx`` into ``jac`` (4, 4), at once.
+
+    The integrator's W at the cost of about one more right-hand side, where forward
+    differences cost four (and their round-off). Differentiated case by case as
+    :func:`rhs_simplified` computes (smooth or exact forms); tested against differences.
+    """
+    qa, qb, dqa, dqb, _, _ = _flows_jacobian(spool_static(u[0], c), x[0], x[1], c,
+                                             c[C_LINEAR] > 0.5)
+    _cylinder_jacobian(x[0], x[1], x[2], x[3], qa, qb, dqa, dqb, u[1], c, out, jac, 0)
+
+
+@njit(**_JIT)
+def rhs_jacobian_reduced(x, u, c, out, jac):
+    """:func:`rhs_reduced` and its exact ``d/dx`` (6, 6), as :func:`rhs_jacobian_simplified`."""
+    xvd, xv, pA, pB, zd, z = x[0], x[1], x[2], x[3], x[4], x[5]
+    for r in range(6):
+        for j in range(6):
+            jac[r, j] = 0.0
+    # the valve's lag on its steady, load-dependent opening (:func:`spool_reduced`)
+    sm = c[C_SMOOTH]
+    d = pA - pB
+    dk = -c[C_KFF] * c[C_W] * _sabs(d, 1e4, sm)
+    den = 1.0 + c[C_CSV] * dk
+    ss = c[C_GV0] * u[0] / den
+    lim = c[C_XVMAX]
+    a2 = c[C_A2V]
+    dss = 0.0                          # d ss / d (pA - pB), zero where the stop holds it
+    if -lim < ss < lim:
+        dsabs = d / math.sqrt(d * d + 1e8) if sm > 0.5 else (1.0 if d > 0.0 else -1.0)
+        dss = c[C_GV0] * u[0] * c[C_CSV] * c[C_KFF] * c[C_W] * dsabs / (den * den)
+    out[0] = (min(max(ss, -lim), lim) - xv - c[C_TAUV] * xvd) / a2
+    out[1] = xvd
+    jac[0, 0] = -c[C_TAUV] / a2
+    jac[0, 1] = -1.0 / a2
+    jac[0, 2] = dss / a2
+    jac[0, 3] = -dss / a2
+    jac[1, 0] = 1.0
+    qa, qb, dqa, dqb, dqa_x, dqb_x = _flows_jacobian(xv, pA, pB, c, False)
+    _cylinder_jacobian(pA, pB, zd, z, qa, qb, dqa, dqb, u[1], c, out, jac, 2)
+    jac[2, 1] = c[C_BETA_E] / (c[C_AP] * (c[C_LIAC] + z)) * dqa_x
+    jac[3, 1] = c[C_BETA_E] / (c[C_AP] * (c[C_LIAC] - z)) * dqb_x
 
 
 # --- fixed-step linearly implicit integrator ---------------------------------------------
@@ -581,10 +649,12 @@ def advance_ws(model, x, u, c, h, nsub, xscale, w, piv, refresh):
     k2 = np.empty(n)
     if refresh and model == SIMPLIFIED:
         rhs_jacobian_simplified(x, u, c, f0, w)
+    elif refresh and model == REDUCED:
+        rhs_jacobian_reduced(x, u, c, f0, w)
     else:
         rhs(model, x, u, c, f0)
     if refresh:
-        if model != SIMPLIFIED:
+        if model == FULL:
             _jacobian(model, x, u, c, f0, xscale, w, xt, ft)
         for r in range(n):
             for j in range(n):
