@@ -112,6 +112,8 @@ OPTIONS = (
 
 #: Live mode: how often to look for the mapped topics' types [s].
 DISCOVERY_PERIOD = 0.5
+#: Live mode: the subscriptions' queue depth (1 s of a 2 kHz state).
+LIVE_QUEUE = 2000
 
 
 def pushable(names) -> list[str]:
@@ -270,7 +272,10 @@ class IdentifyNode(Node):
                 self._subscribed[full] = msg_type        # said once
                 continue
             qos = contract.STATE.qos if role == 'state' else contract.PRESSURE_P.qos
-            self.create_subscription(msg_class(msg_type), name, cb, qos_profile(qos), raw=True)
+            # a deep queue: the refit thread holds the interpreter for a while at times, and
+            # a depth of 1 then dropped states (a 10 s window fell into 9 runs)
+            self.create_subscription(msg_class(msg_type), name, cb,
+                                     qos_profile(qos, depth=LIVE_QUEUE), raw=True)
             self._subscribed[full] = msg_type
             self.get_logger().info(f'live: {role} from {full} ({msg_type})')
 
