@@ -94,3 +94,18 @@ def test_a_rig_that_is_not_the_fitted_model_is_never_pushed(dom, tmp_path, ros):
     assert not any(e.pushed for e in est)
     assert all(not e.adequate and 'not adequate' in e.verdict for e in est), est
     assert 'live push to' not in out
+
+
+def test_a_push_target_that_does_not_take_the_values_is_named_and_never_pushed(dom, tmp_path):
+    """The live node pointed at a node that does not declare the feedforward's values."""
+    with Launch(dom, tmp_path / 'logs') as launch:
+        launch.start_loop('realtime', bag=tmp_path / 'bag', plant=NOISE,
+                          reference={'cpu_affinity': -1})
+        launch.start('identify', {**LIVE, 'controller': 'recorder'})
+        for said in ('does not declare', 'live refit at'):     # named, then it refits on
+            assert launch.wait_for_log('identify', said, 40), launch['identify'].output()[-3000:]
+        launch.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
+    out = launch['identify'].output()
+    assert "`recorder` does not declare ['d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c']" in out, out
+    assert out.count('does not declare') == 1 and 'live push to' not in out
+    assert 'live refit at' in out and 'Traceback' not in out

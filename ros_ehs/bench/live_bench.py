@@ -16,8 +16,9 @@
 
 The bench's loop (plant, controller and the reference's 1 Hz sine, placed as
 ``Launch.start_loop`` places them: plant and controller on one CPU, the reference on the
-other) runs in real time for ``--seconds`` per round, in ``--rounds`` rounds that alternate
-without and with the identify node in live mode (window 10 s, period 5 s, pushing to the
+other) runs in real time for ``--seconds`` per round, in ``--rounds`` rounds without and with
+the identify node in the order without, with, with, without (so a drift of the machine's load
+over the run weighs on both alike) in live mode (window 10 s, period 5 s, pushing to the
 controller), placed on the reference's CPU, its refits at idle priority. Prints each round's
 fresh-cycle fraction and watchdog trips, the live node's CPU share and refits; the last line
 is one JSON object with the figures pooled per kind, the spread of the rounds without it
@@ -71,12 +72,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench live')
     ap.add_argument('--seconds', type=positive, default=40.0, help='seconds per round')
     ap.add_argument('--rounds', type=count, default=4,
-                    help='rounds, alternating without and with the live node')
+                    help='rounds: without, with, with, without the live node, ...')
     a = ap.parse_args(argv)
     rounds = []
     with domain_id() as dom:
         for r in range(a.rounds):
-            res = _round(dom, a.seconds, with_live=r % 2 == 1)
+            res = _round(dom, a.seconds, with_live=r % 4 in (1, 2))     # ABBA
             rounds.append(res)
             print(f'round {r + 1}: live node {"on " if res["with_live"] else "off"}  fresh '
                   f'{res["fresh_cycle_fraction"]:.5f}  watchdog trips {res["watchdog_trips"]}'

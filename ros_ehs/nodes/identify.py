@@ -427,11 +427,17 @@ class IdentifyNode(Node):
         res = self._wait(self._client.get_parameters(names), float(self.opt['push_timeout']))
         if res is None:
             return
-        vals = [v.double_value for v in res.values]
-        if len(vals) == len(names):
-            self.live.controller = dict(zip(names, vals))
-            self.get_logger().info('live: the controller has ' + ', '.join(
-                f'{n}={v:.6g}' for n, v in self.live.controller.items()))
+        from rcl_interfaces.msg import ParameterType
+        missing = [n for n, v in zip(names, res.values)
+                   if v.type != ParameterType.PARAMETER_DOUBLE]
+        if missing or len(res.values) != len(names):
+            self.get_logger().error(
+                f'live: `{self.opt["controller"]}` does not declare {missing or names} as '
+                'numbers: nothing will be pushed', once=True)
+            return
+        self.live.controller = {n: v.double_value for n, v in zip(names, res.values)}
+        self.get_logger().info('live: the controller has ' + ', '.join(
+            f'{n}={v:.6g}' for n, v in self.live.controller.items()))
 
     def _push_live(self, est) -> bool:
         log = self.get_logger()
