@@ -58,7 +58,7 @@ from ros_ehs.bench.sleeper import coincident, HICCUP_MS, hiccups, STALL_MS  # no
 from ros_ehs.bench.sleeper import command as probe_command  # noqa: E402
 from ros_ehs.launch import FIGURES, Launch, LaunchError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
-from ros_ehs.synthetic import SensorNoise  # noqa: E402
+from ros_ehs.sim.synthetic_bag import SensorNoise  # noqa: E402
 
 FASTDDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 #: at most this many CPUs get a probe (one each); a larger machine gets none

@@ -28,7 +28,7 @@ from ros_ehs.params import ESTIMATED
 
 
 def _cmd_main(args) -> int:
-    from ros_ehs.closed_loop import run_closed_loop
+    from ros_ehs.sim.closed_loop import run_closed_loop
     from ros_ehs.params import preset
     from ros_ehs.reference import Sine
 
@@ -46,7 +46,7 @@ def _cmd_main(args) -> int:
 
 
 def _cmd_figures(args) -> int:
-    from ros_ehs.experiments import paper_runs, plot_runs
+    from ros_ehs.sim.paper_runs import paper_runs, plot_runs
 
     runs = paper_runs(args.model, args.duration)
     for name, (_, m) in runs.items():
@@ -165,14 +165,14 @@ def _cmd_trend(args) -> int:
 def _cmd_record(args) -> int:
     from ros_ehs.params import preset
     from ros_ehs.reference import Sine
-    from ros_ehs.synthetic import record_experiment, SensorNoise
+    from ros_ehs.sim.synthetic_bag import record_synthetic_bag, SensorNoise
 
     noise = SensorNoise() if args.noise else SensorNoise(0.0, 0.0, 0.0)
-    s = record_experiment(args.out, plant_params=preset(args.plant),
-                          controller_params=preset(args.controller),
-                          reference=Sine(args.amplitude, args.frequency),
-                          duration=args.duration, model=args.model, noise=noise,
-                          seed=args.seed)
+    s = record_synthetic_bag(args.out, plant_params=preset(args.plant),
+                             controller_params=preset(args.controller),
+                             reference=Sine(args.amplitude, args.frequency),
+                             duration=args.duration, model=args.model, noise=noise,
+                             seed=args.seed)
     print(f'recorded {args.out}: {int(s["samples"])} samples, {args.model} plant '
           f'({args.plant}), rms tracking error {s["rms_error_m"] * 1e3:.3f} mm (synthetic)')
     return 0

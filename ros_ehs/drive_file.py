@@ -262,7 +262,7 @@ def iterate(plant_params, target_t, target_z, out: str | os.PathLike, *,
     ``out/drive_<k>.csv`` for each drive played, ``out/drive.csv`` (the best) and returns
     the RMS errors [%] (first pass, then each iteration).
     """
-    from ros_ehs.closed_loop import run_closed_loop
+    from ros_ehs.sim.closed_loop import run_closed_loop
     out = Path(out)
     t = np.asarray(target_t, dtype=float)
     r = np.asarray(target_z, dtype=float)

@@ -259,7 +259,8 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
        'latches the feedback detector (the controller sends 0 A, unlatched, after 10 '
        'stale_timeout already)', 'safety', 'D'),
     _p('frozen_periods', '1', 100.0, 2.0, 1.0e6, 'feedback frozen: the same position for '
-       'this many periods while |i| >= frozen_current', 'safety', 'D'),
+       'this many periods with |i| >= frozen_current (periods with less neither count nor '
+       'clear)', 'safety', 'D'),
     _p('frozen_current', 'A', 3.0e-4, 0.0, 0.1, 'the command above which a frozen position '
        'counts (a command this large moves a free piston)', 'safety', 'D'),
     _action('feedback', 'power_off', 'feedback validity (non-finite, lost, frozen)'),

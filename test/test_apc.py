@@ -4,11 +4,11 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.control.apc import AmplitudePhaseControl
 from ros_ehs.errors import InputError
 from ros_ehs.params import preset
 from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 
 
 def _fundamental(t, z, f):

@@ -21,10 +21,10 @@ import pytest
 from ros_ehs.control import (Controller, DelayLine, Feedforward, Pid, PidGains, psc_force,
                              stribeck_estimate, xi_blend)
 from ros_ehs.errors import InputError, ParameterError
-from ros_ehs.experiments import paper_runs
 from ros_ehs.metrics import tracking_metrics
 from ros_ehs.model import ff_force_gain
 from ros_ehs.params import preset
+from ros_ehs.sim.paper_runs import paper_runs
 
 
 def test_p_i_d_terms_match_eq_19():
@@ -99,7 +99,7 @@ def test_a_start_mid_stroke_leaves_no_offset_with_the_default_antiwindup():
     integrator to several mA of the wrong sign, which ki = 0.051 A/(m s) unwinds over ~15 s.
     Conditional integration (the default) is back on the sine within the first second.
     """
-    from ros_ehs.closed_loop import run_closed_loop
+    from ros_ehs.sim.closed_loop import run_closed_loop
     from ros_ehs.params import Params
     from ros_ehs.reference import Sine
     sine = Sine(0.04, 1.0)
@@ -202,7 +202,7 @@ def test_paper_experiments_reproduce_dead_zone_and_feedforward_gain():
 
 
 def test_closed_loop_position_noise_reaches_the_controller_and_is_checked():
-    from ros_ehs.closed_loop import run_closed_loop
+    from ros_ehs.sim.closed_loop import run_closed_loop
     from ros_ehs.reference import Sine
     p = preset('table1_estimated')
     noise = np.full(200, 1e-3)

@@ -2,13 +2,13 @@
 
 import numpy as np
 import pytest
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.drive_file import (band_error, DriveIteration, frf, frf_from_bag, load_drive,
                                 multisine,
                                 rms_error_pct, Samples, save_drive)
 from ros_ehs.errors import DataError, InputError
 from ros_ehs.params import preset
 from ros_ehs.reference import CsvTrajectory
+from ros_ehs.sim.closed_loop import run_closed_loop
 
 FS = 1000.0
 

@@ -25,7 +25,7 @@ from ros_ehs.errors import IdentificationWarning, InputError
 from ros_ehs.identify import identify, score
 from ros_ehs.params import ESTIMATED, preset
 from ros_ehs.reference import Sine
-from ros_ehs.synthetic import record_experiment
+from ros_ehs.sim.synthetic_bag import record_synthetic_bag
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / 'bags' / 'sample_sine_1hz'
@@ -41,7 +41,7 @@ def fits(tmp_path_factory):
     exps = {0: load_experiment(SAMPLE)}
     for seed in (1, 2):
         path = tmp_path_factory.mktemp('seed') / f'seed{seed}'
-        record_experiment(path, seed=seed)
+        record_synthetic_bag(path, seed=seed)
         exps[seed] = load_experiment(path)
     with warnings.catch_warnings():
         warnings.simplefilter('error', IdentificationWarning)
@@ -193,13 +193,13 @@ def test_cli_clear_errors(tmp_path, capsys):
     cut.write_bytes((SAMPLE / 'sample_sine_1hz_0.mcap').read_bytes()[:300])
     assert 'truncated' in _cli_error(capsys, cut, '--out', tmp_path / 'o')
     short = tmp_path / 'short'
-    record_experiment(short, duration=0.3)
+    record_synthetic_bag(short, duration=0.3)
     assert 'too little data' in _cli_error(capsys, short, '--out', tmp_path / 'o')
     still = tmp_path / 'still'
     from ros_ehs.reference import Sine
-    from ros_ehs.synthetic import SensorNoise
-    record_experiment(still, duration=1.0, reference=Sine(1e-6, 1.0),
-                      noise=SensorNoise(0, 0, 0))
+    from ros_ehs.sim.synthetic_bag import SensorNoise
+    record_synthetic_bag(still, duration=1.0, reference=Sine(1e-6, 1.0),
+                         noise=SensorNoise(0, 0, 0))
     assert 'no excitation' in _cli_error(capsys, still, '--out', tmp_path / 'o')
 
 
@@ -217,7 +217,7 @@ def test_an_adequate_fit_says_so_with_its_noise_ratios(fits, tmp_path):
 def test_data_from_another_model_is_flagged_inadequate_with_advice(tmp_path, capsys):
     """A full-model bag fitted with the simplified model: the noise does not explain it."""
     bag = tmp_path / 'full'
-    record_experiment(bag, model='full', seed=3)
+    record_synthetic_bag(bag, model='full', seed=3)
     e = load_experiment(bag)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', IdentificationWarning)
@@ -280,7 +280,7 @@ def test_a_rig_that_is_not_the_model_is_recovered_or_flagged(tmp_path, seed):
     factors = {n: float((1 if n == 'l_iac' else rng.choice([-1, 1])) * rng.uniform(0.15, 0.25)
                         + 1.0) for n in ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')}
     truth = est.replace(**{n: est[n] * f for n, f in factors.items()})
-    record_experiment(tmp_path / 'rig', plant_params=truth, model='full', seed=seed)
+    record_synthetic_bag(tmp_path / 'rig', plant_params=truth, model='full', seed=seed)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', IdentificationWarning)
         r = identify(load_experiment(tmp_path / 'rig'))
@@ -307,7 +307,7 @@ def test_the_report_names_what_the_bag_cannot_pin_down_and_an_excitation_that_do
     """
     from ros_ehs.identify.design import trajectory, PINNED
     bag = tmp_path / 'fast'
-    record_experiment(bag, reference=Sine(0.04, 4.0), seed=3)
+    record_synthetic_bag(bag, reference=Sine(0.04, 4.0), seed=3)
     rc = cli.main(['identify', str(bag), '--out', str(tmp_path / 'rep'), '--quiet',
                    '--no-figures'])
     out = capsys.readouterr().out
@@ -320,7 +320,7 @@ def test_the_report_names_what_the_bag_cannot_pin_down_and_an_excitation_that_do
     assert rec['rel_stderr']['r_c'] <= PINNED and 'ros2 run ros_ehs reference' in rec['command']
     assert 'excitation: this excitation does not pin down r_c' in out
     # the advice, followed
-    record_experiment(tmp_path / 'advised', reference=trajectory(rec['reference']), seed=9)
+    record_synthetic_bag(tmp_path / 'advised', reference=trajectory(rec['reference']), seed=9)
     rc = cli.main(['identify', str(bag), str(tmp_path / 'advised'), '--out',
                    str(tmp_path / 'rep2'), '--initial',
                    str(tmp_path / 'rep' / 'identified_params.yaml'), '--quiet', '--no-figures'])

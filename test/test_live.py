@@ -24,7 +24,7 @@ from ros_ehs.identify.live import LiveIdentifier, SampleWindow
 from ros_ehs.model import Plant
 from ros_ehs.model.drift import Drift, DriftStage, smoothstep
 from ros_ehs.params import ESTIMATED, preset
-from ros_ehs.synthetic import record_experiment
+from ros_ehs.sim.synthetic_bag import record_synthetic_bag
 import ros_ehs_msgs_py as c
 
 TRUE = preset('table1_estimated')
@@ -76,8 +76,8 @@ def test_the_window_names_what_is_missing():
 @pytest.fixture(scope='module')
 def exps(tmp_path_factory):
     d = tmp_path_factory.mktemp('live')
-    record_experiment(d / 'rig', seed=7)
-    record_experiment(d / 'full', seed=7, model='full')
+    record_synthetic_bag(d / 'rig', seed=7)
+    record_synthetic_bag(d / 'full', seed=7, model='full')
     return load_experiment(d / 'rig'), load_experiment(d / 'full')
 
 

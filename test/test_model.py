@@ -16,12 +16,12 @@
 import numpy as np
 import pytest
 
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.errors import InputError, ParameterError
 from ros_ehs.model import flow_gain_kq, Plant
 from ros_ehs.model.kernels import edge_gap
 from ros_ehs.params import preset
 from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 
 EST = preset('table1_estimated', ff_enable=0.0)
 FRICTIONLESS = EST.replace(F_cc=0.0, F_sc=0.0, c_c=0.0, K_C=0.0)
@@ -179,7 +179,7 @@ def test_reduced_model_follows_the_full_one_where_the_simplified_does_not(case):
 
     Targets (docs/model.md): velocity <= 1 %, load pressure <= 3 % of the full model's RMS.
     """
-    from ros_ehs.closed_loop import model_difference
+    from ros_ehs.sim.closed_loop import model_difference
     from ros_ehs.reference import Chirp
     ref = Sine(0.04, 1.0) if case == 'sine' else Chirp(0.02, 0.2, 5.0, 10.0)
     p = preset('table1_estimated')

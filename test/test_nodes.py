@@ -28,11 +28,11 @@ import time
 import numpy as np
 import pytest
 from ros_ehs.bag import open_bag
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.errors import BagError
 from ros_ehs.launch import Launch, loop_placement, node_command
 from ros_ehs.params import Params
 from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
 import yaml
 

@@ -4,10 +4,10 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.control.pvc import Block, PeakValleyControl
 from ros_ehs.errors import InputError
 from ros_ehs.params import preset
+from ros_ehs.sim.closed_loop import run_closed_loop
 
 
 @pytest.mark.parametrize('waveform,f,blocks', [

@@ -1,7 +1,7 @@
 """
 A real rig's bags: written by rosbags (MCAP and sqlite3), in ros2_control drivers' layouts.
 
-The rig is the full model (ros_ehs.synthetic_rig); the bags have /joint_states with the
+The rig is the full model (ros_ehs.sim.rig_bag); the bags have /joint_states with the
 axis's joint among others, Float64MultiArray/Float64/JointState commands without our stamps,
 pressures in Pa, bar, as a load pressure or none, jittered driver stamps on another clock,
 lost samples, /rosout and /tf. Each mapping error is one clear message, and reading never
@@ -24,7 +24,7 @@ from ros_ehs.errors import BagError, DataError, IdentificationWarning, InputErro
 from ros_ehs.identify import identify
 from ros_ehs.identify.run import run_identification
 from ros_ehs.params import preset
-from ros_ehs.synthetic_rig import record_rig_bag, RigLayout
+from ros_ehs.sim.rig_bag import record_rig_bag, RigLayout
 
 TRUTH = preset('table1_estimated')
 FIVE = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')

@@ -8,13 +8,13 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.control.axis import AxisController
 from ros_ehs.control.safety import (braking_distance, DETECTORS, ramp_weight, SafetyConfig,
                                     Supervisor)
 from ros_ehs.errors import ParameterError
 from ros_ehs.params import Params, preset
 from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
 
 MS = 1_000_000   # one 1 kHz period [ns]
@@ -225,6 +225,11 @@ def test_a_frozen_position_trips_only_while_the_command_drives_the_valve():
         assert ev == [] and d.power, k
     d, ev = _feed(sup, 39, z=0.01, i=-1e-3)
     assert ev[0].detector == 'feedback' and 'frozen' in ev[0].message and not d.power
+    sup = _sup(frozen_periods=10)   # zero crossings of the command pause the count only
+    for k in range(9):
+        assert _feed(sup, k, z=0.01, i=-1e-3 if k % 3 else 1e-4)[1] == []
+    trips = [k for k in range(9, 20) if _feed(sup, k, z=0.01, i=1e-3)[1]]
+    assert trips == [12]        # 6 commanding periods of the first 9, then 4 more
     rng = np.random.default_rng(0)  # a live sensor's noise never repeats
     sup = _sup(frozen_periods=10)
     assert all(_feed(sup, k, z=0.01 + 5e-6 * rng.standard_normal(), i=1e-3)[1] == []

@@ -54,7 +54,7 @@ from ros_ehs.model import Plant
 from ros_ehs.model.drift import Drift, DriftStage
 from ros_ehs.params import ESTIMATED, preset
 from ros_ehs.reference import Sine
-from ros_ehs.synthetic import SensorNoise
+from ros_ehs.sim.synthetic_bag import SensorNoise
 
 DRIFT = Drift([DriftStage(60.0, 180.0, {'F_cc': -0.30, 'F_sc': -0.30}),
                DriftStage(300.0, 120.0, {'c_c': -0.20})])

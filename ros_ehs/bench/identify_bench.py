@@ -39,7 +39,7 @@ from ros_ehs.errors import IdentificationWarning
 from ros_ehs.identify import identify
 from ros_ehs.identify.estimator import worst_noise_ratio
 from ros_ehs.params import ESTIMATED, preset
-from ros_ehs.synthetic import record_experiment
+from ros_ehs.sim.synthetic_bag import record_synthetic_bag
 
 
 #: the mismatch case's rig: Table 1's estimated values scaled by these factors
@@ -50,7 +50,7 @@ def _mismatch() -> dict:
     base = preset('table1_estimated')
     truth = base.replace(**{n: base[n] * f for n, f in MISMATCH.items()})
     with tempfile.TemporaryDirectory() as d:
-        record_experiment(f'{d}/rig', plant_params=truth, model='full', seed=11)
+        record_synthetic_bag(f'{d}/rig', plant_params=truth, model='full', seed=11)
         exp = load_experiment(f'{d}/rig')
     out = {}
     for model in ('simplified', 'reduced', 'full'):
@@ -74,7 +74,7 @@ def _read_costs(d: str) -> dict:
     """Read cost per message [us]: our 1 kHz bag, and a rig's (ros2_control layout, rosbags)."""
     from ros_ehs.bag import open_bag
     from ros_ehs.bag.experiment import load_experiments
-    from ros_ehs.synthetic_rig import record_rig_bag, RigLayout
+    from ros_ehs.sim.rig_bag import record_rig_bag, RigLayout
     lay = RigLayout()
     record_rig_bag(f'{d}/rig', lay, duration=10.0)
     out = {}
@@ -93,13 +93,13 @@ def main(argv=None) -> int:
     true = preset('table1_estimated')
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
-        record_experiment(f'{d}/bench', seed=7)
+        record_synthetic_bag(f'{d}/bench', seed=7)
         t_rec = time.perf_counter() - t0
         t0 = time.perf_counter()
         exp = load_experiment(f'{d}/bench')
         t_load = time.perf_counter() - t0
         # the next 10 s of the same rig (other noise, a later start): a live refit's window
-        record_experiment(f'{d}/next', seed=8)
+        record_synthetic_bag(f'{d}/next', seed=8)
         nxt = load_experiment(f'{d}/next')
         read = _read_costs(d)
     with warnings.catch_warnings():

@@ -17,7 +17,7 @@
 Plant (lock-step), controller (reference-synchronised) and reference (on ``/clock``) run as
 separate processes for ``--seconds`` of sim time; the plant reports how many steps per
 second of wall time the loop made. In the same run, two yardsticks: the in-process loop (no
-DDS, :func:`ros_ehs.closed_loop.run_closed_loop`), and a bare rclpy ping-pong sending each
+DDS, :func:`ros_ehs.sim.closed_loop.run_closed_loop`), and a bare rclpy ping-pong sending each
 message as soon as the last echo is back (the most round trips per second rclpy makes on this
 machine over JointState objects), best effort and with the lock-step QoS; and the barest
 lock-step of the bench's earlier topology (``--relay``: a third process turns
@@ -43,10 +43,10 @@ import time
 
 from domain_coordinator import domain_id
 from ros_ehs.bench import count, positive, report
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.launch import Launch, loop_placement
 from ros_ehs.params import Params
 from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 
 
 def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> dict:

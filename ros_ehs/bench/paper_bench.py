@@ -24,8 +24,8 @@ import time
 
 from ros_ehs.bench import report
 from ros_ehs.control import Controller
-from ros_ehs.experiments import paper_runs
 from ros_ehs.params import preset
+from ros_ehs.sim.paper_runs import paper_runs
 
 
 def run(duration: float = 4.0) -> dict:

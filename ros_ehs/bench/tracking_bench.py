@@ -35,12 +35,12 @@ import math
 
 import numpy as np
 from ros_ehs.bench import report
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.control.apc import AmplitudePhaseControl
 from ros_ehs.drive_file import (band_error, DriveIteration, frf, multisine, rms_error_pct,
                                 Samples)
 from ros_ehs.params import preset
 from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 
 FREQUENCIES = (1, 5, 10, 20)
 PEAK_VELOCITY = 0.25

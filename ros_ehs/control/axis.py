@@ -16,7 +16,7 @@ The supervised axis controller: the safety supervisor in front of PID + feedforw
 
 :class:`~ros_ehs.control.safety.Supervisor` in front of
 :class:`~ros_ehs.control.controller.Controller`, one call per control period. This is what
-the controller node runs and what :func:`ros_ehs.closed_loop.run_closed_loop` runs with
+the controller node runs and what :func:`ros_ehs.sim.closed_loop.run_closed_loop` runs with
 ``supervised=True``: the same arithmetic in process and over DDS. While the supervisor
 demands no power (power off, hydraulics off, waiting for a finite position) the command is 0
 A and the PID and feedforward stay at rest, so power returns without a kick.

@@ -28,8 +28,8 @@ Detectors (``ros_ehs.params.SAFETY_SPECS`` holds their limits and actions):
 ``limit_force``         ``|force| > limit_force`` (when the state carries the force)
 ``limit_error``         ``|z_ref - z| > limit_error`` for longer than ``limit_error_time``
 ``feedback``            position non-finite, lost (:meth:`Supervisor.feedback_lost`), or
-                        frozen: bit-identical for ``frozen_periods`` periods while
-                        ``|i| >= frozen_current``
+                        frozen: bit-identical for ``frozen_periods`` periods with
+                        ``|i| >= frozen_current`` (periods without neither count nor clear)
 ``saturation``          the command at ``u_max`` for longer than ``limit_saturation_time``
 =====================  ======================================================================
 
@@ -264,9 +264,13 @@ class Supervisor:
         if not math.isfinite(z_dot) and finite and math.isfinite(self._last_z):
             z_dot = (z - self._last_z) / dt
         powered = self.enabled and self._mode != 'power_off'
-        # feedback: non-finite, or frozen while the command drives the valve
-        if finite and z == self._last_z and abs(i_last) >= cfg.frozen_current and powered:
-            self._same += 1
+        # feedback: non-finite, or frozen while the command drives the valve. A period without
+        # a command (|i| below frozen_current: a sine's zero crossing) neither counts nor
+        # clears: the count restarts only when the position changes (a frozen sensor under a
+        # sine tripped 385 periods late once, its count cleared at each crossing)
+        if finite and z == self._last_z and powered:
+            if abs(i_last) >= cfg.frozen_current:
+                self._same += 1
         else:
             self._same = 0
         if not finite:

@@ -35,11 +35,11 @@ from typing import Sequence
 import numpy as np
 
 from ros_ehs.bag.experiment import Experiment
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.errors import InputError
 from ros_ehs.identify.estimator import (_fd_jacobian, FIT_H, IdentificationResult, Problem,
                                         SIGNALS)
 from ros_ehs.reference import Chirp, Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 
 __all__ = ['CANDIDATES', 'PINNED', 'command', 'describe', 'identifiability', 'recommend',
            'trajectory']

@@ -17,7 +17,7 @@ Synthetic experiments: an in-process bench run recorded to a rosbag2 bag.
 Plant + controller + reference, with sensor noise, on the contract topics.
 
 This is what the sample bag in ``bags/`` is made from, and what the identification tests and
-benchmark fit. The loop is :func:`ros_ehs.closed_loop.run_closed_loop`: the controller sees
+benchmark fit. The loop is :func:`ros_ehs.sim.closed_loop.run_closed_loop`: the controller sees
 the noisy position, as on a real bench; the plant is stepped with the held current. The
 README labels such bags synthetic.
 """
@@ -30,13 +30,13 @@ import os
 import numpy as np
 
 from ros_ehs.bag.writer import BagWriter
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.errors import InputError
 from ros_ehs.params import Params, preset
 from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as contract
 
-__all__ = ['SensorNoise', 'record_experiment']
+__all__ = ['SensorNoise', 'record_synthetic_bag']
 
 T0_NS = 1_700_000_000_000_000_000   # a fixed epoch, so equal inputs give equal bags
 
@@ -55,11 +55,11 @@ class SensorNoise:
     p: float = 2e4
 
 
-def record_experiment(out: str | os.PathLike, *, plant_params: Params | None = None,
-                      controller_params: Params | None = None, reference=None,
-                      duration: float = 10.0, dt: float = 1e-3, model: str = 'simplified',
-                      noise: SensorNoise | None = SensorNoise(), seed: int = 0,
-                      pressures: bool = True) -> dict[str, float]:
+def record_synthetic_bag(out: str | os.PathLike, *, plant_params: Params | None = None,
+                         controller_params: Params | None = None, reference=None,
+                         duration: float = 10.0, dt: float = 1e-3, model: str = 'simplified',
+                         noise: SensorNoise | None = SensorNoise(), seed: int = 0,
+                         pressures: bool = True) -> dict[str, float]:
     """
     Run plant + controller for ``duration`` s and record the contract topics to bag ``out``.
 

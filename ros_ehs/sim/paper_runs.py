@@ -27,10 +27,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ros_ehs.closed_loop import run_closed_loop
 from ros_ehs.metrics import tracking_metrics
 from ros_ehs.params import preset
 from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 
 __all__ = ['paper_runs', 'plot_runs']
 
