@@ -67,7 +67,7 @@ def _cmd_params_doc(args) -> int:
 
 
 def _print_identification(result, files, held) -> None:
-    from ros_ehs.identify.estimator import worst_noise_ratio
+    from ros_ehs.identify.verdict import worst_noise_ratio
     print(f'identification ({result.model} model, {result.cost_kind.upper()}): '
           f'{result.message} after {result.iterations} iterations, {result.nfev} evaluations, '
           f'{result.wall_s:.1f} s')

@@ -423,7 +423,7 @@ def _experiment(rec: _Record, a: int, b: int, name: str) -> Experiment:
     z, v, applied = rec.z[a:b], rec.v[a:b], rec.applied[a:b]
     exact = dts.size == 0 or float(np.max(np.abs(dts - np.median(dts)))) <= 1e-6 * dt
     # each measured signal's noise, on its raw samples, before the grid averages neighbours
-    from ros_ehs.identify.estimator import noise_sigma
+    from ros_ehs.identify.problem import noise_sigma
     noise = {'z': noise_sigma(z, span)}
     if np.all(np.isfinite(v)):
         noise['z_dot'] = noise_sigma(v, span)

@@ -37,7 +37,7 @@ from ros_ehs.bag.experiment import load_experiment
 from ros_ehs.bench import report
 from ros_ehs.errors import IdentificationWarning
 from ros_ehs.identify import identify
-from ros_ehs.identify.estimator import worst_noise_ratio
+from ros_ehs.identify.verdict import worst_noise_ratio
 from ros_ehs.params import ESTIMATED, preset
 from ros_ehs.sim.synthetic_bag import record_synthetic_bag
 

@@ -34,7 +34,7 @@ from typing import Sequence
 import numpy as np
 
 from ros_ehs.errors import DataError, InputError
-from ros_ehs.identify.estimator import FIT_H, Problem, SIGNALS
+from ros_ehs.identify.problem import FIT_H, Problem, SIGNALS
 from ros_ehs.params import Params
 
 __all__ = ['DelayEstimate', 'MAX_DELAY', 'delay_profile', 'estimate_delay', 'with_delay']

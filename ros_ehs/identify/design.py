@@ -36,8 +36,8 @@ import numpy as np
 
 from ros_ehs.bag.experiment import Experiment
 from ros_ehs.errors import InputError
-from ros_ehs.identify.estimator import (_fd_jacobian, FIT_H, IdentificationResult, Problem,
-                                        SIGNALS)
+from ros_ehs.identify.estimator import IdentificationResult
+from ros_ehs.identify.problem import _fd_jacobian, FIT_H, Problem, SIGNALS
 from ros_ehs.reference import Chirp, Sine
 from ros_ehs.sim.closed_loop import run_closed_loop
 

@@ -50,231 +50,22 @@ import warnings
 import numpy as np
 from ros_ehs.bag.experiment import Experiment
 from ros_ehs.errors import IdentificationWarning, InputError, ParameterError
-from ros_ehs.model import kernels as K
-from ros_ehs.model.coefficients import pack
-from ros_ehs.model.plant import DEFAULT_H, DEFAULT_JAC_EVERY, MODELS, Plant
+from ros_ehs.identify.problem import _fd_jacobian, FIT_H, LOAD, Problem, SIGNALS
+from ros_ehs.identify.uncertainty import BLOCK_S, standard_errors
+from ros_ehs.identify.verdict import (adequacy, fit_metrics, NOISE_RATIO_LIMIT,
+                                      SMALL_MODEL_ERROR, worst_noise_ratio)
+from ros_ehs.model.plant import MODELS
 from ros_ehs.params import ESTIMATED, Params, preset, spec
 from scipy.optimize import least_squares
 
-__all__ = ['IdentificationResult', 'NOISE_RATIO_LIMIT', 'Problem', 'adequacy', 'identify',
-           'multistart', 'noise_sigma', 'score']
+__all__ = ['IdentificationResult', 'identify', 'multistart', 'score']
 
-SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT', 'p_L')
-#: the load pressure p_CP - p_CT: fitted where a rig records only that (not a state)
-LOAD = 'p_L'
-_FD_STEP = 1e-3
 #: Relative step and cost-change tolerances (``xtol``, ``ftol``) of the solve and of the SSE
 #: stage before an SAE one. The parameters' standard errors are 4e-4 to 1e-2 of their values
 #: on a 10 s bag, and a cost change of 1e-8 of some 2e4 is far below one unit of noise: the
 #: last iterations at 1e-10 moved no value by more than 2e-4 of its standard error.
 _TOL = 1e-8
 _TOL_FIRST = 1e-5
-
-
-def noise_sigma(y: np.ndarray, t: np.ndarray | None = None) -> float:
-    """
-    Robust white-noise level of a sampled signal [its unit].
-
-    The third difference of a smooth signal is tiny while white noise of sigma gives
-    sigma * sqrt(20); the median absolute deviation keeps stick-slip spikes out. With the
-    sample times ``t`` [s] of a signal sampled unevenly (a driver's jitter), the third
-    *divided* difference scaled by ``6 h^3`` (``h`` the mean step) is used instead: zero for
-    a quadratic at any sample times, so the jitter does not pass for noise.
-    """
-    y = np.asarray(y, dtype=float)
-    x = None if t is None or y.size < 8 else np.asarray(t, dtype=float)
-    if x is not None and np.any(np.abs(np.diff(x, 2)) > 1e-9 * (x[-1] - x[0])):
-        d = y
-        for order in (1, 2, 3):
-            d = (d[1:] - d[:-1]) / (x[order:] - x[:-order])
-        d = 6.0 * float(np.mean(np.diff(x))) ** 3 * d
-    else:
-        d = np.diff(y, 3)
-    mad = np.median(np.abs(d - np.median(d))) * 1.4826
-    floor = 1e-6 * max(np.ptp(y), np.finfo(float).tiny)
-    return float(max(mad / math.sqrt(20.0), floor))
-
-
-@dataclass
-class _Exp:
-    """An experiment prepared for the fast path."""
-
-    name: str
-    u: np.ndarray                # (N, 2) held inputs
-    y: np.ndarray                # (N+1, n_state) measurements placed at state indices
-    measured: np.ndarray         # state indices measured and fitted
-    sigma: np.ndarray            # per measured index
-    edges: list[int]             # segment k covers samples edges[k] .. edges[k+1] - 1
-    dt: float
-    x0: np.ndarray               # full initial state (unmeasured from equilibrium)
-    load: np.ndarray | None = None    # measured load pressure p_CP - p_CT (chambers not)
-    load_sigma: float = 1.0
-
-    def segments(self):
-        """Yield (first, end) sample indices of each replay segment; the last ends at N+1."""
-        return zip(self.edges[:-1], self.edges[1:])
-
-    def offset_free(self, e: np.ndarray) -> np.ndarray:
-        """Remove the mean of ``e`` (a position error) per segment, in place."""
-        for a, b in self.segments():
-            e[a:b] -= e[a:b].mean()
-        return e
-
-
-class Problem:
-    """
-    The residual of a set of experiments as a function of the scaled free parameters.
-
-    The fast path (no checks): ``residual(theta)`` with ``theta = value / scale``.
-    """
-
-    def __init__(self, experiments: Sequence[Experiment], base: Params, free: Sequence[str],
-                 model: str, signals: Sequence[str], segment: float, h: float | None) -> None:
-        self.base = dict(base)
-        self.free = tuple(free)
-        self.scale = np.array([spec(n).scale or abs(base[n]) or 1.0 for n in self.free])
-        self.model = model
-        plant = Plant(base, model, h=h)
-        self.plant = plant
-        self.mid = MODELS[model][0]
-        self.names = plant.state_names
-        self.xscale = plant._xscale
-        self.jac_every = DEFAULT_JAC_EVERY[model]
-        self.exps: list[_Exp] = []
-        names: list[str] = []
-        for e in experiments:
-            # results are keyed by name: two bags called alike get '#2', '#3'
-            name = e.name if e.name not in names else f'{e.name} #{names.count(e.name) + 1}'
-            names.append(e.name)
-            sig = e.signals()
-            use = [s for s in signals if s in sig]
-            measured = np.array([self.names.index(s) for s in use])
-            y = np.zeros((e.t.size, plant.n))
-            for s in use:
-                y[:, self.names.index(s)] = sig[s]
-            # a derived signal's noise is known from what it was derived from (the
-            # experiment's ``noise``); a measured one's is estimated from the signal
-            known = getattr(e, 'noise', None) or {}
-            sigma = np.array([known[s] if s in known else noise_sigma(sig[s]) for s in use])
-            x0 = plant.equilibrium(z=float(e.z[0]), i=float(e.i[0]))
-            x0[measured] = y[0, measured]
-            load = getattr(e, 'p_load', None)
-            if load is not None and (LOAD not in signals or 'p_CP' in use):
-                load = None
-            if load is not None:      # only the difference is measured: split it evenly
-                self._split(x0, float(load[0]))
-            if getattr(e, 'after_gap', False):      # it starts mid-motion
-                x0 = plant.settle_valve(x0, float(e.i[0]))
-            seg = max(1, int(round(segment / e.dt))) if segment else e.t.size
-            edges = list(range(0, e.t.size - 1, seg)) + [e.t.size]
-            self.exps.append(_Exp(name, np.column_stack([e.i[:-1], np.zeros(e.t.size - 1)]),
-                                  y, measured, sigma, edges, e.dt, x0, load,
-                                  known.get(LOAD) or (noise_sigma(load) if load is not None
-                                                      else 1.0)))
-        self.ipa, self.ipb = self.names.index('p_CP'), self.names.index('p_CT')
-        self.nsub = [max(1, int(math.ceil(ex.dt / plant.h - 1e-9))) for ex in self.exps]
-        self.nfev = 0
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
-
-    def _split(self, x: np.ndarray, p_load: float) -> None:
-        """Set the chamber pressures to a measured load pressure, keeping their sum."""
-        a, b = self.names.index('p_CP'), self.names.index('p_CT')
-        total = x[a] + x[b]
-        x[a], x[b] = 0.5 * (total + p_load), 0.5 * (total - p_load)
-
-    def values(self, theta: np.ndarray) -> dict[str, float]:
-        """Scaled vector -> parameter values."""
-        return {n: float(v) for n, v in zip(self.free, np.asarray(theta) * self.scale)}
-
-    def simulate(self, theta: np.ndarray) -> list[np.ndarray]:
-        """Segment-wise replay of every experiment; list of (N+1, n_state) trajectories."""
-        d = dict(self.base)
-        d.update(self.values(theta))
-        c = pack(d)
-        outs = []
-        for ex, nsub in zip(self.exps, self.nsub):
-            n = ex.u.shape[0]
-            o = np.empty((n + 1, len(self.names)))
-            x = ex.x0.copy()
-            for k0, end in ex.segments():
-                k1 = min(n, end)
-                x[ex.measured] = ex.y[k0, ex.measured]
-                if ex.load is not None:
-                    self._split(x, float(ex.load[k0]))
-                buf = o[k0:k1 + 1]
-                ok = K.simulate(self.mid, x.copy(), ex.u[k0:k1], c, ex.dt, nsub, self.xscale,
-                                self.jac_every, buf)
-                if ok <= k1 - k0:
-                    buf[ok:] = np.nan
-                x = buf[-1].copy()
-                if not np.all(np.isfinite(x)):
-                    x = ex.x0.copy()
-            outs.append(o)
-        return outs
-
-    def residual_parts(self, theta: np.ndarray) -> list[np.ndarray]:
-        """Normalised residuals per experiment, shape (N+1, n_measured)."""
-        parts = []
-        iz = self.names.index('z')
-        for ex, o in zip(self.exps, self.simulate(theta)):
-            r = (o[:, ex.measured] - ex.y[:, ex.measured]) / ex.sigma
-            cols = list(ex.measured)
-            if iz in cols:
-                j = cols.index(iz)
-                r[:, j] = ex.offset_free(r[:, j])
-            if ex.load is not None:
-                r = np.column_stack([r, (o[:, self.ipa] - o[:, self.ipb] - ex.load) /
-                                     ex.load_sigma])
-            bad = ~np.isfinite(r)
-            if bad.any():
-                r[bad] = 1e3     # diverged: a large, finite penalty keeps TRF going
-            parts.append(r)
-        return parts
-
-    def blocks(self, seconds: float) -> np.ndarray:
-        """Label of each entry of :meth:`residual`: its experiment's ``seconds``-long block."""
-        out, first = [], 0
-        for ex in self.exps:
-            n = ex.y.shape[0]
-            per = max(1, int(round(seconds / ex.dt)))
-            b = np.arange(n) // per
-            out.append(np.repeat(first + b, len(ex.measured) + (ex.load is not None)))
-            first += int(b[-1]) + 1
-        return np.concatenate(out)
-
-    def residual(self, theta: np.ndarray) -> np.ndarray:
-        """All normalised residuals as one vector (the fast, unchecked path)."""
-        if self._last is not None and np.array_equal(self._last[0], theta):
-            return self._last[1]          # the Jacobian reuses the step's simulation
-        self.nfev += 1
-        r = self.evaluate(theta)
-        self._last = (np.array(theta, dtype=float), r)
-        return r
-
-    def evaluate(self, theta: np.ndarray) -> np.ndarray:
-        """:meth:`residual` without its cache or count: safe from several threads at once."""
-        return np.concatenate([p.ravel() for p in self.residual_parts(theta)])
-
-
-# -- parallel Jacobian ---------------------------------------------------------------------
-def _fd_jacobian(problem: Problem, theta: np.ndarray, hi: np.ndarray, pool) -> np.ndarray:
-    """
-    Forward-difference Jacobian in scaled units (steps turn back at an upper bound).
-
-    ``pool``: a thread pool, or None for serial columns. The kernels release the GIL
-    (``nogil``), so the columns' replays run on as many cores as the pool has threads.
-    """
-    r0 = problem.residual(theta)
-    steps = [_FD_STEP * max(1.0, abs(t)) for t in theta]
-    steps = [-h if t + h > b else h for t, h, b in zip(theta, steps, hi)]
-
-    def column(k: int) -> np.ndarray:
-        t = theta.copy()
-        t[k] += steps[k]
-        return (problem.evaluate(t) - r0) / steps[k]
-
-    run = pool.map if pool is not None else map
-    return np.column_stack(list(run(column, range(len(steps)))))
 
 
 @dataclass
@@ -346,44 +137,6 @@ class IdentificationResult:
         }
 
 
-def _signal_metrics(y: np.ndarray, e: np.ndarray, sigma: float) -> dict[str, float]:
-    """Fit figures of one signal ``y`` with residual ``e`` and sensor noise ``sigma``."""
-    sst = float(np.sum((y - y.mean()) ** 2))
-    sse = float(np.sum(e ** 2))
-    c = e - e.mean()
-    cc = float(np.dot(c, c))
-    return {'nrmse': math.sqrt(sse / y.size) / (float(np.std(y)) or 1.0),
-            'r2': 1.0 - sse / sst if sst > 0 else math.nan,
-            'rms': math.sqrt(sse / y.size),
-            'noise_ratio': math.sqrt(sse / y.size) / float(sigma),
-            'acf1': float(np.dot(c[1:], c[:-1])) / cc if cc > 0 else math.nan}
-
-
-def _metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
-             ) -> dict[str, dict[str, dict[str, float]]]:
-    """Fit metrics per experiment and signal; ``fitted`` (if given) gets the model traces."""
-    out = {}
-    for ex, o in zip(problem.exps, problem.simulate(theta)):
-        fit = {n: o[:, problem.names.index(n)] for n in SIGNALS if n in problem.names}
-        m = {}
-        for j, sigma in zip(ex.measured, ex.sigma):
-            name = problem.names[j]
-            y, f = ex.y[:, j], o[:, j]
-            e = f - y
-            if name == 'z':
-                ex.offset_free(e)
-                fit['z'] = y + e     # position is fitted up to an offset per segment
-            m[name] = _signal_metrics(y, e, sigma)
-        if ex.load is not None:
-            y, f = ex.load, o[:, problem.ipa] - o[:, problem.ipb]
-            fit[LOAD] = f
-            m[LOAD] = _signal_metrics(y, f - y, ex.load_sigma)
-        out[ex.name] = m
-        if fitted is not None:
-            fitted[ex.name] = fit
-    return out
-
-
 def _check(experiments, free, model, signals, cost, base, x0, segment, h, workers,
            max_nfev) -> tuple[list[Experiment], tuple[str, ...], Params]:
     if isinstance(experiments, Experiment):
@@ -445,12 +198,78 @@ def _bounds(free, base):
     return np.array(lo), np.array(hi)
 
 
-#: Integration step of the replay [s], per model. The full model's is seven substeps of a
-#: 1 ms sample (143 us, 2.9x its plant's 50 us): on the identify bench's full-model rig the
-#: cold fit took 3.0 s against 3.5 s at eight (125 us), every value within 0.55 % of the
-#: truth at either (the closed-loop error at 125 us stays <= 1.6e-5 m, docs/model.md).
-FIT_H = {'full': 1e-3 / 7, 'reduced': DEFAULT_H['reduced'],
-         'simplified': DEFAULT_H['simplified']}
+def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
+           max_nfev: int, workers: int, progress) -> tuple:
+    """
+    Run the TRF solve (SSE then SAE, or one stage).
+
+    Returns scipy's result, the Jacobian at the optimum, the iteration history (with the
+    optimum last) and the number of Jacobians.
+    """
+    lo_s, hi_s = bounds
+    history: list[dict] = []
+    last_jac: list[np.ndarray] = []
+    problem.residual(theta0)   # compile/warm the kernels before the threads use them
+    pool = None
+    if workers > 1 and len(problem.free) > 1:
+        pool = ThreadPoolExecutor(min(workers, len(problem.free)), thread_name_prefix='ehs-jac')
+
+    def jac(theta: np.ndarray) -> np.ndarray:
+        J = _fd_jacobian(problem, theta, hi_s, pool)
+        last_jac[:] = [J, theta.copy()]
+        entry = {'iteration': len(history) + 1,
+                 'cost': _loss(problem.residual(theta), cost), 'x': problem.values(theta)}
+        history.append(entry)
+        if progress:
+            progress(entry)
+        return J
+
+    def solve(start, loss, budget, tol):
+        return least_squares(problem.residual, start, jac=jac, bounds=(lo_s, hi_s),
+                             method='trf', loss=loss, f_scale=0.1 if loss != 'linear' else 1.0,
+                             max_nfev=budget, xtol=tol, ftol=tol, gtol=1e-10)
+
+    try:
+        if cost == 'sae' and warm:
+            sol = solve(theta0, 'soft_l1', max_nfev, _TOL)
+        elif cost == 'sae':
+            # Continuation: far from the optimum nearly every residual sits in soft_l1's
+            # linear (L1) branch and TRF can stall in a poor point (seen on real-time bench
+            # bags). An SSE solve first brings the parameters close, then SAE refines.
+            # Both stages count in the iterations and evaluations.
+            # The first stage only has to come close: its tolerance is looser.
+            first = solve(theta0, 'linear', max(1, max_nfev // 2), _TOL_FIRST)
+            sol = solve(first.x, 'soft_l1', max(1, max_nfev - first.nfev), _TOL)
+            sol.nfev += first.nfev
+        else:
+            sol = solve(theta0, 'linear', max_nfev, _TOL)
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    if last_jac and np.array_equal(last_jac[1], sol.x):
+        J = last_jac[0]
+    else:
+        J = _fd_jacobian(problem, sol.x, hi_s, None)
+    njev = len(history)
+    final = {'iteration': njev + 1, 'cost': _loss(sol.fun, cost), 'x': problem.values(sol.x)}
+    if not history or history[-1]['x'] != final['x']:
+        history.append(final)
+    return sol, J, history, njev
+
+
+def _value_notes(xv: dict, se: np.ndarray, free, theta, lo_s, hi_s) -> list[str]:
+    """Return the notes on the fitted values: not identifiable, or ended on a bound."""
+    notes = []
+    for n, v in xv.items():
+        k = free.index(n)
+        if v != 0 and math.isfinite(se[k]) and se[k] / abs(v) > 0.5:
+            notes.append(f'{n} is not identifiable from these data: standard error '
+                         f'{se[k]:.3g} {spec(n).unit} is {100 * se[k] / abs(v):.0f} % of '
+                         'its value')
+        if np.isclose(theta[k], lo_s[k]) or np.isclose(theta[k], hi_s[k]):
+            notes.append(f'{n} = {v:.6g} {spec(n).unit} ended on a bound; the data push it '
+                         "beyond Table 1's range")
+    return notes
 
 
 def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simplified',
@@ -512,72 +331,14 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     sc = problem.scale
     theta0 = np.array([base[n] for n in free]) / sc
     lo_s, hi_s = lo / sc, hi / sc
-    history: list[dict] = []
-    njev = [0]
-    last_jac: list[np.ndarray] = []
-    problem.residual(theta0)   # compile/warm the kernels before the threads use them
-    pool = None
-    if workers > 1 and len(free) > 1:
-        pool = ThreadPoolExecutor(min(workers, len(free)), thread_name_prefix='ehs-jac')
-
-    def jac(theta: np.ndarray) -> np.ndarray:
-        J = _fd_jacobian(problem, theta, hi_s, pool)
-        njev[0] += 1
-        last_jac[:] = [J, theta.copy()]
-        entry = {'iteration': njev[0], 'cost': _loss(problem.residual(theta), cost),
-                 'x': problem.values(theta)}
-        history.append(entry)
-        if progress:
-            progress(entry)
-        return J
-
-    def solve(start, loss, budget, tol):
-        return least_squares(problem.residual, start, jac=jac, bounds=(lo_s, hi_s),
-                             method='trf', loss=loss, f_scale=0.1 if loss != 'linear' else 1.0,
-                             max_nfev=budget, xtol=tol, ftol=tol, gtol=1e-10)
-
-    try:
-        if cost == 'sae' and warm:
-            sol = solve(theta0, 'soft_l1', max_nfev, _TOL)
-        elif cost == 'sae':
-            # Continuation: far from the optimum nearly every residual sits in soft_l1's
-            # linear (L1) branch and TRF can stall in a poor point (seen on real-time bench
-            # bags). An SSE solve first brings the parameters close, then SAE refines.
-            # Both stages count in the iterations and evaluations.
-            # The first stage only has to come close: its tolerance is looser.
-            first = solve(theta0, 'linear', max(1, max_nfev // 2), _TOL_FIRST)
-            sol = solve(first.x, 'soft_l1', max(1, max_nfev - first.nfev), _TOL)
-            sol.nfev += first.nfev
-        else:
-            sol = solve(theta0, 'linear', max_nfev, _TOL)
-    finally:
-        if pool is not None:
-            pool.shutdown()
+    sol, J, history, njev = _solve(problem, theta0, (lo_s, hi_s), cost, warm, max_nfev,
+                                   workers, progress)
     theta = sol.x
     r = sol.fun
-    if last_jac and np.array_equal(last_jac[1], theta):
-        J = last_jac[0]
-    else:
-        J = _fd_jacobian(problem, theta, hi_s, None)
-    final = {'iteration': njev[0] + 1, 'cost': _loss(r, cost), 'x': problem.values(theta)}
-    if not history or history[-1]['x'] != final['x']:
-        history.append(final)
-    cov, corr, notes = _covariance(J, r, len(free), cost, free, theta)
     fitted: dict[str, dict[str, np.ndarray]] = {}
-    metrics = _metrics(problem, theta, fitted)
-    widen = _autocorrelation_factor(metrics)
-    se_white = np.sqrt(np.clip(np.diag(cov), 0, None))
-    if widen > 1.0:
-        # correlated residuals: the larger of the AR(1)-widened and the block-robust error
-        robust = _block_robust_variance(J, r, problem.blocks(_BLOCK_S), cost)
-        cov = _rescale(cov, np.maximum(widen * np.diag(cov), robust))
-    se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    with np.errstate(invalid='ignore', divide='ignore'):
-        ratio = se / se_white
-    widening = float(np.nanmax(ratio)) if np.any(np.isfinite(ratio)) else 1.0
-    if widening > 2.0:
-        notes.append(f'the residuals are correlated: standard errors widened up to '
-                     f'{widening:.1f}x for it (they assume independent samples)')
+    metrics = fit_metrics(problem, theta, fitted)
+    se, corr, notes, widening = standard_errors(J, r, cost, free, metrics,
+                                                problem.blocks(BLOCK_S))
     se = se * sc
     worst = worst_noise_ratio(metrics)
     if SMALL_MODEL_ERROR < worst <= NOISE_RATIO_LIMIT:
@@ -585,15 +346,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
                      'error remains, and it can bias the values by more than their standard '
                      'errors (docs/identification.md)')
     xv = problem.values(theta)
-    for n, v in xv.items():
-        k = free.index(n)
-        if v != 0 and math.isfinite(se[k]) and se[k] / abs(v) > 0.5:
-            notes.append(f'{n} is not identifiable from these data: standard error '
-                         f'{se[k]:.3g} {spec(n).unit} is {100 * se[k] / abs(v):.0f} % of '
-                         'its value')
-        if np.isclose(theta[k], lo_s[k]) or np.isclose(theta[k], hi_s[k]):
-            notes.append(f'{n} = {v:.6g} {spec(n).unit} ended on a bound; the data push it '
-                         "beyond Table 1's range")
+    notes += _value_notes(xv, se, free, theta, lo_s, hi_s)
     try:
         params = base.replace(**xv)
     except ParameterError as e:
@@ -606,7 +359,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
         sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),
         message=str(sol.message), success=bool(sol.success), nfev=int(sol.nfev),
-        njev=njev[0], iterations=njev[0], history=history,
+        njev=njev, iterations=njev, history=history,
         stderr={n: float(s) for n, s in zip(free, se)}, correlation=corr, free=free,
         metrics=metrics, fitted=fitted,
         sigma={ex.name: {**{problem.names[j]: float(s) for j, s in zip(ex.measured, ex.sigma)},
@@ -617,140 +370,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         stderr_widening=widening)
 
 
-#: A fit whose residual RMS exceeds this many times the estimated sensor noise, on any
-#: signal, is not explained by the noise: the model misses something. Measured: a fit of
-#: the model that made the data sits at 0.99-1.01 (lag-1 autocorrelation 0.00); the
-#: simplified model fitted to a full-model bag at 6.5-20 (autocorrelation 0.93-0.99).
-NOISE_RATIO_LIMIT = 2.0
-#: Above this ratio (and up to the limit) an adequate fit carries a warning: the reduced
-#: model on full-model bags sits at about 1.15 and its values were up to 1.6 % off, beyond their
-#: standard errors for 4 of 7 parameters.
-SMALL_MODEL_ERROR = 1.1
-
-
-def worst_noise_ratio(metrics: dict) -> float:
-    """Return the largest ``noise_ratio`` of any signal in ``metrics`` (NaN when none)."""
-    return max((m['noise_ratio'] for sig in metrics.values() for m in sig.values()
-                if math.isfinite(m.get('noise_ratio', math.nan))), default=math.nan)
-
-
-def adequacy(metrics: dict, status: int, max_nfev: int, model: str
-             ) -> tuple[list[str], list[str]]:
-    """
-    Return the reasons a fit is not adequate (empty: adequate) and the advice they imply.
-
-    ``metrics`` as :func:`identify` computes them (``noise_ratio``, ``acf1`` per signal);
-    ``status`` scipy's (0: the evaluation limit).
-    """
-    why = []
-    for exp, sig in metrics.items():
-        for name, m in sig.items():
-            if m['noise_ratio'] > NOISE_RATIO_LIMIT:
-                why.append(f'{exp}: the {name} residual is {m["noise_ratio"]:.1f}x the '
-                           f'sensor noise (lag-1 autocorrelation {m["acf1"]:.2f}): the '
-                           'noise does not explain the fit')
-    advice = []
-    if why:
-        if model == 'simplified':
-            advice.append('fit the reduced model (--model reduced): the simplified one leaves '
-                          "out the valve's lag and its opening under load, which the reduced "
-                          'one takes from the full model (docs/model.md); or the full model '
-                          '(--model full), slower')
-        advice.append('free other parameters (--free), or fix those the report names as not '
-                      'identifiable')
-        advice.append('record more excitation: several amplitudes and frequencies (a chirp '
-                      'from the reference node) so each parameter shows in the data')
-    if status == 0:
-        why.append(f'the solver stopped at its evaluation limit (max_nfev = {max_nfev}) '
-                   'before converging: the values are not an optimum')
-        advice.append('raise max_nfev, or start nearer (--initial)')
-    return why, advice
-
-
 def _loss(r: np.ndarray, cost: str) -> float:
     return float(np.sum(np.abs(r)) if cost == 'sae' else 0.5 * np.sum(r ** 2))
-
-
-def _autocorrelation_factor(metrics: dict) -> float:
-    """
-    Return the variance inflation for correlated residuals, (1 + rho) / (1 - rho).
-
-    rho is the largest lag-1 autocorrelation of any signal's residual (``acf1`` of
-    :func:`_metrics`; AR(1): n samples carry the information of n (1 - rho) / (1 + rho)
-    independent ones); 1 for white residuals, rho capped at 0.995.
-    """
-    rho = max((m['acf1'] for sig in metrics.values() for m in sig.values()
-               if math.isfinite(m['acf1'])), default=0.0)
-    rho = min(rho, 0.995)
-    return (1.0 + rho) / (1.0 - rho) if rho > 0.05 else 1.0
-
-
-#: Block length [s] of the block-robust standard errors: residuals 0.1 s apart are taken as
-#: independent (the model-error patterns of a reduced fit decorrelate within ~20 ms).
-_BLOCK_S = 0.1
-
-
-def _block_robust_variance(J, r, blocks, cost) -> np.ndarray:
-    """
-    Diagonal of the block-robust (sandwich) covariance, scaled units.
-
-    ``(J'J)^-1 (sum_b J_b' r_b r_b' J_b) (J'J)^-1 G / (G - 1)`` over the G blocks of residuals
-    ``blocks`` labels: it holds when residuals are correlated within a block, whatever the
-    pattern (Liang & Zeger's cluster estimator). Scaled by pi/2 for the SAE cost, as the
-    plain estimate is.
-    """
-    inv = np.linalg.pinv(J.T @ J)
-    g = int(blocks.max()) + 1
-    scores = np.zeros((g, J.shape[1]))
-    np.add.at(scores, blocks, J * r[:, None])
-    meat = scores.T @ scores
-    var = np.diag(inv @ meat @ inv) * g / max(g - 1, 1)
-    return var * (math.pi / 2.0 if cost == 'sae' else 1.0)
-
-
-def _rescale(cov: np.ndarray, var: np.ndarray) -> np.ndarray:
-    """``cov`` with its diagonal set to ``var``, the correlations kept."""
-    d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-    with np.errstate(invalid='ignore'):
-        s = np.sqrt(np.clip(var, 0, None)) / d
-    s = np.where(np.isfinite(d) & np.isfinite(s), s, 1.0)    # unidentifiable: stays inf
-    return cov * np.outer(s, s)
-
-
-def _covariance(J, r, n, cost, free, theta):
-    """Asymptotic covariance (scaled units), correlation, and conditioning notes."""
-    notes: list[str] = []
-    m = r.size
-    s2 = float(np.sum(r ** 2)) / max(m - n, 1)
-    if cost == 'sae':
-        s2 *= math.pi / 2.0   # L1 estimator variance under Gaussian noise (efficiency 2/pi)
-    norms = np.linalg.norm(J, axis=0)
-    dead = norms <= 1e-9 * max(float(norms.max()), 1e-300)
-    for k in np.flatnonzero(dead):
-        notes.append(f'{free[k]} is not identifiable: it has no effect on the fitted '
-                     'signals with this model and data')
-    JtJ = J.T @ J
-    try:
-        cov = np.linalg.inv(JtJ) * s2
-        if not np.all(np.isfinite(cov)):
-            raise np.linalg.LinAlgError
-    except np.linalg.LinAlgError:
-        cov = np.linalg.pinv(JtJ) * s2
-        notes.append('the Jacobian is singular: some parameters have no effect on the fitted '
-                     'signals')
-    cov[dead, :] = np.nan
-    cov[:, dead] = np.nan
-    cov[dead, dead] = np.inf
-    d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-    with np.errstate(invalid='ignore'):
-        corr = cov / np.outer(d, d)
-    corr[dead, dead] = 1.0
-    for a in range(n):
-        for b in range(a + 1, n):
-            if abs(corr[a, b]) > 0.99:
-                notes.append(f'{free[a]} and {free[b]} are correlated {corr[a, b]:+.3f}: '
-                             'the data cannot tell them apart')
-    return cov, corr, notes
 
 
 def score(params: Params, experiments, *, model: str = 'simplified',
@@ -761,7 +382,7 @@ def score(params: Params, experiments, *, model: str = 'simplified',
                                     None, segment, h, 1, 1)
     h = FIT_H[model] if h is None else h
     problem = Problem(experiments, params, ('c_c',), model, signals, segment, h)
-    return _metrics(problem, np.array([params['c_c']]) / problem.scale)
+    return fit_metrics(problem, np.array([params['c_c']]) / problem.scale)
 
 
 def multistart(experiments, result: IdentificationResult, *, starts: int = 10, seed: int = 0,

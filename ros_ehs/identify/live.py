@@ -40,7 +40,8 @@ import warnings
 import numpy as np
 from ros_ehs.bag.experiment import experiments_from_series
 from ros_ehs.errors import DataError, IdentificationWarning, InputError
-from ros_ehs.identify.estimator import IdentificationResult, identify, worst_noise_ratio
+from ros_ehs.identify.estimator import IdentificationResult, identify
+from ros_ehs.identify.verdict import worst_noise_ratio
 from ros_ehs.params import Params, spec
 from ros_ehs_msgs_py import ParameterEstimate
 

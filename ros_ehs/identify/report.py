@@ -32,7 +32,8 @@ import os
 from pathlib import Path
 import re
 
-from ros_ehs.identify.estimator import IdentificationResult, worst_noise_ratio
+from ros_ehs.identify.estimator import IdentificationResult
+from ros_ehs.identify.verdict import worst_noise_ratio
 from ros_ehs.params import save_yaml
 
 __all__ = ['write_report']

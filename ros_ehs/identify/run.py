@@ -25,8 +25,8 @@ from ros_ehs.bag.mapping import TopicMap
 from ros_ehs.errors import IdentificationWarning, InputError
 from ros_ehs.identify.delay import estimate_delay, with_delay
 from ros_ehs.identify.design import identifiability, recommend
-from ros_ehs.identify.estimator import (IdentificationResult, identify, multistart, score,
-                                        SIGNALS)
+from ros_ehs.identify.estimator import IdentificationResult, identify, multistart, score
+from ros_ehs.identify.problem import SIGNALS
 from ros_ehs.identify.report import write_report
 from ros_ehs.params import ESTIMATED, load_yaml, preset
 import ros_ehs_msgs_py as contract
