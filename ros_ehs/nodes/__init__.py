@@ -14,8 +14,10 @@
 """
 Thin rclpy wrappers over the core: plant, controller, reference, recorder, player, identify.
 
-Each module has a ``main(args=None)`` that ``ros2 run ros_ehs <node>`` calls. The shared
-rclpy plumbing (QoS conversion, parameter declaration from the one table, the run loop with
-clean SIGINT/SIGTERM shutdown, diagnostics) is in :mod:`ros_ehs.nodes.ros_common`; loop timing
-statistics, which need no ROS, are in :mod:`ros_ehs.nodes.loop_stats`.
+Each module has a ``main(args=None)`` that ``ros2 run ros_ehs <node>`` calls. What they
+share: :mod:`ros_ehs.nodes.options` (options and parameters declared from the one table, live
+changes validated), :mod:`ros_ehs.nodes.scheduling` (SCHED_FIFO, CPU placement) and
+:mod:`ros_ehs.nodes.ros_common` (QoS, messages, diagnostics, the run loop with a clean
+SIGINT/SIGTERM shutdown); loop timing statistics, which need no ROS, are in
+:mod:`ros_ehs.nodes.loop_stats`.
 """

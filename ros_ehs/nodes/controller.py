@@ -72,10 +72,11 @@ from ros_ehs.control.axis import AxisController
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.errors import ParameterError
 from ros_ehs.nodes.loop_stats import Window
-from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs, diagnostics,
-                                      EPOCH_PERIODS, ERROR, node_params, OK, Option,
-                                      qos_profile, read_msg, RT_PRIORITY, run, steady_clock,
-                                      update_options, validate_changes, WARN)
+from ros_ehs.nodes.options import (declare_options, declare_specs, node_params, Option,
+                                   update_options, validate_changes)
+from ros_ehs.nodes.ros_common import (diagnostics, EPOCH_PERIODS, ERROR, OK, qos_profile, read_msg,
+                                      run, steady_clock, WARN)
+from ros_ehs.nodes.scheduling import CPU_AFFINITY, RT_PRIORITY
 from ros_ehs.params import CONTROL_SPECS, Params, SAFETY_SPECS, spec
 import ros_ehs_msgs_py as contract
 from sensor_msgs.msg import JointState

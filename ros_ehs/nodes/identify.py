@@ -55,8 +55,9 @@ from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.errors import DataError, EhsError
 from ros_ehs.identify.live import LiveIdentifier, SampleWindow
 from ros_ehs.identify.run import run_identification
-from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, msg_class, Option,
-                                      qos_profile, read_msg, run, steady_clock)
+from ros_ehs.nodes.options import declare_options, Option
+from ros_ehs.nodes.ros_common import msg_class, qos_profile, read_msg, run, steady_clock
+from ros_ehs.nodes.scheduling import CPU_AFFINITY
 from ros_ehs.params import CONTROL_SPECS, ESTIMATED, load_yaml, preset
 import ros_ehs_msgs_py as contract
 

@@ -80,10 +80,11 @@ from rclpy.node import Node
 from ros_ehs.launch import FIGURES
 from ros_ehs.model.plant import Plant
 from ros_ehs.nodes.loop_stats import LoopStats
-from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs,
-                                      diagnostics, ERROR, node_params, OK, Option,
-                                      PLANT_STATUS, qos_profile, read_msg, RT_PRIORITY, run,
-                                      steady_clock, update_options, validate_changes, WARN)
+from ros_ehs.nodes.options import (declare_options, declare_specs, node_params, Option,
+                                   update_options, validate_changes)
+from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, PLANT_STATUS, qos_profile, read_msg,
+                                      run, steady_clock, WARN)
+from ros_ehs.nodes.scheduling import CPU_AFFINITY, RT_PRIORITY
 from ros_ehs.params import Params, PLANT_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock

@@ -48,7 +48,8 @@ from ros_ehs.bag.experiment import load_experiments
 from ros_ehs.bag.mapping import load_topic_map
 from ros_ehs.bag.reader import BagMessage, open_bag
 from ros_ehs.errors import BagError
-from ros_ehs.nodes.ros_common import declare_options, msg_class, Option, qos_profile, run
+from ros_ehs.nodes.options import declare_options, Option
+from ros_ehs.nodes.ros_common import msg_class, qos_profile, run
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 

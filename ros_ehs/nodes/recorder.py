@@ -52,8 +52,8 @@ from rclpy.node import Node
 from rclpy.task import Future
 from ros_ehs.bag.writer import BagWriter, COMPRESSION, free_bytes
 from ros_ehs.errors import BagError
-from ros_ehs.nodes.ros_common import (declare_options, msg_class, Option, qos_profile,
-                                      qos_spec, run, steady_clock)
+from ros_ehs.nodes.options import declare_options, Option
+from ros_ehs.nodes.ros_common import msg_class, qos_profile, qos_spec, run, steady_clock
 import ros_ehs_msgs_py as contract
 
 __all__ = ['OPTIONS', 'RecorderNode', 'main', 'default_bag_path']

@@ -51,9 +51,10 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from ros_ehs.errors import ParameterError
-from ros_ehs.nodes.ros_common import (CPU_AFFINITY, declare_options, declare_specs, diagnostics,
-                                      EPOCH_PERIODS, OK, Option, PLANT_STATUS, qos_profile,
+from ros_ehs.nodes.options import declare_options, declare_specs, Option
+from ros_ehs.nodes.ros_common import (diagnostics, EPOCH_PERIODS, OK, PLANT_STATUS, qos_profile,
                                       read_msg, run, steady_clock)
+from ros_ehs.nodes.scheduling import CPU_AFFINITY
 from ros_ehs.reference import make, REFERENCE_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock

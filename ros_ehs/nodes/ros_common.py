@@ -12,51 +12,43 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The rclpy plumbing every ros_ehs node shares.
+The rclpy plumbing every ros_ehs node shares: QoS, messages, diagnostics, the run loop.
 
 * :func:`qos_profile` turns a contract :class:`~ros_ehs_msgs_py.QosSpec` into a QoSProfile,
   :func:`qos_spec` back;
-* :func:`declare_specs` declares parameters from the one table (:mod:`ros_ehs.params`) with
-  their unit, meaning and range, and :class:`Option` declares a node's own settings;
-* :func:`validate_changes` turns a rejected live change into ``SetParametersResult`` with the
-  reason;
-* :func:`run` is every node's ``main``: ``--params-file`` handling, the EventsExecutor, and a
-  clean shutdown on SIGINT/SIGTERM (the node's ``close()`` runs, so a bag is closed properly);
+* :func:`read_msg` converts a message, or logs and skips a malformed one;
+* :func:`run` is every node's ``main``: ``--params-file`` handling, scheduling
+  (:mod:`ros_ehs.nodes.scheduling`), the EventsExecutor, and a clean shutdown on
+  SIGINT/SIGTERM (the node's ``close()`` runs, so a bag is closed properly);
 * :func:`diagnostics` builds the ``diagnostics`` message.
+
+Parameters and options: :mod:`ros_ehs.nodes.options`.
 """
 
 from __future__ import annotations
 
 import gc
 import importlib
-import math
-import os
 import signal
 import sys
-from typing import Any, Callable, Iterable, NamedTuple, Sequence
+from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
-from ros_ehs.errors import EhsError, ParameterError
-from ros_ehs.params import Params, ParamSpec
+from ros_ehs.errors import EhsError
+from ros_ehs.nodes.options import check_names
+from ros_ehs.nodes.scheduling import set_cpu_affinity, set_realtime
 import ros_ehs_msgs_py as contract
 
-__all__ = ['CPU_AFFINITY', 'EPOCH_PERIODS', 'OK', 'WARN', 'ERROR', 'Option', 'RT_PRIORITY',
-           'PLANT_STATUS', 'SIDE_THREADS',
-           'check_names', 'declare_options', 'declare_specs', 'diagnostics', 'msg_class',
-           'qos_profile', 'qos_spec', 'read_msg', 'rejected_names', 'ros_args', 'run',
-           'set_cpu_affinity', 'set_realtime', 'steady_clock', 'update_options',
-           'validate_changes']
+__all__ = ['EPOCH_PERIODS', 'ERROR', 'OK', 'PLANT_STATUS', 'WARN', 'diagnostics', 'msg_class',
+           'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock']
 
 OK, WARN, ERROR = 0, 1, 2
 #: The name of the plant's status in ``diagnostics``: level OK once its loop is closed
@@ -101,158 +93,6 @@ def msg_class(msg_type: str):
 def steady_clock() -> Clock:
     """Return a steady (monotonic) clock for wall-time loops and watchdogs."""
     return Clock(clock_type=ClockType.STEADY_TIME)
-
-
-# -- parameters --------------------------------------------------------------------------------
-class Option(NamedTuple):
-    """A node's own setting (not a model or controller parameter): declared once here."""
-
-    name: str
-    default: Any
-    description: str
-    lo: float | None = None
-    hi: float | None = None
-    choices: tuple[str, ...] = ()
-    read_only: bool = True
-
-
-def _descriptor(description: str, read_only: bool, lo=None, hi=None, integer=False,
-                choices=()) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=description, read_only=read_only)
-    if choices:
-        d.additional_constraints = f'one of {list(choices)}'
-    if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
-                                                         to_value=float(hi), step=0.0)]
-    return d
-
-
-def _coerce_int_overrides(node: Node, names: Iterable[str]) -> None:
-    """Let ``kp: 1`` in a params file mean 1.0 (rclpy rejects integers for doubles)."""
-    ov = getattr(node, '_parameter_overrides', None)
-    if not isinstance(ov, dict):
-        return
-    for n in names:
-        p = ov.get(n)
-        if p is not None and p.type_ == Parameter.Type.INTEGER:
-            ov[n] = Parameter(n, Parameter.Type.DOUBLE, float(p.value))
-
-
-def declare_specs(node: Node, specs: Sequence[ParamSpec], values: Params,
-                  read_only: bool = False) -> None:
-    """Declare each spec as a ROS parameter: value from ``values``, unit/meaning, range."""
-    _coerce_int_overrides(node, [s.name for s in specs if not s.is_choice])
-    for s in specs:
-        d = _descriptor(f'{s.meaning} [{s.unit}]' if s.unit else s.meaning, read_only,
-                        s.lo, s.hi, choices=s.choices)
-        v = values[s.name]
-        node.declare_parameter(s.name, v if s.is_choice else float(v), d)
-
-
-def _not_a_choice(o: Option, value: Any) -> str | None:
-    """Return why ``value`` is not one of option ``o``'s choices, or None if it is."""
-    if o.choices and value not in o.choices:
-        return f'parameter `{o.name}` = {value!r} is not one of {list(o.choices)}'
-    return None
-
-
-def declare_options(node: Node, options: Sequence[Option]) -> dict[str, Any]:
-    """Declare a node's options; return their values by name (checked against choices)."""
-    _coerce_int_overrides(node, [o.name for o in options if isinstance(o.default, float)])
-    out = {}
-    for o in options:
-        integer = isinstance(o.default, int) and not isinstance(o.default, bool)
-        d = _descriptor(o.description, o.read_only, o.lo, o.hi, integer, o.choices)
-        if isinstance(o.default, list) and not o.default:
-            ptype = Parameter.Type.STRING_ARRAY
-            v = node.declare_parameter(o.name, ptype, d).value or []
-        else:
-            v = node.declare_parameter(o.name, o.default, d).value
-        why = _not_a_choice(o, v)
-        if why:
-            raise ParameterError(why)
-        out[o.name] = v
-    return out
-
-
-def update_options(values: dict[str, Any], changes: Sequence[Parameter],
-                   options: Sequence[Option]) -> None:
-    """Apply accepted live changes of ``options`` to a node's option ``values``."""
-    live = {o.name for o in options if not o.read_only}
-    for p in changes:
-        if p.name in live:
-            values[p.name] = p.value
-
-
-def node_params(node: Node, base: Params, specs: Sequence[ParamSpec]) -> Params:
-    """Return ``base`` with the values of ``specs`` as the node now holds them (validated)."""
-    return base.replace(**{s.name: node.get_parameter(s.name).value for s in specs})
-
-
-def rejected_names(changes: Sequence[Parameter], declared: Callable[[str], bool]
-                   ) -> str | None:
-    """
-    Return why a live change names no parameter the node can change, or None.
-
-    An empty name, an undeclared one, and ``use_sim_time`` (read when the node starts: its
-    clocks and staleness checks follow it) are rejected.
-    """
-    for p in changes:
-        if not p.name or not p.name.strip():
-            return 'a parameter with an empty name'
-        if not declared(p.name):
-            return f'parameter `{p.name}` is not declared by this node'
-        if p.name == 'use_sim_time':
-            return ('`use_sim_time` is read when the node starts (its clocks and staleness '
-                    'checks follow it): restart the node with the new value')
-    return None
-
-
-def check_names(node: Node) -> None:
-    """
-    Make ``node`` reject live changes whose names :func:`rejected_names` rejects.
-
-    Call it once every parameter is declared (rclpy runs these callbacks on declarations
-    too): :func:`run` does, for every node.
-    """
-    def check(changes):
-        why = rejected_names(changes, node.has_parameter)
-        if why:
-            node.get_logger().warning(f'parameter change rejected: {why}',
-                                      throttle_duration_sec=1.0)
-        return SetParametersResult(successful=why is None, reason=why or '')
-
-    node.add_on_set_parameters_callback(check)
-
-
-def validate_changes(current: Params, changes: Sequence[Parameter],
-                     specs: Sequence[ParamSpec], options: Sequence[Option] = ()
-                     ) -> tuple[SetParametersResult, Params | None]:
-    """
-    Check a live parameter change: return the result for rclpy and the new Params.
-
-    The new set is validated as a whole (ranges and cross-relations such as F_cc <= F_sc),
-    so the reason names the offending parameter. (Names are checked before, for every node:
-    :func:`run` registers :func:`check_names`.)
-    """
-    names = {s.name for s in specs}
-    opts = {o.name: o for o in options}
-    upd = {}
-    for p in changes:
-        if p.name in names:
-            upd[p.name] = p.value
-        elif p.name in opts and (why := _not_a_choice(opts[p.name], p.value)):
-            return SetParametersResult(successful=False, reason=why), None
-    if not upd:
-        return SetParametersResult(successful=True), None
-    try:
-        new = current.replace(**upd)
-    except ParameterError as err:
-        return SetParametersResult(successful=False, reason=str(err)), None
-    return SetParametersResult(successful=True), new
 
 
 # -- messages ---------------------------------------------------------------------------------
@@ -311,90 +151,6 @@ def ros_args(argv: Sequence[str]) -> list[str]:
     if extra:
         out += ['--ros-args'] + extra
     return out
-
-
-def _thread_ids() -> list[int]:
-    """Return the ids of this process's threads (the executor's and the middleware's)."""
-    return [int(t) for t in os.listdir('/proc/self/task')]
-
-
-#: Fast DDS threads (by name) that carry no message of the loop, which goes over shared
-#: memory: UDP receptions (discovery; a peer on another host), timed events (announcements,
-#: heartbeats), the asynchronous writer, the shared-memory watchdog. ``set_cpu_affinity``
-#: keeps them off the loop's CPU: measured (12 alternating pairs of 10 s
-#: main-job benches), 8 of 12 windows without a watchdog trip against 3 of 12 with them on it.
-SIDE_THREADS = ('dds.udp.', 'dds.ev.', 'dds.asyn.', 'dds.shm.wdog')
-
-
-def _thread_name(tid: int) -> str:
-    try:
-        with open(f'/proc/self/task/{tid}/comm') as f:
-            return f.read().strip()
-    except OSError:
-        return ''
-
-
-def set_realtime(priority: int) -> str:
-    """
-    Put every thread of this process (the executor's and the middleware's) on SCHED_FIFO.
-
-    ``priority`` 1-99; 0 leaves the default scheduler. Threads started later inherit it.
-    Returns what was done, or why not (no CAP_SYS_NICE and no ``ulimit -r``): never raises,
-    a node without the privilege runs on as before.
-    """
-    if priority <= 0:
-        return ''
-    try:
-        param = os.sched_param(priority)
-        for tid in _thread_ids():
-            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
-    except (OSError, AttributeError) as err:
-        return (f'rt_priority {priority} not applied ({getattr(err, "strerror", err)}): it '
-                'needs CAP_SYS_NICE or an rtprio limit (ulimit -r, /etc/security/limits.conf)')
-    return f'threads on SCHED_FIFO priority {priority}'
-
-
-def set_cpu_affinity(cpu: int) -> str:
-    """
-    Keep the threads of this process that carry the loop on CPU ``cpu`` (-1: anywhere).
-
-    The loop's threads are the executor's, the Python ones and the middleware's
-    shared-memory listeners; the middleware's other threads (:data:`SIDE_THREADS`:
-    discovery, timed events) go to the other CPUs this process may use, so that a node
-    joining the network or a participant's announcement does not hold the loop's CPU (on one
-    CPU: all on it). Returns what was done, or why not (no such CPU); never raises.
-    """
-    if cpu < 0:
-        return ''
-    try:
-        others = (set(os.sched_getaffinity(0)) - {cpu}) or {cpu}
-        for tid in _thread_ids():
-            side = _thread_name(tid).startswith(SIDE_THREADS)
-            os.sched_setaffinity(tid, others if side else {cpu})
-    except (OSError, AttributeError) as err:
-        return (f'cpu_affinity {cpu} not applied ({getattr(err, "strerror", err)}): this '
-                f'machine has CPUs {sorted(os.sched_getaffinity(0))}')
-    return f'threads on CPU {cpu} (discovery and timed events on CPUs {sorted(others)})'
-
-
-#: The ``cpu_affinity`` option of the loop nodes; ``Launch.start_loop`` sets it by default
-#: (``ros_ehs.launch.loop_placement``). Measured on the 2-core VM, plant and controller on one
-#: CPU and the reference on the other: 12400-14450 lock-step steps/s against 6280-8060
-#: unpinned (a ping-pong between two processes on one core skips the cross-core wake-up; the
-#: bare rclpy ping-pong gains 1.2-1.5x), and in real time no watchdog trip in 30 of 30 10 s
-#: windows the machine did not stall (docs/nodes.md, "CPU placement").
-CPU_AFFINITY = Option('cpu_affinity', -1, 'keep the threads of the node that carry the loop '
-                      "on this CPU, the middleware's discovery and timed events on the "
-                      'others (-1: anywhere); a bench: plant and controller on one, the '
-                      'reference on another', -1, 1023)
-
-
-#: The ``rt_priority`` option of the loop nodes (plant and controller), as ros2_control's
-#: controller manager has ``thread_priority``.
-RT_PRIORITY = Option('rt_priority', 0, 'real time: SCHED_FIFO priority of all the threads of '
-                     'the node (1-99), so that other work on the machine cannot delay a '
-                     'period; 0: the default scheduler. Needs CAP_SYS_NICE or ulimit -r',
-                     0, 99)
 
 
 def run(factory: Callable[[], Node], args: Sequence[str] | None = None,

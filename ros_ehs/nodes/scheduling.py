@@ -1,0 +1,112 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Where and how a node's threads run: SCHED_FIFO priority and CPU placement, through /proc.
+
+:func:`set_realtime` and :func:`set_cpu_affinity` apply a node's ``rt_priority`` and
+``cpu_affinity`` options (:data:`RT_PRIORITY`, :data:`CPU_AFFINITY`) to every thread of the
+process; each returns what it did, or why not, and never raises.
+"""
+
+from __future__ import annotations
+
+import os
+
+from ros_ehs.nodes.options import Option
+
+__all__ = ['CPU_AFFINITY', 'RT_PRIORITY', 'SIDE_THREADS', 'set_cpu_affinity', 'set_realtime']
+
+
+def _thread_ids() -> list[int]:
+    """Return the ids of this process's threads (the executor's and the middleware's)."""
+    return [int(t) for t in os.listdir('/proc/self/task')]
+
+
+#: Fast DDS threads (by name) that carry no message of the loop, which goes over shared
+#: memory: UDP receptions (discovery; a peer on another host), timed events (announcements,
+#: heartbeats), the asynchronous writer, the shared-memory watchdog. ``set_cpu_affinity``
+#: keeps them off the loop's CPU: measured (12 alternating pairs of 10 s
+#: bench runs), 8 of 12 windows without a watchdog trip against 3 of 12 with them on it.
+SIDE_THREADS = ('dds.udp.', 'dds.ev.', 'dds.asyn.', 'dds.shm.wdog')
+
+
+def _thread_name(tid: int) -> str:
+    try:
+        with open(f'/proc/self/task/{tid}/comm') as f:
+            return f.read().strip()
+    except OSError:
+        return ''
+
+
+def set_realtime(priority: int) -> str:
+    """
+    Put every thread of this process (the executor's and the middleware's) on SCHED_FIFO.
+
+    ``priority`` 1-99; 0 leaves the default scheduler. Threads started later inherit it.
+    Returns what was done, or why not (no CAP_SYS_NICE and no ``ulimit -r``): never raises,
+    a node without the privilege runs on as before.
+    """
+    if priority <= 0:
+        return ''
+    try:
+        param = os.sched_param(priority)
+        for tid in _thread_ids():
+            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+    except (OSError, AttributeError) as err:
+        return (f'rt_priority {priority} not applied ({getattr(err, "strerror", err)}): it '
+                'needs CAP_SYS_NICE or an rtprio limit (ulimit -r, /etc/security/limits.conf)')
+    return f'threads on SCHED_FIFO priority {priority}'
+
+
+def set_cpu_affinity(cpu: int) -> str:
+    """
+    Keep the threads of this process that carry the loop on CPU ``cpu`` (-1: anywhere).
+
+    The loop's threads are the executor's, the Python ones and the middleware's
+    shared-memory listeners; the middleware's other threads (:data:`SIDE_THREADS`:
+    discovery, timed events) go to the other CPUs this process may use, so that a node
+    joining the network or a participant's announcement does not hold the loop's CPU (on one
+    CPU: all on it). Returns what was done, or why not (no such CPU); never raises.
+    """
+    if cpu < 0:
+        return ''
+    try:
+        others = (set(os.sched_getaffinity(0)) - {cpu}) or {cpu}
+        for tid in _thread_ids():
+            side = _thread_name(tid).startswith(SIDE_THREADS)
+            os.sched_setaffinity(tid, others if side else {cpu})
+    except (OSError, AttributeError) as err:
+        return (f'cpu_affinity {cpu} not applied ({getattr(err, "strerror", err)}): this '
+                f'machine has CPUs {sorted(os.sched_getaffinity(0))}')
+    return f'threads on CPU {cpu} (discovery and timed events on CPUs {sorted(others)})'
+
+
+#: The ``cpu_affinity`` option of the loop nodes; ``Launch.start_loop`` sets it by default
+#: (``ros_ehs.launch.loop_placement``). Measured on the 2-core VM, plant and controller on one
+#: CPU and the reference on the other: 12400-14450 lock-step steps/s against 6280-8060
+#: unpinned (a ping-pong between two processes on one core skips the cross-core wake-up; the
+#: bare rclpy ping-pong gains 1.2-1.5x), and in real time no watchdog trip in 30 of 30 10 s
+#: windows the machine did not stall (docs/nodes.md, "CPU placement").
+CPU_AFFINITY = Option('cpu_affinity', -1, 'keep the threads of the node that carry the loop '
+                      "on this CPU, the middleware's discovery and timed events on the "
+                      'others (-1: anywhere); a bench: plant and controller on one, the '
+                      'reference on another', -1, 1023)
+
+
+#: The ``rt_priority`` option of the loop nodes (plant and controller), as ros2_control's
+#: controller manager has ``thread_priority``.
+RT_PRIORITY = Option('rt_priority', 0, 'real time: SCHED_FIFO priority of all the threads of '
+                     'the node (1-99), so that other work on the machine cannot delay a '
+                     'period; 0: the default scheduler. Needs CAP_SYS_NICE or ulimit -r',
+                     0, 99)

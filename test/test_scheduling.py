@@ -1,0 +1,78 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Where a node's threads run: SCHED_FIFO priority and CPU placement."""
+
+import pytest
+
+
+_RT_CHECK = """
+import os, sys
+from ros_ehs.nodes.scheduling import set_realtime
+if sys.argv[1] == 'drop':
+    os.setgid(65534)
+    os.setuid(65534)
+print(set_realtime(0) == '')
+print(set_realtime(10))
+print(sorted({os.sched_getscheduler(int(t)) for t in os.listdir('/proc/self/task')}))
+"""
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('who', ['self', 'drop'])
+def test_rt_priority_is_applied_to_every_thread_or_refused_with_a_reason(who, python_lines):
+    """The loop nodes' ``rt_priority``: SCHED_FIFO on all threads, or a reason why not."""
+    import os
+    if who == 'drop' and os.geteuid() != 0:
+        who = 'self'          # already unprivileged: the refusal path runs as is
+    zero, said, policies = python_lines(_RT_CHECK, who)
+    assert zero == 'True'                       # 0: the default scheduler, nothing said
+    if said.startswith('threads on SCHED_FIFO priority 10'):
+        assert policies == f'[{os.SCHED_FIFO}]'
+    else:
+        assert 'rt_priority 10 not applied' in said and 'CAP_SYS_NICE' in said, said
+        assert policies == f'[{os.SCHED_OTHER}]'
+
+
+@pytest.mark.ros
+def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not(python_lines):
+    import os
+    code = ('import os\n'
+            'from ros_ehs.nodes.scheduling import set_cpu_affinity\n'
+            'import rclpy\n'
+            'rclpy.init()\n'
+            'node = rclpy.create_node("pinned")\n'       # the middleware's threads exist
+            'print(set_cpu_affinity(-1) == "")\n'
+            'print(set_cpu_affinity(1000))\n'
+            'print(set_cpu_affinity(0))\n'
+            'names = {t: open(f"/proc/self/task/{t}/comm").read().strip()'
+            ' for t in os.listdir("/proc/self/task")}\n'
+            'print(sorted({(n, tuple(sorted(os.sched_getaffinity(int(t)))))'
+            ' for t, n in names.items()}))\n')
+    none, bad, good, placed = python_lines(code)
+    assert none == 'True'
+    assert 'cpu_affinity 1000 not applied' in bad and 'this machine has CPUs' in bad
+    others = sorted(set(os.sched_getaffinity(0)) - {0}) or [0]
+    assert good == f'threads on CPU 0 (discovery and timed events on CPUs {others})'
+    # the kernel's own record, per thread: Fast DDS's discovery (UDP) and event threads on
+    # the other CPUs, everything else (Python, the shared-memory listeners) on CPU 0
+    import ast
+    from ros_ehs.nodes.scheduling import SIDE_THREADS
+    placed = ast.literal_eval(placed)        # [(thread name, its CPUs)], one per distinct pair
+    names = [n for n, _ in placed]
+    assert any(n.startswith(('dds.udp.', 'dds.ev.')) for n in names), names
+    assert any(n.startswith('dds.shm.') and n != 'dds.shm.wdog' for n in names), names
+    for name, cpus in placed:
+        want = others if name.startswith(SIDE_THREADS) else [0]
+        assert list(cpus) == want, (name, cpus)
+    assert len(os.sched_getaffinity(0)) >= 1     # the test process itself is untouched
