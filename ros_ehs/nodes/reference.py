@@ -42,14 +42,27 @@ tested). A bench starts the reference before the plant, so that no participant j
 running loop, with both: the trajectory then starts at its beginning on a closed loop
 holding position, with the controller and the recorder listening, instead of somewhere
 mid-stroke on a piston that has not moved yet.
+
+``amplitude_phase_control`` (kind sine): the command's amplitude, phase and mean are
+corrected each cycle from the measured position (``state``, joint ``piston``), as a test
+controller's APC does (:class:`ros_ehs.control.apc.AmplitudePhaseControl`, docs/controller.md).
+The corrections freeze, and the command keeps its last amplitude and phase, while a safety
+trip that acts (hold, stop, power off: the controller's ``events``) is latched, and while no
+state has come for ``APC_LOST`` seconds; they resume after a reset or when states return,
+without a jump. Under ``use_sim_time`` the preview samples are computed before the cycle
+that ends within them is measured, so the first ``preview`` of a cycle keeps the old
+command (a correction still blends in without a jump).
 """
 
 from __future__ import annotations
+
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from ros_ehs.control.apc import AmplitudePhaseControl
 from ros_ehs.errors import ParameterError
 from ros_ehs.nodes.options import declare_options, declare_specs, Option
 from ros_ehs.nodes.ros_common import (diagnostics, EPOCH_PERIODS, OK, PLANT_STATUS, qos_profile,
@@ -76,8 +89,14 @@ OPTIONS = (
            "plant's diagnostics report its loop closed (status ros_ehs/plant at level OK)"),
     Option('wait_subscribers', 0, 'real time: start the trajectory (time zero) only once '
            '`reference` has this many subscribers; publish nothing until then', 0, 1000),
+    Option('amplitude_phase_control', False, "kind sine: correct the command's amplitude, "
+           'phase and mean each cycle from the measured position (APC); frozen while a '
+           'safety trip acts or states are lost'),
     CPU_AFFINITY,
 )
+
+#: APC: no state for this long freezes the corrections [s].
+APC_LOST = 0.2
 
 
 class ReferenceNode(Node):
@@ -91,6 +110,9 @@ class ReferenceNode(Node):
         values = {s.name: self.get_parameter(s.name).value for s in REFERENCE_SPECS}
         self.traj = make(values, self.opt['csv_path'])
         self.values = values
+        self.apc = self._make_apc(values)
+        self._frozen_by: set[str] = set()      # the reasons the APC is frozen
+        self._last_state = time.monotonic()
         self.t_first: int | None = None
         self.last_ns = -1
         self.count = 0
@@ -120,21 +142,75 @@ class ReferenceNode(Node):
         if not self.loop_closed:
             self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self._on_diag,
                                      qos_profile(contract.DIAGNOSTICS.qos))
+        if self.apc is not None:
+            # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire)
+            self.create_subscription(JointState, contract.STATE.name, self._on_state,
+                                     qos_profile(contract.STATE.qos), raw=True)
+            self.create_subscription(DiagnosticArray, contract.EVENTS.name, self._on_event,
+                                     qos_profile(contract.EVENTS.qos))
+            self.create_timer(0.05, self._watch_states, clock=steady_clock())
         self.add_on_set_parameters_callback(self._check)
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
                           clock=steady_clock())
         how = 'on /clock' if self.sim_time else f'{self.opt["rate_hz"]:g} Hz'
-        self.get_logger().info(f'{values["kind"]} reference, {how}')
+        apc = ', amplitude/phase control' if self.apc is not None else ''
+        self.get_logger().info(f'{values["kind"]} reference, {how}{apc}')
+
+    def _make_apc(self, values: dict) -> AmplitudePhaseControl | None:
+        if not self.opt['amplitude_phase_control']:
+            return None
+        if values['kind'] != 'sine':
+            raise ParameterError('amplitude_phase_control corrects a sine: `kind` is '
+                                 f'{values["kind"]!r}')
+        return AmplitudePhaseControl(float(values['amplitude']), float(values['frequency']),
+                                     float(values['offset']))
 
     def _check(self, changes):
         new = dict(self.values)
         new.update({p.name: p.value for p in changes if p.name in new})
         try:
             traj = make(new, self.opt['csv_path'])
+            apc = self._make_apc(new) if self.apc is not None else None
         except (ParameterError, ValueError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.traj, self.values = traj, new
+        if apc is not None:
+            self.apc = apc          # a new sine: its corrections start again
         return SetParametersResult(successful=True)
+
+    # -- amplitude/phase control -------------------------------------------------------------
+    def _freeze(self, reason: str, on: bool) -> None:
+        was = bool(self._frozen_by)
+        (self._frozen_by.add if on else self._frozen_by.discard)(reason)
+        if bool(self._frozen_by) != was:
+            self.apc.freeze(bool(self._frozen_by))
+            self.get_logger().info(('APC frozen: ' if self._frozen_by else 'APC resumed: ') +
+                                   reason)
+
+    def _on_state(self, data: bytes) -> None:
+        s = read_msg(self, contract.state_from_cdr, data, 'state')
+        if s is None or self.t_first is None:
+            return
+        self._last_state = time.monotonic()
+        if 'states lost' in self._frozen_by:
+            self._freeze('states lost', False)
+        t = (s.stamp_ns - self.t_first) * 1e-9
+        if t >= 0.0:
+            self.apc.measure(t, s.z)
+
+    def _watch_states(self) -> None:
+        if self.t_first is not None and time.monotonic() - self._last_state > APC_LOST:
+            self._freeze('states lost', True)
+
+    def _on_event(self, msg: DiagnosticArray) -> None:
+        try:
+            e = contract.event_from_msg(msg)
+        except ValueError:
+            return
+        if e.kind == 'trip' and e.action in ('hold', 'stop', 'power_off'):
+            self._freeze('safety trip', True)
+        elif e.kind in ('reset', 'enabled'):
+            self._freeze('safety trip', False)
 
     def _on_clock(self, data: bytes) -> None:
         # Answer clock t with the whole window [t, t + preview] (at least t + one period):
@@ -182,11 +258,16 @@ class ReferenceNode(Node):
         """Return z_ref [m] and v_ref [m/s] at ``stamps_ns`` (held after ``duration``)."""
         t = (stamps_ns - self.t_first) * 1e-9
         dur = float(self.opt['duration'])
+        traj = self.traj if self.apc is None else self._apc_samples
         if dur <= 0:
-            return self.traj(t)
+            return traj(t)
         hold = t > dur
-        z, v = self.traj(np.minimum(t, dur))
+        z, v = traj(np.minimum(t, dur))
         return z, np.where(hold, 0.0, v)
+
+    def _apc_samples(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        zv = [self.apc.reference(float(x)) for x in np.atleast_1d(t)]
+        return np.array([a for a, _ in zv]), np.array([b for _, b in zv])
 
     def _publish(self, stamp_ns: int) -> None:
         if self.t_first is None:
@@ -199,9 +280,16 @@ class ReferenceNode(Node):
 
     def _diagnose(self) -> None:
         t = 0.0 if self.t_first is None else (self.last_ns - self.t_first) * 1e-9
+        values = {'published': self.count, 'time_s': t, 'bad_clocks': self.bad}
+        if self.apc is not None:
+            last = self.apc.history[-1] if self.apc.history else {}
+            values.update(apc_cycles=self.apc.cycles,
+                          apc_amp_ratio=float(last.get('amp_ratio', float('nan'))),
+                          apc_phase_deg=float(last.get('phase_deg', float('nan'))),
+                          apc_converged=self.apc.converged_at is not None,
+                          apc_frozen=','.join(sorted(self._frozen_by)))
         self.pub_diag.publish(diagnostics(self, 'ros_ehs/reference', OK, self.values['kind'],
-                                          {'published': self.count, 'time_s': t,
-                                           'bad_clocks': self.bad}))
+                                          values))
 
 
 def main(args=None) -> int:
