@@ -286,18 +286,26 @@ def fill_event(msg: Any, e: SafetyEvent, node: str = 'controller', hardware_id: 
     ``status`` is an empty DiagnosticStatus and ``key_value`` makes an empty KeyValue (the
     message classes, or dicts for the bag writer).
     """
-    _set_header(msg, e.stamp_ns)
+    pairs = [(k, f'{getattr(e, k):.9g}' if isinstance(getattr(e, k), float) else
+              str(getattr(e, k))) for k in _EVENT_KEYS]
+    return _fill_status(msg, e.stamp_ns, event_level(e), f'ros_ehs/{node}/{e.detector or e.kind}',
+                        e.message, hardware_id, pairs, status, key_value)
+
+
+def _fill_status(msg: Any, stamp: int, level: int, name: str, message: str, hardware_id: str,
+                 pairs: Sequence[tuple[str, str]], status: Any, key_value) -> Any:
+    """Write one DiagnosticStatus with ``pairs`` as its values into a DiagnosticArray."""
+    _set_header(msg, stamp)
     st = status if status is not None else {}
-    _set(st, 'level', bytes([event_level(e)]))
-    _set(st, 'name', f'ros_ehs/{node}/{e.detector or e.kind}')
-    _set(st, 'message', e.message)
+    _set(st, 'level', bytes([level]))
+    _set(st, 'name', name)
+    _set(st, 'message', message)
     _set(st, 'hardware_id', hardware_id)
     values = []
-    for k in _EVENT_KEYS:
-        v = getattr(e, k)
+    for k, v in pairs:
         kv = key_value() if key_value is not None else {}
         _set(kv, 'key', k)
-        _set(kv, 'value', f'{v:.9g}' if isinstance(v, float) else str(v))
+        _set(kv, 'value', v)
         values.append(kv)
     _set(st, 'values', values)
     _set(msg, 'status', [st])
@@ -330,27 +338,14 @@ def fill_estimate(msg: Any, e: ParameterEstimate, status: Any = None,
 
     ``status`` and ``key_value`` as in :func:`fill_event`.
     """
-    _set_header(msg, e.stamp_ns)
-    st = status if status is not None else {}
-    _set(st, 'level', bytes([_OK if e.adequate else _WARN]))
-    _set(st, 'name', 'ros_ehs/identify/estimate')
-    _set(st, 'message', e.verdict)
-    _set(st, 'hardware_id', 'axis')
     pairs = []
     for n, v in e.values.items():
         pairs += [(n, f'{v:.9g}'), (n + _STDERR, f'{e.stderr.get(n, math.nan):.9g}')]
     pairs += [('adequate', str(bool(e.adequate)).lower()), ('pushed', str(bool(e.pushed)).lower()),
               ('reason', e.reason), ('window_s', f'{e.window_s:.9g}'),
               ('wall_s', f'{e.wall_s:.9g}'), ('iterations', str(int(e.iterations)))]
-    values = []
-    for k, v in pairs:
-        kv = key_value() if key_value is not None else {}
-        _set(kv, 'key', k)
-        _set(kv, 'value', v)
-        values.append(kv)
-    _set(st, 'values', values)
-    _set(msg, 'status', [st])
-    return msg
+    return _fill_status(msg, e.stamp_ns, _OK if e.adequate else _WARN,
+                        'ros_ehs/identify/estimate', e.verdict, 'axis', pairs, status, key_value)
 
 
 def estimate_from_msg(msg: Any) -> ParameterEstimate:
