@@ -292,6 +292,19 @@ def fill_event(msg: Any, e: SafetyEvent, node: str = 'controller', hardware_id: 
                         e.message, hardware_id, pairs, status, key_value)
 
 
+def _status_values(msg: Any, topic: str, keys: Sequence[str]) -> tuple[Any, dict[str, str]]:
+    """Return a DiagnosticArray's first status and its values; ValueError naming what lacks."""
+    status = list(_get(msg, 'status'))
+    if not status:
+        raise ValueError(f'{topic}: a DiagnosticArray without a status')
+    st = status[0]
+    vals = {_get(kv, 'key'): _get(kv, 'value') for kv in _get(st, 'values')}
+    missing = [k for k in keys if k not in vals]
+    if missing:
+        raise ValueError(f'{topic}: status {_get(st, "name")!r} lacks the values {missing}')
+    return st, vals
+
+
 def _fill_status(msg: Any, stamp: int, level: int, name: str, message: str, hardware_id: str,
                  pairs: Sequence[tuple[str, str]], status: Any, key_value) -> Any:
     """Write one DiagnosticStatus with ``pairs`` as its values into a DiagnosticArray."""
@@ -314,14 +327,7 @@ def _fill_status(msg: Any, stamp: int, level: int, name: str, message: str, hard
 
 def event_from_msg(msg: Any) -> SafetyEvent:
     """Read the event of an ``events`` DiagnosticArray (the first status); ValueError if none."""
-    status = list(_get(msg, 'status'))
-    if not status:
-        raise ValueError('events: a DiagnosticArray without a status')
-    st = status[0]
-    vals = {_get(kv, 'key'): _get(kv, 'value') for kv in _get(st, 'values')}
-    missing = [k for k in _EVENT_KEYS if k not in vals]
-    if missing:
-        raise ValueError(f'events: status {_get(st, "name")!r} lacks the values {missing}')
+    st, vals = _status_values(msg, 'events', _EVENT_KEYS)
     return SafetyEvent(int(vals['stamp_ns']), vals['kind'], vals['detector'],
                        float(vals['value']), float(vals['limit']), vals['unit'],
                        vals['action'], _get(st, 'message'))
@@ -350,15 +356,7 @@ def fill_estimate(msg: Any, e: ParameterEstimate, status: Any = None,
 
 def estimate_from_msg(msg: Any) -> ParameterEstimate:
     """Read the estimate of a ``parameter_estimates`` DiagnosticArray; ValueError if malformed."""
-    status = list(_get(msg, 'status'))
-    if not status:
-        raise ValueError('parameter_estimates: a DiagnosticArray without a status')
-    st = status[0]
-    vals = {_get(kv, 'key'): _get(kv, 'value') for kv in _get(st, 'values')}
-    missing = [k for k in _ESTIMATE_KEYS if k not in vals]
-    if missing:
-        raise ValueError(f'parameter_estimates: status {_get(st, "name")!r} lacks the values '
-                         f'{missing}')
+    st, vals = _status_values(msg, 'parameter_estimates', _ESTIMATE_KEYS)
     names = [k for k in vals if k not in _ESTIMATE_KEYS and not k.endswith(_STDERR)]
     try:
         return ParameterEstimate(
