@@ -370,3 +370,15 @@ def test_an_absurd_finite_position_gives_a_defined_state_not_an_exception():
     for k in range(2, 1200):            # the sensor recovers; the ramp-on ends at 1 s
         i = ax.step(k * MS, 0.0, 0.0, 0.0, 0.0, 0.0)
     assert math.isfinite(i) and not ax.ctrl.fault
+
+
+def test_ramp_again_blends_a_jumped_trajectory_from_the_last_demand():
+    """A reference that comes back after being held has moved on: no step in the demand."""
+    sup = _sup(ramp_time=0.1)
+    for k in range(200):                       # on the trajectory (ramp-on done)
+        d, _ = _feed(sup, k, z=0.01, z_traj=0.01)
+    assert d.mode == 'run' and d.z_ref == 0.01
+    sup.ramp_again()
+    zs = [_feed(sup, k, z=0.01, z_traj=0.05)[0].z_ref for k in range(200, 400)]
+    assert zs[0] == pytest.approx(0.01) and zs[-1] == 0.05       # from the demand, onto it
+    assert max(np.abs(np.diff(zs))) < 0.04 / 100 * 2              # spread over the 100 periods

@@ -107,11 +107,19 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
     assert z[held].max() - 0.03 <= braking_distance(p, v, 1e-3, periods=2) + 15e-6, \
         (z[held].max(), v)       # plus three sigma of the bench's 5 um sensor noise
     assert z.max() < p['stroke'] - 0.05
-    # after the reset: back on the sine, and no current step on the way
-    after = sorted(s for s in cmds if s > events[2].stamp_ns)
+    # after the reset: back on the sine, and no current step on the way: over the ramp-on
+    # (ramp_time 1 s), between commands of consecutive periods (a gap in the best-effort
+    # recording is not a step). A reference node that stalled 0.33 s once came back 63 mm on
+    # mid-ramp and saturated the valve: the controller now ramps onto a returning reference
+    after = np.array(sorted(s for s in cmds
+                            if events[2].stamp_ns < s <= events[2].stamp_ns + 1_000_000_000))
     i_after = np.array([cmds[s] for s in after])
     assert np.abs(i_after[:20]).max() < 0.02 * p['u_max']
-    assert np.abs(np.diff(i_after)).max() < 0.1 * p['u_max']
+    steps = np.abs(np.diff(i_after))[np.diff(after) <= 1.5 * PERIOD]
+    j = int(np.argmax(np.abs(np.diff(i_after)) * (np.diff(after) <= 1.5 * PERIOD)))
+    assert steps.size > 500 and steps.max() < 0.1 * p['u_max'], (
+        steps.size, steps.max(), j, i_after[max(j - 3, 0):j + 4].tolist(),
+        [(states[s].z, states[s].i) for s in after[max(j - 3, 0):j + 4] if s in states])
     assert z[stamps > t_reset].max() > 0.035      # the limit is 50 mm now: the full sine
 
 

@@ -211,6 +211,7 @@ class Supervisor:
         self._ramp_pending = True       # a ramp-on starts at the next finite position
         self._ramp_t0 = 0
         self._ramp_z0 = math.nan
+        self._ramp_from = math.nan      # ramp_again: from the last demand, not the measurement
         self._mode = 'run'              # 'run' | 'hold' | 'stop' | 'power_off'
         self._hold_z = math.nan
         self._last_z = math.nan
@@ -221,6 +222,18 @@ class Supervisor:
     def restart(self) -> None:
         """Forget the run (a new epoch): ramp on again at the next state; latches stay."""
         self._restart()
+
+    def ramp_again(self) -> None:
+        """
+        Ramp onto the trajectory again, from the last demanded position, over ``ramp_time``.
+
+        For a trajectory that jumps: a reference that comes back after being held stale
+        (the controller node) has moved on meanwhile, and following it at once would step
+        the demand by all it moved.
+        """
+        if math.isfinite(self._last_ref):
+            self._ramp_pending = True
+            self._ramp_from = self._last_ref
 
     @property
     def mode(self) -> str:
@@ -359,7 +372,8 @@ class Supervisor:
                 return Demand('waiting', math.nan, 0.0, False)
             self._ramp_pending = False
             self._ramp_t0 = stamp_ns
-            self._ramp_z0 = z
+            self._ramp_z0 = self._ramp_from if math.isfinite(self._ramp_from) else z
+            self._ramp_from = math.nan
         t = (stamp_ns - self._ramp_t0) * 1e-9
         if cfg.ramp_time > 0 and t < cfg.ramp_time:
             w, dw = ramp_weight(t / cfg.ramp_time)

@@ -51,7 +51,10 @@ Edge-case policy (tested in ``test/test_nodes.py`` and ``test/test_stamps.py``):
   is only held: a non-real-time kernel has 5-20 ms hiccups that must not reset the PID.);
 * before the first reference: hold the first measured position; between references,
   first-order hold (``z_ref + v_ref * age``, so the reference may run slower than the loop);
-  a reference older than ``reference_timeout``: hold its position with zero velocity;
+  a reference older than ``reference_timeout``: hold its position with zero velocity (logged,
+  counted in ``reference_stale``); when references come back, the axis ramps onto them from
+  the held position over ``ramp_time`` (a reference node that stalled 0.33 s came back 63 mm
+  on, and following it at once saturated the valve);
 * ``lockstep``: the references come as ``reference_trajectory`` (the reference node sends
   the coming periods in one message per ``/clock``) into a buffer keyed by stamp (at most
   ``REF_BUFFER`` stamps, oldest dropped first; a used one is dropped at once); a state is
@@ -103,8 +106,9 @@ OPTIONS = (
     Option('rate_hz', 1000.0, 'control period rate [Hz]; must match the plant', 10.0, 5000.0),
     Option('lockstep', False, 'lock-step bench: answer a state only with the reference of '
            'the same stamp; commands over reliable QoS'),
-    Option('reference_timeout', 0.1, 'a reference older than this is held at zero velocity '
-           '[s]', 1.0e-3, 100.0, read_only=False),
+    Option('reference_timeout', 0.1, 'a reference older than this is held at zero velocity; '
+           'when references come back the axis ramps onto them over ramp_time [s]', 1.0e-3,
+           100.0, read_only=False),
     Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
     Option('future_tolerance', 0.05, 'real time: a state stamped further ahead of this '
            "node's clock is dropped and counted [s]", 1.0e-4, 3600.0, read_only=False),
@@ -152,13 +156,14 @@ class ControllerNode(Node):
         self._pending: Params | None = None
         self._refs: dict[int, tuple[float, float]] = {}     # insertion-ordered
         self._ref = None                 # latest (z_ref, v_ref, rx time)
+        self._ref_stale = False          # held: older than reference_timeout
         self._hold_z: float | None = None
         self._waiting = None             # a state parked until its reference comes
         self._last_stamp = -1
         self._lost = False
         self.counts = dict.fromkeys(('answered', 'bad', 'nonfinite', 'stale', 'out_of_order',
                                      'future', 'epochs', 'repeated', 'state_lost_events',
-                                     'param_rejects', 'events'), 0)
+                                     'param_rejects', 'events', 'reference_stale'), 0)
         self._dt_ns = int(round(self.dt * 1e9))
         self._diag_future = 0
         self.err = Window(2000)
@@ -241,7 +246,17 @@ class ControllerNode(Node):
             return (self._hold_z if self._hold_z is not None else math.nan), 0.0
         z, v, rx, stamp = self._ref
         if time.monotonic() - rx > self._ref_timeout:
+            if not self._ref_stale:
+                self._ref_stale = True
+                self.counts['reference_stale'] += 1
+                self.get_logger().warning(
+                    f'no reference for {self._ref_timeout:g} s: holding its last position')
             return z, 0.0
+        if self._ref_stale:        # back, and moved on meanwhile: ramp onto it, no step
+            self._ref_stale = False
+            self.axis.supervisor.ramp_again()
+            self.get_logger().info('the reference is back: ramping onto it from the held '
+                                   'position')
         # first-order hold: a reference slower than the loop is extrapolated with its
         # velocity to the state's instant (at most one reference_timeout ahead)
         ahead = min(max((s.stamp_ns - stamp) * 1e-9, 0.0), self._ref_timeout)
