@@ -28,7 +28,7 @@ port for a third of its ``healthy_check_timeout_ms`` (1000 ms by default): 333 m
 this project's VM, with stale ports from earlier runs in ``/dev/shm``, the
 reference joining a running loop (all nodes with ``launch_scripts/fastdds_rt.xml``, whose
 30 ms applies only to ports created under it) reused a port created without that profile,
-and the plant's publish blocked 333 ms: a watchdog trip in 5 of 8 main-job benches. With
+and the plant's publish blocked 333 ms: a watchdog trip in 5 of 8 demo-run benches. With
 those files removed: none in 17 (docs/nodes.md has the side-by-side figures).
 
 :func:`clean_zombies` removes every port and segment that no live process holds, as
