@@ -45,6 +45,7 @@ import cmath
 import math
 
 import numpy as np
+from ros_ehs.control.cycles import CycleCorrection
 from ros_ehs.errors import InputError
 
 __all__ = ['AmplitudePhaseControl']
@@ -57,11 +58,12 @@ def _positive(name: str, v: float) -> float:
     return float(v)
 
 
-class AmplitudePhaseControl:
+class AmplitudePhaseControl(CycleCorrection):
     """A sine ``mean + amplitude sin(2 pi f t)`` whose command APC corrects each cycle."""
 
     def __init__(self, amplitude: float, frequency: float, mean: float = 0.0,
                  gain: float = 0.7, tolerance: float = 2e-3) -> None:
+        super().__init__()
         self.amplitude = _positive('amplitude', amplitude)
         self.frequency = _positive('frequency', frequency)
         if not math.isfinite(mean):
@@ -76,12 +78,9 @@ class AmplitudePhaseControl:
         # command: complex amplitude of sin (z = Im(C e^{i w t})) and mean, blended over a cycle
         self._c_old = self._c_new = complex(self.amplitude, 0.0)
         self._m_old = self._m_new = self.mean
-        self._cycle = 0
         self._acc = 0j
         self._sum = 0.0
         self._n = 0
-        self._bad = False
-        self.frozen = False
         self.cycles = 0                  #: cycles measured
         self.converged_at: int | None = None   #: the cycle the convergence rule was met
         self._ok = 0
@@ -108,19 +107,7 @@ class AmplitudePhaseControl:
         """Return the specified position [m] at ``t`` (a number or an array) [s]."""
         return self.mean + self.amplitude * np.sin(self.omega * np.asarray(t, dtype=float))
 
-    def freeze(self, on: bool = True) -> None:
-        """Stop (or resume) the corrections; the cycle under way is not used."""
-        self.frozen = bool(on)
-        self._bad = True
-
-    def measure(self, t: float, z: float) -> None:
-        """Take the measured position ``z`` [m] at time ``t`` [s] (once per control period)."""
-        cycle = int(math.floor(t / self.period + 1e-9))
-        if cycle != self._cycle:
-            self._end_cycle(cycle)
-        if self.frozen or not math.isfinite(z):
-            self._bad = True
-            return
+    def _take(self, t: float, z: float) -> None:
         self._acc += z * cmath.exp(-1j * self.omega * t)
         self._sum += z
         self._n += 1

@@ -37,6 +37,7 @@ import math
 from typing import Sequence
 
 import numpy as np
+from ros_ehs.control.cycles import CycleCorrection
 from ros_ehs.errors import InputError
 
 __all__ = ['Block', 'PeakValleyControl', 'WAVEFORMS']
@@ -74,11 +75,12 @@ class Block:
             raise InputError(f'block: `cycles` = {self.cycles!r} must be a whole number >= 1')
 
 
-class PeakValleyControl:
+class PeakValleyControl(CycleCorrection):
     """A cyclic waveform through a sequence of blocks, its peaks and valleys corrected."""
 
     def __init__(self, blocks: Sequence[Block], frequency: float, waveform: str = 'triangle',
                  gain: float = 0.7, tolerance: float = 5e-3) -> None:
+        super().__init__()
         if not blocks:
             raise InputError('`blocks`: give at least one block')
         if waveform not in WAVEFORMS:
@@ -99,12 +101,9 @@ class PeakValleyControl:
         self.amp = [0.5 * (b.peak - b.valley) for b in self.blocks]
         self.mean = [0.5 * (b.peak + b.valley) for b in self.blocks]
         self._used = list(zip(self.amp, self.mean))    # what each block's last cycle ran
-        self._cycle = 0
         self._start_jump = 0.0         # the command's step at this cycle's start, decaying
         self._last_end = None          # the command at the end of the cycle before
         self._hi, self._lo = -math.inf, math.inf
-        self._bad = False
-        self.frozen = False
         self.errors = [math.inf] * len(self.blocks)   # newest peak/valley error per block
         self.converged_at: int | None = None
         self.history: list[dict] = []
@@ -117,7 +116,7 @@ class PeakValleyControl:
         t = np.atleast_1d(np.asarray(t, dtype=float))
         out = np.empty(t.shape)
         for k, tk in enumerate(t):
-            c = int(math.floor(tk / self.period + 1e-9))
+            c = self.cycle_of(tk)
             b = self.blocks[self._block(c)]
             s, _ = _shape(self.waveform, tk / self.period)
             out[k] = 0.5 * (b.peak + b.valley) + 0.5 * (b.peak - b.valley) * s
@@ -131,9 +130,9 @@ class PeakValleyControl:
 
     def reference(self, t: float) -> tuple[float, float]:
         """Return the command (position [m], velocity [m/s]) at ``t`` [s]."""
-        c = int(math.floor(t / self.period + 1e-9))
+        c = self.cycle_of(t)
         if c != self._cycle:        # measure() was not called for this cycle yet
-            self._roll(c)
+            self._end_cycle(c)
         x = t / self.period - c
         a, m, da, dm = self._command(c, x)
         s, ds = _shape(self.waveform, t / self.period)
@@ -141,23 +140,11 @@ class PeakValleyControl:
         v = (a * ds + da * s + dm - self._start_jump) / self.period
         return z, v
 
-    def freeze(self, on: bool = True) -> None:
-        """Stop (or resume) the corrections; the cycle under way is not used."""
-        self.frozen = bool(on)
-        self._bad = True
-
-    def measure(self, t: float, z: float) -> None:
-        """Take the measured position ``z`` [m] at ``t`` [s] (once per control period)."""
-        c = int(math.floor(t / self.period + 1e-9))
-        if c != self._cycle:
-            self._roll(c)
-        if self.frozen or not math.isfinite(z):
-            self._bad = True
-            return
+    def _take(self, t: float, z: float) -> None:
         self._hi = max(self._hi, z)
         self._lo = min(self._lo, z)
 
-    def _roll(self, c: int) -> None:
+    def _end_cycle(self, c: int) -> None:
         """End cycle ``self._cycle``: learn from it, and start cycle ``c`` without a jump."""
         prev = self._cycle
         b = self._block(prev)

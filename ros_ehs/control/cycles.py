@@ -1,0 +1,64 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+What amplitude/phase and peak/valley control share: a command corrected once a cycle.
+
+:class:`CycleCorrection` takes the measured position every control period, hands each
+sample of a cycle to :meth:`~CycleCorrection._take` and, at the first sample of the next
+cycle, calls :meth:`~CycleCorrection._end_cycle`. Edge-case policy: while frozen (an
+interlock, lost feedback) and for a non-finite position the cycle under way is marked bad
+(not learnt from); the subclass keeps its command as it was, so it resumes without a jump.
+"""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ['CycleCorrection']
+
+
+class CycleCorrection:
+    """Cycle bookkeeping of a correction at ``period`` [s]; subclasses set ``period``."""
+
+    period: float
+
+    def __init__(self) -> None:
+        self._cycle = 0
+        self._bad = False
+        self.frozen = False
+
+    def cycle_of(self, t: float) -> int:
+        """Return the number of the cycle that time ``t`` [s] falls in."""
+        return int(math.floor(t / self.period + 1e-9))
+
+    def freeze(self, on: bool = True) -> None:
+        """Stop (or resume) the corrections; the cycle under way is not used."""
+        self.frozen = bool(on)
+        self._bad = True
+
+    def measure(self, t: float, z: float) -> None:
+        """Take the measured position ``z`` [m] at time ``t`` [s] (once per control period)."""
+        cycle = self.cycle_of(t)
+        if cycle != self._cycle:
+            self._end_cycle(cycle)
+        if self.frozen or not math.isfinite(z):
+            self._bad = True
+            return
+        self._take(t, z)
+
+    def _take(self, t: float, z: float) -> None:
+        raise NotImplementedError
+
+    def _end_cycle(self, cycle: int) -> None:
+        raise NotImplementedError
