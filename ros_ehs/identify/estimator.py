@@ -58,7 +58,7 @@ from ros_ehs.model.plant import MODELS
 from ros_ehs.params import ESTIMATED, Params, preset, spec
 from scipy.optimize import least_squares
 
-__all__ = ['IdentificationResult', 'identify', 'multistart', 'score']
+__all__ = ['IdentificationResult', 'fit_bounds', 'identify', 'multistart', 'score']
 
 #: Relative step and cost-change tolerances (``xtol``, ``ftol``) of the solve and of the SSE
 #: stage before an SAE one. The parameters' standard errors are 4e-4 to 1e-2 of their values
@@ -184,17 +184,23 @@ def _check(experiments, free, model, signals, cost, base, x0, segment, h, worker
     return experiments, free, base
 
 
+def fit_bounds(name: str) -> tuple[float, float]:
+    """Return the bounds the fit keeps parameter ``name`` in: Table 1's, inside its range."""
+    s = spec(name)
+    lo = s.est_lo if s.est_lo is not None else s.lo
+    hi = s.est_hi if s.est_hi is not None else s.hi
+    return max(lo, s.lo), min(hi, s.hi)
+
+
 def _bounds(free, base):
     lo, hi = [], []
     for n in free:
-        s = spec(n)
-        a = s.est_lo if s.est_lo is not None else s.lo
-        b = s.est_hi if s.est_hi is not None else s.hi
-        lo.append(max(a, s.lo))
-        hi.append(min(b, s.hi))
-        if not lo[-1] <= base[n] <= hi[-1]:
-            raise InputError(f'initial {n} = {base[n]!r} {s.unit} is outside its bounds '
-                             f'[{lo[-1]:g}, {hi[-1]:g}]')
+        a, b = fit_bounds(n)
+        lo.append(a)
+        hi.append(b)
+        if not a <= base[n] <= b:
+            raise InputError(f'initial {n} = {base[n]!r} {spec(n).unit} is outside its '
+                             f'bounds [{a:g}, {b:g}]')
     return np.array(lo), np.array(hi)
 
 

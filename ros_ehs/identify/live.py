@@ -40,7 +40,7 @@ import warnings
 import numpy as np
 from ros_ehs.bag.experiment import experiments_from_series
 from ros_ehs.errors import DataError, IdentificationWarning, InputError
-from ros_ehs.identify.estimator import IdentificationResult, identify
+from ros_ehs.identify.estimator import fit_bounds, IdentificationResult, identify
 from ros_ehs.identify.verdict import worst_noise_ratio
 from ros_ehs.params import Params, spec
 from ros_ehs_msgs_py import ParameterEstimate
@@ -49,6 +49,13 @@ __all__ = ['LiveIdentifier', 'SampleWindow']
 
 #: A state this much older than the last one starts a new run [ns].
 NEW_RUN_NS = 1_000_000_000
+
+
+def _columns(rows) -> tuple[np.ndarray, ...]:
+    """Return the columns of (stamp [ns], value, ...) rows: int64 stamps, float values."""
+    cols = list(zip(*rows))
+    return (np.array(cols[0], dtype=np.int64),) + tuple(np.array(c, dtype=float)
+                                                        for c in cols[1:])
 
 
 class SampleWindow:
@@ -117,21 +124,12 @@ class SampleWindow:
         """
         if not self._states:
             raise DataError(f'{name}: no state received yet')
-        s = np.array(self._states, dtype=float)
-        ts = np.array([k[0] for k in self._states], dtype=np.int64)
-        first = ts[-1] - int(self.seconds * 1e9)
-        m = ts >= first
-        cmd = None
-        if self._commands:
-            tc = np.array([k[0] for k in self._commands], dtype=np.int64)
-            vc = np.array([k[1] for k in self._commands], dtype=float)
-            cmd = (tc, vc)
-        press = []
-        if self._pressures[0] and self._pressures[1]:
-            for q in self._pressures:
-                press.append((np.array([k[0] for k in q], dtype=np.int64),
-                              np.array([k[1] for k in q], dtype=float)))
-        return experiments_from_series(name, ts[m], s[m, 1], s[m, 2], s[m, 3], cmd, press)
+        ts, z, v, i = _columns(self._states)
+        m = ts >= ts[-1] - int(self.seconds * 1e9)
+        cmd = _columns(self._commands) if self._commands else None
+        press = ([_columns(q) for q in self._pressures]
+                 if self._pressures[0] and self._pressures[1] else [])
+        return experiments_from_series(name, ts[m], z[m], v[m], i[m], cmd, press)
 
 
 class LiveIdentifier:
@@ -192,11 +190,10 @@ class LiveIdentifier:
     def decide(self, r: IdentificationResult, stamp_ns: int) -> tuple[bool, str]:
         """Return whether to push the adequate fit ``r`` now, and why (or why not)."""
         for n in self.free:
-            s = spec(n)
-            lo = s.est_lo if s.est_lo is not None else s.lo
-            hi = s.est_hi if s.est_hi is not None else s.hi
+            lo, hi = fit_bounds(n)
             if not lo < r.x[n] < hi:
-                return False, f'{n} = {r.x[n]:.6g} {s.unit} is on its bound [{lo:g}, {hi:g}]'
+                return False, (f'{n} = {r.x[n]:.6g} {spec(n).unit} is on its bound '
+                               f'[{lo:g}, {hi:g}]')
         if not self.pushable:
             return False, 'the controller takes none of the fitted values'
         if self.controller is None:

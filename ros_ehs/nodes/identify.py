@@ -342,25 +342,21 @@ class IdentifyNode(Node):
             self._todo.set()
 
     def _on_command(self, decode, stamped: bool, data: bytes) -> None:
-        try:
-            stamp, i = decode(data)
-        except (ValueError, IndexError) as err:
+        got = read_msg(self, decode, data, 'command')
+        if got is None:
             self.counts['bad'] += 1
-            self.get_logger().warning(f'ignored a malformed command: {err}',
-                                      throttle_duration_sec=1.0)
             return
+        stamp, i = got
         stamp = stamp if stamped else self._receive_stamp()
         with self._lock:
             self.window.add_command(stamp, i * float(self.tmap.command_scale))
 
     def _on_pressure(self, chamber: int, decode, stamped: bool, data: bytes) -> None:
-        try:
-            stamp, p = decode(data)
-        except (ValueError, IndexError) as err:
+        got = read_msg(self, decode, data, 'pressure')
+        if got is None:
             self.counts['bad'] += 1
-            self.get_logger().warning(f'ignored a malformed pressure: {err}',
-                                      throttle_duration_sec=1.0)
             return
+        stamp, p = got
         stamp = stamp if stamped else self._receive_stamp()
         with self._lock:
             self.window.add_pressure(chamber, stamp, p)
