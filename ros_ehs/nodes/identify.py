@@ -235,7 +235,8 @@ class IdentifyNode(Node):
         self._offsets: deque = deque(maxlen=101)     # state stamp - receive time [ns]
         self._next_refit = None
         self._busy = False
-        self.counts = {'states': 0, 'bad': 0, 'refits': 0, 'pushes': 0, 'refused': 0}
+        # refits and pushes: the identifier counts them (self.live)
+        self.counts = {'states': 0, 'bad': 0, 'refused': 0}
         self.pub_est = self.create_publisher(DiagnosticArray, contract.ESTIMATES.name,
                                              qos_profile(contract.ESTIMATES.qos))
         self._read_state = functools.partial(contract.state_from_cdr, joint=self.tmap.joint)
@@ -385,7 +386,6 @@ class IdentifyNode(Node):
                 exps = self.window.experiments('live')
             except DataError as err:
                 exps, why = None, str(err)
-        self.counts['refits'] += 1
         if exps is None:
             est = contract.ParameterEstimate(stamp, {}, {}, False, f'no fit: {why}',
                                              reason=f'no fit: {why}',
@@ -451,7 +451,6 @@ class IdentifyNode(Node):
             log.error(f'live push refused by `{self.opt["controller"]}`: {res.result.reason}')
             return False
         self.live.pushed(values, est.stamp_ns)
-        self.counts['pushes'] += 1
         log.info(f'live push to `{self.opt["controller"]}`: {est.reason}')
         return True
 
