@@ -215,3 +215,18 @@ def test_closed_loop_position_noise_reaches_the_controller_and_is_checked():
     with pytest.raises(InputError, match='`z_noise`'):
         run_closed_loop(p, Sine(0.04, 1.0), 0.2, model='simplified',
                         z_noise=np.full(200, np.nan))
+
+
+def test_closed_loop_command_delay_holds_each_command_one_period_late():
+    from ros_ehs.sim.closed_loop import run_closed_loop
+    from ros_ehs.reference import Sine
+    p = preset('table1_estimated')
+    now = run_closed_loop(p, Sine(0.04, 1.0), 2.0, model='simplified', dt=2e-3)
+    late = run_closed_loop(p, Sine(0.04, 1.0), 2.0, model='simplified', dt=2e-3,
+                           command_delay=1)
+    assert late.i[0] == 0.0 and now.i[0] != 0.0     # the first command waits a period
+    e_now, e_late = (np.sqrt(np.mean((r.z_ref - r.z)[500:] ** 2)) for r in (now, late))
+    assert 1.2 * e_now < e_late < 3 * e_now, (e_now, e_late)
+    for bad in (-1, 0.5):
+        with pytest.raises(InputError, match='`command_delay`'):
+            run_closed_loop(p, Sine(0.04, 1.0), 0.1, model='simplified', command_delay=bad)

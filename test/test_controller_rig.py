@@ -4,7 +4,8 @@ The controller node on a rig driver that follows ros2_control's conventions (not
 The driver (``test/ros2_control_driver.py``) publishes ``/joint_states`` (the piston among
 other joints, position only) and takes ``/servo_valve_controller/commands``
 (Float64MultiArray, no header) at 500 Hz; the controller closes the loop on it, and the
-tracking is compared with our own plant node's on the same model, in the same test.
+tracking is compared with our own plant node's on the same model, in the same test, and each
+with the same controller in process (the driver applies a command a period later).
 """
 
 import json
@@ -18,6 +19,9 @@ from ros_ehs.bag import open_bag
 from ros_ehs.bag.experiment import load_experiments
 from ros_ehs.bag.mapping import TopicMap
 from ros_ehs.launch import Launch
+from ros_ehs.params import Params
+from ros_ehs.reference import Sine
+from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
 
 pytestmark = pytest.mark.ros
@@ -81,12 +85,20 @@ def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
         time.sleep(seconds)
         launch.stop(['recorder', 'reference', 'plant', 'controller'])
     rms_ours, _ = _tracking(our_bag, '/state', c.JOINT_PISTON)
-    print(f'tracking RMS: ros2_control driver {rms_rig * 1e3:.4f} mm, '
-          f'our plant {rms_ours * 1e3:.4f} mm')
-    # ros2_control writes a command at the cycle after it came (our plant applies it on
-    # arrival): up to a period more delay, 2 ms at 500 Hz; measured 0.16-0.19 mm against
-    # 0.10-0.11 mm (ratios 1.5-1.8 over three runs)
-    assert rms_rig < 1e-3 and 0.6 < rms_rig / rms_ours < 2.5, (rms_rig, rms_ours)
+    # the same controller in process on the same model: our plant applies a command on
+    # arrival (command_delay 0); a ros2_control hardware interface writes it at its next cycle
+    # (1 period, 2 ms at 500 Hz), so the rig tracks worse by what that period costs
+    pred = {}
+    for d in (0, 1):
+        r = run_closed_loop(Params(), Sine(0.04, 1.0), seconds, model='simplified',
+                            dt=1.0 / RATE, supervised=True, command_delay=d)
+        pred[d] = float(np.sqrt(np.mean((r.z_ref - r.z)[r.t > 2.0] ** 2)))
+    print(f'tracking RMS: ros2_control driver {rms_rig * 1e3:.4f} mm (in process, a period '
+          f'late: {pred[1] * 1e3:.4f}), our plant {rms_ours * 1e3:.4f} mm (in process: '
+          f'{pred[0] * 1e3:.4f})')
+    # measured over DDS: 0.16-0.19 mm against 0.147 predicted, 0.10-0.11 mm against 0.101
+    assert 0.7 < rms_rig / pred[1] < 1.5 and 0.7 < rms_ours / pred[0] < 1.5, (
+        rms_rig, rms_ours, pred)
     # and the rig's bag, recorded by our recorder in the driver's layout, reads as a rig's
     runs = load_experiments(rig_bag, topics=RIG)
     assert runs and all(e.derived == ('z_dot',) and e.commands is not None for e in runs)

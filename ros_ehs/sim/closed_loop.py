@@ -37,7 +37,7 @@ __all__ = ['ClosedLoopResult', 'model_difference', 'reference_step', 'run_closed
 
 @dataclass(frozen=True)
 class ClosedLoopResult(StateSeries):
-    """Time [s], reference z/v, plant states, commanded current [A] per period."""
+    """Time [s], reference z/v, plant states, current applied to the valve [A] per period."""
 
     t: np.ndarray
     z_ref: np.ndarray
@@ -70,7 +70,7 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
                     model: str = 'full', controller_params: Params | None = None,
                     dt: float = 1e-3, stepper: str = 'fast', h: float | None = None,
                     x0=None, z_noise=None, supervised: bool = False,
-                    fault=None) -> ClosedLoopResult:
+                    fault=None, command_delay: int = 0) -> ClosedLoopResult:
     """
     Simulate the position loop for ``duration`` s: ``reference(t) -> (z_ref, v_ref)``.
 
@@ -90,6 +90,10 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     position, velocity and hydraulic force; ``events`` lists what it reported.
     ``fault(k, z, z_dot, force) -> (z, z_dot, force)`` (supervised only) changes what the
     controller sees in period ``k``: a sensor fault.
+
+    ``command_delay``: periods between the controller's command and the plant applying it. 0
+    is our plant node (it applies a command on arrival); 1 is a ros2_control driver, whose
+    hardware interface writes at its next cycle the command that answered this cycle's state.
     """
     if stepper not in ('fast', 'reference'):
         raise InputError(f'`stepper` = {stepper!r} is not one of [fast, reference]')
@@ -101,6 +105,9 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
         if z_noise.shape != (n,) or not np.all(np.isfinite(z_noise)):
             raise InputError(f'`z_noise` must be {n} finite values [m], got shape '
                              f'{z_noise.shape}')
+    if not isinstance(command_delay, int) or command_delay < 0:
+        raise InputError(f'`command_delay` = {command_delay!r} must be a whole number of '
+                         'periods >= 0')
     if fault is not None and not supervised:
         raise InputError('`fault` needs `supervised=True`')
     plant = Plant(plant_params, model, h=h)
@@ -125,6 +132,7 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     xs[0] = x
     u = np.zeros(2)
     z_meas = np.empty(n)
+    late = [0.0] * command_delay                 # commands on their way to the plant
     for k in range(n):
         z_meas[k] = x[iz] + (z_noise[k] if z_noise is not None else 0.0)
         if online:
@@ -139,6 +147,9 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
                 z_meas[k] = zm
             u[0] = axis.step(k * dt_ns, zm, vm, fm, float(z_ref[k]), float(v_ref[k]))
             events.extend(axis.events)
+        if late:
+            late.append(u[0])
+            u[0] = late.pop(0)
         cur[k] = u[0]
         x = plant.step(x, u, dt) if stepper == 'fast' else reference_step(plant, x, u, dt)
         xs[k + 1] = x
