@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checko
 
 from ros_ehs.bench.sleeper import coincident, HICCUP_MS, hiccups, STALL_MS  # noqa: E402
 from ros_ehs.bench.sleeper import command as probe_command  # noqa: E402
-from ros_ehs.launch import FIGURES, Launch, LaunchError  # noqa: E402
+from ros_ehs.launch import Launch, LaunchError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.sim.synthetic_bag import SensorNoise  # noqa: E402
 
@@ -160,6 +160,9 @@ def main(argv=None) -> int:
                     help='publish exact states (default: 5 um, 1 mm/s, 0.2 bar sensor noise)')
     ap.add_argument('--params-file', default=None, help='ROS 2 parameters YAML for all nodes')
     ap.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID')
+    ap.add_argument('--log-dir', default=None,
+                    help="the nodes' logs and the plant's figures.json (default "
+                         'out/logs/<bag name>)')
     ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=None,
                     help='plant and controller on one CPU, the reference on another (their '
                     'cpu_affinity option; default: yes, on a machine with two CPUs or more): '
@@ -198,7 +201,7 @@ def main(argv=None) -> int:
         print(f'bench: {out} exists; choose another --out', file=sys.stderr)
         return 2
     lock = a.mode == 'lockstep'
-    logs = Path('out/logs') / out.name
+    logs = Path(a.log_dir) if a.log_dir else Path('out/logs') / out.name
     stop = []
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
@@ -269,9 +272,6 @@ def main(argv=None) -> int:
     for line in (launch['identify'].output().splitlines() if live else []):
         if 'live refit at' in line or 'live push' in line:
             print('bench: identify ' + line.split('] ', 1)[-1])
-    for line in launch['plant'].output().splitlines():
-        if line.startswith(FIGURES):
-            print('bench: plant ' + line)
     try:
         f = launch['plant'].figures()
         span = max(f['sim_time_s'], 1e-9)

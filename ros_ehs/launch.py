@@ -38,11 +38,8 @@ from ros_ehs.errors import EhsError
 from ros_ehs.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
-__all__ = ['FIGURES', 'Launch', 'LaunchError', 'launch_script', 'loop_placement', 'NodeProcess',
+__all__ = ['Launch', 'LaunchError', 'launch_script', 'loop_placement', 'NodeProcess',
            'node_command', 'NODES']
-
-#: What the plant prints before its JSON figures at shutdown (one line).
-FIGURES = 'figures '
 
 
 def launch_script(name: str) -> Path:
@@ -109,12 +106,13 @@ def node_command(node: str, params: dict[str, Any] | None = None,
 
 @dataclass
 class NodeProcess:
-    """One running node: its name, Popen and log file."""
+    """One running node: its name, Popen, log file and (a plant) its figures file."""
 
     name: str
     popen: subprocess.Popen
     log: Path
     cmd: list[str] = field(default_factory=list)
+    figures_file: Path | None = None
 
     @property
     def pid(self) -> int:
@@ -133,12 +131,12 @@ class NodeProcess:
             return ''
 
     def figures(self) -> dict:
-        """Return the JSON a plant prints after ``figures`` at shutdown (the last one)."""
-        log = self.output()
-        for line in reversed(log.splitlines()):
-            if line.startswith(FIGURES):
-                return json.loads(line[len(FIGURES):])
-        raise RuntimeError(f'no figures in the log of {self.name}:\n' + log[-3000:])
+        """Return the figures a plant wrote to its ``figures_file`` at exit."""
+        try:
+            return json.loads(self.figures_file.read_text())
+        except (AttributeError, OSError, ValueError) as e:
+            raise RuntimeError(f'no figures from {self.name} ({e}); its log:\n' +
+                               self.output()[-3000:]) from None
 
 
 class LaunchError(EhsError, RuntimeError):
@@ -174,17 +172,28 @@ class Launch:
     def start(self, node: str, params: dict[str, Any] | None = None, *,
               name: str | None = None, params_file: str | os.PathLike | None = None,
               extra: Iterable[str] = (), cmd: list[str] | None = None) -> NodeProcess:
-        """Start ``node`` (or an explicit ``cmd``) as process ``name`` (default the node)."""
+        """
+        Start ``node`` (or an explicit ``cmd``) as process ``name`` (default the node).
+
+        A plant writes its figures at exit to ``<log_dir>/<name>.figures.json`` (its
+        ``figures_file``, unless given): :meth:`NodeProcess.figures` reads them.
+        """
         name = name or node
         if name in self.procs and self.procs[name].alive():
             raise ValueError(f'process {name!r} is already running')
+        figures = None
+        if node == 'plant' and cmd is None:
+            figures = Path((params or {}).get('figures_file') or
+                           self.log_dir / f'{name}.figures.json')
+            figures.unlink(missing_ok=True)
+            params = {**(params or {}), 'figures_file': str(figures)}
         cmd = cmd or node_command(node, params, params_file, extra)
         log = self.log_dir / f'{name}.log'
         fh = open(log, 'wb')
         p = subprocess.Popen(cmd, env=self.env, stdout=fh, stderr=subprocess.STDOUT,
                              stdin=subprocess.DEVNULL)
         fh.close()
-        self.procs[name] = NodeProcess(name, p, log, cmd)
+        self.procs[name] = NodeProcess(name, p, log, cmd, figures)
         return self.procs[name]
 
     def __getitem__(self, name: str) -> NodeProcess:

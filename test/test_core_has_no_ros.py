@@ -22,7 +22,7 @@ CORE = ['ros_ehs_msgs_py', 'ros_ehs.params', 'ros_ehs.model', 'ros_ehs.control',
         'ros_ehs.bag.experiment', 'ros_ehs.identify', 'ros_ehs.identify.run',
         'ros_ehs.identify.report', 'ros_ehs.identify.live', 'ros_ehs.identify.trend',
         'ros_ehs.model.drift', 'ros_ehs.sim', 'ros_ehs.sim.synthetic_bag', 'ros_ehs.sim.rig_bag',
-        'ros_ehs.sim.paper_runs']
+        'ros_ehs.sim.paper_runs', 'ros_ehs.sim.axis']
 
 
 def test_core_modules_import_without_rclpy():

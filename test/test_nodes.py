@@ -316,7 +316,7 @@ def _plant_on_a_moved_clock(dom, monkeypatch, subscribers=None, **params):
     try:
         node = plant_mod.PlantNode(context=ctx, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
-        t0 = node._t0_wall
+        t0 = node.axis._wall0_ns
 
         def at(ms):
             clock[0] = t0 + int(round(ms * 1e6))
@@ -325,7 +325,7 @@ def _plant_on_a_moved_clock(dom, monkeypatch, subscribers=None, **params):
         subscribers = subscribers or [node.opt['wait_subscribers']]
         monkeypatch.setattr(node.pub_state, 'get_subscription_count', lambda: subscribers[0])
         if started:
-            assert node._start(t0)
+            assert node.axis.start(t0, subscribers[0])
         yield node, at
         node.destroy_node()
     finally:
@@ -345,19 +345,19 @@ def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypat
     with _plant_on_a_moved_clock(dom, monkeypatch) as (node, at):
         def answer(ms):          # the controller answers the latest state at t0 + ms
             at(ms)
-            node._on_command(c.command_to_cdr(c.Command(node.stamp_ns(), 0.01)))
+            node._on_command(c.command_to_cdr(c.Command(node.axis.stamp_ns(), 0.01)))
 
         def tick(ms):
             at(ms)
             node._tick()
-            return node.trips, node.trips_late_tick
+            return node.axis.trips, node.axis.trips_late_tick
 
         answer(0.2)
         assert tick(1.0) == (0, 0)
         answer(1.2)
         assert tick(3.8) == (1, 1)          # due at 2 ms, 1.8 ms late: the plant's lateness
         answer(4.1)
-        assert tick(4.2) == (1, 1) and node.applied == pytest.approx(0.01)   # back
+        assert tick(4.2) == (1, 1) and node.axis.applied == pytest.approx(0.01)   # back
         assert tick(5.0) == (1, 1) and tick(6.0) == (1, 1)
         assert tick(7.0) == (2, 1)          # no command since 4.1: the controller's
         answer(7.2)
@@ -365,7 +365,7 @@ def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypat
         answer(8.2)
         assert tick(10.8) == (3, 2)         # late tick, command on time ...
         assert tick(11.0) == (3, 1)         # ... but none on time either: the controller's
-        log = node._trip_log
+        log = [t.as_list() for t in node.axis.trip_log]
         assert [alone for *_, alone in log] == [True, False, False]
         assert log[0][1] == pytest.approx(1.8) and log[0][2] == pytest.approx(2.6)
 
@@ -382,24 +382,24 @@ def test_a_real_time_plant_starts_when_its_state_has_wait_subscribers(dom, monke
         for ms in (1.0, 2.0, 3.0, 10.0):
             at(ms)
             node._tick()
-        assert states == [] and node.k == 0 and not node.armed and node.trips == 0
+        assert states == [] and node.axis.k == 0 and not node.axis.armed and node.axis.trips == 0
         # a command before any state (another run's controller) answers none: no arming
-        node._on_command(c.command_to_cdr(c.Command(node.stamp_ns(), 0.01)))
-        assert not node.armed and node.stale_commands == 1
+        node._on_command(c.command_to_cdr(c.Command(node.axis.stamp_ns(), 0.01)))
+        assert not node.axis.armed and node.axis.counts['stale'] == 1
         subscribers[0] = 2      # the recorder's reader has matched: start here
         at(10.4)                # a tick woken 0.4 ms into its period
         node._tick()
-        t_start = node.t0_ns
-        assert states == [] and node.k == 0
+        t_start = node.axis.t0_ns
+        assert states == [] and node.axis.k == 0
         at(11.1)                # the next, woken earlier in its period: still one step
         node._tick()
-        assert states == [t_start + 1_000_000] and node.k == 1     # a period after the start
+        assert states == [t_start + 1_000_000] and node.axis.k == 1     # a period after the start
         node._on_command(c.command_to_cdr(c.Command(states[-1], 0.01)))
-        assert node.armed
+        assert node.axis.armed
         at(12.05)
         node._tick()
         assert states == [t_start + 1_000_000, t_start + 2_000_000]
-        assert node.trips == 0 and node.applied == pytest.approx(0.01)
+        assert node.axis.trips == 0 and node.axis.applied == pytest.approx(0.01)
 
 
 def test_the_pressures_of_every_state_go_out_after_its_command_or_the_next_tick(
@@ -421,10 +421,10 @@ def test_the_pressures_of_every_state_go_out_after_its_command_or_the_next_tick(
             node._tick()
 
         tick(1.0)
-        node._on_command(c.command_to_cdr(c.Command(node.stamp_ns(), 0.01)))
+        node._on_command(c.command_to_cdr(c.Command(node.axis.stamp_ns(), 0.01)))
         tick(2.0)
         tick(6.0)                       # 3 periods late: four states at once
-        node._on_command(c.command_to_cdr(c.Command(node.stamp_ns(), 0.01)))
+        node._on_command(c.command_to_cdr(c.Command(node.axis.stamp_ns(), 0.01)))
         tick(7.0)
         states = [s for w, s in sent if w == 'state']
         assert len(states) == 7 and len(set(states)) == 7
@@ -668,8 +668,10 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
                           supervised=True)
     np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
     logs = tmp_path / 'out' / 'logs' / 'bench'
-    assert sorted(p.name for p in logs.iterdir()) == ['controller.log', 'plant.log',
-                                                      'recorder.log', 'reference.log']
+    assert sorted(p.name for p in logs.iterdir()) == [
+        'controller.log', 'plant.figures.json', 'plant.log', 'recorder.log', 'reference.log']
+    f = json.loads((logs / 'plant.figures.json').read_text())
+    assert f['steps'] == 1000 and f['finished'] and f['watchdog_trips'] == 0
     # --cpu-affinity: plant and controller share CPU 0, the reference has CPU 1 (or each
     # says why not, on a machine with one CPU)
     for node, cpu in (('plant', 0), ('controller', 0), ('reference', 1)):

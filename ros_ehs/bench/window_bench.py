@@ -54,7 +54,7 @@ import time
 from domain_coordinator import domain_id
 from ros_ehs.bench import count, positive, report
 from ros_ehs.bench.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
-from ros_ehs.launch import FIGURES, Launch, launch_script, loop_placement
+from ros_ehs.launch import Launch, launch_script, loop_placement
 
 BENCH = launch_script('bench.py')
 RT_PROFILE = BENCH.with_name('fastdds_rt.xml')
@@ -108,8 +108,10 @@ def _ours(dom: int, seconds: float, prio: int, pin: bool, tmp: Path,
     start-up before it, which the caller counts apart.
     """
     env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
-    cmd = [sys.executable, str(BENCH), '--duration', str(seconds), '--out', str(tmp / f'w{i}'),
-           '--no-machine-probe'] + (['--rt-priority', str(prio)] if prio else [])
+    logs = tmp / f'w{i}_logs'
+    cmd = [sys.executable, str(BENCH), '--duration', str(seconds), '--out',
+           str(tmp / f'w{i}'), '--log-dir', str(logs), '--no-machine-probe']
+    cmd += ['--rt-priority', str(prio)] if prio else []
     cmd.append('--cpu-affinity' if pin else '--no-cpu-affinity')
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                          env=env)
@@ -123,8 +125,7 @@ def _ours(dom: int, seconds: float, prio: int, pin: bool, tmp: Path,
             t1 = time.monotonic()      # the window ends here: what follows is shutting down
     if p.wait() != 0 or t0 is None or t1 is None:
         raise RuntimeError(f'the bench failed (exit {p.returncode}):\n' + ''.join(lines[-30:]))
-    tag = 'bench: plant ' + FIGURES
-    f = json.loads(next(ln for ln in lines if ln.startswith(tag))[len(tag):])
+    f = json.loads((logs / 'plant.figures.json').read_text())
     return [(t, age) for t, _, age, _ in f['watchdog_trip_log']], t0, t1
 
 

@@ -12,8 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Simulation in process, without ROS: the closed loop and the bags it records.
+Simulation in process, without ROS: the simulated axis, the closed loop, the bags it records.
 
+* :mod:`~ros_ehs.sim.axis`: the axis the plant node serves (``SimulatedAxis``: the model
+  stepped on a period grid, the command stamp policy, the watchdog, lock-step, faults);
 * :mod:`~ros_ehs.sim.closed_loop`: plant and controller in one loop (``run_closed_loop``);
 * :mod:`~ros_ehs.sim.synthetic_bag`: a closed-loop run with sensor noise, recorded as our
   bench records it (``record_synthetic_bag``);
