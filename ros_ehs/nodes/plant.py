@@ -241,7 +241,8 @@ class PlantNode(Node):
             self.get_logger().info(f'first command received; {what}')
         if self.lockstep:
             self.stats.tick(now, True)
-            self._log_notes()
+            if ax.notes:
+                self._log_notes()
             self._publish(clock=ax.clock_due())
             if ax.finished:
                 self.get_logger().info(f'lock-step run complete: {ax.k} steps, '
@@ -272,7 +273,8 @@ class PlantNode(Node):
         for _ in range(n):
             ax.step()
             self._publish()
-        self._log_notes()
+        if ax.notes:
+            self._log_notes()
 
     def _run_loop(self) -> None:
         nxt = time.monotonic_ns()

@@ -54,6 +54,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 import math
+from typing import NamedTuple
 
 import numpy as np
 from ros_ehs.errors import InputError
@@ -90,8 +91,7 @@ class WatchdogTrip:
                 round(self.command_age_ms, 4), self.late_tick_only]
 
 
-@dataclass(frozen=True)
-class Sample:
+class Sample(NamedTuple):
     """What the sensors read at a period's stamp: the state and the chamber pressures [Pa]."""
 
     state: AxisState
