@@ -56,8 +56,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checko
 
 from ros_ehs.bench.sleeper import coincident, HICCUP_MS, hiccups, STALL_MS  # noqa: E402
 from ros_ehs.bench.sleeper import command as probe_command  # noqa: E402
-from ros_ehs.launch import Launch, LaunchError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
+from ros_ehs.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.sim.synthetic_bag import SensorNoise  # noqa: E402
 
 FASTDDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
@@ -67,34 +67,34 @@ PROBE_MAX_CPUS = 4
 RT_PROFILE = Path(__file__).resolve().with_name('fastdds_rt.xml')
 
 
-def _recorder_lines(launch: Launch, errors_only: bool = False) -> None:
+def _recorder_lines(procs: NodeProcesses, errors_only: bool = False) -> None:
     """Print the recorder's closing line: what the bag holds, or its one error line."""
-    if 'recorder' not in launch.procs:
+    if 'recorder' not in procs.procs:
         return
-    for line in launch['recorder'].output().splitlines():
+    for line in procs['recorder'].output().splitlines():
         if line.startswith('[recorder] error'):
             print('bench: recorder ' + line[len('[recorder] '):], file=sys.stderr)
         elif line.startswith('[recorder] closed') and not errors_only:
             print('bench: recorder ' + line[len('[recorder] '):])
 
 
-def _start_probes(launch: Launch, rt_priority: int) -> list[str]:
+def _start_probes(procs: NodeProcesses, rt_priority: int) -> list[str]:
     """Start one machine probe per CPU this process may use; return their names."""
     cpus = sorted(os.sched_getaffinity(0))
     if len(cpus) > PROBE_MAX_CPUS:
         print(f'bench: no machine probes ({len(cpus)} CPUs, more than {PROBE_MAX_CPUS})')
         return []
     for cpu in cpus:
-        launch.start(f'probe{cpu}', cmd=probe_command(cpu, HICCUP_MS, rt_priority))
+        procs.start(f'probe{cpu}', cmd=probe_command(cpu, HICCUP_MS, rt_priority))
     return [f'probe{cpu}' for cpu in cpus]
 
 
-def _probe_lines(launch: Launch, probes: list[str], trip_log: list) -> None:
+def _probe_lines(procs: NodeProcesses, probes: list[str], trip_log: list) -> None:
     """Print what the probes saw, and how many watchdog trips fell in a stall they saw."""
     gaps, top = [], 0.0
     for name in probes:
         try:
-            f = json.loads(launch[name].output().strip().splitlines()[-1])
+            f = json.loads(procs[name].output().strip().splitlines()[-1])
         except (IndexError, ValueError):
             print(f'bench: machine probe {name} left no figures (see its log)', file=sys.stderr)
             return
@@ -211,11 +211,11 @@ def main(argv=None) -> int:
         env[FASTDDS_PROFILE_ENV] = str(RT_PROFILE)
         print(f'bench: Fast DDS profile {RT_PROFILE} (shared-memory healthy check 30 ms)',
               flush=True)
-    with Launch(a.domain_id, logs, env=env) as launch:
-        if launch.shm_cleanup is not None and launch.shm_cleanup.removed:
+    with NodeProcesses(a.domain_id, logs, env=env) as procs:
+        if procs.shm_cleanup is not None and procs.shm_cleanup.removed:
             # left by processes that did not exit cleanly; reused, they carry the timeouts
             # of whoever created them (a 333 ms stall under SCHED_FIFO): ros_ehs.fastdds_shm
-            print(f'bench: {launch.shm_cleanup.summary()}', flush=True)
+            print(f'bench: {procs.shm_cleanup.summary()}', flush=True)
         plant = {'model': a.model}
         loop = {'rt_priority': a.rt_priority} if a.rt_priority else {}
         plant.update(loop)
@@ -232,48 +232,48 @@ def main(argv=None) -> int:
                                       ('max_bag_duration', a.max_bag_duration),
                                       ('compression', a.compression),
                                       ('min_free_space', a.min_free_space)) if v is not None}
-        probes = _start_probes(launch, a.rt_priority) if a.machine_probe and not lock else []
+        probes = _start_probes(procs, a.rt_priority) if a.machine_probe and not lock else []
         try:
-            launch.start_loop(a.mode, bag=out, plant=plant, controller=controller,
-                              params_file=pf,
-                              recorder=recorder, pin=a.cpu_affinity,
-                              reference={'kind': a.reference,
-                                         'rate_hz': 1000.0 if lock else 250.0})
-        except LaunchError as err:
+            procs.start_loop(a.mode, bag=out, plant=plant, controller=controller,
+                             params_file=pf,
+                             recorder=recorder, pin=a.cpu_affinity,
+                             reference={'kind': a.reference,
+                                        'rate_hz': 1000.0 if lock else 250.0})
+        except StartupError as err:
             print(f'bench: {err}', file=sys.stderr)
-            _recorder_lines(launch, errors_only=True)
+            _recorder_lines(procs, errors_only=True)
             return 1
         live = []
         if a.live_identify:
-            ref_cpu = -1 if launch.placement is None else launch.placement[1]
-            launch.start('identify', {'live': True, 'push': True, 'cpu_affinity': ref_cpu,
-                                      'use_sim_time': lock}, params_file=pf)
+            ref_cpu = -1 if procs.placement is None else procs.placement[1]
+            procs.start('identify', {'live': True, 'push': True, 'cpu_affinity': ref_cpu,
+                                     'use_sim_time': lock}, params_file=pf)
             live = ['identify']
-        where = ('' if launch.placement is None else
+        where = ('' if procs.placement is None else
                  '; plant and controller on CPU {}, reference on CPU {}'.format(
-                     *launch.placement))
+                     *procs.placement))
         print(f'bench: {a.mode} loop running ({a.model} model{where}); recording to {out}',
               flush=True)
         t0 = time.monotonic()
-        while not stop and all(p.alive() for p in launch.procs.values()):
-            if lock and 'lock-step run complete' in launch['plant'].output():
+        while not stop and all(p.alive() for p in procs.procs.values()):
+            if lock and 'lock-step run complete' in procs['plant'].output():
                 break
             if not lock and a.duration > 0 and time.monotonic() - t0 >= a.duration:
                 break
             time.sleep(0.05)
-        died = [n for n, p in launch.procs.items() if not p.alive()]
+        died = [n for n, p in procs.procs.items() if not p.alive()]
         print(f'bench: stopping after {time.monotonic() - t0:.1f} s', flush=True)
         # the recorder first (it drains while the writers still run), then the plant before
         # its controller: a plant outliving the controller would count every period until
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
-        codes = launch.stop(['recorder', *live, 'reference', 'plant', 'controller', *probes])
-    _recorder_lines(launch)
+        codes = procs.stop(['recorder', *live, 'reference', 'plant', 'controller', *probes])
+    _recorder_lines(procs)
     _event_lines(out)
-    for line in (launch['identify'].output().splitlines() if live else []):
+    for line in (procs['identify'].output().splitlines() if live else []):
         if 'live refit at' in line or 'live push' in line:
             print('bench: identify ' + line.split('] ', 1)[-1])
     try:
-        f = launch['plant'].figures()
+        f = procs['plant'].figures()
         span = max(f['sim_time_s'], 1e-9)
         late = f['watchdog_trips_late_tick']
         print(f"bench: watchdog trips {f['watchdog_trips']} in {span:.1f} s of loop "
@@ -281,7 +281,7 @@ def main(argv=None) -> int:
               f'commands, {late} from late plant ticks alone; fresh cycles '
               f"{f['fresh_cycle_fraction']:.4f}, longest period {f['period_max_ms']:.2f} ms")
         if probes:
-            _probe_lines(launch, probes, f['watchdog_trip_log'])
+            _probe_lines(procs, probes, f['watchdog_trip_log'])
     except (RuntimeError, KeyError, ValueError):
         print('bench: the plant left no figures (see its log)', file=sys.stderr)
     bad = {n: c for n, c in codes.items() if c != 0}

@@ -37,7 +37,8 @@ does not list. A lock is tested with ``flock`` (what Fast DDS takes); a file tha
 tested is left alone. Run it before starting nodes, not while other participants on the
 machine are being created (a port just being set up may not be locked yet); running
 participants are safe. ``python -m ros_ehs.fastdds_shm`` runs it and prints what it removed;
-:class:`ros_ehs.launch.Launch` and ``launch_scripts/bench.py`` run it before starting nodes.
+:class:`ros_ehs.processes.NodeProcesses` and ``launch_scripts/bench.py`` run it before starting
+nodes.
 """
 
 from __future__ import annotations

@@ -18,8 +18,8 @@ import pytest
 from ros_ehs.bag import open_bag
 from ros_ehs.bag.experiment import load_experiments
 from ros_ehs.bag.mapping import TopicMap
-from ros_ehs.launch import Launch
 from ros_ehs.params import Params
+from ros_ehs.processes import NodeProcesses
 from ros_ehs.reference import Sine
 from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
@@ -51,23 +51,23 @@ def _tracking(bag: Path, state: str, joint: str, skip: float = 2.0) -> tuple[flo
 def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
     seconds = 5.0
     rig_bag, our_bag = tmp_path / 'rig', tmp_path / 'ours'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start('recorder', {'out': str(rig_bag), 'topics': [
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start('recorder', {'out': str(rig_bag), 'topics': [
             '/joint_states', '/servo_valve_controller/commands', '/reference', '/events']})
-        assert launch.wait_for_log('recorder', 'recording')
-        launch.start('controller', {
+        assert procs.wait_for_log('recorder', 'recording')
+        procs.start('controller', {
             'rate_hz': RATE, 'state_topic': '/joint_states', 'joint': JOINT,
             'command_interface': 'forward_command',
             'command_topic': '/servo_valve_controller/commands'})
-        assert launch.wait_for_log('controller', 'PID')
-        drv = launch.start('driver', cmd=[sys.executable, str(DRIVER), '--rate', str(RATE),
-                                          '--joint', JOINT])
-        assert launch.wait_for_log('recorder', 'recording /joint_states', 30), \
-            launch['recorder'].output()[-2000:]
-        launch.start('reference', {'wait_subscribers': 2})
-        assert launch.wait_for_log('reference', 'time zero', 30)
+        assert procs.wait_for_log('controller', 'PID')
+        drv = procs.start('driver', cmd=[sys.executable, str(DRIVER), '--rate', str(RATE),
+                                         '--joint', JOINT])
+        assert procs.wait_for_log('recorder', 'recording /joint_states', 30), \
+            procs['recorder'].output()[-2000:]
+        procs.start('reference', {'wait_subscribers': 2})
+        assert procs.wait_for_log('reference', 'time zero', 30)
         time.sleep(seconds)
-        codes = launch.stop(['recorder', 'reference', 'controller', 'driver'])
+        codes = procs.stop(['recorder', 'reference', 'controller', 'driver'])
         figures = json.loads(drv.output().strip().splitlines()[-1])
     assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'driver': 0}
     rms_rig, n_rig = _tracking(rig_bag, '/joint_states', JOINT)
@@ -79,11 +79,11 @@ def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
     assert n_cmd > 0.5 * b.topics['/joint_states'].count
     # the controller's last word was 0 A: the forward controller holds it after we are gone
     assert figures['commands'] > 0.5 * figures['cycles'] and figures['last_command_a'] == 0.0
-    with Launch(dom, tmp_path / 'logs2') as launch:      # our own plant, the same model
-        launch.start_loop('realtime', bag=our_bag, plant={'rate_hz': RATE},
-                          controller={'rate_hz': RATE})
+    with NodeProcesses(dom, tmp_path / 'logs2') as procs:      # our own plant, the same model
+        procs.start_loop('realtime', bag=our_bag, plant={'rate_hz': RATE},
+                         controller={'rate_hz': RATE})
         time.sleep(seconds)
-        launch.stop(['recorder', 'reference', 'plant', 'controller'])
+        procs.stop(['recorder', 'reference', 'plant', 'controller'])
     rms_ours, _ = _tracking(our_bag, '/state', c.JOINT_PISTON)
     # the same controller in process on the same model: our plant applies a command on
     # arrival (command_delay 0); a ros2_control hardware interface writes it at its next cycle

@@ -20,8 +20,8 @@ Pushes reach a running controller, and a rig that is not the fitted model is nev
 import time
 
 import pytest
-from ros_ehs.launch import Launch
 from ros_ehs.params import preset
+from ros_ehs.processes import NodeProcesses
 import ros_ehs_msgs_py as c
 
 pytestmark = pytest.mark.ros
@@ -53,23 +53,23 @@ def _controller_values(ros, names):
     return dict(zip(names, (v.double_value for v in fut.result().values)))
 
 
-def _run(launch, bag, plant, seconds, ros):
-    launch.start_loop('realtime', bag=bag, plant={**NOISE, **plant}, controller=WRONG,
-                      reference={'cpu_affinity': -1})
-    launch.start('identify', LIVE)
-    assert launch.wait_for_log('identify', 'live: state from /state', 30)
+def _run(procs, bag, plant, seconds, ros):
+    procs.start_loop('realtime', bag=bag, plant={**NOISE, **plant}, controller=WRONG,
+                     reference={'cpu_affinity': -1})
+    procs.start('identify', LIVE)
+    assert procs.wait_for_log('identify', 'live: state from /state', 30)
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         ros.spin(0.5)
     values = _controller_values(ros, list(WRONG))
-    launch.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
-    return values, launch['identify'].output()
+    procs.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
+    return values, procs['identify'].output()
 
 
 def test_live_fits_are_pushed_to_the_running_controller(dom, tmp_path, ros):
     bag = tmp_path / 'bag'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        values, out = _run(launch, bag, {}, 20.0, ros)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        values, out = _run(procs, bag, {}, 20.0, ros)
     true = preset('table1_estimated')
     assert 'live push to `controller`' in out, out[-3000:]
     for n in WRONG:       # the controller now has the plant's values, not its wrong ones
@@ -86,8 +86,8 @@ def test_live_fits_are_pushed_to_the_running_controller(dom, tmp_path, ros):
 def test_a_rig_that_is_not_the_fitted_model_is_never_pushed(dom, tmp_path, ros):
     """The full 10-state plant, fitted with the simplified model: inadequate, never pushed."""
     bag = tmp_path / 'bag'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        values, out = _run(launch, bag, {'model': 'full'}, 16.0, ros)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        values, out = _run(procs, bag, {'model': 'full'}, 16.0, ros)
     assert values == pytest.approx(WRONG)       # untouched
     est = [e for e in _estimates(bag) if e.values]
     assert est, out[-3000:]
@@ -98,14 +98,14 @@ def test_a_rig_that_is_not_the_fitted_model_is_never_pushed(dom, tmp_path, ros):
 
 def test_a_push_target_that_does_not_take_the_values_is_named_and_never_pushed(dom, tmp_path):
     """The live node pointed at a node that does not declare the feedforward's values."""
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('realtime', bag=tmp_path / 'bag', plant=NOISE,
-                          reference={'cpu_affinity': -1})
-        launch.start('identify', {**LIVE, 'controller': 'recorder'})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('realtime', bag=tmp_path / 'bag', plant=NOISE,
+                         reference={'cpu_affinity': -1})
+        procs.start('identify', {**LIVE, 'controller': 'recorder'})
         for said in ('does not declare', 'live refit at'):     # named, then it refits on
-            assert launch.wait_for_log('identify', said, 40), launch['identify'].output()[-3000:]
-        launch.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
-    out = launch['identify'].output()
+            assert procs.wait_for_log('identify', said, 40), procs['identify'].output()[-3000:]
+        procs.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
+    out = procs['identify'].output()
     assert "`recorder` does not declare ['d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c']" in out, out
     assert out.count('does not declare') == 1 and 'live push to' not in out
     assert 'live refit at' in out and 'Traceback' not in out

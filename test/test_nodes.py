@@ -29,8 +29,8 @@ import numpy as np
 import pytest
 from ros_ehs.bag import open_bag
 from ros_ehs.errors import BagError
-from ros_ehs.launch import Launch, loop_placement, node_command
 from ros_ehs.params import Params
+from ros_ehs.processes import loop_placement, node_command, NodeProcesses
 from ros_ehs.reference import Sine
 from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
@@ -65,31 +65,31 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     import signal
     duration = 2.0
     bag = tmp_path / 'lockstep'
-    with Launch(dom, tmp_path / 'logs') as launch:
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
         # split into files of 150 kB as it records: the pause falls across splits
-        launch.start_loop('lockstep', bag=bag, plant={'duration': duration},
-                          recorder={'max_bag_size': 150_000, 'compression': 'none'})
-        _assert_placed(launch)
+        procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
+                         recorder={'max_bag_size': 150_000, 'compression': 'none'})
+        _assert_placed(procs)
         time.sleep(0.2)
-        rec = launch['recorder'].popen
+        rec = procs['recorder'].popen
         rec.send_signal(signal.SIGSTOP)
         time.sleep(0.3)
         rec.send_signal(signal.SIGCONT)
-        assert launch.wait_for_log('plant', 'lock-step run complete', 120), \
-            launch['plant'].output()[-3000:]
+        assert procs.wait_for_log('plant', 'lock-step run complete', 120), \
+            procs['plant'].output()[-3000:]
         # what the pause made the recorder miss is repaired at the writers' next heartbeat,
         # up to 3 s later (Fast DDS's period): stopped 0.5 s after the run, a recorder
         # without its 3.5 s lock-step drain lost 120-150 of the 201 /clock and /reference
         # (docs/recording.md); it is stopped first, while the writers still run
         time.sleep(0.5)
-        codes = launch.stop(['recorder', 'reference', 'controller', 'plant'])
+        codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
     assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}
     t, z, i = _states(bag)
     n = int(round(duration * 1000))
     assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
     # split, and nothing lost or doubled across the files: every state the plant sent
     # (resends included) once, for rosbags as for us
-    f = launch['plant'].figures()
+    f = procs['plant'].figures()
     files = yaml.safe_load((bag / 'metadata.yaml').read_text())[
         'rosbag2_bagfile_information']['relative_file_paths']
     assert len(files) >= 4 and open_bag(bag).topics['/state'].count == n + 1 + f['resends']
@@ -131,24 +131,24 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     assert f['steps'] == n and f['model_faults'] == 0
 
 
-def _assert_placed(launch):
+def _assert_placed(procs):
     """
-    Check the default placement of ``Launch.start_loop``, in lock-step and in real time.
+    Check the default placement of ``NodeProcesses.start_loop``, in lock-step and in real time.
 
     Plant and controller on one CPU, the reference on another, as each node's log says once
     the kernel has moved its threads (nothing to place on a machine with one CPU).
     """
-    assert launch.placement == loop_placement()
-    if launch.placement is not None:
-        loop_cpu, ref_cpu = launch.placement
+    assert procs.placement == loop_placement()
+    if procs.placement is not None:
+        loop_cpu, ref_cpu = procs.placement
         for name, cpu in (('plant', loop_cpu), ('controller', loop_cpu),
                           ('reference', ref_cpu)):
-            assert f'threads on CPU {cpu}' in launch[name].output(), name
+            assert f'threads on CPU {cpu}' in procs[name].output(), name
 
 
 # -- recording ----------------------------------------------------------------------------------
-def _realtime_bench(launch, bag, reference=True):
-    launch.start_loop('realtime', bag=bag, reference=reference)
+def _realtime_bench(procs, bag, reference=True):
+    procs.start_loop('realtime', bag=bag, reference=reference)
 
 
 def _wait_for_bag(bag, least, timeout=60.0):
@@ -174,11 +174,11 @@ def _wait_for_bag(bag, least, timeout=60.0):
 
 def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     bag = tmp_path / 'bench'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        _realtime_bench(launch, bag)
-        _assert_placed(launch)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        _realtime_bench(procs, bag)
+        _assert_placed(procs)
         _wait_for_bag(bag, {'/state': 1000, '/servo_current': 900})
-        assert launch.stop(['recorder'])['recorder'] == 0
+        assert procs.stop(['recorder'])['recorder'] == 0
     ours = open_bag(bag)
     assert not ours.truncated
     # the reference started on the closed loop, with the recorder listening: its first
@@ -242,12 +242,12 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
 
 def test_recorder_sigkill_loses_at_most_100_ms(dom, tmp_path):
     bag = tmp_path / 'killed'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        _realtime_bench(launch, bag)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        _realtime_bench(procs, bag)
         _wait_for_bag(bag, {'/state': 1500})
         time.sleep(0.3)
         kill_ns = time.time_ns()
-        launch.kill('recorder')
+        procs.kill('recorder')
     b = open_bag(bag)
     assert b.truncated and b.topics['/state'].count >= 1500, b.problem
     lost_ms = (kill_ns - b.end_ns) / 1e6
@@ -257,13 +257,13 @@ def test_recorder_sigkill_loses_at_most_100_ms(dom, tmp_path):
 # -- safety -------------------------------------------------------------------------------------
 def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_path):
     bag = tmp_path / 'wd'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        _realtime_bench(launch, bag, reference=False)    # the controller holds position
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        _realtime_bench(procs, bag, reference=False)    # the controller holds position
         time.sleep(1.5)
-        launch.kill('controller')
+        procs.kill('controller')
         time.sleep(2.5)       # the trip log is throttled: the figures below tell
-        launch.stop(['recorder', 'plant'])
-        f = launch['plant'].figures()
+        procs.stop(['recorder', 'plant'])
+        f = procs['plant'].figures()
     assert f['watchdog'] == 'tripped'
     # the zeroing tick came at most 3 periods after the last fresh command arrived, plus
     # that tick's own lateness (a busy 2-core machine delays a thread by ms at times)
@@ -437,10 +437,10 @@ def test_the_pressures_of_every_state_go_out_after_its_command_or_the_next_tick(
 def test_bad_messages_crash_nothing(dom, tmp_path, ros):
     from sensor_msgs.msg import JointState
     from ros_ehs.nodes.ros_common import qos_profile
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start('plant')
-        launch.start('controller')
-        assert launch.wait_for_log('plant', 'watchdog armed', 60), launch['plant'].output()
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start('plant')
+        procs.start('controller')
+        assert procs.wait_for_log('plant', 'watchdog armed', 60), procs['plant'].output()
         states = []
         ros.create_subscription(JointState, 'state', states.append,
                                 qos_profile(c.STATE.qos, depth=100))
@@ -472,17 +472,17 @@ def test_bad_messages_crash_nothing(dom, tmp_path, ros):
                 ros.spin(0.003)
             ros.spin(0.02)
         ros.spin(1.0)
-        assert launch['plant'].alive() and launch['controller'].alive()
-        launch.stop(['controller', 'plant'])
-    f = launch['plant'].figures()
+        assert procs['plant'].alive() and procs['controller'].alive()
+        procs.stop(['controller', 'plant'])
+    f = procs['plant'].figures()
     assert f['bad_commands'] > 0
     ours = [c.state_from_msg(m) for m in states if 'spool' in m.name]
     assert len(ours) > 500
     assert all(math.isfinite(s.z) and math.isfinite(s.z_dot) and math.isfinite(s.force)
                for s in ours)
     assert all(abs(s.i) <= 2 * Params()['i_rated'] for s in ours)   # 1e308 was clamped
-    log = launch['controller'].output()
-    assert 'Traceback' not in log and 'Traceback' not in launch['plant'].output()
+    log = procs['controller'].output()
+    assert 'Traceback' not in log and 'Traceback' not in procs['plant'].output()
     assert 'ignored a malformed state' in log
 
 
@@ -492,10 +492,10 @@ def test_controller_parameters_from_file_and_live_with_reasons(dom, tmp_path, ro
     from rclpy.parameter_client import AsyncParameterClient
     pf = tmp_path / 'ctrl.yaml'
     pf.write_text('controller:\n  ros__parameters:\n    kp: 2\n    F_cc: 500.0\n')
-    with Launch(dom, tmp_path / 'logs') as launch:
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
         bare = node_command('controller')[:-1]          # without --ros-args: the bare form
-        launch.start('controller', cmd=bare + ['--params-file', str(pf)])
-        assert launch.wait_for_log('controller', 'PID'), launch['controller'].output()
+        procs.start('controller', cmd=bare + ['--params-file', str(pf)])
+        assert procs.wait_for_log('controller', 'PID'), procs['controller'].output()
         cli = AsyncParameterClient(ros, 'controller')
         assert ros.spin(until=lambda: cli.services_are_ready(), timeout=20)
 
@@ -514,24 +514,24 @@ def test_controller_parameters_from_file_and_live_with_reasons(dom, tmp_path, ro
         assert not cross.result.successful and 'must not exceed' in cross.result.reason
         got = call(cli.get_parameters(['kp', 'F_cc']))
         assert [v.double_value for v in got.values] == [1.5, 500.0]
-        launch.stop()
-    assert 'parameter change rejected' in launch['controller'].output()
+        procs.stop()
+    assert 'parameter change rejected' in procs['controller'].output()
 
 
 def test_bad_configuration_is_one_clear_line(dom, tmp_path):
-    with Launch(dom, tmp_path / 'logs') as launch:
-        p = launch.start('player', {'bag': str(tmp_path / 'nope')})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        p = procs.start('player', {'bag': str(tmp_path / 'nope')})
         assert p.popen.wait(60) == 2
         assert 'no bag at' in p.output() and 'Traceback' not in p.output()
-        q = launch.start('plant', {'p_s': -5.0}, name='bad_plant')
+        q = procs.start('plant', {'p_s': -5.0}, name='bad_plant')
         assert q.popen.wait(60) == 2
         assert 'p_s' in q.output() and 'Traceback' not in q.output()
-        r = launch.start('recorder', {'out': str(tmp_path / 'bag'), 'min_free_space': 2 ** 62})
+        r = procs.start('recorder', {'out': str(tmp_path / 'bag'), 'min_free_space': 2 ** 62})
         assert r.popen.wait(60) == 2
         assert 'not recording to' in r.output() and 'below min_free_space' in r.output()
         assert 'Traceback' not in r.output() and not (tmp_path / 'bag').exists()
-        r = launch.start('recorder', {'out': str(tmp_path / 'bag'), 'compression': 'gzip'},
-                         name='bad_recorder')
+        r = procs.start('recorder', {'out': str(tmp_path / 'bag'), 'compression': 'gzip'},
+                        name='bad_recorder')
         assert r.popen.wait(60) == 2
         assert "'gzip' is not one of" in r.output() and 'Traceback' not in r.output()
 
@@ -543,12 +543,12 @@ def test_nodes_create_exactly_the_contract_topics(dom, tmp_path, ros, lockstep):
     topics = c.LOCKSTEP_NODE_TOPICS if lockstep else c.NODE_TOPICS
     modes = {'plant': {'mode': 'lockstep'}, 'controller': {'lockstep': True},
              'reference': {'use_sim_time': True}} if lockstep else {}
-    with Launch(dom, tmp_path / 'logs') as launch:
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
         for n in topics:
-            launch.start(n, modes.get(n))
+            procs.start(n, modes.get(n))
         for n in topics:
-            assert launch.wait_for_log(n, 'model' if n == 'plant' else 'Hz' if n ==
-                                       'controller' or not lockstep else 'clock', 60)
+            assert procs.wait_for_log(n, 'model' if n == 'plant' else 'Hz' if n ==
+                                      'controller' or not lockstep else 'clock', 60)
 
         def graph(name):
             try:
@@ -574,9 +574,9 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     ros.create_subscription(String, '/topic', got.append, 100)
     from ros_ehs.nodes.ros_common import qos_profile
     ros.create_subscription(Clock, '/clock', clocks.append, qos_profile(c.CLOCK_QOS, 100))
-    with Launch(dom, tmp_path / 'logs') as launch:
-        p = launch.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 4.0,
-                                    'topics': ['/topic'], 'wait_subscribers': 1})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        p = procs.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 4.0,
+                                   'topics': ['/topic'], 'wait_subscribers': 1})
         ros.spin(until=lambda: p.popen.poll() is not None, timeout=60)
         ros.spin(0.3)
         assert p.popen.returncode == 0, p.output()
@@ -587,30 +587,30 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     assert t == sorted(t) and bag.start_ns <= t[0] and t[-1] <= bag.end_ns
     # looping: the bag starts over (and the player keeps running until stopped)
     got.clear()
-    with Launch(dom, tmp_path / 'logs2') as launch:
-        p = launch.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 20.0,
-                                    'topics': ['/topic'], 'loop': True,
-                                    'wait_subscribers': 1})
+    with NodeProcesses(dom, tmp_path / 'logs2') as procs:
+        p = procs.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 20.0,
+                                   'topics': ['/topic'], 'loop': True,
+                                   'wait_subscribers': 1})
         assert ros.spin(until=lambda: len(got) >= 25, timeout=60), len(got)
         assert p.alive()
-        assert launch.stop(['player'])['player'] == 0
+        assert procs.stop(['player'])['player'] == 0
     assert [m.data for m in got[:20]] == want + want
     # a split rosbag2 bag plays as one bag, in file order
     meta = yaml.safe_load((FIXTURES / 'split_wbag' / 'metadata.yaml').read_text())[
         'rosbag2_bagfile_information']
-    with Launch(dom, tmp_path / 'logs3') as launch:
-        p = launch.start('player', {'bag': str(FIXTURES / 'split_wbag'), 'clock': False,
-                                    'start_delay': 0.0})
+    with NodeProcesses(dom, tmp_path / 'logs3') as procs:
+        p = procs.start('player', {'bag': str(FIXTURES / 'split_wbag'), 'clock': False,
+                                   'start_delay': 0.0})
         assert p.popen.wait(60) == 0, p.output()
     done = [ln for ln in p.output().splitlines() if 'replay done' in ln][0]
     played = dict(x.split() for x in done.split('replay done: ')[1].split(', '))
     assert {k: int(v) for k, v in played.items()} == {
         t['topic_metadata']['name']: t['message_count'] for t in meta['topics_with_message_count']}
     # a window of a bag: only what lies in it
-    with Launch(dom, tmp_path / 'logs4') as launch:
-        p = launch.start('player', {'bag': str(ROOT / 'bags' / 'sample_sine_1hz'),
-                                    'clock': False, 'start_delay': 0.0, 'rate': 20.0,
-                                    'start': 2.0, 'end': 3.0, 'topics': ['/state']})
+    with NodeProcesses(dom, tmp_path / 'logs4') as procs:
+        p = procs.start('player', {'bag': str(ROOT / 'bags' / 'sample_sine_1hz'),
+                                   'clock': False, 'start_delay': 0.0, 'rate': 20.0,
+                                   'start': 2.0, 'end': 3.0, 'topics': ['/state']})
         assert p.popen.wait(60) == 0, p.output()
     assert 'replay done: /state 1001' in p.output()
 
@@ -619,11 +619,11 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
 def test_identify_node_pushes_the_fit_to_a_running_controller(dom, tmp_path, ros):
     from rclpy.parameter_client import AsyncParameterClient
     out = tmp_path / 'id'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start('controller')
-        assert launch.wait_for_log('controller', 'PID')
-        p = launch.start('identify', {'bags': [str(ROOT / 'bags' / 'sample_sine_1hz')],
-                                      'out': str(out), 'figures': False, 'push': True})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start('controller')
+        assert procs.wait_for_log('controller', 'PID')
+        p = procs.start('identify', {'bags': [str(ROOT / 'bags' / 'sample_sine_1hz')],
+                                     'out': str(out), 'figures': False, 'push': True})
         assert p.popen.wait(300) == 0, p.output()[-3000:]
         assert 'iteration' in p.output() and 'pushed to `controller`' in p.output()
         fit = json.loads((out / 'summary.json').read_text())['parameters']
@@ -634,18 +634,18 @@ def test_identify_node_pushes_the_fit_to_a_running_controller(dom, tmp_path, ros
         vals = [v.double_value for v in fut.result().values]
         assert vals == pytest.approx([fit[n]['value'] for n in ('F_cc', 'F_sc', 'c_c')])
         assert vals[0] == pytest.approx(1046.9, rel=0.02)
-        bad = launch.start('identify', {'bags': [str(FIXTURES / 'talker.mcap')],
-                                        'out': str(tmp_path / 'x')}, name='bad')
+        bad = procs.start('identify', {'bags': [str(FIXTURES / 'talker.mcap')],
+                                       'out': str(tmp_path / 'x')}, name='bad')
         assert bad.popen.wait(120) == 2
         assert "has no topic 'state'" in bad.output() and '/topic' in bad.output()
         assert 'Traceback' not in bad.output()
 
 
 def test_domain_isolation_env_is_respected(dom):
-    """The launcher's children see the test's domain (so parallel tests never mix)."""
-    launch = Launch(dom)
-    assert launch.env['ROS_DOMAIN_ID'] == str(dom)
-    assert launch.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] in ('LOCALHOST', os.environ.get(
+    """The children of NodeProcesses see the test's domain (so parallel tests never mix)."""
+    procs = NodeProcesses(dom)
+    assert procs.env['ROS_DOMAIN_ID'] == str(dom)
+    assert procs.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] in ('LOCALHOST', os.environ.get(
         'ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'))
 
 
@@ -692,14 +692,14 @@ def test_the_rt_fastdds_profile_is_read_and_carries_the_loop(dom, tmp_path, brok
         bad = tmp_path / 'broken.xml'
         bad.write_text(profile.read_text().replace('</profiles>', '</profile>'))
         profile = bad
-    with Launch(dom, tmp_path / 'logs', env={'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile)}) \
-            as launch:
-        launch.start_loop('realtime', reference=False)
+    env = {'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile)}
+    with NodeProcesses(dom, tmp_path / 'logs', env=env) as procs:
+        procs.start_loop('realtime', reference=False)
         time.sleep(1.0)
-        launch.stop(['plant', 'controller'])
-    out = launch['plant'].output() + launch['controller'].output()
+        procs.stop(['plant', 'controller'])
+    out = procs['plant'].output() + procs['controller'].output()
     assert ('XMLPARSER' in out) == broken
-    f = launch['plant'].figures()
+    f = procs['plant'].figures()
     assert f['cycles'] > 500 and f['fresh_cycle_fraction'] > 0.9
 
 
@@ -734,9 +734,9 @@ def test_a_reference_waiting_for_the_loop_starts_on_the_plants_ok_only(dom, tmp_
     def say(*statuses):
         pub.publish(DiagnosticArray(status=[DiagnosticStatus(name=n, level=bytes([lv]))
                                             for n, lv in statuses]))
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start('reference', {'wait_loop': True, 'wait_subscribers': 1,
-                                   'rate_hz': 250.0})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start('reference', {'wait_loop': True, 'wait_subscribers': 1,
+                                  'rate_hz': 250.0})
         assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
         for statuses in ([('ros_ehs/controller', 0)], [('ros_ehs/plant', 1)],
                          [('ros_ehs/plant', 2), ('ros_ehs/recorder', 0)]):
@@ -744,8 +744,8 @@ def test_a_reference_waiting_for_the_loop_starts_on_the_plants_ok_only(dom, tmp_
             ros.spin(0.4)
             assert got == [], statuses         # not the plant's OK: nothing yet
         say(('ros_ehs/reference', 0), ('ros_ehs/plant', 0))
-        assert ros.spin(until=lambda: len(got) >= 10, timeout=10), launch['reference'].output()
-        assert 'the plant reports its loop closed' in launch['reference'].output()
+        assert ros.spin(until=lambda: len(got) >= 10, timeout=10), procs['reference'].output()
+        assert 'the plant reports its loop closed' in procs['reference'].output()
     first = c.reference_from_msg(got[0])
     assert first.z_ref == 0.0 and first.v_ref == pytest.approx(2 * math.pi * 0.04)
 
@@ -790,12 +790,12 @@ def test_the_reference_nodes_apc_brings_a_5hz_sine_to_its_amplitude_and_phase(do
     err = {}
     for apc in (False, True):
         bag = tmp_path / f'bag_{apc}'
-        with Launch(dom, tmp_path / f'logs_{apc}') as launch:
-            launch.start_loop('realtime', bag=bag,
-                              reference={**sine, 'amplitude_phase_control': apc})
+        with NodeProcesses(dom, tmp_path / f'logs_{apc}') as procs:
+            procs.start_loop('realtime', bag=bag,
+                             reference={**sine, 'amplitude_phase_control': apc})
             _wait_for_bag(bag, {'/state': 9000})
-            launch.stop(['recorder', 'reference', 'controller', 'plant'])
-            out = launch['reference'].output()
+            procs.stop(['recorder', 'reference', 'controller', 'plant'])
+            out = procs['reference'].output()
         amp, phase = _fundamental(bag, 5.0, cycles=10)
         # the complex error of the response over the specified sine: amplitude and phase
         ratio = amp / 0.008 * complex(math.cos(math.radians(phase)),

@@ -86,16 +86,16 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
 
     # the colcon-built executables start and talk (what `ros2 run ros_ehs plant` starts)
     from domain_coordinator import domain_id
-    from ros_ehs.launch import Launch
+    from ros_ehs.processes import NodeProcesses
     site = next(install.glob('lib/python*/site-packages'))
     with domain_id() as dom:
         built = {'PYTHONPATH': str(site), 'AMENT_PREFIX_PATH': prefix_path}
-        with Launch(dom, tmp_path / 'logs', env=built) as launch:
-            launch.start('plant', cmd=[str(lib / 'plant')])
-            launch.start('controller', cmd=[str(lib / 'controller')])
-            ok = launch.wait_for_log('plant', 'watchdog armed', 60)
-            codes = launch.stop(['controller', 'plant'])
-    assert ok, launch['plant'].output()[-2000:] + launch['controller'].output()[-2000:]
+        with NodeProcesses(dom, tmp_path / 'logs', env=built) as procs:
+            procs.start('plant', cmd=[str(lib / 'plant')])
+            procs.start('controller', cmd=[str(lib / 'controller')])
+            ok = procs.wait_for_log('plant', 'watchdog armed', 60)
+            codes = procs.stop(['controller', 'plant'])
+    assert ok, procs['plant'].output()[-2000:] + procs['controller'].output()[-2000:]
     assert codes == {'controller': 0, 'plant': 0}
     where = subprocess.run([str(lib / 'identify'), '--ros-args', '-p', 'bags:=[nope]'],
                            env=dict(env, PYTHONPATH=str(site)), capture_output=True, text=True)
@@ -104,16 +104,16 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
 
 def test_launch_scripts_are_found_from_the_source_tree_or_the_install(tmp_path, monkeypatch):
     """Benches find launch_scripts/ beside the code, else in the ament share directory."""
-    import ros_ehs.launch as launch
-    assert launch.launch_script('bench.py') == ROOT / 'launch_scripts' / 'bench.py'
+    import ros_ehs.processes as processes
+    assert processes.launch_script('bench.py') == ROOT / 'launch_scripts' / 'bench.py'
     share = tmp_path / 'share' / 'ros_ehs' / 'launch_scripts'
     share.mkdir(parents=True)
     (share / 'bench.py').write_text('')
-    fake = tmp_path / 'site' / 'ros_ehs' / 'launch.py'       # an installed copy of the code
+    fake = tmp_path / 'site' / 'ros_ehs' / 'processes.py'       # an installed copy of the code
     fake.parent.mkdir(parents=True)
-    monkeypatch.setattr(launch, '__file__', str(fake))
+    monkeypatch.setattr(processes, '__file__', str(fake))
     monkeypatch.setattr('ament_index_python.packages.get_package_share_directory',
                         lambda name: str(tmp_path / 'share' / name))
-    assert launch.launch_script('bench.py') == share / 'bench.py'
+    assert processes.launch_script('bench.py') == share / 'bench.py'
     with pytest.raises(FileNotFoundError, match='launch_scripts/nothing.py'):
-        launch.launch_script('nothing.py')
+        processes.launch_script('nothing.py')

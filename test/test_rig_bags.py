@@ -254,16 +254,16 @@ def test_a_bad_topic_map_file_names_the_key(tmp_path, text, match):
 @pytest.mark.ros
 def test_the_identify_node_reads_a_rig_bag_through_its_topic_map(rig_bags, tmp_path, dom):
     """The node's `topic_map` and `joint` parameters, as `ehs_sim identify --topics`."""
-    from ros_ehs.launch import Launch
+    from ros_ehs.processes import NodeProcesses
     bag, lay, truth = rig_bags['mcap-2kHz-array-fluid']
     rig = tmp_path / 'rig.yaml'
     m = {**lay.topic_map(0.0003).as_dict(), 'joint': 'wrong_joint'}
     rig.write_text(''.join(f'{k}: {json.dumps(v)}\n' for k, v in m.items()))
     out = tmp_path / 'id'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        p = launch.start('identify', {'bags': [str(bag)], 'out': str(out), 'topic_map': str(rig),
-                                      'joint': lay.joint, 'max_nfev': 2, 'advise': False,
-                                      'figures': False})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        p = procs.start('identify', {'bags': [str(bag)], 'out': str(out), 'topic_map': str(rig),
+                                     'joint': lay.joint, 'max_nfev': 2, 'advise': False,
+                                     'figures': False})
         assert p.popen.wait(300) in (0, 1), p.output()[-3000:]
     s = json.loads((out / 'summary.json').read_text())
     assert s['input_delay'] == {'value_s': 0.0003, 'estimated': False}   # from the file
@@ -274,7 +274,7 @@ def test_the_identify_node_reads_a_rig_bag_through_its_topic_map(rig_bags, tmp_p
 def test_the_player_node_replays_a_rig_bag_as_our_topics(rig_bags, tmp_path, dom, ros):
     """Over DDS: the player with the rig's map publishes ``state`` (joint piston)."""
     from rclpy.qos import QoSProfile
-    from ros_ehs.launch import Launch
+    from ros_ehs.processes import NodeProcesses
     from sensor_msgs.msg import JointState
     import ros_ehs_msgs_py as c
     bag, lay, truth = rig_bags['db3-250Hz-float64-bar']
@@ -283,10 +283,10 @@ def test_the_player_node_replays_a_rig_bag_as_our_topics(rig_bags, tmp_path, dom
     rig.write_text(''.join(f'{k}: {json.dumps(v)}\n' for k, v in m.items()))
     got = []
     ros.create_subscription(JointState, 'state', got.append, QoSProfile(depth=5000))
-    with Launch(dom, tmp_path / 'logs') as launch:
-        p = launch.start('player', {'bag': str(bag), 'topic_map': str(rig), 'rate': 5.0,
-                                    'clock': False, 'wait_subscribers': 1,
-                                    'topics': ['/state']})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        p = procs.start('player', {'bag': str(bag), 'topic_map': str(rig), 'rate': 5.0,
+                                   'clock': False, 'wait_subscribers': 1,
+                                   'topics': ['/state']})
         assert ros.spin(until=lambda: p.popen.poll() is not None, timeout=120)
         ros.spin(0.5)
         assert p.popen.returncode == 0, p.output()[-2000:]

@@ -14,8 +14,8 @@ import time
 import numpy as np
 import pytest
 from ros_ehs.control.safety import braking_distance
-from ros_ehs.launch import Launch
 from ros_ehs.params import Params
+from ros_ehs.processes import NodeProcesses
 from ros_ehs.reference import Sine
 from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
@@ -53,9 +53,9 @@ def _call(ros, srv_type, name, request, timeout=20.0):
     return fut.result()
 
 
-def _wait_event(launch, text, timeout=30.0):
-    assert launch.wait_for_log('controller', text, timeout), \
-        launch['controller'].output()[-3000:]
+def _wait_event(procs, text, timeout=30.0):
+    assert procs.wait_for_log('controller', text, timeout), \
+        procs['controller'].output()[-3000:]
 
 
 def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance(
@@ -71,11 +71,11 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
     from std_srvs.srv import Trigger
     bag = tmp_path / 'bag'
     p = Params()
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('realtime', bag=bag,
-                          controller={'limit_position_max': 0.03,
-                                      'limit_position_max_action': 'hold'})
-        _wait_event(launch, 'safety trip limit_position_max')
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('realtime', bag=bag,
+                         controller={'limit_position_max': 0.03,
+                                     'limit_position_max_action': 'hold'})
+        _wait_event(procs, 'safety trip limit_position_max')
         time.sleep(0.3)
         res = _call(ros, Trigger, '/controller/reset', Trigger.Request())
         # refused, naming the detector and where the piston is: held near the limit, inside
@@ -91,7 +91,7 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
         assert res.success and 'limit_position_max' in res.message, res.message
         t_reset = time.time_ns()
         time.sleep(2.0)
-        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+        procs.stop(['recorder', 'reference', 'controller', 'plant'])
     states, cmds, events = _bag(bag)
     stamps = np.array(sorted(states))
     z = np.array([states[k].z for k in stamps])
@@ -126,11 +126,11 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
 @pytest.mark.parametrize('fault', ['frozen_sensor', 'nan_sensor'])
 def test_a_failed_sensor_powers_the_valve_off(dom, tmp_path, fault):
     bag = tmp_path / 'bag'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('realtime', bag=bag, plant={'fault': fault, 'fault_time': 1.0})
-        _wait_event(launch, 'safety trip feedback')
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('realtime', bag=bag, plant={'fault': fault, 'fault_time': 1.0})
+        _wait_event(procs, 'safety trip feedback')
         time.sleep(0.5)
-        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+        procs.stop(['recorder', 'reference', 'controller', 'plant'])
     states, cmds, events = _bag(bag)
     assert [(e.kind, e.detector, e.action) for e in events] == [
         ('trip', 'feedback', 'power_off')]
@@ -158,14 +158,14 @@ def test_a_failed_sensor_powers_the_valve_off(dom, tmp_path, fault):
 
 def test_a_stuck_valve_trips_the_error_detector(dom, tmp_path):
     bag = tmp_path / 'bag'
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('realtime', bag=bag,
-                          plant={'fault': 'stuck_valve', 'fault_time': 1.0},
-                          controller={'limit_error': 0.002, 'limit_error_time': 0.02,
-                                      'limit_error_action': 'power_off'})
-        _wait_event(launch, 'safety trip limit_error')
-        launch.stop(['recorder', 'reference', 'controller', 'plant'])
-        assert 'fault stuck_valve injected' in launch['plant'].output()
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('realtime', bag=bag,
+                         plant={'fault': 'stuck_valve', 'fault_time': 1.0},
+                         controller={'limit_error': 0.002, 'limit_error_time': 0.02,
+                                     'limit_error_action': 'power_off'})
+        _wait_event(procs, 'safety trip limit_error')
+        procs.stop(['recorder', 'reference', 'controller', 'plant'])
+        assert 'fault stuck_valve injected' in procs['plant'].output()
     states, cmds, events = _bag(bag)
     assert [(e.kind, e.detector) for e in events] == [('trip', 'limit_error')]
     assert events[0].value > 0.002 or events[0].value < -0.002
@@ -177,9 +177,9 @@ def test_hydraulics_off_and_on_ramps_without_a_jump(dom, tmp_path, ros):
     from std_srvs.srv import SetBool, Trigger
     bag = tmp_path / 'bag'
     p = Params()
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('realtime', bag=bag, plant={'initial_z': -0.03},
-                          controller={'start_enabled': False})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('realtime', bag=bag, plant={'initial_z': -0.03},
+                         controller={'start_enabled': False})
         time.sleep(1.0)
         res = _call(ros, Trigger, '/controller/reset', Trigger.Request())
         assert res.success and res.message == 'nothing was latched'
@@ -190,7 +190,7 @@ def test_hydraulics_off_and_on_ramps_without_a_jump(dom, tmp_path, ros):
         res = _call(ros, SetBool, '/controller/enable', SetBool.Request(data=False))
         assert res.success
         time.sleep(0.3)
-        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+        procs.stop(['recorder', 'reference', 'controller', 'plant'])
     states, cmds, events = _bag(bag)
     assert [e.kind for e in events] == ['reset', 'enabled', 'disabled']
     before = [cmds[s] for s in cmds if s < t_on - 50 * PERIOD]
@@ -211,12 +211,12 @@ def test_lockstep_acts_in_exactly_the_period_after_and_matches_the_in_process_lo
     duration = 1.5
     bag = tmp_path / 'bag'
     limits = {'limit_position_max': 0.03, 'limit_position_max_action': 'power_off'}
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('lockstep', bag=bag, plant={'duration': duration},
-                          controller=limits)
-        assert launch.wait_for_log('plant', 'lock-step run complete', 120)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
+                         controller=limits)
+        assert procs.wait_for_log('plant', 'lock-step run complete', 120)
         time.sleep(0.5)
-        launch.stop(['recorder', 'reference', 'controller', 'plant'])
+        procs.stop(['recorder', 'reference', 'controller', 'plant'])
     states, cmds, events = _bag(bag)
     stamps = sorted(states)
     z = np.array([states[s].z for s in stamps])

@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 import pytest
-from ros_ehs.launch import Launch
+from ros_ehs.processes import NodeProcesses
 import ros_ehs_msgs_py as c
 
 pytestmark = pytest.mark.ros
@@ -90,10 +90,10 @@ def _resent_until(send, heard, period=0.5):
     return until
 
 
-def _loop(launch):
-    launch.start('plant', {'diagnostics_period': 0.1})
-    launch.start('controller', {'diagnostics_period': 0.1})
-    assert launch.wait_for_log('plant', 'watchdog armed', 60), launch['plant'].output()
+def _loop(procs):
+    procs.start('plant', {'diagnostics_period': 0.1})
+    procs.start('controller', {'diagnostics_period': 0.1})
+    assert procs.wait_for_log('plant', 'watchdog armed', 60), procs['plant'].output()
 
 
 # -- real time: a stray stamp far ahead ------------------------------------------------------
@@ -101,8 +101,8 @@ def test_a_state_and_a_command_stamped_an_hour_ahead_are_dropped(dom, tmp_path, 
     from sensor_msgs.msg import JointState
     from ros_ehs.nodes.ros_common import qos_profile
     diag = Diagnostics(ros)
-    with Launch(dom, tmp_path / 'logs') as launch:
-        _loop(launch)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        _loop(procs)
         pub_state = ros.create_publisher(JointState, 'state', qos_profile(c.LOOP_QOS))
         pub_cmd = ros.create_publisher(JointState, 'servo_current', qos_profile(c.LOOP_QOS))
         assert ros.spin(until=lambda: pub_state.get_subscription_count() >= 1
@@ -118,11 +118,11 @@ def test_a_state_and_a_command_stamped_an_hour_ahead_are_dropped(dom, tmp_path, 
         assert diag.value('ros_ehs/controller', 'future') >= 1
         assert diag.value('ros_ehs/plant', 'future_commands') >= 1
         assert diag.latest['ros_ehs/plant'][0]['watchdog'] == 'ok'
-        launch.stop(['controller', 'plant'])
+        procs.stop(['controller', 'plant'])
     assert before > 500 and after > 0.7 * before, (before, after)
-    assert 'ahead of this clock' in launch['controller'].output()
-    assert 'after the latest state' in launch['plant'].output()
-    f = launch['plant'].figures()
+    assert 'ahead of this clock' in procs['controller'].output()
+    assert 'after the latest state' in procs['plant'].output()
+    f = procs['plant'].figures()
     assert f['future_commands'] >= 1 and f['current_a'] != 0.004
 
 
@@ -138,8 +138,8 @@ def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, r
                                                       c.command_from_msg(m).i)),
                             qos_profile(c.LOOP_QOS, depth=1000))
     pub = ros.create_publisher(JointState, 'state', qos_profile(c.LOOP_QOS))
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start('controller', {'use_sim_time': True})
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start('controller', {'use_sim_time': True})
         assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
         ros.spin(0.5)
 
@@ -160,8 +160,8 @@ def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, r
         assert ros.spin(until=lambda: 10**9 + 10**6 in got, timeout=5)
         send(10**9 - 10**6, 0.0)            # 2 periods back: out of order, dropped
         ros.spin(0.5)
-        launch.stop(['controller'])
-    log = launch['controller'].output()
+        procs.stop(['controller'])
+    log = procs['controller'].output()
     assert log.count('new run: the state stamp jumped back 99') == 1, log[-2000:]
     assert got[10**9][0] - sent <= 0.1                      # answered within 100 ms
     assert got[t100][1] == 0.0 and got[t100 + 199 * 10**6][1] != 0.0   # wound up
@@ -171,23 +171,23 @@ def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, r
 
 # -- lock-step: the plant started again -------------------------------------------------------
 def test_a_restarted_lockstep_plant_closes_the_loop_again(dom, tmp_path):
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('lockstep', plant={'duration': 0.3})
-        assert launch.wait_for_log('plant', 'lock-step run complete', 60), \
-            launch['plant'].output()[-2000:]
-        launch.stop(['plant'])
-        second = launch.start('plant', {'mode': 'lockstep', 'duration': 0.3,
-                                        'wait_subscribers': 1}, name='plant_again')
-        assert launch.wait_for_log('plant_again', 'lock-step run complete', 60), \
-            second.output()[-2000:] + launch['controller'].output()[-2000:]
-        assert launch['controller'].alive() and launch['reference'].alive()
-        codes = launch.stop(['reference', 'controller', 'plant_again'])
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', plant={'duration': 0.3})
+        assert procs.wait_for_log('plant', 'lock-step run complete', 60), \
+            procs['plant'].output()[-2000:]
+        procs.stop(['plant'])
+        second = procs.start('plant', {'mode': 'lockstep', 'duration': 0.3,
+                                       'wait_subscribers': 1}, name='plant_again')
+        assert procs.wait_for_log('plant_again', 'lock-step run complete', 60), \
+            second.output()[-2000:] + procs['controller'].output()[-2000:]
+        assert procs['controller'].alive() and procs['reference'].alive()
+        codes = procs.stop(['reference', 'controller', 'plant_again'])
     assert set(codes.values()) == {0}
     assert second.figures()['steps'] == 300
-    assert 'new run' in launch['controller'].output()
-    assert 'new run: /clock jumped back' in launch['reference'].output()
+    assert 'new run' in procs['controller'].output()
+    assert 'new run: /clock jumped back' in procs['reference'].output()
     # the second run tracked the sine from its start, as the first did
-    f1, f2 = launch['plant'].figures(), second.figures()
+    f1, f2 = procs['plant'].figures(), second.figures()
     assert f2['model_faults'] == 0 and f1['steps'] == f2['steps']
 
 
@@ -197,11 +197,11 @@ def test_a_malformed_clock_from_another_client_is_counted_and_the_reference_answ
     from rosgraph_msgs.msg import Clock
     from ros_ehs.nodes.ros_common import qos_profile
     diag = Diagnostics(ros)
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('lockstep', plant={'duration': 0.2},
-                          reference={'diagnostics_period': 0.1})
-        assert launch.wait_for_log('plant', 'lock-step run complete', 60), \
-            launch['plant'].output()[-2000:]
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', plant={'duration': 0.2},
+                         reference={'diagnostics_period': 0.1})
+        assert procs.wait_for_log('plant', 'lock-step run complete', 60), \
+            procs['plant'].output()[-2000:]
         pub = ros.create_publisher(Clock, '/clock', qos_profile(c.CLOCK_QOS))
         assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
 
@@ -211,7 +211,7 @@ def test_a_malformed_clock_from_another_client_is_counted_and_the_reference_answ
         assert ros.spin(until=_resent_until(
             send_bad, lambda: diag.value('ros_ehs/reference', 'bad_clocks', 0) >= 2),
             timeout=15)
-        assert launch['reference'].alive()
+        assert procs['reference'].alive()
         # and it still answers a well-formed clock (an rclpy message, not our CDR) with the
         # window that starts at that time
         from trajectory_msgs.msg import JointTrajectory
@@ -225,26 +225,26 @@ def test_a_malformed_clock_from_another_client_is_counted_and_the_reference_answ
         assert ros.spin(until=_resent_until(
             lambda: pub.publish(good), lambda: any(m.header.stamp.sec == 100 for m in got)),
             timeout=15), [m.header.stamp for m in got]
-        codes = launch.stop(['reference', 'controller', 'plant'])
+        codes = procs.stop(['reference', 'controller', 'plant'])
     assert set(codes.values()) == {0}
-    out = launch['reference'].output()
+    out = procs['reference'].output()
     # the log is throttled to once a second: the first is named, both are counted above
     assert 'ignored a malformed /clock: CDR payload truncated in the Clock' in out
     assert 'Traceback' not in out
-    assert launch['plant'].figures()['steps'] == 200
+    assert procs['plant'].figures()['steps'] == 200
 
 
 def test_a_clock_slower_than_the_preview_still_closes_the_lock_step_loop(dom, tmp_path):
     """/clock every 30 ms, references 5 ms ahead: the plant's resends carry the loop."""
-    with Launch(dom, tmp_path / 'logs') as launch:
-        launch.start_loop('lockstep', plant={'duration': 0.1, 'clock_period': 0.03,
-                                             'resend_period': 0.005},
-                          reference={'preview': 0.005})
-        assert launch.wait_for_log('plant', 'lock-step run complete', 60), \
-            launch['plant'].output()[-2000:]
-        codes = launch.stop(['reference', 'controller', 'plant'])
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', plant={'duration': 0.1, 'clock_period': 0.03,
+                                            'resend_period': 0.005},
+                         reference={'preview': 0.005})
+        assert procs.wait_for_log('plant', 'lock-step run complete', 60), \
+            procs['plant'].output()[-2000:]
+        codes = procs.stop(['reference', 'controller', 'plant'])
     assert set(codes.values()) == {0}
-    f = launch['plant'].figures()
+    f = procs['plant'].figures()
     assert f['steps'] == 100 and f['resends'] >= 5 and f['model_faults'] == 0
 
 
@@ -252,9 +252,9 @@ def test_a_clock_slower_than_the_preview_still_closes_the_lock_step_loop(dom, tm
 def test_empty_and_undeclared_parameter_names_are_rejected_with_a_reason(dom, tmp_path, ros):
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
-    with Launch(dom, tmp_path / 'logs') as launch:
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
         for n in ('plant', 'controller', 'reference'):
-            launch.start(n)
+            procs.start(n)
         for n in ('plant', 'controller', 'reference'):
             client = AsyncParameterClient(ros, n)
             assert client.wait_for_services(timeout_sec=30)
@@ -271,7 +271,7 @@ def test_empty_and_undeclared_parameter_names_are_rejected_with_a_reason(dom, tm
             fut = client.set_parameters_atomically([Parameter('', value=1.0)])
             assert ros.spin(until=fut.done, timeout=10)
             assert not fut.result().result.successful
-        launch.stop()
+        procs.stop()
 
 
 # -- fuzz -----------------------------------------------------------------------------------
@@ -317,8 +317,8 @@ def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, t
     states = []
     ros.create_subscription(JointState, 'state', states.append,
                             qos_profile(c.STATE.qos, depth=100))
-    with Launch(dom, tmp_path / 'logs') as launch:
-        _loop(launch)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        _loop(procs)
         pubs = [ros.create_publisher(JointState, t, qos_profile(c.LOOP_QOS))
                 for t in ('state', 'servo_current', 'reference')]
         assert ros.spin(until=lambda: all(p.get_subscription_count() >= 1 for p in pubs),
@@ -347,9 +347,9 @@ def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, t
         states.clear()
         after = _answer_rate(ros, diag)
         ours = [c.state_from_msg(m) for m in states if 'spool' in m.name]
-        alive = {n: launch[n].alive() for n in ('plant', 'controller')}
-        launch.stop(['controller', 'plant'])
-    logs = launch['plant'].output() + launch['controller'].output()
+        alive = {n: procs[n].alive() for n in ('plant', 'controller')}
+        procs.stop(['controller', 'plant'])
+    logs = procs['plant'].output() + procs['controller'].output()
     assert alive == {'plant': True, 'controller': True}
     assert 'Traceback' not in logs
     assert len(ours) > 100 and all(math.isfinite(s.z) and math.isfinite(s.z_dot)

@@ -15,7 +15,7 @@
 ``python -m ros_ehs.bench live``: whether the live identify node disturbs the real-time loop.
 
 The bench's loop (plant, controller and the reference's 1 Hz sine, placed as
-``Launch.start_loop`` places them: plant and controller on one CPU, the reference on the
+``NodeProcesses.start_loop`` places them: plant and controller on one CPU, the reference on the
 other) runs in real time for ``--seconds`` per round, in ``--rounds`` rounds without and with
 the identify node in the order without, with, with, without (so a drift of the machine's load
 over the run weighs on both alike) in live mode (window 10 s, period 5 s, pushing to the
@@ -34,7 +34,7 @@ import time
 from domain_coordinator import domain_id
 import psutil
 from ros_ehs.bench import count, positive, report
-from ros_ehs.launch import Launch, loop_placement
+from ros_ehs.processes import loop_placement, NodeProcesses
 
 LIVE = {'live': True, 'push': True, 'window': 10.0, 'period': 5.0}
 
@@ -45,22 +45,22 @@ def _cpu(pid: int) -> float:
 
 
 def _round(dom: int, seconds: float, with_live: bool) -> dict:
-    with Launch(dom) as launch:
-        launch.start_loop('realtime')
+    with NodeProcesses(dom) as procs:
+        procs.start_loop('realtime')
         live_cpu = 0.0
         if with_live:
             ref_cpu = (loop_placement(True) or (-1, -1))[1]
-            launch.start('identify', {**LIVE, 'cpu_affinity': ref_cpu})
-            launch.wait_for_log('identify', 'live: state from', 30)
-            c0 = _cpu(launch['identify'].pid)
+            procs.start('identify', {**LIVE, 'cpu_affinity': ref_cpu})
+            procs.wait_for_log('identify', 'live: state from', 30)
+            c0 = _cpu(procs['identify'].pid)
         t0 = time.monotonic()
         time.sleep(seconds)
         if with_live:
-            live_cpu = (_cpu(launch['identify'].pid) - c0) / (time.monotonic() - t0)
-        launch.stop(['identify'] if with_live else [])
-        launch.stop(['plant', 'controller', 'reference'])     # the plant first: no stale tail
-        f = launch['plant'].figures()
-        out = launch['identify'].output() if with_live else ''
+            live_cpu = (_cpu(procs['identify'].pid) - c0) / (time.monotonic() - t0)
+        procs.stop(['identify'] if with_live else [])
+        procs.stop(['plant', 'controller', 'reference'])     # the plant first: no stale tail
+        f = procs['plant'].figures()
+        out = procs['identify'].output() if with_live else ''
     return {'with_live': with_live, 'cycles': f['cycles'],
             'fresh_cycle_fraction': f['fresh_cycle_fraction'],
             'watchdog_trips': f['watchdog_trips'], 'live_cpu_frac': round(live_cpu, 3),

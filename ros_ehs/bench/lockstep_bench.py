@@ -26,7 +26,7 @@ a clock every period into the reference the pong waits for, reliable; the bench 
 none of our code in any of them. And, for reference, the bare ping-pong over serialized
 messages (``--raw``), the path our loop nodes take: the ceiling for them.
 
-Placement: by default the loop runs as :meth:`ros_ehs.launch.Launch.start_loop` places a
+Placement: by default the loop runs as :meth:`ros_ehs.processes.NodeProcesses.start_loop` places a
 lock-step loop (plant and controller on one CPU, the reference on another), and every
 yardstick is placed alike; one more bare ping-pong, unpinned, shows what the placement is
 worth (``bare_unpinned_*``). ``--no-cpu-affinity`` leaves everything to the scheduler.
@@ -43,8 +43,8 @@ import time
 
 from domain_coordinator import domain_id
 from ros_ehs.bench import count, positive, report
-from ros_ehs.launch import Launch, loop_placement
 from ros_ehs.params import Params
+from ros_ehs.processes import loop_placement, NodeProcesses
 from ros_ehs.reference import Sine
 from ros_ehs.sim.closed_loop import run_closed_loop
 
@@ -54,11 +54,11 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
     Return the ceiling: a bare rclpy ping-pong, back to back (``extra``: its options).
 
     ``pin``: volley and pong on one CPU, the relay on another, as ``--cpu-affinity`` places
-    ours (:func:`ros_ehs.launch.loop_placement`).
+    ours (:func:`ros_ehs.processes.loop_placement`).
     """
     cpus = loop_placement(True) if pin else None
     roles = ['pong', 'relay', 'volley'] if '--relay' in extra else ['pong', 'volley']
-    with Launch(dom) as bare:
+    with NodeProcesses(dom) as bare:
         for role in roles:
             cpu = ['--cpu', str(cpus[role == 'relay'])] if cpus else []
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *extra,
@@ -70,13 +70,13 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
 
 def _ours(dom: int, seconds: float, model: str, pin: bool) -> dict:
     """Run plant, controller and reference in lock-step for ``seconds``; the plant's figures."""
-    with Launch(dom) as launch:
-        launch.start_loop('lockstep', plant={'duration': seconds, 'model': model,
-                                             'start_delay': 1.0}, pin=pin)
-        if not launch.wait_for_log('plant', 'lock-step run complete', 600):
-            raise RuntimeError('lock-step did not finish:\n' + launch['plant'].output())
-        launch.stop(['reference', 'controller', 'plant'])
-        return launch['plant'].figures()
+    with NodeProcesses(dom) as procs:
+        procs.start_loop('lockstep', plant={'duration': seconds, 'model': model,
+                                            'start_delay': 1.0}, pin=pin)
+        if not procs.wait_for_log('plant', 'lock-step run complete', 600):
+            raise RuntimeError('lock-step did not finish:\n' + procs['plant'].output())
+        procs.stop(['reference', 'controller', 'plant'])
+        return procs['plant'].figures()
 
 
 def main(argv=None) -> int:
@@ -96,7 +96,7 @@ def main(argv=None) -> int:
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))
     ap.add_argument('--cpu-affinity', action=argparse.BooleanOptionalAction, default=True,
                     help='plant and controller on one CPU, the reference on another (as '
-                    'Launch.start_loop places a lock-step loop by default), and the bare '
+                    'NodeProcesses.start_loop places a lock-step loop by default), and the bare '
                     'yardsticks placed alike; --no-cpu-affinity: all unpinned')
     a = ap.parse_args(argv)
     pin = a.cpu_affinity

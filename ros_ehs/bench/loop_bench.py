@@ -26,7 +26,7 @@ the same priority): its stalls over 2 ms (``machine_stalls_2ms``) trip any 1 kHz
 watchdog, ours and the bare one alike.
 
 ``--cpu-affinity`` (the default) places plant and controller on one CPU, as
-``Launch.start_loop`` places a bench's loop by default, and the bare ping and pong on that
+``NodeProcesses.start_loop`` places a bench's loop by default, and the bare ping and pong on that
 CPU alike; ``--no-cpu-affinity`` leaves all of them to the scheduler.
 """
 
@@ -41,7 +41,7 @@ import time
 from domain_coordinator import domain_id
 import psutil
 from ros_ehs.bench import count, positive, report
-from ros_ehs.launch import Launch, loop_placement
+from ros_ehs.processes import loop_placement, NodeProcesses
 
 
 def _cpu(pid: int) -> float:
@@ -49,30 +49,30 @@ def _cpu(pid: int) -> float:
     return t.user + t.system
 
 
-def _measure(launch: Launch, names: tuple[str, str], seconds: float) -> dict:
+def _measure(procs: NodeProcesses, names: tuple[str, str], seconds: float) -> dict:
     """CPU share of each of ``names`` over ``seconds`` of wall time."""
-    c0 = {n: _cpu(launch[n].pid) for n in names}
+    c0 = {n: _cpu(procs[n].pid) for n in names}
     t0 = time.monotonic()
     time.sleep(seconds)
     wall = time.monotonic() - t0
-    return {n: (_cpu(launch[n].pid) - c0[n]) / wall for n in names}
+    return {n: (_cpu(procs[n].pid) - c0[n]) / wall for n in names}
 
 
 def _ours(dom: int, seconds: float, model: str, rt: dict) -> tuple[dict, dict]:
-    with Launch(dom) as launch:
-        launch.start('plant', {'model': model, **rt})
-        launch.start('controller', rt)
-        if not launch.wait_for_log('plant', 'watchdog armed', timeout=60):
-            raise RuntimeError('the loop did not close:\n' + launch['plant'].output()[-2000:])
-        cpu = _measure(launch, ('plant', 'controller'), seconds)
+    with NodeProcesses(dom) as procs:
+        procs.start('plant', {'model': model, **rt})
+        procs.start('controller', rt)
+        if not procs.wait_for_log('plant', 'watchdog armed', timeout=60):
+            raise RuntimeError('the loop did not close:\n' + procs['plant'].output()[-2000:])
+        cpu = _measure(procs, ('plant', 'controller'), seconds)
         # the plant first, as the bare ping goes first: a plant outliving its controller
         # counts every period until its own exit as a stale one (and a watchdog trip)
-        launch.stop(['plant', 'controller'])
-        return cpu, launch['plant'].figures()
+        procs.stop(['plant', 'controller'])
+        return cpu, procs['plant'].figures()
 
 
 def _bare(dom: int, seconds: float, rt: list[str]) -> tuple[dict, dict]:
-    with Launch(dom) as bare:
+    with NodeProcesses(dom) as bare:
         for role in ('pong', 'ping'):
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *rt])
         time.sleep(2.0)

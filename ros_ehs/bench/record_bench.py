@@ -35,7 +35,7 @@ import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
 from ros_ehs.bench import positive, positives, report
-from ros_ehs.launch import Launch
+from ros_ehs.processes import NodeProcesses
 import ros_ehs_msgs_py as contract
 
 TOPIC = '/bench/blast'
@@ -70,19 +70,19 @@ time.sleep(1.0)
 
 
 def _one(dom: int, rate: float, seconds: float, out: str, compression: str) -> dict:
-    with Launch(dom) as launch:
-        rec = launch.start('recorder', {'out': out, 'topics': [TOPIC], 'depth': 10000,
-                                        'compression': compression})
-        assert launch.wait_for_log('recorder', 'recording')
-        pub = launch.start('pub', cmd=[sys.executable, '-c', _PUBLISHER, str(rate),
-                                       str(seconds)])
-        assert launch.wait_for_log('recorder', f'recording {TOPIC}', 30), rec.output()
+    with NodeProcesses(dom) as procs:
+        rec = procs.start('recorder', {'out': out, 'topics': [TOPIC], 'depth': 10000,
+                                       'compression': compression})
+        assert procs.wait_for_log('recorder', 'recording')
+        pub = procs.start('pub', cmd=[sys.executable, '-c', _PUBLISHER, str(rate),
+                                      str(seconds)])
+        assert procs.wait_for_log('recorder', f'recording {TOPIC}', 30), rec.output()
         proc = psutil.Process(rec.pid)
         c0 = sum(proc.cpu_times()[:2])
         t0 = time.monotonic()
         pub.popen.wait(seconds * 10 + 60)
         cpu = (sum(proc.cpu_times()[:2]) - c0) / (time.monotonic() - t0)
-        launch.stop(['recorder'])
+        procs.stop(['recorder'])
         sent_line = [x for x in pub.output().splitlines() if x.startswith('sent')][-1]
     n, achieved = int(sent_line.split()[1]), float(sent_line.split()[2])
     bag = open_bag(out)

@@ -44,7 +44,7 @@ import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
 from ros_ehs.bench import positive, report
-from ros_ehs.launch import Launch, launch_script
+from ros_ehs.processes import launch_script, NodeProcesses
 import yaml
 
 NODES = ('plant', 'controller', 'reference', 'recorder')
@@ -87,34 +87,34 @@ def main(argv=None) -> int:
            if rt and RT_PROFILE.is_file() else {})
     with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
         bag = Path(a.keep) if a.keep else Path(tmp) / 'soak'
-        with Launch(dom, Path(tmp) / 'logs', env=env) as launch:
-            launch.start_loop(a.mode, bag=bag, controller=rt,
-                              plant={**rt, 'duration': a.seconds} if lock else rt,
-                              reference={'kind': 'sine', 'rate_hz': 1000.0 if lock else 250.0},
-                              recorder={'max_bag_duration': a.max_bag_duration,
-                                        'compression': a.compression})
-            procs = {n: psutil.Process(launch[n].pid) for n in NODES}
+        with NodeProcesses(dom, Path(tmp) / 'logs', env=env) as procs:
+            procs.start_loop(a.mode, bag=bag, controller=rt,
+                             plant={**rt, 'duration': a.seconds} if lock else rt,
+                             reference={'kind': 'sine', 'rate_hz': 1000.0 if lock else 250.0},
+                             recorder={'max_bag_duration': a.max_bag_duration,
+                                       'compression': a.compression})
+            procs = {n: psutil.Process(procs[n].pid) for n in NODES}
             cpu0 = {n: sum(p.cpu_times()[:2]) for n, p in procs.items()}
             t0 = time.monotonic()
             samples = []                              # (wall s, {node: rss})
             while True:
                 samples.append((time.monotonic() - t0,
                                 {n: p.memory_info().rss for n, p in procs.items()}))
-                if lock and 'lock-step run complete' in launch['plant'].output():
+                if lock and 'lock-step run complete' in procs['plant'].output():
                     break
                 if not lock and time.monotonic() - t0 >= a.seconds:
                     break
-                if not all(launch[n].alive() for n in NODES):
+                if not all(procs[n].alive() for n in NODES):
                     raise RuntimeError('a node stopped: ' + ', '.join(
-                        f'{n}: {launch[n].output()[-1500:]}' for n in NODES
-                        if not launch[n].alive()))
+                        f'{n}: {procs[n].output()[-1500:]}' for n in NODES
+                        if not procs[n].alive()))
                 time.sleep(a.sample)
             wall = time.monotonic() - t0
             cpu = {n: (sum(p.cpu_times()[:2]) - cpu0[n]) / wall for n, p in procs.items()}
             # the plant before its controller, as bench.py stops them: a plant outliving its
             # controller counts every period until its exit as stale (and a watchdog trip)
-            codes = launch.stop(['recorder', 'reference', 'plant', 'controller'])
-            fig_plant = launch['plant'].figures()
+            codes = procs.stop(['recorder', 'reference', 'plant', 'controller'])
+            fig_plant = procs['plant'].figures()
         info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
         rec_h = info['duration']['nanoseconds'] * 1e-9 / 3600.0
         # lock-step: RSS against recorded (sim) time, which runs faster than the wall

@@ -54,7 +54,7 @@ import time
 from domain_coordinator import domain_id
 from ros_ehs.bench import count, positive, report
 from ros_ehs.bench.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
-from ros_ehs.launch import Launch, launch_script, loop_placement
+from ros_ehs.processes import launch_script, loop_placement, NodeProcesses
 
 BENCH = launch_script('bench.py')
 RT_PROFILE = BENCH.with_name('fastdds_rt.xml')
@@ -136,7 +136,7 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
     if cpus:      # ping and pong on one CPU, as bench.py --cpu-affinity places ours
         rt += ['--cpu', str(cpus[0])]
     env = {'FASTRTPS_DEFAULT_PROFILES_FILE': str(RT_PROFILE)} if prio else {}
-    with Launch(dom, env=env) as bare:
+    with NodeProcesses(dom, env=env) as bare:
         for role in ('pong', 'ping'):
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *rt])
         time.sleep(2.0)

@@ -22,7 +22,7 @@ one offers reliable (the loop topics in lock-step), else best effort; depth ``de
 log line ``recording <topic> (<type>, <reliability>)`` says when, and ``matched <topic> (<n>
 publisher(s))`` when the subscription has first matched a publisher, from which on that
 publisher's messages reach the bag (matching can take seconds after discovery;
-``Launch.start_loop`` waits for it before the loop starts). The ``offered_qos_profiles``
+``NodeProcesses.start_loop`` waits for it before the loop starts). The ``offered_qos_profiles``
 stored are the publishers'.
 
 Long runs (a fatigue rig records for days): the bag is split into files of at most
@@ -92,7 +92,7 @@ class RecorderNode(Node):
     drain_period = 0.3
     #: the same under use_sim_time (lock-step, reliable loop topics): what a stall of this
     #: process made it miss is resent at each writer's next heartbeat, up to 3 s later
-    #: (Fast DDS's period); the writers are still running when a launch stops us first
+    #: (Fast DDS's period); the writers are still running when NodeProcesses.stop stops us first
     LOCKSTEP_DRAIN = 3.5
 
     def __init__(self, **kwargs) -> None:

@@ -12,9 +12,9 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Start ros_ehs nodes as processes and stop them cleanly (no ROS import; no ``launch`` here).
+Start ros_ehs nodes as processes and stop them cleanly (no ROS import; not ROS 2 ``launch``).
 
-:class:`Launch` is what ``launch_scripts/``, the benchmarks and the integration tests use:
+:class:`NodeProcesses` is what ``launch_scripts/``, the benchmarks and the integration tests use:
 each node runs as ``python -m ros_ehs.nodes.<node> --ros-args ...`` (the same code
 ``ros2 run ros_ehs <node>`` runs), with its own log file, on one ``ROS_DOMAIN_ID``. Stopping
 sends SIGINT in the given order, waits, and only then escalates to SIGTERM and SIGKILL, so a
@@ -38,7 +38,7 @@ from ros_ehs.errors import EhsError
 from ros_ehs.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
-__all__ = ['Launch', 'LaunchError', 'launch_script', 'loop_placement', 'NodeProcess',
+__all__ = ['NodeProcesses', 'StartupError', 'launch_script', 'loop_placement', 'NodeProcess',
            'node_command', 'NODES']
 
 
@@ -139,11 +139,11 @@ class NodeProcess:
                                self.output()[-3000:]) from None
 
 
-class LaunchError(EhsError, RuntimeError):
-    """A node did not start or did not reach the state a launch waits for (its log attached)."""
+class StartupError(EhsError, RuntimeError):
+    """A node did not start or did not reach the state start_loop waits for (its log attached)."""
 
 
-class Launch:
+class NodeProcesses:
     """
     A set of node processes on one ROS domain; a context manager that stops them all.
 
@@ -279,7 +279,7 @@ class Launch:
           the states from time zero on.
 
         Returns when everything runs. ``plant``, ``controller``, ``reference``, ``recorder``:
-        extra parameters (``reference=False``: no reference node). Raises :class:`LaunchError`
+        extra parameters (``reference=False``: no reference node). Raises :class:`StartupError`
         naming the step that did not happen, with that node's log.
 
         ``pin`` (default: when this process may use two CPUs or more) sets the nodes'
@@ -362,15 +362,15 @@ class Launch:
             if dead:
                 n = dead[0]
                 code = self.procs[n].popen.returncode
-                raise LaunchError(f'{n} exited with code {code} while the bench was starting '
-                                  f'(waiting: {what}); {n} log:\n' +
-                                  self.procs[n].output()[-3000:])
+                raise StartupError(f'{n} exited with code {code} while the bench was starting '
+                                   f'(waiting: {what}); {n} log:\n' +
+                                   self.procs[n].output()[-3000:])
             if time.monotonic() >= end:
-                raise LaunchError(f'{what} (no {missing!r} from {name} in {timeout:g} s); '
-                                  f'{name} log:\n' + out[-3000:])
+                raise StartupError(f'{what} (no {missing!r} from {name} in {timeout:g} s); '
+                                   f'{name} log:\n' + out[-3000:])
             time.sleep(0.05)
 
-    def __enter__(self) -> 'Launch':
+    def __enter__(self) -> 'NodeProcesses':
         """Return self."""
         return self
 

@@ -14,7 +14,7 @@
 """Process supervision without DDS: node commands, CPU placement."""
 
 import pytest
-from ros_ehs.launch import node_command
+from ros_ehs.processes import node_command
 
 
 def test_bare_params_file_moves_inside_ros_args():
@@ -41,6 +41,6 @@ def test_node_command_writes_doubles_as_doubles():
     ({0, 1}, None, (0, 1)), ({5, 3, 7}, None, (3, 5)), ({2}, None, None), ({2}, True, (2, 2)),
     ({0, 1}, False, None), ({4, 9}, True, (4, 9))])
 def test_loop_placement_takes_the_first_two_allowed_cpus(monkeypatch, allowed, pin, want):
-    import ros_ehs.launch as launch
-    monkeypatch.setattr(launch.os, 'sched_getaffinity', lambda pid: set(allowed))
-    assert launch.loop_placement(pin) == want
+    import ros_ehs.processes as processes
+    monkeypatch.setattr(processes.os, 'sched_getaffinity', lambda pid: set(allowed))
+    assert processes.loop_placement(pin) == want
