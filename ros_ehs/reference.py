@@ -28,14 +28,29 @@ import numpy as np
 from ros_ehs.errors import DataError, InputError, ParameterError
 from ros_ehs.params import ParamSpec
 
-__all__ = ['Chirp', 'CsvTrajectory', 'KINDS', 'REFERENCE_SPECS', 'Samples', 'Sine', 'Step',
-           'make']
+__all__ = ['Chirp', 'CsvTrajectory', 'first_order_hold', 'KINDS', 'REFERENCE_SPECS', 'Samples',
+           'Sine', 'Step', 'make']
 
 
 def _finite(name: str, value: float) -> float:
     if not (isinstance(value, (int, float)) and math.isfinite(value)):
         raise InputError(f'`{name}` = {value!r} must be a finite number')
     return float(value)
+
+
+def first_order_hold(z_ref: float, v_ref: float, ref_stamp_ns: int, stamp_ns: int,
+                     limit_s: float) -> float:
+    """
+    Return the position demand [m] at ``stamp_ns`` from a reference sample at ``ref_stamp_ns``.
+
+    The sample is carried with its velocity to the instant, forward from an older sample (a
+    reference slower than the loop) and back from a newer one (it arrived between the state's
+    stamp and the state), by at most ``limit_s`` either way: the demand is the reference at
+    the state's instant whatever the phase of the two clocks' periods. Unchecked (the
+    controller's hot path): finite inputs give a finite demand.
+    """
+    dt = min(max((stamp_ns - ref_stamp_ns) * 1e-9, -limit_s), limit_s)
+    return z_ref + v_ref * dt
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@
 import numpy as np
 import pytest
 from ros_ehs.errors import ParameterError
-from ros_ehs.reference import make, REFERENCE_SPECS, Sine, Step
+from ros_ehs.reference import first_order_hold, make, REFERENCE_SPECS, Sine, Step
 
 
 def test_reference_specs_build_each_kind_and_reject_bad_values(tmp_path):
@@ -31,3 +31,25 @@ def test_reference_specs_build_each_kind_and_reject_bad_values(tmp_path):
     with pytest.raises(ParameterError, match='frequency'):
         make({'frequency': -1.0})
     assert {s.name for s in REFERENCE_SPECS} >= {'kind', 'amplitude', 'frequency'}
+
+
+@pytest.mark.parametrize('offset_ms', [-0.9, -0.3, 0.0, 0.4, 2.5, 3.9])
+def test_the_hold_gives_the_reference_at_the_states_instant_whichever_came_first(offset_ms):
+    """A sample older (a slow reference) or newer (it came after the state) than the state."""
+    sine = Sine(0.04, 1.0)
+    t_state = 0.1234
+    t_ref = t_state - offset_ms * 1e-3          # negative offset: the sample is the newer
+    (z,), (v,) = sine([t_ref])
+    got = first_order_hold(z, v, round(t_ref * 1e9), round(t_state * 1e9), 0.1)
+    # exact to the sine's curvature over the offset (w^2 A dt^2 / 2: 0.03-5 um), where taking
+    # the newer sample as it is misses by v dt (up to 0.23 mm here)
+    curvature = (2 * np.pi) ** 2 * 0.04 * (offset_ms * 1e-3) ** 2 / 2
+    assert got == pytest.approx(float(sine([t_state])[0][0]), abs=1.01 * curvature + 1e-12)
+    if offset_ms < 0:
+        assert abs(z - float(sine([t_state])[0][0])) > 50e-6
+
+
+def test_the_hold_carries_a_sample_by_at_most_its_limit_either_way():
+    assert first_order_hold(0.01, 0.2, 0, 3_000_000_000, 0.1) == pytest.approx(0.01 + 0.02)
+    assert first_order_hold(0.01, 0.2, 3_000_000_000, 0, 0.1) == pytest.approx(0.01 - 0.02)
+    assert first_order_hold(0.01, 0.2, 5, 5, 0.1) == 0.01
