@@ -21,7 +21,8 @@ Start a bench: plant + controller + reference + recorder, each its own process.
 
 ``--controller-param NAME=VALUE`` and ``--plant-param NAME=VALUE`` (repeatable) set one node's
 parameters, e.g. the safety limits (docs/safety.md) or a plant fault to inject. After the run
-the bench prints the safety events the bag holds (topic ``events``).
+the bench prints, read from the bag, what it holds, the safety events (topic ``events``) and,
+with ``--live-identify``, the live refits (``parameter_estimates``).
 
 It runs for ``--duration`` seconds (real time: wall seconds after the loop closes; lock-step:
 sim seconds, as fast as DDS goes) or until Ctrl-C, then stops every child cleanly: the
@@ -59,23 +60,13 @@ from ros_ehs.bench.sleeper import command as probe_command  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.sim.synthetic_bag import SensorNoise  # noqa: E402
+import ros_ehs_msgs_py as contract  # noqa: E402
 
 FASTDDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 #: at most this many CPUs get a probe (one each); a larger machine gets none
 PROBE_MAX_CPUS = 4
 #: the Fast DDS profile a bench under SCHED_FIFO needs (see the file's comment)
 RT_PROFILE = Path(__file__).resolve().with_name('fastdds_rt.xml')
-
-
-def _recorder_lines(procs: NodeProcesses, errors_only: bool = False) -> None:
-    """Print the recorder's closing line: what the bag holds, or its one error line."""
-    if 'recorder' not in procs.procs:
-        return
-    for line in procs['recorder'].output().splitlines():
-        if line.startswith('[recorder] error'):
-            print('bench: recorder ' + line[len('[recorder] '):], file=sys.stderr)
-        elif line.startswith('[recorder] closed') and not errors_only:
-            print('bench: recorder ' + line[len('[recorder] '):])
 
 
 def _start_probes(procs: NodeProcesses, rt_priority: int) -> list[str]:
@@ -128,24 +119,33 @@ def _node_param(text: str) -> tuple[str, object]:
         raise argparse.ArgumentTypeError(f'{text!r}: {err}') from None
 
 
-def _event_lines(bag: Path) -> None:
-    """Print the safety events the bag holds (the controller's ``events`` topic)."""
+def _bag_lines(bag: Path, live: bool) -> None:
+    """Print what the bag holds, read from the bag: topics, safety events, live refits."""
     from ros_ehs.bag import open_bag
     from ros_ehs.errors import BagError
-    import ros_ehs_msgs_py as contract
+    from ros_ehs.identify.trend import trend_table
+
+    def decoded(topic, convert):
+        topic = '/' + topic.name
+        return [convert(m) for _, m in b.decoded([topic])] if topic in b.topics else []
     try:
         b = open_bag(bag)
-        topic = '/' + contract.EVENTS.name
-        events = [contract.event_from_msg(m) for _, m in b.decoded([topic])] \
-            if topic in b.topics else []
-        first = b.start_ns
+        events = decoded(contract.EVENTS, contract.event_from_msg)
+        estimates = decoded(contract.ESTIMATES, contract.estimate_from_msg) if live else []
     except (BagError, ValueError) as err:
-        print(f'bench: cannot read the safety events: {err}', file=sys.stderr)
+        print(f'bench: cannot read the bag {bag}: {err}', file=sys.stderr)
         return
+    files = f'{len(b.files)} file' + ('s' if len(b.files) > 1 else '')
+    counts = ', '.join(f'{t.name} {t.count}' for t in b.topics.values())
+    print(f'bench: bag {bag}: {b.message_count} messages in {files} ({counts})')
     print(f'bench: safety events: {len(events)}')
     for e in events:
-        print(f'bench:   {(e.stamp_ns - first) * 1e-9:9.3f} s  {e.kind} {e.detector} '
+        print(f'bench:   {(e.stamp_ns - b.start_ns) * 1e-9:9.3f} s  {e.kind} {e.detector} '
               f'({e.action}): {e.message}')
+    if live:
+        print(f'bench: live refits: {len(estimates)}')
+        for line in trend_table(sorted(estimates, key=lambda e: e.stamp_ns)).splitlines():
+            print('bench:   ' + line)
 
 
 def main(argv=None) -> int:
@@ -241,7 +241,6 @@ def main(argv=None) -> int:
                                         'rate_hz': 1000.0 if lock else 250.0})
         except StartupError as err:
             print(f'bench: {err}', file=sys.stderr)
-            _recorder_lines(procs, errors_only=True)
             return 1
         live = []
         if a.live_identify:
@@ -256,7 +255,8 @@ def main(argv=None) -> int:
               flush=True)
         t0 = time.monotonic()
         while not stop and all(p.alive() for p in procs.procs.values()):
-            if lock and 'lock-step run complete' in procs['plant'].output():
+            done = procs.status(contract.PLANT_STATUS)
+            if lock and done is not None and done.message == 'lock-step run complete':
                 break
             if not lock and a.duration > 0 and time.monotonic() - t0 >= a.duration:
                 break
@@ -266,12 +266,11 @@ def main(argv=None) -> int:
         # the recorder first (it drains while the writers still run), then the plant before
         # its controller: a plant outliving the controller would count every period until
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
+        recorder = procs.status(contract.RECORDER_STATUS)
         codes = procs.stop(['recorder', *live, 'reference', 'plant', 'controller', *probes])
-    _recorder_lines(procs)
-    _event_lines(out)
-    for line in (procs['identify'].output().splitlines() if live else []):
-        if 'live refit at' in line or 'live push' in line:
-            print('bench: identify ' + line.split('] ', 1)[-1])
+    if recorder is not None and recorder.level == 2:
+        print(f'bench: the recorder stopped recording: {recorder.message}', file=sys.stderr)
+    _bag_lines(out, bool(live))
     try:
         f = procs['plant'].figures()
         span = max(f['sim_time_s'], 1e-9)

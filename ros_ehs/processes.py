@@ -12,13 +12,18 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Start ros_ehs nodes as processes and stop them cleanly (no ROS import; not ROS 2 ``launch``).
+Start ros_ehs nodes as processes and stop them cleanly (not ROS 2 ``launch``).
 
 :class:`NodeProcesses` is what ``launch_scripts/``, the benchmarks and the integration tests use:
 each node runs as ``python -m ros_ehs.nodes.<node> --ros-args ...`` (the same code
 ``ros2 run ros_ehs <node>`` runs), with its own log file, on one ``ROS_DOMAIN_ID``. Stopping
 sends SIGINT in the given order, waits, and only then escalates to SIGTERM and SIGKILL, so a
 recorder closes its bag.
+
+:meth:`NodeProcesses.start_loop` learns what each node is ready for from its status in
+``diagnostics`` (:meth:`NodeProcesses.status`, :meth:`NodeProcesses.wait_status`: a
+:class:`ros_ehs.nodes.status_watch.StatusWatch` that joins the domain just before the first
+node starts), never from its log; the logs are for people.
 """
 
 from __future__ import annotations
@@ -32,14 +37,14 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 from ros_ehs.errors import EhsError
 from ros_ehs.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
-__all__ = ['NodeProcesses', 'StartupError', 'launch_script', 'loop_placement', 'NodeProcess',
-           'node_command', 'NODES']
+__all__ = ['NodeProcesses', 'StartupError', 'launch_script', 'loop_closed', 'loop_placement',
+           'NodeProcess', 'node_command', 'NODES', 'recording', 'reference_started']
 
 
 def launch_script(name: str) -> Path:
@@ -139,6 +144,22 @@ class NodeProcess:
                                self.output()[-3000:]) from None
 
 
+def loop_closed(st: contract.NodeStatus) -> bool:
+    """Whether the plant's status says its loop is closed (level OK)."""
+    return st.level == 0
+
+
+def reference_started(st: contract.NodeStatus) -> bool:
+    """Whether the reference's status says its trajectory has started (time zero)."""
+    return st.values.get('started') == 'True'
+
+
+def recording(*topics: contract.Topic | str) -> Callable[[contract.NodeStatus], bool]:
+    """Return whether the recorder's status lists every one of ``topics`` as recorded."""
+    names = {'/' + getattr(t, 'name', t).lstrip('/') for t in topics}
+    return lambda st: names <= st.listed('recording')
+
+
 class StartupError(EhsError, RuntimeError):
     """A node did not start or did not reach the state start_loop waits for (its log attached)."""
 
@@ -166,6 +187,7 @@ class NodeProcesses:
         self.log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix='ehs_logs_'))
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, NodeProcess] = {}
+        self.watch = None     # a StatusWatch, from the first start_loop
         self.shm_cleanup = clean_zombies() if clean_shm and SHM_DIR.is_dir() else None
         self.placement: tuple[int, int] | None = None     # set by start_loop
 
@@ -187,6 +209,11 @@ class NodeProcesses:
                            self.log_dir / f'{name}.figures.json')
             figures.unlink(missing_ok=True)
             params = {**(params or {}), 'figures_file': str(figures)}
+        if self.watch is None and node in NODES:
+            # on the domain before the first node: it joins no running loop, misses no status
+            from ros_ehs.nodes.status_watch import StatusWatch
+            dom = self.env.get('ROS_DOMAIN_ID')
+            self.watch = StatusWatch(int(dom) if dom else None, self.env)
         cmd = cmd or node_command(node, params, params_file, extra)
         log = self.log_dir / f'{name}.log'
         fh = open(log, 'wb')
@@ -304,9 +331,6 @@ class NodeProcesses:
         pf = params_file
         rec = bag is not None
 
-        def recording(*topics):      # the recorder's line for each (absolute) topic
-            return [f"recording {'/' + t.name.lstrip('/')} (" for t in topics]
-
         def start_reference(**extra):
             ref = {'use_sim_time': lock, **extra, **({} if reference is True else reference)}
             self.start('reference', ref, params_file=pf)
@@ -314,7 +338,8 @@ class NodeProcesses:
         if rec:
             self.start('recorder', {'out': str(bag), 'use_sim_time': lock, **(recorder or {})},
                        params_file=pf)
-            self._expect('recorder', ['recording'], timeout, 'the recorder did not start')
+            self._expect('recorder', contract.RECORDER_STATUS, lambda st: True,
+                         timeout, 'the recorder did not start')
         self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
         if lock:
             first = [contract.COMMAND]
@@ -322,41 +347,59 @@ class NodeProcesses:
                 start_reference()
                 first.append(contract.REFERENCE)
             if rec:
-                self._expect('recorder', recording(*first), timeout,
+                self._expect('recorder', contract.RECORDER_STATUS, recording(*first), timeout,
                              'the recorder did not discover the controller and reference')
         if not lock and reference is not False:
             start_reference(wait_subscribers=2 if rec else 1, wait_loop=True)
             if rec:
-                self._expect('recorder', recording(contract.REFERENCE), timeout,
-                             'the recorder did not discover the reference')
+                self._expect('recorder', contract.RECORDER_STATUS, recording(contract.REFERENCE),
+                             timeout, 'the recorder did not discover the reference')
         if rec and not lock:
             # the controller's commands reach the bag from the loop's first period: matching
             # took 2 s after discovery at times (a bag began 1.2 s after the sine's start)
-            self._expect('recorder', [f"matched /{contract.COMMAND.name.lstrip('/')} ("],
+            command = '/' + contract.COMMAND.name.lstrip('/')
+            self._expect('recorder', contract.RECORDER_STATUS,
+                         lambda st: command in st.listed('matched'),
                          timeout, "the recorder did not match the controller's commands")
         # lock-step: the plant starts stepping when they listen; real time: it reports the
         # loop running only then, and the reference's time zero waits for that report
         pl = {'mode': mode, 'wait_subscribers': 2 if rec else 1, **(plant or {})}
         self.start('plant', pl, params_file=pf)
-        self._expect('plant', ['lock-step running' if lock else 'watchdog armed'], timeout,
+        self._expect('plant', contract.PLANT_STATUS, loop_closed, timeout,
                      'the loop did not close')
         if rec:
             loop = (contract.STATE, contract.PRESSURE_P, contract.PRESSURE_T)
             loop += (contract.CLOCK,) if lock else (contract.COMMAND,)
-            self._expect('recorder', recording(*loop), timeout,
+            self._expect('recorder', contract.RECORDER_STATUS, recording(*loop), timeout,
                          "the recorder did not discover the loop's topics")
         if not lock and reference is not False:
-            self._expect('reference', ['time zero'], timeout,
+            self._expect('reference', contract.REFERENCE_STATUS, reference_started, timeout,
                          'the reference did not start: no controller (and recorder) to start '
                          'for, or no diagnostics from the plant saying its loop is closed')
 
-    def _expect(self, name: str, texts: list[str], timeout: float, what: str) -> None:
-        """Wait for ``texts`` from ``name``; any child that exits meanwhile fails it at once."""
+    def status(self, status_name: str) -> contract.NodeStatus | None:
+        """Return the latest status ``status_name`` on the domain (None: none seen yet)."""
+        return None if self.watch is None else self.watch.status(status_name)
+
+    def wait_status(self, status_name: str, ready: Callable[[contract.NodeStatus], bool],
+                    timeout: float = 30.0) -> bool:
+        """Wait until the latest status ``status_name`` satisfies ``ready``; False on timeout."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            st = self.status(status_name)
+            if st is not None and ready(st):
+                return True
+            time.sleep(0.05)
+        return False
+
+    def _expect(self, name: str, status_name: str,
+                ready: Callable[[contract.NodeStatus], bool], timeout: float,
+                what: str) -> None:
+        """Wait until ``ready(status)``; any child that exits meanwhile fails it at once."""
         end = time.monotonic() + timeout
         while True:
-            out = self.procs[name].output()
-            missing = [t for t in texts if t not in out]
-            if not missing:
+            st = self.status(status_name)
+            if st is not None and ready(st):
                 return
             dead = [n for n, p in self.procs.items() if not p.alive()]
             if dead:
@@ -366,14 +409,24 @@ class NodeProcesses:
                                    f'(waiting: {what}); {n} log:\n' +
                                    self.procs[n].output()[-3000:])
             if time.monotonic() >= end:
-                raise StartupError(f'{what} (no {missing!r} from {name} in {timeout:g} s); '
-                                   f'{name} log:\n' + out[-3000:])
+                seen = ('no status from it' if st is None else
+                        f'its status: {st.message!r} {st.values}')
+                raise StartupError(f'{what} ({status_name} in diagnostics, {timeout:g} s; '
+                                   f'{seen}); {name} log:\n' +
+                                   self.procs[name].output()[-3000:])
             time.sleep(0.05)
+
+    def close(self) -> None:
+        """Stop everything still running; leave the domain."""
+        self.stop()
+        if self.watch is not None:
+            self.watch.close()
+            self.watch = None
 
     def __enter__(self) -> 'NodeProcesses':
         """Return self."""
         return self
 
     def __exit__(self, *exc) -> None:
-        """Stop everything still running."""
-        self.stop()
+        """Stop everything still running; leave the domain."""
+        self.close()

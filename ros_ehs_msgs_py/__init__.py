@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The ros_ehs topic contract (DESIGN.md section 3): names, message types, units, QoS, conversions.
+The ros_ehs topic contract: names, message types, units, QoS, conversions.
 
 Pure Python, no ROS import, so the numerical core and the bag reader use it as freely as the
 nodes. Names are relative, so a namespace (``__ns:=/axis1``) runs several axes.
@@ -20,7 +20,7 @@ nodes. Names are relative, so a namespace (``__ns:=/axis1``) runs several axes.
 Five small modules, re-exported here: :mod:`~ros_ehs_msgs_py.topics` (names, types, units,
 which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain records),
 :mod:`~ros_ehs_msgs_py.records` (:class:`AxisState`, :class:`Reference`, :class:`Command`,
-:class:`Pressure`), :mod:`~ros_ehs_msgs_py.conversions` (records to and from messages) and
+:class:`Pressure`, ...), :mod:`~ros_ehs_msgs_py.conversions` (records to and from messages) and
 :mod:`~ros_ehs_msgs_py.wire` (the loop's JointStates to and from CDR bytes, the fast path).
 """
 
@@ -30,16 +30,16 @@ from ros_ehs_msgs_py.conversions import (command_from_msg, empty_msg, estimate_f
                                          fill_reference, fill_reference_trajectory, fill_state,
                                          pressure_from_msg, reference_from_msg,
                                          reference_trajectory_from_msg, stamp_ns,
-                                         state_from_msg)
+                                         state_from_msg, statuses_from_msg)
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
-from ros_ehs_msgs_py.records import (AxisState, Command, ParameterEstimate, Pressure,
-                                     Reference, SafetyEvent)
-from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, DIAGNOSTICS, ESTIMATES, EVENTS,
-                                    JOINT_PISTON,
-                                    JOINT_SPOOL, JOINT_VALVE, LOCKSTEP_NODE_TOPICS,
-                                    NODE_TOPICS, NodeTopics, PRESSURE_P, PRESSURE_T, REFERENCE,
-                                    REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
+from ros_ehs_msgs_py.records import (AxisState, Command, NodeStatus, ParameterEstimate,
+                                     Pressure, Reference, SafetyEvent)
+from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, CONTROLLER_STATUS, DIAGNOSTICS,
+                                    ESTIMATES, EVENTS, JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE,
+                                    LOCKSTEP_NODE_TOPICS, NODE_TOPICS, NodeTopics, PLANT_STATUS,
+                                    PRESSURE_P, PRESSURE_T, RECORDER_STATUS, REFERENCE,
+                                    REFERENCE_STATUS, REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
 from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr,
                                   command_to_cdr, decode_joint_state,
                                   float64_array_from_cdr, float64_array_to_cdr,
@@ -51,6 +51,8 @@ from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr
                                   reference_trajectory_to_cdr, state_from_cdr, state_to_cdr)
 
 __all__ = [
+    'NodeStatus', 'statuses_from_msg', 'CONTROLLER_STATUS', 'PLANT_STATUS', 'RECORDER_STATUS',
+    'REFERENCE_STATUS',
     'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'ESTIMATES',
     'EVENTS', 'ParameterEstimate', 'estimate_from_msg', 'fill_estimate',
     'EVENTS_QOS', 'JOINT_PISTON', 'SafetyEvent', 'event_from_msg', 'event_level', 'fill_event',

@@ -24,8 +24,8 @@ from __future__ import annotations
 import math
 from typing import Any, Callable, Sequence
 
-from ros_ehs_msgs_py.records import (AxisState, Command, ParameterEstimate, Pressure,
-                                     Reference, SafetyEvent)
+from ros_ehs_msgs_py.records import (AxisState, Command, NodeStatus, ParameterEstimate,
+                                     Pressure, Reference, SafetyEvent)
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
 
 __all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'estimate_from_msg',
@@ -36,7 +36,7 @@ __all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'estimate_fro
            'fill_reference_trajectory', 'fill_state', 'pressure_from_msg',
            'reference_from_arrays', 'reference_from_msg',
            'reference_trajectory_from_msg', 'stamp_ns', 'state_from_arrays',
-           'state_from_msg']
+           'state_from_msg', 'statuses_from_msg']
 
 
 def stamp_ns(header: Any) -> int:
@@ -367,3 +367,16 @@ def estimate_from_msg(msg: Any) -> ParameterEstimate:
             int(vals['iterations']))
     except ValueError as err:
         raise ValueError(f'parameter_estimates: a value is not a number: {err}') from None
+
+
+def statuses_from_msg(msg: Any) -> list[NodeStatus]:
+    """Return every status of a ``diagnostics`` DiagnosticArray as :class:`NodeStatus`."""
+    t = stamp_ns(_get(msg, 'header'))
+    out = []
+    for st in _get(msg, 'status'):
+        level = _get(st, 'level')
+        out.append(NodeStatus(t, _get(st, 'name'),
+                              level[0] if isinstance(level, (bytes, bytearray)) else int(level),
+                              _get(st, 'message'),
+                              {_get(kv, 'key'): _get(kv, 'value') for kv in _get(st, 'values')}))
+    return out

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-__all__ = ['AxisState', 'Command', 'ParameterEstimate', 'Pressure', 'Reference',
+__all__ = ['AxisState', 'Command', 'NodeStatus', 'ParameterEstimate', 'Pressure', 'Reference',
            'SafetyEvent']
 
 
@@ -95,3 +95,23 @@ class ParameterEstimate(NamedTuple):
     window_s: float = math.nan      #: the data fitted [s]
     wall_s: float = math.nan        #: the refit's wall time [s]
     iterations: int = 0
+
+
+class NodeStatus(NamedTuple):
+    """
+    One node's status in ``diagnostics``: what it is doing, and whether it is ready.
+
+    ``level`` is DiagnosticStatus's (0 OK, 1 WARN, 2 ERROR, 3 STALE); ``values`` its key-value
+    pairs as strings. The readiness each node reports is listed with the status names in
+    :mod:`ros_ehs_msgs_py.topics`.
+    """
+
+    stamp_ns: int
+    name: str
+    level: int
+    message: str
+    values: dict
+
+    def listed(self, key: str) -> set[str]:
+        """Return the comma-separated items of value ``key`` (empty if absent)."""
+        return {x for x in self.values.get(key, '').split(',') if x}

@@ -23,11 +23,27 @@ from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, 
 __all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'ESTIMATES', 'EVENTS', 'JOINT_PISTON',
            'JOINT_SPOOL', 'JOINT_VALVE',
            'LOCKSTEP_NODE_TOPICS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T',
-           'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name']
+           'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name',
+           'CONTROLLER_STATUS', 'PLANT_STATUS', 'RECORDER_STATUS', 'REFERENCE_STATUS']
 
 JOINT_PISTON = 'piston'
 JOINT_SPOOL = 'spool'
 JOINT_VALVE = 'servo_valve'
+
+# The nodes' status names in ``diagnostics`` and the readiness each reports there (what a
+# supervisor, a reference with ``wait_loop`` or an operator's tool waits on; never log text):
+#: level OK once its loop is closed: in real time the watchdog armed by a first command and not
+#: tripped, in lock-step stepping; message ``lock-step run complete`` when a lock-step run of
+#: ``duration`` has ended.
+PLANT_STATUS = 'ros_ehs/plant'
+#: values ``recording`` (the topics it subscribed to and writes, comma-separated absolute
+#: names) and ``matched`` (those whose subscription has matched a publisher); level ERROR with
+#: the reason when it stopped recording (the bag stays readable).
+RECORDER_STATUS = 'ros_ehs/recorder'
+#: value ``started``: ``True`` from the trajectory's time zero on.
+REFERENCE_STATUS = 'ros_ehs/reference'
+#: the loop's tracking and the safety layer's state.
+CONTROLLER_STATUS = 'ros_ehs/controller'
 
 
 class Topic(NamedTuple):

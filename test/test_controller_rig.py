@@ -19,7 +19,7 @@ from ros_ehs.bag import open_bag
 from ros_ehs.bag.experiment import load_experiments
 from ros_ehs.bag.mapping import TopicMap
 from ros_ehs.params import Params
-from ros_ehs.processes import NodeProcesses
+from ros_ehs.processes import NodeProcesses, recording, reference_started
 from ros_ehs.reference import Sine
 from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
@@ -54,7 +54,7 @@ def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         procs.start('recorder', {'out': str(rig_bag), 'topics': [
             '/joint_states', '/servo_valve_controller/commands', '/reference', '/events']})
-        assert procs.wait_for_log('recorder', 'recording')
+        assert procs.wait_status(c.RECORDER_STATUS, lambda st: True)
         procs.start('controller', {
             'rate_hz': RATE, 'state_topic': '/joint_states', 'joint': JOINT,
             'command_interface': 'forward_command',
@@ -62,10 +62,10 @@ def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
         assert procs.wait_for_log('controller', 'PID')
         drv = procs.start('driver', cmd=[sys.executable, str(DRIVER), '--rate', str(RATE),
                                          '--joint', JOINT])
-        assert procs.wait_for_log('recorder', 'recording /joint_states', 30), \
+        assert procs.wait_status(c.RECORDER_STATUS, recording('/joint_states'), 30), \
             procs['recorder'].output()[-2000:]
         procs.start('reference', {'wait_subscribers': 2})
-        assert procs.wait_for_log('reference', 'time zero', 30)
+        assert procs.wait_status(c.REFERENCE_STATUS, reference_started, 30)
         time.sleep(seconds)
         codes = procs.stop(['recorder', 'reference', 'controller', 'driver'])
         figures = json.loads(drv.output().strip().splitlines()[-1])

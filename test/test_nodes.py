@@ -30,7 +30,7 @@ import pytest
 from ros_ehs.bag import open_bag
 from ros_ehs.errors import BagError
 from ros_ehs.params import Params
-from ros_ehs.processes import loop_placement, node_command, NodeProcesses
+from ros_ehs.processes import loop_closed, loop_placement, node_command, NodeProcesses
 from ros_ehs.reference import Sine
 from ros_ehs.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
@@ -208,6 +208,13 @@ def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
         assert conns['/diagnostics'].msgtype == 'diagnostic_msgs/msg/DiagnosticArray'
         qos = conns['/state'].ext.offered_qos_profiles[0]
         assert qos.depth == 1 and qos.reliability.name.lower() == 'best_effort'
+        # the recorder's own status is in the bag: what it records and has matched
+        rec = [s for _, _, raw in r.messages(connections=[conns['/diagnostics']])
+               for s in c.statuses_from_msg(ts.deserialize_cdr(raw, conns['/diagnostics'].msgtype))
+               if s.name == c.RECORDER_STATUS]
+        assert rec and rec[-1].level == 0 and rec[-1].values['bag'] == str(bag)
+        assert {'/state', '/servo_current', '/reference'} <= rec[-1].listed('matched') <= \
+            rec[-1].listed('recording')
         n_state = 0
         for conn, t, raw in r.messages(connections=[conns['/state']]):
             m = ts.deserialize_cdr(raw, conn.msgtype)
@@ -440,7 +447,7 @@ def test_bad_messages_crash_nothing(dom, tmp_path, ros):
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         procs.start('plant')
         procs.start('controller')
-        assert procs.wait_for_log('plant', 'watchdog armed', 60), procs['plant'].output()
+        assert procs.wait_status(c.PLANT_STATUS, loop_closed, 60), procs['plant'].output()
         states = []
         ros.create_subscription(JointState, 'state', states.append,
                                 qos_profile(c.STATE.qos, depth=100))
@@ -660,7 +667,7 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
                           '--rt-priority', '10'],
                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
-    assert 'bench: done' in res.stdout and 'closed' in res.stdout
+    assert 'bench: done' in res.stdout and '/state 1001' in res.stdout, res.stdout
     assert 'bench: Fast DDS profile' in res.stdout and 'fastdds_rt.xml' in res.stdout
     t, z, i = _states(out)
     assert len(t) == 1001 and np.all(np.diff(t) == 1_000_000)

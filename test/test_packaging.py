@@ -86,14 +86,15 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
 
     # the colcon-built executables start and talk (what `ros2 run ros_ehs plant` starts)
     from domain_coordinator import domain_id
-    from ros_ehs.processes import NodeProcesses
+    from ros_ehs.processes import loop_closed, NodeProcesses
+    from ros_ehs_msgs_py import PLANT_STATUS
     site = next(install.glob('lib/python*/site-packages'))
     with domain_id() as dom:
         built = {'PYTHONPATH': str(site), 'AMENT_PREFIX_PATH': prefix_path}
         with NodeProcesses(dom, tmp_path / 'logs', env=built) as procs:
             procs.start('plant', cmd=[str(lib / 'plant')])
             procs.start('controller', cmd=[str(lib / 'controller')])
-            ok = procs.wait_for_log('plant', 'watchdog armed', 60)
+            ok = procs.wait_status(PLANT_STATUS, loop_closed, 60)
             codes = procs.stop(['controller', 'plant'])
     assert ok, procs['plant'].output()[-2000:] + procs['controller'].output()[-2000:]
     assert codes == {'controller': 0, 'plant': 0}

@@ -44,3 +44,55 @@ def test_loop_placement_takes_the_first_two_allowed_cpus(monkeypatch, allowed, p
     import ros_ehs.processes as processes
     monkeypatch.setattr(processes.os, 'sched_getaffinity', lambda pid: set(allowed))
     assert processes.loop_placement(pin) == want
+
+
+def _diagnostic_array(statuses):
+    """Return a DiagnosticArray that rosbags serialized and read back (not our writer)."""
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    msg = T['diagnostic_msgs/msg/DiagnosticArray'](
+        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
+            sec=5, nanosec=7), frame_id=''),
+        status=[T['diagnostic_msgs/msg/DiagnosticStatus'](
+            level=level, name=name, message=message, hardware_id='axis',
+            values=[T['diagnostic_msgs/msg/KeyValue'](key=k, value=v) for k, v in values])
+            for name, level, message, values in statuses])
+    kind = msg.__msgtype__
+    return ts.deserialize_cdr(ts.serialize_cdr(msg, kind), kind)
+
+
+def test_readiness_is_read_from_the_statuses_a_diagnostics_message_carries():
+    import ros_ehs_msgs_py as c
+    from ros_ehs.processes import loop_closed, recording, reference_started
+    msg = _diagnostic_array([
+        (c.RECORDER_STATUS, 0, 'recording', [('recording', '/reference,/servo_current,/state'),
+                                             ('matched', '/reference')]),
+        (c.PLANT_STATUS, 1, 'waiting for the first command', []),
+        (c.REFERENCE_STATUS, 0, 'sine', [('started', 'True'), ('published', '3')])])
+    rec, plant, ref = c.statuses_from_msg(msg)
+    assert rec == c.NodeStatus(5_000_000_007, c.RECORDER_STATUS, 0, 'recording',
+                               {'recording': '/reference,/servo_current,/state',
+                                'matched': '/reference'})
+    assert rec.listed('matched') == {'/reference'} and rec.listed('nothing') == set()
+    assert recording(c.STATE, c.COMMAND)(rec) and recording('/reference')(rec)
+    assert not recording(c.STATE, '/joint_states')(rec)
+    assert not loop_closed(plant) and plant.level == 1
+    assert loop_closed(plant._replace(level=0))
+    assert reference_started(ref) and not reference_started(ref._replace(values={}))
+    assert c.statuses_from_msg(_diagnostic_array([])) == []
+
+
+@pytest.mark.ros
+def test_start_loop_names_the_status_it_waited_for(dom, tmp_path):
+    """A recorder told to record no loop topic never matches the commands: named, with why."""
+    from ros_ehs.processes import NodeProcesses, StartupError
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        with pytest.raises(StartupError, match=r"the recorder did not match the controller's "
+                                               r'commands \(ros_ehs/recorder in diagnostics, '
+                                               r"3 s; its status: 'recording' .*'recording': "
+                                               r"'/diagnostics'.*\); recorder log:"):
+            procs.start_loop(bag=tmp_path / 'bag', reference=False, timeout=3.0,
+                             recorder={'topics': ['/diagnostics']})
+        assert procs.watch is not None and 'plant' not in procs.procs
+    assert procs.watch is None

@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 import pytest
-from ros_ehs.processes import NodeProcesses
+from ros_ehs.processes import loop_closed, NodeProcesses
 import ros_ehs_msgs_py as c
 
 pytestmark = pytest.mark.ros
@@ -93,7 +93,7 @@ def _resent_until(send, heard, period=0.5):
 def _loop(procs):
     procs.start('plant', {'diagnostics_period': 0.1})
     procs.start('controller', {'diagnostics_period': 0.1})
-    assert procs.wait_for_log('plant', 'watchdog armed', 60), procs['plant'].output()
+    assert procs.wait_status(c.PLANT_STATUS, loop_closed, 60), procs['plant'].output()
 
 
 # -- real time: a stray stamp far ahead ------------------------------------------------------

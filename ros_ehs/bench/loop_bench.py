@@ -41,7 +41,8 @@ import time
 from domain_coordinator import domain_id
 import psutil
 from ros_ehs.bench import count, positive, report
-from ros_ehs.processes import loop_placement, NodeProcesses
+from ros_ehs.processes import loop_closed, loop_placement, NodeProcesses
+import ros_ehs_msgs_py as contract
 
 
 def _cpu(pid: int) -> float:
@@ -62,7 +63,7 @@ def _ours(dom: int, seconds: float, model: str, rt: dict) -> tuple[dict, dict]:
     with NodeProcesses(dom) as procs:
         procs.start('plant', {'model': model, **rt})
         procs.start('controller', rt)
-        if not procs.wait_for_log('plant', 'watchdog armed', timeout=60):
+        if not procs.wait_status(contract.PLANT_STATUS, loop_closed, timeout=60):
             raise RuntimeError('the loop did not close:\n' + procs['plant'].output()[-2000:])
         cpu = _measure(procs, ('plant', 'controller'), seconds)
         # the plant first, as the bare ping goes first: a plant outliving its controller

@@ -35,7 +35,7 @@ import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
 from ros_ehs.bench import positive, positives, report
-from ros_ehs.processes import NodeProcesses
+from ros_ehs.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as contract
 
 TOPIC = '/bench/blast'
@@ -73,10 +73,10 @@ def _one(dom: int, rate: float, seconds: float, out: str, compression: str) -> d
     with NodeProcesses(dom) as procs:
         rec = procs.start('recorder', {'out': out, 'topics': [TOPIC], 'depth': 10000,
                                        'compression': compression})
-        assert procs.wait_for_log('recorder', 'recording')
+        assert procs.wait_status(contract.RECORDER_STATUS, lambda st: True), rec.output()
         pub = procs.start('pub', cmd=[sys.executable, '-c', _PUBLISHER, str(rate),
                                       str(seconds)])
-        assert procs.wait_for_log('recorder', f'recording {TOPIC}', 30), rec.output()
+        assert procs.wait_status(contract.RECORDER_STATUS, recording(TOPIC), 30), rec.output()
         proc = psutil.Process(rec.pid)
         c0 = sum(proc.cpu_times()[:2])
         t0 = time.monotonic()

@@ -466,7 +466,7 @@ class ControllerNode(Node):
         elif self.counts['answered'] == 0:
             level, msg = WARN, 'waiting for states'
         self._diag_future = self.counts['future']
-        self.pub_diag.publish(diagnostics(self, 'ros_ehs/controller', level, msg,
+        self.pub_diag.publish(diagnostics(self, contract.CONTROLLER_STATUS, level, msg,
                                           self.figures()))
 
 

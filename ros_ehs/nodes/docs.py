@@ -15,7 +15,7 @@
 ``python -m ros_ehs.nodes.docs``: write the node options tables into ``docs/nodes.md``.
 
 The tables are derived from each node's ``OPTIONS`` (the one declaration), between the
-markers ``<!-- options:begin -->`` and ``<!-- options:end -->``; ``test_node_core`` checks
+markers ``<!-- options:begin -->`` and ``<!-- options:end -->``; ``test_options`` checks
 that the file is up to date.
 """
 

@@ -247,6 +247,7 @@ class PlantNode(Node):
             if ax.finished:
                 self.get_logger().info(f'lock-step run complete: {ax.k} steps, '
                                        f'{ax.figures(now)["steps_per_s"]:.0f} steps/s')
+                self._diagnose()
 
     # -- real time ---------------------------------------------------------------------------
     def _tick(self) -> None:
@@ -390,8 +391,10 @@ class PlantNode(Node):
         elif not ax.started:
             have, need = self.pub_state.get_subscription_count(), self.opt['wait_subscribers']
             level, msg = WARN, f'waiting for {need} subscribers on state ({have} now)'
-        elif not ax.armed and not self.lockstep:
+        elif not ax.armed:
             level, msg = WARN, 'waiting for the first command'
+        elif self.lockstep and ax.finished:
+            msg = 'lock-step run complete'
         self.pub_diag.publish(diagnostics(self, PLANT_STATUS, level, msg, f))
 
 

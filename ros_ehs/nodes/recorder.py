@@ -19,11 +19,14 @@ to every contract topic of this namespace; other topics named there are subscrib
 they appear on the graph (their type is discovered). As in rosbag2, a topic is subscribed
 when its first publisher is discovered, with QoS adapted to the publishers: reliable if every
 one offers reliable (the loop topics in lock-step), else best effort; depth ``depth``. The
-log line ``recording <topic> (<type>, <reliability>)`` says when, and ``matched <topic> (<n>
-publisher(s))`` when the subscription has first matched a publisher, from which on that
-publisher's messages reach the bag (matching can take seconds after discovery;
-``NodeProcesses.start_loop`` waits for it before the loop starts). The ``offered_qos_profiles``
-stored are the publishers'.
+``offered_qos_profiles`` stored are the publishers'.
+
+Its status in ``diagnostics`` (``ros_ehs/recorder``, every ``diagnostics_period`` and at each
+change) lists the topics it records (``recording``) and those whose subscription has matched a
+publisher (``matched``), from which on that publisher's messages reach the bag: matching can
+take seconds after discovery, and ``NodeProcesses.start_loop`` waits for it before the loop
+starts. It also counts the messages and files, and turns ERROR with the reason when the
+recorder stops recording. The log says the same for a person.
 
 Long runs (a fatigue rig records for days): the bag is split into files of at most
 ``max_bag_size`` bytes or ``max_bag_duration`` seconds (default 600 s), each chunk compressed
@@ -48,12 +51,14 @@ from datetime import datetime, timezone
 from pathlib import Path
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.task import Future
 from ros_ehs.bag.writer import BagWriter, COMPRESSION, free_bytes
 from ros_ehs.errors import BagError
 from ros_ehs.nodes.options import declare_options, Option
-from ros_ehs.nodes.ros_common import msg_class, qos_profile, qos_spec, run, steady_clock
+from ros_ehs.nodes.ros_common import (diagnostics, ERROR, msg_class, OK, qos_profile, qos_spec,
+                                      run, steady_clock)
 import ros_ehs_msgs_py as contract
 
 __all__ = ['OPTIONS', 'RecorderNode', 'main', 'default_bag_path']
@@ -77,6 +82,7 @@ OPTIONS = (
            'less free space than this on the filesystem of the bag [bytes]', 0, 2 ** 62),
     Option('warn_free_space', 1_000_000_000, 'warn (once a minute) with less free space than '
            'this [bytes]', 0, 2 ** 62),
+    Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
 )
 
 
@@ -121,11 +127,15 @@ class RecorderNode(Node):
         self._space_warned = -1e9
         wanted = list(self.opt['topics']) or [t.name for t in contract.TOPICS]
         self._wanted = {self.resolve_topic_name(n): n for n in wanted}
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              qos_profile(contract.DIAGNOSTICS.qos))
         self._discover()
         self.create_timer(float(self.opt['discovery_period']), self._discover,
                           clock=steady_clock())
         self.create_timer(float(self.opt['flush_period']), self._flush, clock=steady_clock())
         self.create_timer(1.0, self._check_space, clock=steady_clock())
+        self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
+                          clock=steady_clock())
         self.get_logger().info(
             f'recording {sorted(self._wanted)} to {out} ({self.opt["compression"]}, split at '
             f'{self.opt["max_bag_duration"]:g} s / {self.opt["max_bag_size"]} bytes; '
@@ -179,22 +189,42 @@ class RecorderNode(Node):
         self._subs[full] = sub
         self.get_logger().info(f'recording {full} ({msg_type}, {reliability})')
 
-    def _report_matches(self) -> None:
-        """Log once per topic when its subscription has matched a publisher."""
+    def _report_matches(self) -> bool:
+        """Note (and log) once per topic when its subscription has matched a publisher."""
+        new = False
         for full, sub in self._subs.items():
             if sub is not None and full not in self._matched:
                 n = sub.get_publisher_count()
                 if n:
                     self._matched.add(full)
+                    new = True
                     self.get_logger().info(f'matched {full} ({n} publisher(s))')
+        return new
+
+    def _diagnose(self) -> None:
+        """Publish the recorder's status (see the module docstring)."""
+        w = self.writer
+        values = {'bag': str(self.path),
+                  'recording': ','.join(sorted(t for t, s in self._subs.items() if s is not None)),
+                  'matched': ','.join(sorted(self._matched)),
+                  'messages': w.count, 'files': len(w.files)}
+        level, msg = (ERROR, self.failure) if self.failure else (OK, 'recording')
+        self.pub_diag.publish(diagnostics(self, contract.RECORDER_STATUS, level, msg, values))
 
     def _discover(self) -> None:
         if self.failure:
             return
-        self._report_matches()
+        known = len(self._subs)
+        if self._report_matches():
+            self._diagnose()
         missing = [t for t in self._wanted if t not in self._subs]
-        if not missing:
-            return
+        if missing:
+            self._subscribe_new(missing)
+        if len(self._subs) != known:
+            self._diagnose()
+
+    def _subscribe_new(self, missing: list[str]) -> None:
+        """Subscribe to each of ``missing`` that now has a publisher."""
         types = None
         for full in missing:
             pubs = self.get_publishers_info_by_topic(full)
@@ -256,6 +286,7 @@ class RecorderNode(Node):
             return
         self.failure = str(err)
         self.get_logger().error(str(err))
+        self._diagnose()
         if not self.done.done():
             self.done.set_result(1)
 

@@ -252,6 +252,9 @@ class ReferenceNode(Node):
                 self.get_logger().info(
                     f'time zero: {have} subscriber(s) on {contract.REFERENCE.name}' +
                     (', the plant reports its loop closed' if self.opt['wait_loop'] else ''))
+            self._publish(self.get_clock().now().nanoseconds)
+            self._diagnose()                # started: say so now, not at the next period
+            return
         self._publish(self.get_clock().now().nanoseconds)
 
     def _sample(self, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -280,7 +283,8 @@ class ReferenceNode(Node):
 
     def _diagnose(self) -> None:
         t = 0.0 if self.t_first is None else (self.last_ns - self.t_first) * 1e-9
-        values = {'published': self.count, 'time_s': t, 'bad_clocks': self.bad}
+        values = {'started': self.t_first is not None, 'published': self.count, 'time_s': t,
+                  'bad_clocks': self.bad}
         if self.apc is not None:
             last = self.apc.history[-1] if self.apc.history else {}
             values.update(apc_cycles=self.apc.cycles,
@@ -288,7 +292,7 @@ class ReferenceNode(Node):
                           apc_phase_deg=float(last.get('phase_deg', float('nan'))),
                           apc_converged=self.apc.converged_at is not None,
                           apc_frozen=','.join(sorted(self._frozen_by)))
-        self.pub_diag.publish(diagnostics(self, 'ros_ehs/reference', OK, self.values['kind'],
+        self.pub_diag.publish(diagnostics(self, contract.REFERENCE_STATUS, OK, self.values['kind'],
                                           values))
 
 

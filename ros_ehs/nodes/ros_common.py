@@ -51,9 +51,8 @@ __all__ = ['EPOCH_PERIODS', 'ERROR', 'OK', 'PLANT_STATUS', 'WARN', 'diagnostics'
            'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock']
 
 OK, WARN, ERROR = 0, 1, 2
-#: The name of the plant's status in ``diagnostics``: level OK once its loop is closed
-#: (watchdog armed, not tripped); a reference with ``wait_loop`` waits for it.
-PLANT_STATUS = 'ros_ehs/plant'
+#: The plant's status in ``diagnostics`` (level OK once its loop is closed; see the contract)
+PLANT_STATUS = contract.PLANT_STATUS
 
 #: A stamp (or ``/clock``) further back than this many periods than the last one starts a
 #: new run: a restarted plant, a replayed bag (the controller's and reference's policies).

@@ -1,0 +1,110 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The latest status of each node on a ROS domain, from ``diagnostics``.
+
+What :class:`ros_ehs.processes.NodeProcesses` waits on while it starts a loop (the recorder
+records and has matched a topic, the plant's loop is closed, the reference has started), so
+that processes tell each other their readiness in messages, never in log text. The statuses
+and their readiness values are the contract's (:mod:`ros_ehs_msgs_py.topics`).
+
+The watch is an rclpy node in a context of its own, spun on a daemon thread, so it shares
+nothing with an rclpy context the caller has; it installs no signal handler.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+
+from diagnostic_msgs.msg import DiagnosticArray
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+from ros_ehs.nodes.ros_common import qos_profile
+import ros_ehs_msgs_py as contract
+
+__all__ = ['DDS_ENVIRONMENT', 'StatusWatch']
+
+#: What a participant's DDS set-up is read from: the watch joins the domain as the nodes it
+#: watches do (the same discovery range and Fast DDS profile: a participant on other
+#: shared-memory timeouts can hold a writer that opens its port, docs/nodes.md)
+DDS_ENVIRONMENT = ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS', 'RMW_IMPLEMENTATION',
+                   'FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+
+
+class StatusWatch:
+    """
+    Listen to ``/diagnostics`` on ``domain_id`` and keep each status name's latest message.
+
+    ``env``: the nodes' environment, whose :data:`DDS_ENVIRONMENT` variables this process takes
+    before it joins. :meth:`status` returns a :class:`ros_ehs_msgs_py.NodeStatus` or None;
+    :meth:`close` leaves the domain (also as a context manager).
+    """
+
+    def __init__(self, domain_id: int | None = None, env: dict[str, str] | None = None) -> None:
+        for k in DDS_ENVIRONMENT:
+            if env and k in env:
+                os.environ[k] = env[k]
+        self._lock = threading.Lock()
+        self._latest: dict[str, contract.NodeStatus] = {}
+        self.received = 0
+        self._ctx = rclpy.Context()
+        rclpy.init(context=self._ctx, domain_id=domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self._node = rclpy.create_node('ehs_status_watch', context=self._ctx,
+                                       start_parameter_services=False, enable_rosout=False)
+        self._node.create_subscription(DiagnosticArray, '/' + contract.DIAGNOSTICS.name,
+                                       self._on_diagnostics,
+                                       qos_profile(contract.DIAGNOSTICS.qos))
+        self._exe = SingleThreadedExecutor(context=self._ctx)
+        self._exe.add_node(self._node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name='status_watch', daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and self._ctx.ok():
+            self._exe.spin_once(timeout_sec=0.05)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        statuses = contract.statuses_from_msg(msg)
+        with self._lock:
+            self.received += 1
+            for st in statuses:
+                self._latest[st.name] = st
+
+    def status(self, name: str) -> contract.NodeStatus | None:
+        """Return the latest status called ``name`` (``ros_ehs/plant`` ...), or None."""
+        with self._lock:
+            return self._latest.get(name)
+
+    def close(self) -> None:
+        """Stop listening and leave the domain (idempotent)."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._exe.shutdown()
+        self._node.destroy_node()
+        if self._ctx.ok():
+            rclpy.shutdown(context=self._ctx)
+
+    def __enter__(self) -> 'StatusWatch':
+        """Return self."""
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """Close."""
+        self.close()
