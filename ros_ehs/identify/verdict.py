@@ -104,6 +104,12 @@ def adequacy(metrics: dict, status: int, max_nfev: int, model: str
                            f'sensor noise (lag-1 autocorrelation {m["acf1"]:.2f}): the '
                            'noise does not explain the fit')
     advice = []
+    pressures = ('p_CP', 'p_CT', LOAD)
+    if why and not any(n in sig for sig in metrics.values() for n in pressures):
+        advice.append('record the chamber pressures (pressure_p and pressure_t, or '
+                      'pressure_load, in the topic map): without them the replay carries the '
+                      'pressures open-loop through each record, and friction (F_cc, F_sc) is '
+                      'the least certain (docs/identification.md)')
     if why:
         if model == 'simplified':
             advice.append('fit the reduced model (--model reduced): the simplified one leaves '
