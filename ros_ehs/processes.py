@@ -187,7 +187,7 @@ class NodeProcesses:
         self.log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix='ehs_logs_'))
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, NodeProcess] = {}
-        self.watch = None     # a StatusWatch, from the first start_loop
+        self.watch = None     # a StatusWatch, from the first node started
         self.shm_cleanup = clean_zombies() if clean_shm and SHM_DIR.is_dir() else None
         self.placement: tuple[int, int] | None = None     # set by start_loop
 
@@ -214,6 +214,8 @@ class NodeProcesses:
             from ros_ehs.nodes.status_watch import StatusWatch
             dom = self.env.get('ROS_DOMAIN_ID')
             self.watch = StatusWatch(int(dom) if dom else None, self.env)
+        if self.watch is not None and node in NODES:     # a restarted node's old word is void
+            self.watch.forget(f'ros_ehs/{node}')
         cmd = cmd or node_command(node, params, params_file, extra)
         log = self.log_dir / f'{name}.log'
         fh = open(log, 'wb')

@@ -90,6 +90,11 @@ class StatusWatch:
         with self._lock:
             return self._latest.get(name)
 
+    def forget(self, name: str) -> None:
+        """Drop the latest status called ``name`` (its node restarts: wait for a new one)."""
+        with self._lock:
+            self._latest.pop(name, None)
+
     def close(self) -> None:
         """Stop listening and leave the domain (idempotent)."""
         if self._stop.is_set():
