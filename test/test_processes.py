@@ -96,24 +96,3 @@ def test_start_loop_names_the_status_it_waited_for(dom, tmp_path):
                              recorder={'topics': ['/diagnostics']})
         assert procs.watch is not None and 'plant' not in procs.procs
     assert procs.watch is None
-
-
-@pytest.mark.ros
-def test_the_watch_keeps_each_status_newest_and_forgets_a_restarted_nodes(dom):
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from ros_ehs.nodes.status_watch import StatusWatch
-    import ros_ehs_msgs_py as c
-
-    def msg(level, started):
-        return DiagnosticArray(status=[DiagnosticStatus(
-            level=bytes([level]), name=c.REFERENCE_STATUS, message='sine',
-            values=[KeyValue(key='started', value=started)])])
-    with StatusWatch(dom) as watch:
-        assert watch.status(c.REFERENCE_STATUS) is None
-        watch._on_diagnostics(msg(1, 'False'))
-        watch._on_diagnostics(msg(0, 'True'))
-        st = watch.status(c.REFERENCE_STATUS)
-        assert (st.level, st.values) == (0, {'started': 'True'}) and watch.received == 2
-        watch.forget(c.REFERENCE_STATUS)
-        assert watch.status(c.REFERENCE_STATUS) is None
-    watch.close()                                  # idempotent

@@ -1,0 +1,37 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The status watch: the newest status of each node on a domain, from diagnostics."""
+
+import pytest
+
+
+@pytest.mark.ros
+def test_the_watch_keeps_each_status_newest_and_forgets_a_restarted_nodes(dom):
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from ros_ehs.nodes.status_watch import StatusWatch
+    import ros_ehs_msgs_py as c
+
+    def msg(level, started):
+        return DiagnosticArray(status=[DiagnosticStatus(
+            level=bytes([level]), name=c.REFERENCE_STATUS, message='sine',
+            values=[KeyValue(key='started', value=started)])])
+    with StatusWatch(dom) as watch:
+        assert watch.status(c.REFERENCE_STATUS) is None
+        watch._on_diagnostics(msg(1, 'False'))
+        watch._on_diagnostics(msg(0, 'True'))
+        st = watch.status(c.REFERENCE_STATUS)
+        assert (st.level, st.values) == (0, {'started': 'True'}) and watch.received == 2
+        watch.forget(c.REFERENCE_STATUS)
+        assert watch.status(c.REFERENCE_STATUS) is None
+    watch.close()                                  # idempotent
