@@ -119,8 +119,13 @@ def _node_param(text: str) -> tuple[str, object]:
         raise argparse.ArgumentTypeError(f'{text!r}: {err}') from None
 
 
-def _bag_lines(bag: Path, live: bool) -> None:
-    """Print what the bag holds, read from the bag: topics, safety events, live refits."""
+def _bag_lines(bag: Path, live: bool, error: str = '') -> None:
+    """
+    Print what the bag holds, read from the bag: topics, safety events, live refits.
+
+    ``error``: why the recorder stopped recording (its status, or its exit), printed as one
+    line with what stays readable.
+    """
     from ros_ehs.bag import open_bag
     from ros_ehs.errors import BagError
     from ros_ehs.identify.trend import trend_table
@@ -137,6 +142,11 @@ def _bag_lines(bag: Path, live: bool) -> None:
         return
     files = f'{len(b.files)} file' + ('s' if len(b.files) > 1 else '')
     counts = ', '.join(f'{t.name} {t.count}' for t in b.topics.values())
+    if error:
+        meta = ('metadata.yaml written for them' if (bag / 'metadata.yaml').is_file() else
+                'no metadata.yaml (the files read without it)')
+        print(f'bench: recorder error: {error}; {b.message_count} messages readable in {bag} '
+              f'({files}); {meta}', file=sys.stderr)
     print(f'bench: bag {bag}: {b.message_count} messages in {files} ({counts})')
     print(f'bench: safety events: {len(events)}')
     for e in events:
@@ -268,9 +278,12 @@ def main(argv=None) -> int:
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
         recorder = procs.status(contract.RECORDER_STATUS)
         codes = procs.stop(['recorder', *live, 'reference', 'plant', 'controller', *probes])
+    error = ''
     if recorder is not None and recorder.level == 2:
-        print(f'bench: the recorder stopped recording: {recorder.message}', file=sys.stderr)
-    _bag_lines(out, bool(live))
+        error = recorder.message
+    elif codes.get('recorder', 0) != 0:
+        error = f"it exited with code {codes['recorder']} (its log: {logs / 'recorder.log'})"
+    _bag_lines(out, bool(live), error)
     try:
         f = procs['plant'].figures()
         span = max(f['sim_time_s'], 1e-9)
