@@ -35,3 +35,15 @@ def test_the_watch_keeps_each_status_newest_and_forgets_a_restarted_nodes(dom):
         watch.forget(c.REFERENCE_STATUS)
         assert watch.status(c.REFERENCE_STATUS) is None
     watch.close()                                  # idempotent
+
+
+@pytest.mark.ros
+def test_the_watch_takes_the_nodes_dds_environment_without_leaving_it_behind(dom, tmp_path):
+    import os
+    from ros_ehs.nodes.status_watch import StatusWatch
+    profile = tmp_path / 'gone.xml'             # as a test's temporary profile, deleted later
+    before = os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE')
+    with StatusWatch(dom, {'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile),
+                           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}):
+        assert os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE') == before
+    assert os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE') == before

@@ -54,17 +54,27 @@ class StatusWatch:
     """
 
     def __init__(self, domain_id: int | None = None, env: dict[str, str] | None = None) -> None:
-        for k in DDS_ENVIRONMENT:
-            if env and k in env:
-                os.environ[k] = env[k]
         self._lock = threading.Lock()
         self._latest: dict[str, contract.NodeStatus] = {}
         self.received = 0
         self._ctx = rclpy.Context()
-        rclpy.init(context=self._ctx, domain_id=domain_id,
-                   signal_handler_options=SignalHandlerOptions.NO)
-        self._node = rclpy.create_node('ehs_status_watch', context=self._ctx,
-                                       start_parameter_services=False, enable_rosout=False)
+        # the nodes' DDS environment while the participant is made, and only then: left in
+        # os.environ it would reach every later child of this process (a test's temporary
+        # Fast DDS profile, deleted since, made a fresh interpreter print an XML error)
+        saved = {k: os.environ.get(k) for k in DDS_ENVIRONMENT}
+        os.environ.update({k: env[k] for k in DDS_ENVIRONMENT if env and k in env})
+        try:
+            rclpy.init(context=self._ctx, domain_id=domain_id,
+                       signal_handler_options=SignalHandlerOptions.NO)
+            self._node = rclpy.create_node('ehs_status_watch', context=self._ctx,
+                                           start_parameter_services=False,
+                                           enable_rosout=False)
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
         self._node.create_subscription(DiagnosticArray, '/' + contract.DIAGNOSTICS.name,
                                        self._on_diagnostics,
                                        qos_profile(contract.DIAGNOSTICS.qos))
