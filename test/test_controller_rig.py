@@ -33,7 +33,13 @@ RIG = TopicMap(state='/joint_states', joint=JOINT, command='/servo_valve_control
 
 
 def _tracking(bag: Path, state: str, joint: str, skip: float = 2.0) -> tuple[float, int]:
-    """RMS of z_ref - z [m] after ``skip`` s of the reference, and the states counted."""
+    """
+    RMS of z_ref - z [m] after ``skip`` s of the reference, and the states counted.
+
+    A reference that went silent for more than the controller's reference_timeout (0.1 s) is
+    held, then ramped back onto over ramp_time (1 s), by design: from the gap to a ramp_time
+    after it is not tracking, and is left out (a reference node stalled 0.33 s in a full run).
+    """
     b = open_bag(bag)
     ref = sorted(c.reference_from_cdr(m.data) for m in b.messages(['/reference']))
     tr = np.array([r.stamp_ns for r in ref])
@@ -45,6 +51,8 @@ def _tracking(bag: Path, state: str, joint: str, skip: float = 2.0) -> tuple[flo
     k = np.clip(np.searchsorted(tr, ts, side='right') - 1, 0, tr.size - 1)
     z_ref = zr[k] + vr[k] * (ts - tr[k]) * 1e-9      # the controller's first-order hold
     m = (ts > tr[0] + skip * 1e9) & (ts < ts[-1] - 0.2e9)
+    for g in np.flatnonzero(np.diff(tr) > 0.1e9):
+        m &= ~((ts > tr[g]) & (ts < tr[g + 1] + 1.0e9))
     return float(np.sqrt(np.mean((z_ref[m] - z[m]) ** 2))), int(m.sum())
 
 
@@ -73,7 +81,9 @@ def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
     rms_rig, n_rig = _tracking(rig_bag, '/joint_states', JOINT)
     b = open_bag(rig_bag)
     n_cmd = b.topics['/servo_valve_controller/commands'].count
-    assert n_rig > 0.8 * (seconds - 2.4) * RATE          # the loop ran at the driver's rate
+    n_states = b.topics['/joint_states'].count
+    assert n_states > 0.8 * seconds * RATE                # the loop ran at the driver's rate
+    assert n_rig > 0.3 * (seconds - 2.4) * RATE           # and most of it is measured
     # the states were answered (on a loaded machine the recorder, which keeps the last 10 a
     # reliable writer holds, misses some: 67 % were in its bag in one run beside a benchmark)
     assert n_cmd > 0.5 * b.topics['/joint_states'].count
