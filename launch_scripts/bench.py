@@ -36,11 +36,11 @@ reaches them all, ``plant:`` only the plant). Exit code 0 when every node ran an
 cleanly, 1 otherwise (their logs say why).
 
 With ``--machine-probe`` (real time), beside the nodes a probe runs on each CPU
-(``ros_ehs.bench.sleeper``: a 1 kHz sleep loop without ROS, at the same ``--rt-priority``),
+(``ros_ehs.benchmarks.sleeper``: a 1 kHz sleep loop without ROS, at the same ``--rt-priority``),
 a diagnostic for a machine you do not trust: the summary says how many of the plant's
 watchdog trips fell in a stall of the machine that a probe saw in the same run (a gap over 2
 ms), and how many more in a shorter hiccup of the machine
-(``ros_ehs.bench.sleeper.hiccups``).
+(``ros_ehs.benchmarks.sleeper.hiccups``).
 """
 
 from __future__ import annotations
@@ -55,8 +55,8 @@ import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checkout works too
 
-from ros_ehs.bench.sleeper import coincident, HICCUP_MS, hiccups, STALL_MS  # noqa: E402
-from ros_ehs.bench.sleeper import command as probe_command  # noqa: E402
+from ros_ehs.benchmarks.sleeper import coincident, HICCUP_MS, hiccups, STALL_MS  # noqa: E402
+from ros_ehs.benchmarks.sleeper import command as probe_command  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 from ros_ehs.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.sim.synthetic_bag import SensorNoise  # noqa: E402

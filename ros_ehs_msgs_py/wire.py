@@ -40,7 +40,7 @@ against 8200-9200 with message objects (``bench lockstep`` prints both).
   ``reference_trajectory`` (trajectory_msgs/JointTrajectory), the same way: a template per
   point count, and a reader for any JointTrajectory with the last layout cached.
 
-Checked against rclpy's own ``serialize_message``/``deserialize_message`` (test_node_core).
+Checked against rclpy's own ``serialize_message``/``deserialize_message`` (test_wire).
 """
 
 from __future__ import annotations

@@ -59,7 +59,7 @@ def test_sample_bag_is_what_the_readme_says():
 
 def test_refit_recovers_table1_estimated(fits):
     _, r = fits[0]
-    # 16 on the committed sample bag (the paper took 24; `python -m ros_ehs.bench identify`
+    # 16 on the committed sample bag (the paper took 24; `python -m ros_ehs.benchmarks identify`
     # measures it on a fresh bag); this guards against a regression
     assert r.success and r.iterations <= 24
     for n, tol in TOL.items():

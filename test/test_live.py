@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 from ros_ehs.bag.experiment import load_experiment
-from ros_ehs.bench.drift_bench import run
+from ros_ehs.benchmarks.drift import run
 from ros_ehs.errors import DataError, InputError, ParameterError
 from ros_ehs.identify.live import LiveIdentifier, SampleWindow
 from ros_ehs.model import Plant

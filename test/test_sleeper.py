@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The machine yardstick and probes (``ros_ehs.bench.sleeper``), without ROS."""
+"""The machine yardstick and probes (``ros_ehs.benchmarks.sleeper``), without ROS."""
 
 import json
 import os
@@ -21,7 +21,7 @@ import pytest
 
 def test_the_machine_yardstick_of_bench_loop_ticks_at_1khz_without_ros(python_lines):
     code = ('import json, sys, contextlib, io\n'
-            'from ros_ehs.bench import sleeper\n'
+            'from ros_ehs.benchmarks import sleeper\n'
             'out = io.StringIO()\n'
             'with contextlib.redirect_stdout(out):\n'
             '    sleeper.main(["--seconds", "0.3"])\n'
@@ -34,7 +34,7 @@ def test_the_machine_yardstick_of_bench_loop_ticks_at_1khz_without_ros(python_li
 
 
 def test_coincident_needs_the_spans_to_overlap_by_a_quarter_of_the_shorter():
-    from ros_ehs.bench.sleeper import coincident
+    from ros_ehs.benchmarks.sleeper import coincident
     gaps = [(10.0, 4.0)]                              # a probe held over [9.996, 10.0]
     spans = [(10.001, 2.0),                           # [9.999, 10.001]: 1 ms of 2 overlap
              (10.0035, 4.0),                          # [9.9995, 10.0035]: 0.5 ms of 4
@@ -49,7 +49,7 @@ def test_the_machine_probe_runs_until_sigint_and_lists_its_long_gaps():
     import subprocess
     import sys
     import time
-    p = subprocess.Popen([sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds', '0',
+    p = subprocess.Popen([sys.executable, '-m', 'ros_ehs.benchmarks.sleeper', '--seconds', '0',
                           '--gaps-over', '0.5', '--cpu', '4095'],
                          stdout=subprocess.PIPE, text=True)
     time.sleep(1.0)
@@ -62,7 +62,7 @@ def test_the_machine_probe_runs_until_sigint_and_lists_its_long_gaps():
     f = json.loads(out.strip().splitlines()[-1])
     assert p.returncode == 0 and f['ticks'] > 500
     # every gap is over 0.5 ms here, so the list is full: the newest MAX_GAPS, bounded
-    from ros_ehs.bench.sleeper import hiccups, MAX_GAPS
+    from ros_ehs.benchmarks.sleeper import hiccups, MAX_GAPS
     assert all(g > 0.5 for _, g, _ in f['gaps']) and len(f['gaps']) == min(MAX_GAPS, f['ticks'])
     assert max(g for _, g, _ in f['gaps']) >= 45.0 and f['stalls_2ms'] >= 1
     # stopped, it was not queued for the CPU: the whole 50 ms gap is the "machine's"
@@ -76,13 +76,14 @@ def test_a_probe_held_by_busy_threads_on_its_cpu_is_no_machine_hiccup():
     import subprocess
     import sys
     import time
-    from ros_ehs.bench.sleeper import hiccups
+    from ros_ehs.benchmarks.sleeper import hiccups
     cpu = max(os.sched_getaffinity(0))
     hog = subprocess.Popen([sys.executable, '-c', f'import os\nos.sched_setaffinity(0, {{{cpu}}})'
                             '\nwhile True: pass'])
     try:        # the probe at nice 19 beside a busy loop at nice 0: it waits for the CPU
-        p = subprocess.Popen(['nice', '-n', '19', sys.executable, '-m', 'ros_ehs.bench.sleeper',
-                              '--seconds', '0', '--gaps-over', '1.3', '--cpu', str(cpu)],
+        p = subprocess.Popen(['nice', '-n', '19', sys.executable, '-m',
+                              'ros_ehs.benchmarks.sleeper', '--seconds', '0', '--gaps-over', '1.3',
+                              '--cpu', str(cpu)],
                              stdout=subprocess.PIPE, text=True)
         time.sleep(2.0)
         p.send_signal(signal.SIGINT)
@@ -99,6 +100,6 @@ def test_a_probe_held_by_busy_threads_on_its_cpu_is_no_machine_hiccup():
 def test_the_machine_probe_refuses_negative_times_by_name(args):
     import subprocess
     import sys
-    r = subprocess.run([sys.executable, '-m', 'ros_ehs.bench.sleeper', *args],
+    r = subprocess.run([sys.executable, '-m', 'ros_ehs.benchmarks.sleeper', *args],
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 2 and '--seconds and --gaps-over must be >= 0' in r.stderr

@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Benchmarks a user can run on their own machine: ``python -m ros_ehs.bench <name>``."""
+"""Benchmarks a user can run on their own machine: ``python -m ros_ehs.benchmarks <name>``."""
 
 import argparse
 import json

@@ -11,24 +11,24 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Dispatch ``python -m ros_ehs.bench <name>``."""
+"""Dispatch ``python -m ros_ehs.benchmarks <name>`` (also ``python -m ros_ehs.bench <name>``)."""
 
 import importlib
 import sys
 
-BENCHES = {'model': 'model_bench', 'paper': 'paper_bench', 'identify': 'identify_bench',
-           'loop': 'loop_bench', 'lockstep': 'lockstep_bench', 'record': 'record_bench',
-           'soak': 'soak_bench', 'window': 'window_bench', 'tracking': 'tracking_bench',
-           'drift': 'drift_bench', 'live': 'live_bench'}
+#: the benchmarks, each a module of this package with a ``main(argv)``
+BENCHMARKS = ('model', 'paper', 'identify', 'loop', 'lockstep', 'record', 'soak', 'window',
+              'tracking', 'drift', 'live')
 
 
 def main(argv=None) -> int:
     """Run the benchmark named by the first argument."""
     argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] not in BENCHES:
-        print(f'usage: python -m ros_ehs.bench {{{",".join(BENCHES)}}}', file=sys.stderr)
+    if not argv or argv[0] not in BENCHMARKS:
+        print(f'usage: python -m ros_ehs.benchmarks {{{",".join(BENCHMARKS)}}}',
+              file=sys.stderr)
         return 2
-    mod = importlib.import_module(f'ros_ehs.bench.{BENCHES[argv[0]]}')
+    mod = importlib.import_module(f'ros_ehs.benchmarks.{argv[0]}')
     return mod.main(argv[1:])
 
 

@@ -44,7 +44,7 @@ import math
 import time
 
 import numpy as np
-from ros_ehs.bench import report
+from ros_ehs.benchmarks import report
 from ros_ehs.control.axis import AxisController
 from ros_ehs.control.feedforward import MODEL_PARAMS
 from ros_ehs.errors import DataError
@@ -228,7 +228,7 @@ def _scenario(name: str, drift: Drift, duration: float) -> dict:
 
 def main(argv=None) -> int:
     """Run the benchmark and print its figures."""
-    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench drift')
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks drift')
     ap.add_argument('--duration', type=float, default=600.0, help='simulated time [s]')
     args = ap.parse_args(argv)
     figures = {'duration_s': args.duration, **_scenario('warm-up', DRIFT, args.duration)}

@@ -34,7 +34,7 @@ import time
 import warnings
 
 from ros_ehs.bag.experiment import load_experiment
-from ros_ehs.bench import report
+from ros_ehs.benchmarks import report
 from ros_ehs.errors import IdentificationWarning
 from ros_ehs.identify import identify
 from ros_ehs.identify.verdict import worst_noise_ratio

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench live``: whether the live identify node disturbs the real-time loop.
+``python -m ros_ehs.benchmarks live``: whether the live identify node disturbs the real-time loop.
 
 The bench's loop (plant, controller and the reference's 1 Hz sine, placed as
 ``NodeProcesses.start_loop`` places them: plant and controller on one CPU, the reference on the
@@ -33,7 +33,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.bench import count, positive, report
+from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.processes import loop_placement, NodeProcesses
 
 LIVE = {'live': True, 'push': True, 'window': 10.0, 'period': 5.0}
@@ -69,7 +69,7 @@ def _round(dom: int, seconds: float, with_live: bool) -> dict:
 
 def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
-    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench live')
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks live')
     ap.add_argument('--seconds', type=positive, default=40.0, help='seconds per round')
     ap.add_argument('--rounds', type=count, default=4,
                     help='rounds: without, with, with, without the live node, ...')

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench lockstep``: the lock-step closed loop over DDS.
+``python -m ros_ehs.benchmarks lockstep``: the lock-step closed loop over DDS.
 
 Plant (lock-step), controller (reference-synchronised) and reference (on ``/clock``) run as
 separate processes for ``--seconds`` of sim time; the plant reports how many steps per
@@ -42,7 +42,7 @@ import sys
 import time
 
 from domain_coordinator import domain_id
-from ros_ehs.bench import count, positive, report
+from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.params import Params
 from ros_ehs.processes import loop_placement, NodeProcesses
 from ros_ehs.reference import Sine
@@ -61,8 +61,8 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
     with NodeProcesses(dom) as bare:
         for role in roles:
             cpu = ['--cpu', str(cpus[role == 'relay'])] if cpus else []
-            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *extra,
-                                  *cpu])
+            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role,
+                                  *extra, *cpu])
         time.sleep(2.0 + seconds)
         bare.stop(roles[::-1])
         return json.loads(bare['volley'].output().strip().splitlines()[-1])
@@ -90,7 +90,7 @@ def main(argv=None) -> int:
     ping-pong with the lock-step loop's own QoS (reliable, depth 10000), the old topology's
     relay and the serialized ping-pong.
     """
-    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench lockstep')
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks lockstep')
     ap.add_argument('--seconds', type=positive, default=5.0, help='sim seconds per round')
     ap.add_argument('--rounds', type=count, default=3, help='alternating rounds (ours, bare)')
     ap.add_argument('--model', default='simplified', choices=('simplified', 'reduced', 'full'))

@@ -12,16 +12,16 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench loop``: the plant and controller nodes at 1 kHz over DDS.
+``python -m ros_ehs.benchmarks loop``: the plant and controller nodes at 1 kHz over DDS.
 
 Runs plant and controller as separate processes in real time for ``--seconds`` (default 20)
 after the loop closes and, in the same run, a bare rclpy ping-pong with the same executor,
 QoS and message size for as long, in ``--rounds`` alternating rounds (ours first, then the
 bare loop first, ...): counts are summed over the rounds, percentiles averaged, maxima
 kept. Prints the plant's loop figures, the CPU share of each process and the round-trip and
-CPU ratios to the bare ping-pong (``ros_ehs.bench.pingpong``: rclpy alone, no code of ours),
+CPU ratios to the bare ping-pong (``ros_ehs.benchmarks.pingpong``: rclpy alone, no code of ours),
 and which of the loop's targets the run met; the last line is one JSON object. Each round
-also runs the machine alone (``ros_ehs.bench.sleeper``: a 1 kHz sleep loop without ROS, at
+also runs the machine alone (``ros_ehs.benchmarks.sleeper``: a 1 kHz sleep loop without ROS, at
 the same priority): its stalls over 2 ms (``machine_stalls_2ms``) trip any 1 kHz loop's
 watchdog, ours and the bare one alike.
 
@@ -40,7 +40,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.bench import count, positive, report
+from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.processes import loop_closed, loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
 
@@ -75,7 +75,7 @@ def _ours(dom: int, seconds: float, model: str, rt: dict) -> tuple[dict, dict]:
 def _bare(dom: int, seconds: float, rt: list[str]) -> tuple[dict, dict]:
     with NodeProcesses(dom) as bare:
         for role in ('pong', 'ping'):
-            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *rt])
+            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role, *rt])
         time.sleep(2.0)
         cpu = _measure(bare, ('ping', 'pong'), seconds)
         bare.stop(['ping', 'pong'])
@@ -83,8 +83,8 @@ def _bare(dom: int, seconds: float, rt: list[str]) -> tuple[dict, dict]:
 
 
 def _machine(seconds: float, rt: list[str]) -> dict:
-    """Return the floor: a 1 kHz sleep loop without ROS (``ros_ehs.bench.sleeper``)."""
-    out = subprocess.run([sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds',
+    """Return the floor: a 1 kHz sleep loop without ROS (``ros_ehs.benchmarks.sleeper``)."""
+    out = subprocess.run([sys.executable, '-m', 'ros_ehs.benchmarks.sleeper', '--seconds',
                           str(seconds), *rt], capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -107,7 +107,7 @@ def _pool(rounds: list[dict], cpus: list[dict]) -> tuple[dict, dict]:
 
 def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
-    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench loop')
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks loop')
     ap.add_argument('--seconds', type=positive, default=20.0,
                     help='seconds of loop for ours and for the bare ping-pong each')
     ap.add_argument('--rounds', type=count, default=2,

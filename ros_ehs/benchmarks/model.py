@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench model``: speed and accuracy of the plant integrators.
+``python -m ros_ehs.benchmarks model``: speed and accuracy of the plant integrators.
 
 All figures come from one run on this machine, side by side:
 
@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from ros_ehs.bench import report
+from ros_ehs.benchmarks import report
 from ros_ehs.model.plant import DEFAULT_H, Plant
 from ros_ehs.params import preset
 from ros_ehs.reference import Chirp, Sine

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench paper``: the paper's experiments, with numbers.
+``python -m ros_ehs.benchmarks paper``: the paper's experiments, with numbers.
 
 Dead zone, plateau and lag are per half cycle (see ros_ehs.metrics); RMS error per run after
 the first period. ``*_ffpid_*`` is the default feedforward; ``*_ffpid_paper_*`` the law as
@@ -22,7 +22,7 @@ printed (tau 0.016 s), ``*_ffpid_paper_tau_*`` with tau = the measured PID loop 
 
 import time
 
-from ros_ehs.bench import report
+from ros_ehs.benchmarks import report
 from ros_ehs.control import Controller
 from ros_ehs.params import preset
 from ros_ehs.sim.paper_runs import paper_runs

@@ -14,7 +14,7 @@
 """
 The barest rclpy ping-pong: the yardstick of ``bench loop`` and ``bench lockstep``.
 
-``python -m ros_ehs.bench.pingpong ping|pong|volley``. Nothing of ros_ehs is imported here:
+``python -m ros_ehs.benchmarks.pingpong ping|pong|volley``. Nothing of ros_ehs is imported here:
 plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointState.
 
 * ``ping``: a 1 kHz steady timer publishes a JointState (the size of our ``state``) stamped

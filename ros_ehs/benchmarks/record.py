@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench record``: how many messages per second the recorder node keeps.
+``python -m ros_ehs.benchmarks record``: how many messages per second the recorder node keeps.
 
 A publisher process sends numbered JointState messages (the size of a ``state`` message) on
 a reliable topic at a set rate for ``--seconds``; the recorder node records them; the bench
@@ -34,7 +34,7 @@ from domain_coordinator import domain_id
 import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
-from ros_ehs.bench import positive, positives, report
+from ros_ehs.benchmarks import positive, positives, report
 from ros_ehs.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as contract
 
@@ -110,7 +110,7 @@ def _raw_writer_rate(compression: str, n: int = 100000) -> float:
 
 def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
-    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench record')
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks record')
     ap.add_argument('--seconds', type=positive, default=5.0)
     ap.add_argument('--rates', type=positives, default=[20000.0, 25000.0, 30000.0],
                     help='message rates, comma-separated [1/s]')

@@ -14,7 +14,7 @@
 """
 The machine alone: a 1 kHz sleep loop with no ROS at all, the floor under ``bench loop``.
 
-``python -m ros_ehs.bench.sleeper --seconds S [--rt-priority N] [--cpu C] [--gaps-over MS]``.
+``python -m ros_ehs.benchmarks.sleeper --seconds S [--rt-priority N] [--cpu C] [--gaps-over MS]``.
 One Python thread sleeps to each millisecond of a steady grid, as the plant's timer does, and
 counts the periods it was not given the CPU for: ``stalls_2ms`` counts the gaps between ticks
 longer than 2 ms (consecutive long gaps once), which is what the plant's watchdog rule (3
@@ -79,8 +79,8 @@ def _rq_wait(fd: int | None) -> int:
 def command(cpu: int, gaps_over: float, rt_priority: int = 0) -> list[str]:
     """Return the command line of a probe on ``cpu`` that runs until SIGINT or SIGTERM."""
     rt = ['--rt-priority', str(rt_priority)] if rt_priority else []
-    return [sys.executable, '-m', 'ros_ehs.bench.sleeper', '--seconds', '0', '--cpu', str(cpu),
-            '--gaps-over', str(gaps_over), *rt]
+    return [sys.executable, '-m', 'ros_ehs.benchmarks.sleeper', '--seconds', '0', '--cpu',
+            str(cpu), '--gaps-over', str(gaps_over), *rt]
 
 
 def coincident(spans: list[tuple[float, float]],
@@ -101,7 +101,7 @@ def coincident(spans: list[tuple[float, float]],
 
 def main(argv=None) -> int:
     """Run the loop for ``--seconds`` (0: until a signal); print its figures as one JSON line."""
-    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench.sleeper')
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks.sleeper')
     ap.add_argument('--seconds', type=float, default=20.0, help='0: until SIGINT or SIGTERM')
     ap.add_argument('--rt-priority', type=int, default=0,
                     help='SCHED_FIFO priority, as the loop nodes and the bare ping-pong get')

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench soak``: the recorded bench, long enough to see what grows.
+``python -m ros_ehs.benchmarks soak``: the recorded bench, long enough to see what grows.
 
 Runs the bench (plant, controller, reference and recorder, each its own process) for
 ``--seconds`` (default 600) in real time (``--mode lockstep`` runs as fast as DDS goes and
@@ -43,7 +43,7 @@ from domain_coordinator import domain_id
 import numpy as np
 import psutil
 from ros_ehs.bag import BagWriter, open_bag
-from ros_ehs.bench import positive, report
+from ros_ehs.benchmarks import positive, report
 from ros_ehs.processes import launch_script, NodeProcesses
 import yaml
 
@@ -69,7 +69,7 @@ def _slope_mb_per_h(t_s: np.ndarray, rss: np.ndarray) -> float:
 
 def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
-    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench soak')
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks soak')
     ap.add_argument('--seconds', type=positive, default=600.0,
                     help='run length (real time: wall seconds; lock-step: sim seconds)')
     ap.add_argument('--mode', choices=('realtime', 'lockstep'), default='realtime')

@@ -34,7 +34,7 @@ import argparse
 import math
 
 import numpy as np
-from ros_ehs.bench import report
+from ros_ehs.benchmarks import report
 from ros_ehs.control.apc import AmplitudePhaseControl
 from ros_ehs.drive_file import (band_error, DriveIteration, frf, multisine, rms_error_pct,
                                 Samples)
@@ -122,7 +122,7 @@ def _table(title: str, sines: dict) -> None:
 
 def main(argv=None) -> int:
     """Run the benchmark and print its figures."""
-    argparse.ArgumentParser(prog='python -m ros_ehs.bench tracking',
+    argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks tracking',
                             description=__doc__.strip().splitlines()[0]).parse_args(argv)
     est = preset('table1_estimated')
     sine = _sines(est, est)

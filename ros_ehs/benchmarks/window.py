@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-``python -m ros_ehs.bench window``: the demo run's bench, window by window, beside bare rclpy.
+``python -m ros_ehs.benchmarks window``: the demo run's bench, window by window, beside bare rclpy.
 
 The demo run's target is that a 10 s bench has no watchdog trip *on a quiet machine*. This
 benchmark says which windows were quiet. It runs ``--windows`` pairs of ``--seconds`` long
@@ -23,10 +23,10 @@ windows, alternating (ours first, then the bare loop first, ...):
   ``stopping``; the trips of the start-up before that are counted apart
   (``ours_trips_in_start_up``, and of those the ones in a machine stall or hiccup that the
   probes, started before the bench, saw);
-* **bare**: the barest rclpy ping-pong (``ros_ehs.bench.pingpong``, no code of ours) at the
+* **bare**: the barest rclpy ping-pong (``ros_ehs.benchmarks.pingpong``, no code of ours) at the
   same priority, with the plant's watchdog rule.
 
-In every window a machine probe runs on each CPU (``ros_ehs.bench.sleeper``: a 1 kHz sleep
+In every window a machine probe runs on each CPU (``ros_ehs.benchmarks.sleeper``: a 1 kHz sleep
 loop without ROS, same priority). A window is *quiet* when no probe was held over 2 ms in it:
 a stall that long trips any 1 kHz loop with the 3-period watchdog. Per window it prints the
 trips, the stalls and how many trips fell in one; the last line is one JSON object with the
@@ -34,7 +34,7 @@ trip-free share of all windows and of the quiet ones, ours and bare.
 
 Shorter hiccups do not make a window loud, but a trip in a quiet window is checked against
 them: a probe gap whose own part (not queued behind other threads on its CPU) is over
-``HICCUP_MS`` (:func:`~ros_ehs.bench.sleeper.hiccups`) on the loop's CPU (any, unplaced),
+``HICCUP_MS`` (:func:`~ros_ehs.benchmarks.sleeper.hiccups`) on the loop's CPU (any, unplaced),
 counted as ``*_quiet_trips_in_hiccups``. A 1 kHz probe sees only the hiccups that overlap
 its own wake-ups, so a trip outside one is not proven ours.
 """
@@ -52,8 +52,8 @@ import tempfile
 import time
 
 from domain_coordinator import domain_id
-from ros_ehs.bench import count, positive, report
-from ros_ehs.bench.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
+from ros_ehs.benchmarks import count, positive, report
+from ros_ehs.benchmarks.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
 from ros_ehs.processes import launch_script, loop_placement, NodeProcesses
 
 BENCH = launch_script('bench.py')
@@ -72,7 +72,7 @@ def _stalls(probes: dict[int, subprocess.Popen]) -> tuple[list[tuple], list[tupl
     Stop the probes; return what they saw.
 
     The stalls, gaps over STALL_MS, and the hiccups (see
-    :func:`~ros_ehs.bench.sleeper.hiccups`), each as ``(end, ms, cpu)``.
+    :func:`~ros_ehs.benchmarks.sleeper.hiccups`), each as ``(end, ms, cpu)``.
     """
     stalls, hics = [], []
     for cpu, p in probes.items():
@@ -138,7 +138,7 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
     env = {'FASTRTPS_DEFAULT_PROFILES_FILE': str(RT_PROFILE)} if prio else {}
     with NodeProcesses(dom, env=env) as bare:
         for role in ('pong', 'ping'):
-            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.bench.pingpong', role, *rt])
+            bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role, *rt])
         time.sleep(2.0)
         t0 = time.monotonic()
         time.sleep(seconds)
@@ -151,7 +151,7 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
 
 def main(argv=None) -> int:
     """Run the benchmark; print one line per window, then the figures, the last line JSON."""
-    ap = argparse.ArgumentParser(prog='python -m ros_ehs.bench window')
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks window')
     ap.add_argument('--windows', type=count, default=8,
                     help='windows of ours and of the bare loop each')
     ap.add_argument('--seconds', type=positive, default=10.0, help='length of each window')

@@ -313,7 +313,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     workers : int or None
         Threads for the Jacobian's columns (the kernels release the GIL). None (default):
         2 where the machine has 2 CPUs (the simplified model's cold fit of a 10 s bag
-        measured 0.65-0.8 s against 0.8-1.0 s serially, ``python -m ros_ehs.bench
+        measured 0.65-0.8 s against 0.8-1.0 s serially, ``python -m ros_ehs.benchmarks
         identify``). A live refit beside a running loop takes 1, so it keeps to its CPU.
     max_nfev : int
         Limit on residual evaluations (not counting Jacobian columns).
