@@ -144,6 +144,11 @@ class NodeProcess:
                                self.output()[-3000:]) from None
 
 
+#: each node's status name in ``diagnostics`` (the contract's)
+STATUS_OF = {'plant': contract.PLANT_STATUS, 'controller': contract.CONTROLLER_STATUS,
+             'reference': contract.REFERENCE_STATUS, 'recorder': contract.RECORDER_STATUS}
+
+
 def loop_closed(st: contract.NodeStatus) -> bool:
     """Whether the plant's status says its loop is closed (level OK)."""
     return st.level == 0
@@ -214,8 +219,8 @@ class NodeProcesses:
             from ros_ehs.nodes.status_watch import StatusWatch
             dom = self.env.get('ROS_DOMAIN_ID')
             self.watch = StatusWatch(int(dom) if dom else None, self.env)
-        if self.watch is not None and node in NODES:     # a restarted node's old word is void
-            self.watch.forget(f'ros_ehs/{node}')
+        if self.watch is not None and node in STATUS_OF:   # a restarted node's old word is void
+            self.watch.forget(STATUS_OF[node])
         cmd = cmd or node_command(node, params, params_file, extra)
         log = self.log_dir / f'{name}.log'
         fh = open(log, 'wb')

@@ -215,12 +215,11 @@ class RecorderNode(Node):
         if self.failure:
             return
         known = len(self._subs)
-        if self._report_matches():
-            self._diagnose()
+        matched = self._report_matches()
         missing = [t for t in self._wanted if t not in self._subs]
         if missing:
             self._subscribe_new(missing)
-        if len(self._subs) != known:
+        if matched or len(self._subs) != known:     # say what changed now, once
             self._diagnose()
 
     def _subscribe_new(self, missing: list[str]) -> None:
