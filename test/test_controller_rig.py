@@ -39,6 +39,8 @@ def _tracking(bag: Path, state: str, joint: str, skip: float = 2.0) -> tuple[flo
     A reference that went silent for more than the controller's reference_timeout (0.1 s) is
     held, then ramped back onto over ramp_time (1 s), by design: from the gap to a ramp_time
     after it is not tracking, and is left out (a reference node stalled 0.33 s in a full run).
+    So is 0.2 s from a period our plant's watchdog zeroed the valve (the state's applied
+    current exactly 0 A: a plant tick the machine made late, twice in one fresh-clone run).
     """
     b = open_bag(bag)
     ref = sorted(c.reference_from_cdr(m.data) for m in b.messages(['/reference']))
@@ -53,6 +55,8 @@ def _tracking(bag: Path, state: str, joint: str, skip: float = 2.0) -> tuple[flo
     m = (ts > tr[0] + skip * 1e9) & (ts < ts[-1] - 0.2e9)
     for g in np.flatnonzero(np.diff(tr) > 0.1e9):
         m &= ~((ts > tr[g]) & (ts < tr[g + 1] + 1.0e9))
+    for k in np.flatnonzero(np.array([s.i for s in st]) == 0.0):
+        m &= ~((ts >= ts[k]) & (ts < ts[k] + 0.2e9))
     return float(np.sqrt(np.mean((z_ref[m] - z[m]) ** 2))), int(m.sum())
 
 
