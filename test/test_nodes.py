@@ -816,3 +816,102 @@ def test_the_reference_nodes_apc_brings_a_5hz_sine_to_its_amplitude_and_phase(do
     # measured 0.5-1.2 % with APC, 2-6 % without (1.01-1.02 and -1.6 to -3.6 deg)
     assert err[True][0] < 0.015, err
     assert err[False][0] > 1.5 * err[True][0], err
+
+
+def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
+    """
+    The reference node's APC in lock-step is the in-process loop's, to 1e-9 m each period.
+
+    The position and the commands it sent, and the corrections were really made.
+
+    It depends on the node answering each /clock only once it has measured the states the
+    window's corrections come from (a correction starts ``preview`` after its cycle).
+    """
+    from ros_ehs.control.apc import AmplitudePhaseControl
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    duration, f, a = 3.0, 5.0, 0.008
+    bag = tmp_path / 'apc'
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
+                         reference={'amplitude': a, 'frequency': f,
+                                    'amplitude_phase_control': True})
+        assert procs.wait_for_log('plant', 'lock-step run complete', 120), \
+            procs['plant'].output()[-3000:]
+        time.sleep(0.5)
+        codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
+    assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}
+    t, z, _ = _states(bag)
+    n = int(round(duration * 1000))
+    assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
+    # the node's default preview and the controller's ramp_time
+    apc = AmplitudePhaseControl(a, f, latency=0.02, learn_from=1.0)
+    ref = run_closed_loop(Params(), apc, duration, model='simplified', dt=1e-3,
+                          supervised=True)
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    sent = {}
+    with Reader(bag) as r:
+        for conn, _, raw in r.messages([x for x in r.connections
+                                        if x.topic == '/reference_trajectory']):
+            m = ts.deserialize_cdr(raw, conn.msgtype)
+            t0 = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            for p in m.points:
+                k = t0 + p.time_from_start.sec * 10**9 + p.time_from_start.nanosec
+                sent.setdefault(k, set()).add(round(p.positions[0], 12))
+    # each period's command was sent the same every time (a window answered early would
+    # have sent an old one first), and it is the in-process loop's
+    assert all(len(v) == 1 for v in sent.values())
+    np.testing.assert_allclose([next(iter(sent[k])) for k in t], ref.z_ref, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
+    assert apc.cycles >= 8 and apc.converged_at is not None
+    # the corrections made the command differ from the specified sine by more than 2 %
+    assert np.abs(ref.z_ref - apc.desired(ref.t)).max() > 0.02 * a
+
+
+def test_the_apc_reference_answers_a_clock_only_once_the_cycle_it_corrects_from_is_measured(
+        dom):
+    """
+    A window that holds a correction waits for the state that ends the cycle it is from.
+
+    In lock-step, /clock 0.21 s (a window to 0.23 s, where the correction learnt from the
+    cycle that ends at 0.2 s starts at 0.22 s) comes before the state at 0.2 s: the node
+    waits, and answers once that state has come, with the in-process APC's samples.
+    """
+    import rclpy
+    from rclpy.parameter import Parameter
+    from ros_ehs.control.apc import AmplitudePhaseControl
+    from ros_ehs.nodes.reference import ReferenceNode
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    t0 = 5 * 10**9
+    try:
+        node = ReferenceNode(context=ctx, parameter_overrides=[
+            Parameter('use_sim_time', value=True), Parameter('frequency', value=5.0),
+            Parameter('amplitude', value=0.008), Parameter('amplitude_phase_control', value=True),
+            Parameter('apc_ramp_time', value=0.0)])
+        sent = []
+        node.pub_traj.publish = lambda data: sent.append(c.reference_trajectory_from_cdr(data))
+        node.pub.publish = lambda data: None
+        twin = AmplitudePhaseControl(0.008, 5.0, latency=0.02)
+
+        def state(k):     # a loop that halves the command
+            z = 0.5 * twin.reference(k * 1e-3)[0]
+            twin.measure(k * 1e-3, z)
+            node._on_state(c.state_to_cdr(c.AxisState(t0 + k * 10**6, z, 0.0)))
+
+        node._on_clock(c.clock_to_cdr(t0))
+        for k in range(200):              # the first cycle, 0-0.199 s
+            state(k)
+        node._on_clock(c.clock_to_cdr(t0 + 210 * 10**6))
+        assert len(sent) == 1             # the window from 0.21 s waits for state 0.2 s
+        state(200)
+        assert len(sent) == 2
+        got = {r.stamp_ns: r.z_ref for r in sent[1]}
+        assert min(got) == t0 + 210 * 10**6 and max(got) == t0 + 230 * 10**6
+        for k in range(210, 231):
+            assert got[t0 + k * 10**6] == pytest.approx(twin.reference(k * 1e-3)[0], abs=1e-12)
+        # the correction is in from 0.22 s: the command there is no longer the sine's
+        assert abs(got[t0 + 230 * 10**6] - twin.desired(0.23)) > 1e-4
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

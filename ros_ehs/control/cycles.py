@@ -19,6 +19,10 @@ sample of a cycle to :meth:`~CycleCorrection._take` and, at the first sample of 
 cycle, calls :meth:`~CycleCorrection._end_cycle`. Edge-case policy: while frozen (an
 interlock, lost feedback) and for a non-finite position the cycle under way is marked bad
 (not learnt from); the subclass keeps its command as it was, so it resumes without a jump.
+A cycle with a sample before ``learn_from`` [s] is not learnt from either: the axis ramps
+onto the trajectory over its first second (``ramp_time``), and a response attenuated by a
+ramp is not the loop's (learnt from, it doubled the command: 1.97 times the amplitude once
+the ramp was over).
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ class CycleCorrection:
         self._cycle = 0
         self._bad = False
         self.frozen = False
+        self.learn_from = 0.0           #: no cycle with a sample before this time [s] counts
 
     def cycle_of(self, t: float) -> int:
         """Return the number of the cycle that time ``t`` [s] falls in."""
@@ -52,7 +57,7 @@ class CycleCorrection:
         cycle = self.cycle_of(t)
         if cycle != self._cycle:
             self._end_cycle(cycle)
-        if self.frozen or not math.isfinite(z):
+        if self.frozen or not math.isfinite(z) or t < self.learn_from:
             self._bad = True
             return
         self._take(t, z)

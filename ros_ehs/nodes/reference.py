@@ -49,20 +49,24 @@ controller's APC does (:class:`ros_ehs.control.apc.AmplitudePhaseControl`, docs/
 The corrections freeze, and the command keeps its last amplitude and phase, while a safety
 trip that acts (hold, stop, power off: the controller's ``events``) is latched, and while no
 state has come for ``APC_LOST`` seconds; they resume after a reset or when states return,
-without a jump. Under ``use_sim_time`` the preview samples are computed before the cycle
-that ends within them is measured, so the first ``preview`` of a cycle keeps the old
-command (a correction still blends in without a jump).
+without a jump. No cycle that overlaps the controller's ramp-on is learnt from
+(``apc_ramp_time``, from time zero and after a reset). A correction starts ``preview``
+after the end of the cycle it was learnt from, so no sample already sent changes; under
+``use_sim_time`` a ``/clock`` whose window holds a correction is answered only once the
+state that ends its cycle has been measured (on time in lock-step: the plant sends that
+state with that clock), which makes the run the in-process loop's to 1e-9 m (tested).
 """
 
 from __future__ import annotations
 
+import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from ros_ehs.control.apc import AmplitudePhaseControl
+from ros_ehs.control.apc import AmplitudePhaseControl, MAX_HARMONICS
 from ros_ehs.errors import ParameterError
 from ros_ehs.nodes.options import declare_options, declare_specs, Option
 from ros_ehs.nodes.ros_common import (diagnostics, EPOCH_PERIODS, OK, PLANT_STATUS, qos_profile,
@@ -92,11 +96,18 @@ OPTIONS = (
     Option('amplitude_phase_control', False, "kind sine: correct the command's amplitude, "
            'phase and mean each cycle from the measured position (APC); frozen while a '
            'safety trip acts or states are lost'),
+    Option('apc_ramp_time', 1.0, "APC: the controller's ramp_time: no cycle that overlaps a "
+           'ramp-on (the first one, and the one after a reset) is learnt from [s]', 0.0, 60.0),
+    Option('apc_harmonics', 5, 'APC: the harmonics corrected, the fundamental included (1: '
+           'amplitude and phase only; 2 and up also cancel the distortion at 2 f, 3 f, ...)',
+           1, MAX_HARMONICS),
     CPU_AFFINITY,
 )
 
-#: APC: no state for this long freezes the corrections [s].
+#: APC: no state for this long freezes the corrections [s] (real time).
 APC_LOST = 0.2
+#: APC under sim time: states kept from before the first /clock (time zero's own)
+EARLY_STATES = 100
 
 
 class ReferenceNode(Node):
@@ -113,6 +124,9 @@ class ReferenceNode(Node):
         self.apc = self._make_apc(values)
         self._frozen_by: set[str] = set()      # the reasons the APC is frozen
         self._last_state = time.monotonic()
+        self._measured_ns = -1          # the newest state stamp the APC has taken
+        self._early: list[tuple[int, float]] = []   # states before time zero (sim time)
+        self._waiting: list[int] = []   # /clock stamps whose window waits for states
         self.t_first: int | None = None
         self.last_ns = -1
         self.count = 0
@@ -143,12 +157,15 @@ class ReferenceNode(Node):
             self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self._on_diag,
                                      qos_profile(contract.DIAGNOSTICS.qos))
         if self.apc is not None:
-            # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire)
+            # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire); under
+            # sim time every state counts, so over the lock-step QoS
             self.create_subscription(JointState, contract.STATE.name, self._on_state,
-                                     qos_profile(contract.STATE.qos), raw=True)
+                                     qos_profile(contract.STATE.qos_in(self.sim_time)),
+                                     raw=True)
             self.create_subscription(DiagnosticArray, contract.EVENTS.name, self._on_event,
                                      qos_profile(contract.EVENTS.qos))
-            self.create_timer(0.05, self._watch_states, clock=steady_clock())
+            if not self.sim_time:       # in lock-step a slow loop is not a lost one
+                self.create_timer(0.05, self._watch_states, clock=steady_clock())
         self.add_on_set_parameters_callback(self._check)
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
                           clock=steady_clock())
@@ -162,8 +179,18 @@ class ReferenceNode(Node):
         if values['kind'] != 'sine':
             raise ParameterError('amplitude_phase_control corrects a sine: `kind` is '
                                  f'{values["kind"]!r}')
+        preview = float(self.opt['preview'])
+        if preview * float(values['frequency']) >= 1.0:
+            raise ParameterError(f'amplitude_phase_control: `preview` = {preview:g} s must be '
+                                 f'under the sine\'s period ({1 / values["frequency"]:g} s)')
+        # a correction starts `preview` after the cycle it was learnt from: every sample
+        # already sent stays as it was sent, and under sim time each window can wait for
+        # the states it depends on (in process: the same latency gives the same numbers)
         return AmplitudePhaseControl(float(values['amplitude']), float(values['frequency']),
-                                     float(values['offset']))
+                                     float(values['offset']),
+                                     harmonics=int(self.opt['apc_harmonics']),
+                                     latency=preview,
+                                     learn_from=float(self.opt['apc_ramp_time']))
 
     def _check(self, changes):
         new = dict(self.values)
@@ -189,14 +216,40 @@ class ReferenceNode(Node):
 
     def _on_state(self, data: bytes) -> None:
         s = read_msg(self, contract.state_from_cdr, data, 'state')
-        if s is None or self.t_first is None:
+        if s is None:
             return
         self._last_state = time.monotonic()
         if 'states lost' in self._frozen_by:
             self._freeze('states lost', False)
-        t = (s.stamp_ns - self.t_first) * 1e-9
-        if t >= 0.0:
-            self.apc.measure(t, s.z)
+        if self.t_first is None:
+            if self.sim_time and len(self._early) < EARLY_STATES:    # time zero's own state
+                self._early.append((s.stamp_ns, s.z))
+            return
+        self._measure(s.stamp_ns, s.z)
+        if self._waiting:
+            self._answer_waiting()
+
+    def _measure(self, stamp_ns: int, z: float) -> None:
+        # once per stamp, in order: a lock-step resend is the same state again
+        if stamp_ns <= self._measured_ns or stamp_ns < self.t_first:
+            return
+        self._measured_ns = stamp_ns
+        self.apc.measure((stamp_ns - self.t_first) * 1e-9, z)
+
+    def _ready(self, t_ns: int) -> bool:
+        """Whether the APC has measured every state the window of clock ``t_ns`` depends on."""
+        if self.apc is None:
+            return True
+        # the samples up to t + preview use corrections from the cycles that ended by
+        # t + preview - latency = t: their ends must have been measured
+        end = (t_ns - self.t_first) * 1e-9
+        boundary = math.floor(end / self.apc.period + 1e-9) * self.apc.period
+        return boundary <= 0.0 or self._measured_ns >= self.t_first + int(
+            round(boundary * 1e9)) - 1000
+
+    def _answer_waiting(self) -> None:
+        while self._waiting and self._ready(self._waiting[0]):
+            self._answer(self._waiting.pop(0))
 
     def _watch_states(self) -> None:
         if self.t_first is not None and time.monotonic() - self._last_state > APC_LOST:
@@ -210,6 +263,10 @@ class ReferenceNode(Node):
         if e.kind == 'trip' and e.action in ('hold', 'stop', 'power_off'):
             self._freeze('safety trip', True)
         elif e.kind in ('reset', 'enabled'):
+            if 'safety trip' in self._frozen_by and self.t_first is not None:
+                # the controller ramps onto the trajectory again: not learnt from
+                self.apc.learn_from = (self.last_ns - self.t_first) * 1e-9 + float(
+                    self.opt['apc_ramp_time'])
             self._freeze('safety trip', False)
 
     def _on_clock(self, data: bytes) -> None:
@@ -226,9 +283,23 @@ class ReferenceNode(Node):
                                    f' s; trajectory from its start (run {self.runs})',
                                    throttle_duration_sec=1.0)
             self.t_first = None
+            if self.apc is not None:         # a new run: its corrections start again
+                self.apc = self._make_apc(self.values)
+                self._measured_ns, self._waiting = -1, []
         if self.t_first is None or t < self.t_first:
             self.t_first = t
+            if self.apc is not None:
+                early, self._early = self._early, []
+                for stamp, z in sorted(early):
+                    self._measure(stamp, z)
         self.last_ns = t
+        if not self._ready(t):            # the states it depends on are on their way
+            if t not in self._waiting:
+                self._waiting.append(t)
+            return
+        self._answer(t)
+
+    def _answer(self, t: int) -> None:
         n = max(1, int(float(self.opt['preview']) * 1e9 // self._dt_ns))
         stamps = np.arange(n + 1, dtype=np.int64) * self._dt_ns + t
         z, v = self._sample(stamps)
@@ -290,6 +361,7 @@ class ReferenceNode(Node):
             values.update(apc_cycles=self.apc.cycles,
                           apc_amp_ratio=float(last.get('amp_ratio', float('nan'))),
                           apc_phase_deg=float(last.get('phase_deg', float('nan'))),
+                          apc_harmonics_pct=float(last.get('harmonics_pct', float('nan'))),
                           apc_converged=self.apc.converged_at is not None,
                           apc_frozen=','.join(sorted(self._frozen_by)))
         self.pub_diag.publish(diagnostics(self, contract.REFERENCE_STATUS, OK, self.values['kind'],

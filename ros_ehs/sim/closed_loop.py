@@ -135,9 +135,10 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
     late = [0.0] * command_delay                 # commands on their way to the plant
     for k in range(n):
         z_meas[k] = x[iz] + (z_noise[k] if z_noise is not None else 0.0)
-        if online:
-            reference.measure(float(t[k]), float(z_meas[k]))
-            z_ref[k], v_ref[k] = reference.reference(float(t[k]))
+        if online:      # time as a node has it: from a stamp in ns (bit for bit)
+            tk = (k * dt_ns) * 1e-9
+            reference.measure(tk, float(z_meas[k]))
+            z_ref[k], v_ref[k] = reference.reference(tk)
         if axis is None:
             u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]))
         else:
@@ -155,7 +156,7 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
         xs[k + 1] = x
     cur[n] = cur[n - 1]
     if online:
-        z_ref[n], v_ref[n] = reference.reference(float(t[n]))
+        z_ref[n], v_ref[n] = reference.reference((n * dt_ns) * 1e-9)
     return ClosedLoopResult(t, z_ref, v_ref, xs, cur, plant.state_names, z_meas,
                             tuple(events))
 
