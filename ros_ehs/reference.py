@@ -12,9 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Reference trajectories z_ref(t) [m] and v_ref(t) [m/s]: sine, step, chirp, CSV file.
+Reference trajectories z_ref(t) [m] and v_ref(t) [m/s]: sine, step, chirp, cyclic, CSV file.
 
-Each is a callable ``ref(t) -> (z, v)`` on an array of times [s].
+Each is a callable ``ref(t) -> (z, v)`` on an array of times [s]. The cyclic ones (triangle,
+haversine, block loading) are :class:`ros_ehs.control.pvc.Cyclic`.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ import numpy as np
 from ros_ehs.errors import DataError, InputError, ParameterError
 from ros_ehs.params import ParamSpec
 
-__all__ = ['Chirp', 'CsvTrajectory', 'first_order_hold', 'KINDS', 'REFERENCE_SPECS', 'Samples',
-           'Sine', 'Step', 'make']
+__all__ = ['Chirp', 'CsvTrajectory', 'cyclic_blocks', 'first_order_hold', 'KINDS',
+           'REFERENCE_SPECS', 'Samples', 'Sine', 'Step', 'make']
 
 
 def _finite(name: str, value: float) -> float:
@@ -174,16 +175,18 @@ class CsvTrajectory(Samples):
         super().__init__(t, z)
 
 
-KINDS = ('sine', 'step', 'chirp', 'csv')
+KINDS = ('sine', 'step', 'chirp', 'triangle', 'haversine', 'csv')
 
 #: The reference generator's parameters, declared once (the reference node declares these).
 REFERENCE_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec('kind', '', 'sine', meaning='trajectory: sine, step, chirp or csv (file)',
+    ParamSpec('kind', '', 'sine', meaning='trajectory: sine, step, chirp, triangle, haversine '
+              '(cyclic between offset -+ amplitude, or through `blocks`) or csv (file)',
               group='reference', choices=KINDS),
     ParamSpec('amplitude', 'm', 0.04, -2.0, 2.0, 'amplitude (sine, chirp) or height (step)',
               'reference'),
-    ParamSpec('frequency', 'Hz', 1.0, 1.0e-3, 500.0, 'sine frequency', 'reference'),
-    ParamSpec('offset', 'm', 0.0, -2.0, 2.0, 'sine offset', 'reference'),
+    ParamSpec('frequency', 'Hz', 1.0, 1.0e-3, 500.0, 'sine, triangle or haversine frequency',
+              'reference'),
+    ParamSpec('offset', 'm', 0.0, -2.0, 2.0, 'sine, triangle or haversine mean', 'reference'),
     ParamSpec('step_time', 's', 0.1, 0.0, 1.0e6, 'time of the step', 'reference'),
     ParamSpec('rise', 's', 0.0, 0.0, 100.0, 'step rise time (cosine ramp; 0: sharp)',
               'reference'),
@@ -193,10 +196,30 @@ REFERENCE_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
-def make(values: dict, csv_path: str = ''):
+def cyclic_blocks(values: dict, blocks: str = '') -> list:
+    """
+    Return the blocks of a triangle or haversine.
+
+    ``blocks`` (``peak valley cycles; ...``, :func:`ros_ehs.control.pvc.parse_blocks`) or,
+    without them, one block between ``offset`` -+ ``amplitude``.
+    """
+    from ros_ehs.control.pvc import Block, parse_blocks
+    if blocks.strip():
+        return parse_blocks(blocks)
+    a, m = abs(float(values['amplitude'])), float(values['offset'])
+    if a == 0.0:
+        raise ParameterError(f'reference `kind` = {values["kind"]}: `amplitude` must not be 0 '
+                             '(or give `blocks`)')
+    return [Block(m + a, m - a)]
+
+
+def make(values: dict, csv_path: str = '', blocks: str = ''):
     """Return the trajectory that ``values`` (REFERENCE_SPECS names) describe, checked."""
     v = {s.name: s.check(values.get(s.name, s.default)) for s in REFERENCE_SPECS}
     kind = v['kind']
+    if kind in ('triangle', 'haversine'):
+        from ros_ehs.control.pvc import Cyclic
+        return Cyclic(cyclic_blocks(v, blocks), v['frequency'], kind)
     if kind == 'sine':
         return Sine(v['amplitude'], v['frequency'], v['offset'])
     if kind == 'step':

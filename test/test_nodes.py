@@ -888,7 +888,7 @@ def test_the_apc_reference_answers_a_clock_only_once_the_cycle_it_corrects_from_
         node = ReferenceNode(context=ctx, parameter_overrides=[
             Parameter('use_sim_time', value=True), Parameter('frequency', value=5.0),
             Parameter('amplitude', value=0.008), Parameter('amplitude_phase_control', value=True),
-            Parameter('apc_ramp_time', value=0.0)])
+            Parameter('ramp_time', value=0.0)])
         sent = []
         node.pub_traj.publish = lambda data: sent.append(c.reference_trajectory_from_cdr(data))
         node.pub.publish = lambda data: None
@@ -913,5 +913,78 @@ def test_the_apc_reference_answers_a_clock_only_once_the_cycle_it_corrects_from_
         # the correction is in from 0.22 s: the command there is no longer the sine's
         assert abs(got[t0 + 230 * 10**6] - twin.desired(0.23)) > 1e-4
         node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_pvc_block_loading_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
+    """
+    The reference node's PVC through a block-loading sequence, in lock-step over DDS.
+
+    The position and each command sent equal the in-process loop's to 1e-9 m at every
+    period, and the blocks' commands were corrected.
+    """
+    from ros_ehs.control.pvc import PeakValleyControl, parse_blocks
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    duration, f, blocks = 4.0, 5.0, '0.005 -0.005 2; 0.008 0 2'
+    bag = tmp_path / 'pvc'
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
+                         reference={'kind': 'triangle', 'frequency': f, 'blocks': blocks,
+                                    'peak_valley_control': True})
+        assert procs.wait_for_log('plant', 'lock-step run complete', 120), \
+            procs['plant'].output()[-3000:]
+        time.sleep(0.5)
+        codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
+        out = procs['reference'].output()
+    assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}
+    assert 'triangle reference, on /clock, peak/valley control' in out, out
+    t, z, _ = _states(bag)
+    n = int(round(duration * 1000))
+    assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
+    # the node's default preview and the controller's ramp_time
+    pvc = PeakValleyControl(parse_blocks(blocks), f, 'triangle', latency=0.02, learn_from=1.0)
+    ref = run_closed_loop(Params(), pvc, duration, model='simplified', dt=1e-3,
+                          supervised=True)
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    sent = {}
+    with Reader(bag) as r:
+        for conn, _, raw in r.messages([x for x in r.connections
+                                        if x.topic == '/reference_trajectory']):
+            m = ts.deserialize_cdr(raw, conn.msgtype)
+            t0 = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            for p in m.points:
+                k = t0 + p.time_from_start.sec * 10**9 + p.time_from_start.nanosec
+                sent.setdefault(k, set()).add(round(p.positions[0], 12))
+    assert all(len(v) == 1 for v in sent.values())
+    np.testing.assert_allclose([next(iter(sent[k])) for k in t], ref.z_ref, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
+    assert len(pvc.history) >= 4
+    assert abs(pvc.amp[1] / 0.004 - 1) > 0.01 or abs(pvc.amp[0] / 0.005 - 1) > 0.01
+
+
+@pytest.mark.parametrize('params,match', [
+    ({'peak_valley_control': True}, 'peak_valley_control corrects a triangle or haversine'),
+    ({'kind': 'step', 'amplitude_phase_control': True}, "corrects a sine: `kind` is 'step'"),
+    ({'kind': 'triangle', 'peak_valley_control': True, 'amplitude_phase_control': True},
+     'choose one'),
+    ({'kind': 'triangle', 'peak_valley_control': True, 'blocks': '0.01 0'}, 'block 1'),
+    ({'kind': 'haversine', 'peak_valley_control': True, 'frequency': 30.0},
+     '`preview` = 0.02 s must be under half the period'),
+    ({'kind': 'triangle', 'amplitude': 0.0}, '`amplitude` must not be 0'),
+])
+def test_a_reference_node_with_a_correction_it_cannot_make_names_why(dom, params, match):
+    import rclpy
+    from rclpy.parameter import Parameter
+    from ros_ehs.errors import EhsError
+    from ros_ehs.nodes.reference import ReferenceNode
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    try:
+        with pytest.raises(ValueError, match=match) as err:
+            ReferenceNode(context=ctx, parameter_overrides=[
+                Parameter(k, value=v) for k, v in params.items()])
+        assert isinstance(err.value, EhsError)        # run() exits 2 with the message
     finally:
         rclpy.shutdown(context=ctx)

@@ -48,3 +48,50 @@ def test_freeze_keeps_the_corrections():
 def test_bad_settings_name_the_argument(make, match):
     with pytest.raises(InputError, match=match):
         make()
+
+
+def test_a_correction_changes_no_sample_computed_before_its_latency():
+    """
+    What a node sends ahead (up to ``latency`` into the next cycle) stays as it was sent.
+
+    Samples up to 0.02 s past each cycle's end are computed before that cycle is measured,
+    then again after: the same, and the corrections are really made (the loop at 0.8).
+    """
+    pvc = PeakValleyControl([Block(0.005, -0.005, 2), Block(0.008, 0.0, 2)], 5.0,
+                            latency=0.02)
+    dt, ahead = 1e-3, 20
+    early = {}
+    for k in range(int(6.0 / dt)):
+        for j in range(ahead + 1):                     # the window a node sends at k
+            t = (k + j) * dt
+            early.setdefault(k + j, pvc.reference(t))
+        assert pvc.reference(k * dt) == early[k]
+        pvc.measure(k * dt, 0.8 * pvc.reference(k * dt)[0])
+    assert pvc.amp[0] > 0.005 * 1.15 and pvc.converged_at is not None
+    # and with no latency the in-process loop is as before: corrections from the next cycle
+    with pytest.raises(InputError, match='latency'):
+        PeakValleyControl([Block(0.005, -0.005)], 5.0, latency=0.1)
+
+
+def test_blocks_are_read_from_text_and_a_wrong_block_is_named():
+    from ros_ehs.control.pvc import Cyclic, parse_blocks
+    from ros_ehs.reference import make
+    want = [Block(0.01, -0.01, 4), Block(0.02, 0.0, 2)]
+    assert parse_blocks('0.01 -0.01 4; 0.02, 0, 2;') == want
+    for bad, what in (('0.01 -0.01', 'block 1'), ('0.01 -0.01 4; 0.02 0 2.5', 'block 2'),
+                      ('0.01 -0.01 x', 'block 1'), ('  ;  ', 'at least one'),
+                      ('0 0.01 3', 'above')):
+        with pytest.raises(InputError, match=what):
+            parse_blocks(bad)
+    # the reference kinds: offset -+ amplitude, or the blocks; the waveform's own samples
+    tri = make({'kind': 'triangle', 'amplitude': 0.004, 'offset': 0.001, 'frequency': 2.0})
+    z, v = tri(np.array([0.0, 0.125, 0.25, 0.375]))
+    np.testing.assert_allclose(z, [-0.003, 0.001, 0.005, 0.001], atol=1e-15)
+    np.testing.assert_allclose(v, [0.032, 0.032, -0.032, -0.032], atol=1e-12)
+    hav = make({'kind': 'haversine', 'frequency': 1.0}, blocks='0.02 0 1; 0.01 0 1')
+    assert isinstance(hav, Cyclic)
+    z, _ = hav(np.array([0.0, 0.5, 1.5]))
+    np.testing.assert_allclose(z, [0.0, 0.02, 0.01], atol=1e-15)
+    from ros_ehs.errors import ParameterError
+    with pytest.raises(ParameterError, match='amplitude'):
+        make({'kind': 'triangle', 'amplitude': 0.0})

@@ -14,8 +14,10 @@
 """
 The reference node: publishes z_ref [m] and v_ref [m/s] on ``reference``.
 
-Trajectories (``kind``): sine (default 0.04 m at 1 Hz, the paper's test), step, chirp, or a
-CSV file (``csv_path``, columns ``t`` [s] and ``z`` [m]). Time zero is the first tick. In real
+Trajectories (``kind``): sine (default 0.04 m at 1 Hz, the paper's test), step, chirp,
+triangle or haversine (between ``offset`` -+ ``amplitude``, or through a block-loading
+sequence ``blocks``), or a CSV file (``csv_path``, columns ``t`` [s] and ``z`` [m]; a drive
+file). Time zero is the first tick. In real
 time it ticks on a steady timer at ``rate_hz``. Under ``use_sim_time`` (lock-step) it answers
 each ``/clock`` t with the samples at t, t + 1/``rate_hz``, ... up to t + ``preview`` as one
 ``reference_trajectory`` (trajectory_msgs/JointTrajectory, what the lock-step controller
@@ -43,18 +45,20 @@ running loop, with both: the trajectory then starts at its beginning on a closed
 holding position, with the controller and the recorder listening, instead of somewhere
 mid-stroke on a piston that has not moved yet.
 
-``amplitude_phase_control`` (kind sine): the command's amplitude, phase and mean are
-corrected each cycle from the measured position (``state``, joint ``piston``), as a test
-controller's APC does (:class:`ros_ehs.control.apc.AmplitudePhaseControl`, docs/controller.md).
-The corrections freeze, and the command keeps its last amplitude and phase, while a safety
-trip that acts (hold, stop, power off: the controller's ``events``) is latched, and while no
-state has come for ``APC_LOST`` seconds; they resume after a reset or when states return,
-without a jump. No cycle that overlaps the controller's ramp-on is learnt from
-(``apc_ramp_time``, from time zero and after a reset). A correction starts ``preview``
-after the end of the cycle it was learnt from, so no sample already sent changes; under
-``use_sim_time`` a ``/clock`` whose window holds a correction is answered only once the
-state that ends its cycle has been measured (on time in lock-step: the plant sends that
-state with that clock), which makes the run the in-process loop's to 1e-9 m (tested).
+``amplitude_phase_control`` (kind sine): the command's amplitude, phase and mean are corrected
+each cycle from the measured position (``state``, joint ``piston``), as a test controller's
+APC does (:class:`ros_ehs.control.apc.AmplitudePhaseControl`, docs/controller.md).
+``peak_valley_control`` (kind triangle or haversine): each block's command is corrected so
+that its peaks and valleys reach their targets (:class:`ros_ehs.control.pvc.
+PeakValleyControl`). For both, the corrections freeze, and the command keeps its last
+amplitude and phase, while a safety trip that acts (hold, stop, power off: the controller's
+``events``) is latched, and while no state has come for ``APC_LOST`` seconds; they resume
+after a reset or when states return, without a jump. No cycle that overlaps the controller's
+ramp-on is learnt from (``ramp_time``, from time zero and after a reset). A correction starts
+``preview`` after the end of the cycle it was learnt from, so no sample already sent changes;
+under ``use_sim_time`` a ``/clock`` whose window holds a correction is answered only once the
+state that ends its cycle has been measured (on time in lock-step: the plant sends that state
+with that clock), which makes the run the in-process loop's to 1e-9 m (tested).
 """
 
 from __future__ import annotations
@@ -67,12 +71,14 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from ros_ehs.control.apc import AmplitudePhaseControl, MAX_HARMONICS
+from ros_ehs.control.cycles import CycleCorrection
+from ros_ehs.control.pvc import PeakValleyControl
 from ros_ehs.errors import ParameterError
 from ros_ehs.nodes.options import declare_options, declare_specs, Option
 from ros_ehs.nodes.ros_common import (diagnostics, EPOCH_PERIODS, OK, PLANT_STATUS, qos_profile,
                                       read_msg, run, steady_clock)
 from ros_ehs.nodes.scheduling import CPU_AFFINITY
-from ros_ehs.reference import make, REFERENCE_SPECS
+from ros_ehs.reference import cyclic_blocks, make, REFERENCE_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -93,10 +99,15 @@ OPTIONS = (
            "plant's diagnostics report its loop closed (status ros_ehs/plant at level OK)"),
     Option('wait_subscribers', 0, 'real time: start the trajectory (time zero) only once '
            '`reference` has this many subscribers; publish nothing until then', 0, 1000),
+    Option('blocks', '', 'kind triangle or haversine: a block-loading sequence, `peak valley '
+           "cycles` per block [m, m, -], blocks apart by ';' (empty: offset -+ amplitude)"),
     Option('amplitude_phase_control', False, "kind sine: correct the command's amplitude, "
            'phase and mean each cycle from the measured position (APC); frozen while a '
            'safety trip acts or states are lost'),
-    Option('apc_ramp_time', 1.0, "APC: the controller's ramp_time: no cycle that overlaps a "
+    Option('peak_valley_control', False, "kind triangle or haversine: correct each block's "
+           'command each cycle so that its peaks and valleys reach their targets (PVC); frozen '
+           'as APC is'),
+    Option('ramp_time', 1.0, "APC, PVC: the controller's ramp_time: no cycle that overlaps a "
            'ramp-on (the first one, and the one after a reset) is learnt from [s]', 0.0, 60.0),
     Option('apc_harmonics', 5, 'APC: the harmonics corrected, the fundamental included (1: '
            'amplitude and phase only; 2 and up also cancel the distortion at 2 f, 3 f, ...)',
@@ -119,9 +130,9 @@ class ReferenceNode(Node):
         self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
         declare_specs(self, REFERENCE_SPECS, {s.name: s.default for s in REFERENCE_SPECS})
         values = {s.name: self.get_parameter(s.name).value for s in REFERENCE_SPECS}
-        self.traj = make(values, self.opt['csv_path'])
+        self.traj = make(values, self.opt['csv_path'], self.opt['blocks'])
         self.values = values
-        self.apc = self._make_apc(values)
+        self.correction = self._make_correction(values)
         self._frozen_by: set[str] = set()      # the reasons the APC is frozen
         self._last_state = time.monotonic()
         self._measured_ns = -1          # the newest state stamp the APC has taken
@@ -156,7 +167,7 @@ class ReferenceNode(Node):
         if not self.loop_closed:
             self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self._on_diag,
                                      qos_profile(contract.DIAGNOSTICS.qos))
-        if self.apc is not None:
+        if self.correction is not None:
             # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire); under
             # sim time every state counts, so over the lock-step QoS
             self.create_subscription(JointState, contract.STATE.name, self._on_state,
@@ -170,47 +181,58 @@ class ReferenceNode(Node):
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
                           clock=steady_clock())
         how = 'on /clock' if self.sim_time else f'{self.opt["rate_hz"]:g} Hz'
-        apc = ', amplitude/phase control' if self.apc is not None else ''
-        self.get_logger().info(f'{values["kind"]} reference, {how}{apc}')
+        corr = {type(None): '', AmplitudePhaseControl: ', amplitude/phase control',
+                PeakValleyControl: ', peak/valley control'}[type(self.correction)]
+        self.get_logger().info(f'{values["kind"]} reference, {how}{corr}')
 
-    def _make_apc(self, values: dict) -> AmplitudePhaseControl | None:
-        if not self.opt['amplitude_phase_control']:
+    def _make_correction(self, values: dict) -> CycleCorrection | None:
+        """Return the cycle-by-cycle correction the options ask for (APC, PVC), or None."""
+        apc, pvc = self.opt['amplitude_phase_control'], self.opt['peak_valley_control']
+        if not (apc or pvc):
             return None
-        if values['kind'] != 'sine':
-            raise ParameterError('amplitude_phase_control corrects a sine: `kind` is '
+        if apc and pvc:
+            raise ParameterError('amplitude_phase_control corrects a sine, peak_valley_control a '
+                                 'triangle or haversine: choose one')
+        kinds = ('sine',) if apc else ('triangle', 'haversine')
+        name = 'amplitude_phase_control' if apc else 'peak_valley_control'
+        if values['kind'] not in kinds:
+            raise ParameterError(f'{name} corrects a {" or ".join(kinds)}: `kind` is '
                                  f'{values["kind"]!r}')
-        preview = float(self.opt['preview'])
-        if preview * float(values['frequency']) >= 1.0:
-            raise ParameterError(f'amplitude_phase_control: `preview` = {preview:g} s must be '
-                                 f'under the sine\'s period ({1 / values["frequency"]:g} s)')
+        preview, f = float(self.opt['preview']), float(values['frequency'])
+        share = 1.0 if apc else 0.5
+        if preview * f >= share:
+            raise ParameterError(f'{name}: `preview` = {preview:g} s must be under '
+                                 f'{"the" if apc else "half the"} period ({1 / f:g} s)')
         # a correction starts `preview` after the cycle it was learnt from: every sample
         # already sent stays as it was sent, and under sim time each window can wait for
         # the states it depends on (in process: the same latency gives the same numbers)
-        return AmplitudePhaseControl(float(values['amplitude']), float(values['frequency']),
-                                     float(values['offset']),
-                                     harmonics=int(self.opt['apc_harmonics']),
-                                     latency=preview,
-                                     learn_from=float(self.opt['apc_ramp_time']))
+        ramp = float(self.opt['ramp_time'])
+        if apc:
+            return AmplitudePhaseControl(float(values['amplitude']), f, float(values['offset']),
+                                         harmonics=int(self.opt['apc_harmonics']),
+                                         latency=preview, learn_from=ramp)
+        return PeakValleyControl(cyclic_blocks(values, self.opt['blocks']), f, values['kind'],
+                                 latency=preview, learn_from=ramp)
 
     def _check(self, changes):
         new = dict(self.values)
         new.update({p.name: p.value for p in changes if p.name in new})
         try:
-            traj = make(new, self.opt['csv_path'])
-            apc = self._make_apc(new) if self.apc is not None else None
+            traj = make(new, self.opt['csv_path'], self.opt['blocks'])
+            corr = self._make_correction(new) if self.correction is not None else None
         except (ParameterError, ValueError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.traj, self.values = traj, new
-        if apc is not None:
-            self.apc = apc          # a new sine: its corrections start again
+        if corr is not None:
+            self.correction = corr          # a new waveform: its corrections start again
         return SetParametersResult(successful=True)
 
-    # -- amplitude/phase control -------------------------------------------------------------
+    # -- amplitude/phase and peak/valley control ------------------------------------------
     def _freeze(self, reason: str, on: bool) -> None:
         was = bool(self._frozen_by)
         (self._frozen_by.add if on else self._frozen_by.discard)(reason)
         if bool(self._frozen_by) != was:
-            self.apc.freeze(bool(self._frozen_by))
+            self.correction.freeze(bool(self._frozen_by))
             self.get_logger().info(('APC frozen: ' if self._frozen_by else 'APC resumed: ') +
                                    reason)
 
@@ -234,16 +256,16 @@ class ReferenceNode(Node):
         if stamp_ns <= self._measured_ns or stamp_ns < self.t_first:
             return
         self._measured_ns = stamp_ns
-        self.apc.measure((stamp_ns - self.t_first) * 1e-9, z)
+        self.correction.measure((stamp_ns - self.t_first) * 1e-9, z)
 
     def _ready(self, t_ns: int) -> bool:
         """Whether the APC has measured every state the window of clock ``t_ns`` depends on."""
-        if self.apc is None:
+        if self.correction is None:
             return True
         # the samples up to t + preview use corrections from the cycles that ended by
         # t + preview - latency = t: their ends must have been measured
         end = (t_ns - self.t_first) * 1e-9
-        boundary = math.floor(end / self.apc.period + 1e-9) * self.apc.period
+        boundary = math.floor(end / self.correction.period + 1e-9) * self.correction.period
         return boundary <= 0.0 or self._measured_ns >= self.t_first + int(
             round(boundary * 1e9)) - 1000
 
@@ -265,8 +287,8 @@ class ReferenceNode(Node):
         elif e.kind in ('reset', 'enabled'):
             if 'safety trip' in self._frozen_by and self.t_first is not None:
                 # the controller ramps onto the trajectory again: not learnt from
-                self.apc.learn_from = (self.last_ns - self.t_first) * 1e-9 + float(
-                    self.opt['apc_ramp_time'])
+                self.correction.learn_from = (self.last_ns - self.t_first) * 1e-9 + float(
+                    self.opt['ramp_time'])
             self._freeze('safety trip', False)
 
     def _on_clock(self, data: bytes) -> None:
@@ -283,12 +305,12 @@ class ReferenceNode(Node):
                                    f' s; trajectory from its start (run {self.runs})',
                                    throttle_duration_sec=1.0)
             self.t_first = None
-            if self.apc is not None:         # a new run: its corrections start again
-                self.apc = self._make_apc(self.values)
+            if self.correction is not None:         # a new run: its corrections start again
+                self.correction = self._make_correction(self.values)
                 self._measured_ns, self._waiting = -1, []
         if self.t_first is None or t < self.t_first:
             self.t_first = t
-            if self.apc is not None:
+            if self.correction is not None:
                 early, self._early = self._early, []
                 for stamp, z in sorted(early):
                     self._measure(stamp, z)
@@ -332,15 +354,15 @@ class ReferenceNode(Node):
         """Return z_ref [m] and v_ref [m/s] at ``stamps_ns`` (held after ``duration``)."""
         t = (stamps_ns - self.t_first) * 1e-9
         dur = float(self.opt['duration'])
-        traj = self.traj if self.apc is None else self._apc_samples
+        traj = self.traj if self.correction is None else self._corrected_samples
         if dur <= 0:
             return traj(t)
         hold = t > dur
         z, v = traj(np.minimum(t, dur))
         return z, np.where(hold, 0.0, v)
 
-    def _apc_samples(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        zv = [self.apc.reference(float(x)) for x in np.atleast_1d(t)]
+    def _corrected_samples(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        zv = [self.correction.reference(float(x)) for x in np.atleast_1d(t)]
         return np.array([a for a, _ in zv]), np.array([b for _, b in zv])
 
     def _publish(self, stamp_ns: int) -> None:
@@ -356,13 +378,19 @@ class ReferenceNode(Node):
         t = 0.0 if self.t_first is None else (self.last_ns - self.t_first) * 1e-9
         values = {'started': self.t_first is not None, 'published': self.count, 'time_s': t,
                   'bad_clocks': self.bad}
-        if self.apc is not None:
-            last = self.apc.history[-1] if self.apc.history else {}
-            values.update(apc_cycles=self.apc.cycles,
+        if isinstance(self.correction, PeakValleyControl):
+            last = self.correction.history[-1] if self.correction.history else {}
+            values.update(pvc_cycles=len(self.correction.history),
+                          pvc_error=float(last.get('error', float('nan'))),
+                          pvc_converged=self.correction.converged_at is not None,
+                          pvc_frozen=','.join(sorted(self._frozen_by)))
+        elif self.correction is not None:
+            last = self.correction.history[-1] if self.correction.history else {}
+            values.update(apc_cycles=self.correction.cycles,
                           apc_amp_ratio=float(last.get('amp_ratio', float('nan'))),
                           apc_phase_deg=float(last.get('phase_deg', float('nan'))),
                           apc_harmonics_pct=float(last.get('harmonics_pct', float('nan'))),
-                          apc_converged=self.apc.converged_at is not None,
+                          apc_converged=self.correction.converged_at is not None,
                           apc_frozen=','.join(sorted(self._frozen_by)))
         self.pub_diag.publish(diagnostics(self, contract.REFERENCE_STATUS, OK, self.values['kind'],
                                           values))
