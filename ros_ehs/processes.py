@@ -370,7 +370,10 @@ class NodeProcesses:
                          timeout, "the recorder did not match the controller's commands")
         # lock-step: the plant starts stepping when they listen; real time: it reports the
         # loop running only then, and the reference's time zero waits for that report
-        pl = {'mode': mode, 'wait_subscribers': 2 if rec else 1, **(plant or {})}
+        # the controller, the recorder and a reference that corrects from the state
+        corrects = isinstance(reference, dict) and any(
+            reference.get(k) for k in ('amplitude_phase_control', 'peak_valley_control'))
+        pl = {'mode': mode, 'wait_subscribers': 1 + rec + corrects, **(plant or {})}
         self.start('plant', pl, params_file=pf)
         self._expect('plant', contract.PLANT_STATUS, loop_closed, timeout,
                      'the loop did not close')

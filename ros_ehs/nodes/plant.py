@@ -102,8 +102,9 @@ OPTIONS = (
     Option('start_time', 0.0, 'lock-step: sim time of the first state [s]', 0.0, 1.0e9),
     Option('duration', 0.0, 'lock-step: stop advancing at this sim time after start [s] '
            '(0: never)', 0.0, 1.0e9),
-    Option('wait_subscribers', 1, 'start when `state` has this many subscribers (2 with a '
-           'recorder): lock-step, the first step; real time, the first state (time restarts '
+    Option('wait_subscribers', 1, 'start when `state` has this many subscribers (the '
+           'controller; one more for a recorder, one more for a reference running APC or '
+           'PVC): lock-step, the first step; real time, the first state (time restarts '
            'there), so a recorder has the loop from its first period and the middleware opens '
            'its ports to every subscriber before a watchdog guards the loop', 0, 100),
     Option('start_delay', 0.5, 'lock-step: then wait this long, so every node has matched '
