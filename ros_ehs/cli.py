@@ -137,14 +137,28 @@ def _cmd_identify(args) -> int:
 
 
 def _cmd_drive(args) -> int:
-    from ros_ehs.drive_file import iterate, load_drive
-    from ros_ehs.params import preset
+    from ros_ehs.drive_file import BenchPlayer, InProcessPlayer, iterate, load_drive
+    from ros_ehs.params import PLANT_SPECS, preset
     t, z = load_drive(args.target)
-    res = iterate(preset(args.plant), t, z, args.out, controller_params=preset(args.controller),
-                  model=args.model, iterations=args.iterations, rms_target_pct=args.rms,
-                  frf_bag=args.frf_bag,
-                  progress=lambda k, e: print(f'  iteration {k}: RMS error {e:.3f} %',
-                                              flush=True))
+    rig, ctrl = preset(args.plant), preset(args.controller)
+    if args.bench:
+        rt = {'rt_priority': args.rt_priority} if args.rt_priority else {}
+        play = BenchPlayer(args.out, mode=args.bench, domain_id=args.domain_id,
+                           max_trips=args.max_trips,
+                           plant={'model': args.model, **rt,
+                                  **{s.name: rig[s.name] for s in PLANT_SPECS}},
+                           controller={**rt, **ctrl})
+    else:
+        play = InProcessPlayer(rig, args.out, controller_params=ctrl, model=args.model)
+
+    def progress(k, e):
+        print(f'  iteration {k}: RMS error {e:.3f} %' if isinstance(k, int) else
+              f'  {k} played again: {e}', flush=True)
+
+    res = iterate(play, t, z, args.out, iterations=args.iterations, rms_target_pct=args.rms,
+                  frf_bag=args.frf_bag, progress=progress)
+    if args.bench:
+        print('watchdog trips per run: ' + ', '.join(f'{k} {v}' for k, v in play.trips.items()))
     print(f"first pass {res['rms_err_pct'][0]:.3f} %, best {res['best_pct']:.3f} %; last "
           f"response/target within {res['band_db_max']:.3f} dB, {res['band_deg_max']:.2f} "
           f"deg; drive {res['drive']} (the reference node plays it: kind:=csv csv_path:=...)")
@@ -209,8 +223,8 @@ def main(argv=None) -> int:
     r.add_argument('--seed', type=int, default=0)
     r.add_argument('--no-noise', dest='noise', action='store_false')
     r.set_defaults(func=_cmd_record)
-    dv = sub.add_parser('drive', help='drive-file iteration in process: a drive that makes the '
-                        'axis reproduce a target time history (each run a bag)')
+    dv = sub.add_parser('drive', help='drive-file iteration, in process or on the bench: a drive '
+                        'that makes the axis reproduce a target time history (each run a bag)')
     dv.add_argument('target', help='target CSV (header t,z; seconds, metres)')
     dv.add_argument('--out', default='out/drive', help='folder for the bags and drive files')
     dv.add_argument('--frf-bag', default=None, help='a recorded broadband run (reference and '
@@ -220,6 +234,14 @@ def main(argv=None) -> int:
     dv.add_argument('--plant', default='table1_estimated', help='the rig: a parameter preset')
     dv.add_argument('--controller', default='table1_estimated', help='controller preset')
     dv.add_argument('--model', choices=['full', 'reduced', 'simplified'], default='full')
+    dv.add_argument('--bench', choices=['lockstep', 'realtime'], default=None,
+                    help="play each run on the bench's nodes over DDS (default: in process)")
+    dv.add_argument('--rt-priority', type=int, default=0, help='--bench realtime: the plant '
+                    "and controller's SCHED_FIFO priority (0: none; needs CAP_SYS_NICE)")
+    dv.add_argument('--max-trips', type=int, default=2, help='--bench: a run whose plant '
+                    'watchdog zeroed the valve more often is played again (twice at most)')
+    dv.add_argument('--domain-id', type=int, default=None,
+                    help="ROS_DOMAIN_ID of the bench runs (default: the environment's)")
     dv.set_defaults(func=_cmd_drive)
     i = sub.add_parser('identify', help="refit Table 1's parameters from bags (report folder)")
     i.add_argument('bags', nargs='+', help='bag directories (split or not, mcap or sqlite3) '

@@ -19,8 +19,9 @@ arbitrary target ``r(t)`` by itself, so the command ("drive") is built from the 
 frequency response and refined by playing it:
 
 1. **FRF**: play a broadband drive (a random-phase multisine), record it, and estimate the
-   loop's frequency response ``H(f) = S_dy / S_dd`` (Welch; :func:`frf`, from arrays or a
-   bag of the run: ``reference`` is the drive, ``state`` the response);
+   loop's frequency response ``H(f) = S_dy / S_dd`` (Welch over segments of a quarter of the
+   run, 4 s at most; :func:`frf`, from arrays or a bag of the run: ``reference`` is the
+   drive, ``state`` the response);
 2. **inverse**: ``G = conj(H) / (|H|^2 + lam max|H|^2)`` (Tikhonov-regularised, so bins
    where the loop hardly responds do not blow up; ``lam`` 1e-3), only in the bins where the
    target has content (outside them the error is the loop's own distortion, which an
@@ -31,7 +32,10 @@ frequency response and refined by playing it:
 
 Drives are saved as CSV (``t [s], z [m]``, :func:`save_drive`): the reference node plays one
 with ``kind: csv``. Targets and drives start and end at rest (a cosine taper), so the
-circular FFT sees no jump at the wrap.
+circular FFT sees no jump at the wrap. :func:`iterate` plays each run through a player:
+:class:`InProcessPlayer` (the simulated loop in process) or :class:`BenchPlayer` (the bench's
+nodes over DDS, lock-step or real time); either keeps each run as a bag and its drive as a
+CSV, and :func:`run_from_bag` reads a run back.
 """
 
 from __future__ import annotations
@@ -39,16 +43,30 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import os
 from pathlib import Path
+import time
 
 import numpy as np
 
 from ros_ehs.errors import DataError, InputError
 from ros_ehs.reference import CsvTrajectory, Samples
 
-__all__ = ['DriveIteration', 'Samples', 'band_error', 'frf', 'frf_from_bag', 'iterate',
-           'load_drive', 'multisine', 'record_run', 'rms_error_pct', 'save_drive']
+__all__ = ['BenchPlayer', 'DriveIteration', 'InProcessPlayer', 'Samples', 'band_error', 'frf',
+           'frf_from_bag', 'iterate', 'load_drive', 'multisine', 'record_run', 'rms_error_pct',
+           'run_from_bag', 'save_drive']
 
 T0_NS = 1_700_000_000_000_000_000     # the bags' epoch, so equal runs give equal bags
+#: a disturbed run is played again this many times at most
+REPLAYS = 2
+#: each run holds the drive's first value this long before it [s]: the axis ramps onto its
+#: trajectory over its first second (``ramp_time``), which would scale a drive's start
+LEAD_IN = 1.5
+
+
+def _lead_in(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    fs = 1.0 / float(np.median(np.diff(t)))
+    n = int(round(LEAD_IN * fs))
+    tt = np.arange(n + t.size) / fs
+    return tt, np.concatenate([np.full(n, x[0]), x]), n
 
 
 def _taper(n: int, fs: float, seconds: float) -> np.ndarray:
@@ -103,7 +121,7 @@ def frf(drive, response, fs: float, nperseg: int | None = None
                                                  and np.all(np.isfinite(y))):
         raise DataError('frf: the drive and the response need one finite value each per '
                         f'sample, 64 or more (got {d.shape}, {y.shape})')
-    nperseg = nperseg or min(d.size, int(4 * fs))
+    nperseg = nperseg or min(d.size // 4, int(4 * fs))
     f, sdd = welch(d, fs, nperseg=nperseg)
     _, sdy = csd(d, y, fs, nperseg=nperseg)
     _, coh = coherence(d, y, fs, nperseg=nperseg)
@@ -200,7 +218,7 @@ def save_drive(path: str | os.PathLike, t, z) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     np.savetxt(p, np.column_stack([t, z]), delimiter=',', header='t,z', comments='',
-               fmt='%.9g')
+               fmt='%.17g')        # every bit: the drive played is the drive computed
     return p
 
 
@@ -228,63 +246,197 @@ def record_run(path: str | os.PathLike, run) -> Path:
     return Path(path)
 
 
-def frf_from_bag(path: str | os.PathLike, nperseg: int | None = None):
-    """Return ``(f, H, coherence, fs)`` of a recorded broadband run: ``reference`` -> ``state``."""
+def run_from_bag(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """
+    Return ``(t [s], reference [m], response [m])`` of a recorded run, per period.
+
+    The reference from ``reference_trajectory`` (lock-step: the window the controller read)
+    or ``reference``; time zero its first sample; the measured position on ``state`` at each
+    reference sample (interpolated between states in real time, where the stamps differ).
+    """
     import ros_ehs_msgs_py as contract
     from ros_ehs.bag.reader import open_bag
     bag = open_bag(path)
-    for name in ('/reference', '/state'):
-        if name not in bag.topics:
-            raise DataError(f'{path}: a broadband run needs /reference and /state; it has: '
-                            f'{bag.describe()}')
-    ref = {r.stamp_ns: r.z_ref for r in (contract.reference_from_cdr(m.data)
-                                         for m in bag.messages(['/reference']))}
-    st = {s.stamp_ns: s.z for s in (contract.state_from_cdr(m.data)
-                                    for m in bag.messages(['/state']))}
-    stamps = np.array(sorted(set(ref) & set(st)))
-    if stamps.size < 64:
-        raise DataError(f'{path}: {stamps.size} periods with both a reference and a state')
-    fs = 1e9 / float(np.median(np.diff(stamps)))
-    f, h, coh = frf([ref[k] for k in stamps], [st[k] for k in stamps], fs, nperseg)
+    refs: dict[int, float] = {}
+    if '/reference_trajectory' in bag.topics:
+        for _, m in bag.decoded(['/reference_trajectory']):
+            for r in contract.reference_trajectory_from_msg(m):
+                refs.setdefault(r.stamp_ns, r.z_ref)
+    if '/reference' in bag.topics:
+        for _, m in bag.decoded(['/reference']):
+            r = contract.reference_from_msg(m)
+            refs.setdefault(r.stamp_ns, r.z_ref)
+    if not refs or '/state' not in bag.topics:
+        raise DataError(f'{path}: a run needs reference (or reference_trajectory) and state; '
+                        f'it has: {bag.describe()}')
+    states = {}
+    for _, m in bag.decoded(['/state']):
+        s = contract.state_from_msg(m)
+        states[s.stamp_ns] = s.z
+    ks = np.array(sorted(states))
+    rs = np.array(sorted(refs))
+    rs = rs[(rs >= ks[0]) & (rs <= ks[-1])] if ks.size else rs[:0]
+    if rs.size < 64:
+        raise DataError(f'{path}: {rs.size} reference samples within the recorded states')
+    y = np.interp(rs, ks, [states[k] for k in ks])
+    t0 = min(refs)
+    return (rs - t0) * 1e-9, np.array([refs[k] for k in rs]), y
+
+
+def frf_from_bag(path: str | os.PathLike, nperseg: int | None = None):
+    """Return ``(f, H, coherence, fs)`` of a recorded broadband run: the reference -> ``state``."""
+    t, ref, y = run_from_bag(path)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    f, h, coh = frf(ref, y, fs, nperseg)
     return f, h, coh, fs
 
 
-def iterate(plant_params, target_t, target_z, out: str | os.PathLike, *,
-            controller_params=None, model: str = 'full', iterations: int = 6,
+class InProcessPlayer:
+    """
+    Play drives on the simulated loop in process, each run a bag under ``out``.
+
+    The loop is the bench's, safety layer and ramp-on included (``supervised``), so a bench
+    run in lock-step is this one to 1e-9 m: the drive is played from the CSV it was saved to,
+    after ``LEAD_IN`` at its first value (the ramp-on), which the response leaves out.
+    """
+
+    def __init__(self, plant_params, out: str | os.PathLike, *, controller_params=None,
+                 model: str = 'full') -> None:
+        self.plant_params, self.controller_params = plant_params, controller_params
+        self.model, self.out = model, Path(out)
+
+    def __call__(self, name: str, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Play drive ``x`` at times ``t`` as run ``name``; return the response on ``t``."""
+        from ros_ehs.sim.closed_loop import run_closed_loop
+        tt, xx, n = _lead_in(np.asarray(t, dtype=float), np.asarray(x, dtype=float))
+        tt, xx = load_drive(save_drive(self.out / f'{name}.csv', tt, xx))
+        fs = 1.0 / float(np.median(np.diff(tt)))
+        run = run_closed_loop(self.plant_params, Samples(tt, xx), tt.size / fs,
+                              model=self.model, controller_params=self.controller_params,
+                              dt=1.0 / fs, supervised=True)
+        record_run(self.out / name, run)
+        return run.z[n:-1]
+
+
+class BenchPlayer:
+    """
+    Play drives on the bench's nodes over DDS, each run a bag under ``out``.
+
+    For each run the recorder, controller, reference (``kind: csv``, the drive's CSV) and
+    plant start (:meth:`ros_ehs.processes.NodeProcesses.start_loop`), in ``mode`` lock-step
+    (faster than real time, the in-process loop's figures to 1e-9 m) or real time; the
+    response is read back from the run's bag. ``plant``, ``controller``: the nodes' parameters
+    (e.g. a parameter preset and the plant's model). A run in which the plant's watchdog
+    zeroed the valve more than ``max_trips`` times (real time: late commands; each moves the
+    piston on for a few ms unheld, 0.2 mm at 0.08 m/s) is marked in ``disturbed``, and
+    :func:`iterate` plays it again rather than learn from it.
+    """
+
+    def __init__(self, out: str | os.PathLike, *, mode: str = 'lockstep',
+                 plant: dict | None = None, controller: dict | None = None,
+                 domain_id: int | None = None, timeout: float = 120.0,
+                 max_trips: int = 2) -> None:
+        if mode not in ('lockstep', 'realtime'):
+            raise InputError(f'`mode` = {mode!r} is not lockstep or realtime')
+        self.out, self.mode = Path(out), mode
+        self.plant, self.controller = dict(plant or {}), dict(controller or {})
+        self.domain_id, self.timeout = domain_id, timeout
+        self.max_trips = int(max_trips)
+        #: per run: the plant's watchdog trips, and why its response is not the loop's or None
+        self.trips: dict[str, int] = {}
+        self.disturbed: dict[str, str | None] = {}
+
+    def __call__(self, name: str, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Play drive ``x`` at times ``t`` as run ``name``; return the response on ``t``."""
+        import ros_ehs_msgs_py as contract
+        from ros_ehs.errors import EhsError
+        from ros_ehs.processes import NodeProcesses
+        tt, xx, n = _lead_in(np.asarray(t, dtype=float), np.asarray(x, dtype=float))
+        csv = save_drive(self.out / f'{name}.csv', tt, xx)
+        fs = 1.0 / float(np.median(np.diff(tt)))
+        duration = tt.size / fs
+        lock = self.mode == 'lockstep'
+        bag = self.out / name
+        with NodeProcesses(self.domain_id, self.out / 'logs' / name) as procs:
+            procs.start_loop(self.mode, bag=bag,
+                             plant={'duration': duration, **self.plant} if lock else self.plant,
+                             controller=self.controller,
+                             reference={'kind': 'csv', 'csv_path': str(csv), 'rate_hz': fs,
+                                        'duration': duration},
+                             timeout=self.timeout)
+            if lock:
+                done = procs.wait_status(contract.PLANT_STATUS,
+                                         lambda st: 'complete' in st.message, self.timeout)
+            else:
+                done = procs.wait_status(
+                    contract.REFERENCE_STATUS,
+                    lambda st: float(st.values.get('time_s', 0)) > duration + 0.2,
+                    duration + self.timeout)
+            time.sleep(0.5)           # the last messages on their way to the recorder
+            codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
+            figures = procs['plant'].figures() if codes.get('plant') == 0 else {}
+        if not done or any(codes.values()):
+            raise EhsError(f'run {name}: the bench did not finish it (exit codes {codes}; '
+                           f'logs in {self.out / "logs" / name})')
+        trips = int(figures.get('watchdog_trips', 0))
+        self.trips[name] = trips
+        self.disturbed[name] = (f"the plant's watchdog zeroed the valve {trips} times (at "
+                                f'most {self.max_trips})' if trips > self.max_trips else None)
+        tr, _, y = run_from_bag(bag)
+        if tr[-1] < tt[-1] - 0.5 / fs:
+            raise DataError(f'{bag}: the run covers {tr[-1]:.3f} s of the {tt[-1]:.3f} s drive')
+        return np.interp(tt, tr, y)[n:]
+
+
+def iterate(play, target_t, target_z, out: str | os.PathLike, *, iterations: int = 6,
             rms_target_pct: float = 1.0, frf_bag: str | os.PathLike | None = None,
             beta: float = 0.8, progress=None) -> dict:
     """
-    Iterate a drive for a target in process; every run is a bag under ``out``.
+    Iterate a drive for a target; ``play(name, t, drive)`` plays each run and records it.
 
-    ``frf_bag``: a recorded broadband run to take the FRF from (default: play a 0.2-40 Hz
-    multisine as long as the target and record it to ``out/broadband``). Writes
-    ``out/target_pass`` (the target played as it is), ``out/iteration_<k>`` and
-    ``out/drive_<k>.csv`` for each drive played, ``out/drive.csv`` (the best) and returns
-    the RMS errors [%] (first pass, then each iteration).
+    ``play``: an :class:`InProcessPlayer` or a :class:`BenchPlayer`, which keep each run as a
+    bag and its drive as a CSV under ``out``. ``frf_bag``: a recorded broadband run to take the
+    FRF from (default: play a 0.2-40 Hz multisine as long as the target as run
+    ``broadband``). Plays ``target_pass`` (the target as it is) and ``iteration_<k>``, writes
+    ``out/drive.csv`` (the best drive) and returns the RMS errors [%] (first pass, then each
+    iteration) and the runs played again (``replayed``: a player's ``disturbed`` named them).
+    ``progress(k, rms_pct)`` after each iteration, ``progress(run, why)`` for a replay.
     """
-    from ros_ehs.sim.closed_loop import run_closed_loop
     out = Path(out)
+    old = sorted(p.name for p in out.glob('*') if p.name in ('broadband', 'target_pass')
+                 or p.name.startswith('iteration_')) if out.is_dir() else []
+    if old:
+        raise DataError(f'{out} holds runs already ({", ".join(old)}): give another folder '
+                        'or remove them')
     t = np.asarray(target_t, dtype=float)
     r = np.asarray(target_z, dtype=float)
     fs = 1.0 / float(np.median(np.diff(t)))
+    replays = []
 
-    def play(x, name):
-        run = run_closed_loop(plant_params, Samples(t, x), t.size / fs, model=model,
-                              controller_params=controller_params, dt=1.0 / fs)
-        record_run(out / name, run)
-        return run.z[:-1]
+    def run(name, x):
+        # a run the player marks disturbed (a watchdog trip on the bench) is not learnt
+        # from: it is played again, twice at most, each time as a run of its own
+        for attempt in range(1 + REPLAYS):
+            title = name if attempt == 0 else f'{name}_again_{attempt}'
+            y = play(title, t, x)
+            why = getattr(play, 'disturbed', {}).get(title)
+            if why is None:
+                return y
+            replays.append(f'{title}: {why}')
+            if progress is not None:
+                progress(title, why)
+        raise DataError(f'run {name}: disturbed {1 + REPLAYS} times ({"; ".join(replays)})')
 
     if frf_bag is None:
         _, d = multisine(t.size / fs, fs, 0.2, min(40.0, 0.4 * fs), 0.08, seed=2)
-        play(d, 'broadband')
-        frf_bag = out / 'broadband'
-    f, h, coh, _ = frf_from_bag(frf_bag)
-    errs = [rms_error_pct(r, play(r, 'target_pass'))]
+        f, h, coh = frf(d, run('broadband', d), fs)
+    else:
+        f, h, coh, _ = frf_from_bag(frf_bag)
+    errs = [rms_error_pct(r, run('target_pass', r))]
     it = DriveIteration(r, fs, f, h, beta=beta, coherence=coh)
     drive, best = it.first(), (np.inf, None)
     for k in range(1, iterations + 1):
-        save_drive(out / f'drive_{k}.csv', t, drive)
-        y = play(drive, f'iteration_{k}')
+        y = run(f'iteration_{k}', drive)
         errs.append(rms_error_pct(r, y))
         if progress is not None:
             progress(k, errs[-1])
@@ -296,4 +448,4 @@ def iterate(plant_params, target_t, target_z, out: str | os.PathLike, *,
     save_drive(out / 'drive.csv', t, best[1])
     db, deg = band_error(r, y, fs, 0.5, min(20.0, 0.4 * fs))
     return {'rms_err_pct': errs, 'best_pct': best[0], 'band_db_max': db, 'band_deg_max': deg,
-            'drive': str(out / 'drive.csv')}
+            'drive': str(out / 'drive.csv'), 'replayed': replays}

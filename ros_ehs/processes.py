@@ -79,6 +79,8 @@ def _value(v: Any) -> str:
         return repr(v)      # always a double to rclpy: '1.0', '1e-05'
     if isinstance(v, (list, tuple)):
         return '[' + ','.join(_value(x) for x in v) + ']'
+    if isinstance(v, str):      # quoted: '-p' values are YAML, where off or 1e3 is no string
+        return "'" + v.replace("'", "''") + "'"
     return str(v)
 
 

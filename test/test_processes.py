@@ -29,10 +29,12 @@ def test_bare_params_file_moves_inside_ros_args():
 
 def test_node_command_writes_doubles_as_doubles():
     cmd = node_command('plant', {'rate_hz': 1000.0, 'mode': 'lockstep', 'k': 3, 'on': True,
-                                 'topics': ['/a', '/b']})
+                                 'topics': ['/a', '/b'], 'action': 'off', 'q': "it's"})
     assert cmd[cmd.index('-m') + 1] == 'ros_ehs.nodes.plant'
     assert 'rate_hz:=1000.0' in cmd and 'k:=3' in cmd and 'on:=true' in cmd
-    assert 'topics:=[/a,/b]' in cmd
+    # strings quoted: '-p' values are YAML, where a bare off is the boolean false
+    assert "topics:=['/a','/b']" in cmd and "mode:='lockstep'" in cmd
+    assert "action:='off'" in cmd and "q:='it''s'" in cmd
     with pytest.raises(ValueError, match='unknown node'):
         node_command('plantt')
 
