@@ -123,11 +123,14 @@ class Chirp:
 
     def __call__(self, t):
         """Return (z_ref, v_ref) at times ``t``."""
-        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        t = np.asarray(t, dtype=float)
+        tc = np.clip(t, 0.0, self.duration)
         k = (self.f1 - self.f0) / self.duration
-        phase = 2 * math.pi * (self.f0 * t + 0.5 * k * t * t)
-        f = self.f0 + k * t
-        return self.amplitude * np.sin(phase), self.amplitude * 2 * math.pi * f * np.cos(phase)
+        phase = 2 * math.pi * (self.f0 * tc + 0.5 * k * tc * tc)
+        f = self.f0 + k * tc
+        v = self.amplitude * 2 * math.pi * f * np.cos(phase)
+        # before and after the sweep the position holds: no velocity
+        return self.amplitude * np.sin(phase), np.where((t >= 0.0) & (t < self.duration), v, 0.0)
 
 
 class Samples:

@@ -818,11 +818,13 @@ def test_the_reference_nodes_apc_brings_a_5hz_sine_to_its_amplitude_and_phase(do
     assert err[False][0] > 1.5 * err[True][0], err
 
 
-def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
+@pytest.mark.parametrize('kind', ['sine', 'chirp'])
+def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path, kind):
     """
     The reference node's APC in lock-step is the in-process loop's, to 1e-9 m each period.
 
-    The position and the commands it sent, and the corrections were really made.
+    The position and the commands it sent, and the corrections were really made; on a sine
+    and on a sweep (kind chirp, whose cycles shorten as it goes).
 
     It depends on the node answering each /clock only once it has measured the states the
     window's corrections come from (a correction starts ``preview`` after its cycle).
@@ -830,12 +832,21 @@ def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     from ros_ehs.control.apc import AmplitudePhaseControl
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import get_typestore, Stores
-    duration, f, a = 3.0, 5.0, 0.008
+    duration = 3.0
+    if kind == 'sine':
+        a, f = 0.008, 5.0
+        options = {'amplitude': a, 'frequency': f}
+        apc = AmplitudePhaseControl(a, f, latency=0.02, learn_from=1.0)
+    else:
+        a, f = 0.005, 3.0
+        options = {'kind': 'chirp', 'amplitude': a, 'f0': f, 'f1': 8.0,
+                   'chirp_duration': duration}
+        apc = AmplitudePhaseControl(a, f, sweep_to=8.0, sweep_time=duration, latency=0.02,
+                                    learn_from=1.0)
     bag = tmp_path / 'apc'
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
-                         reference={'amplitude': a, 'frequency': f,
-                                    'amplitude_phase_control': True})
+                         reference={**options, 'amplitude_phase_control': True})
         assert procs.wait_for_log('plant', 'lock-step run complete', 120), \
             procs['plant'].output()[-3000:]
         time.sleep(0.5)
@@ -845,7 +856,6 @@ def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     n = int(round(duration * 1000))
     assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
     # the node's default preview and the controller's ramp_time
-    apc = AmplitudePhaseControl(a, f, latency=0.02, learn_from=1.0)
     ref = run_closed_loop(Params(), apc, duration, model='simplified', dt=1e-3,
                           supervised=True)
     ts = get_typestore(Stores.ROS2_JAZZY)
@@ -863,7 +873,7 @@ def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     assert all(len(v) == 1 for v in sent.values())
     np.testing.assert_allclose([next(iter(sent[k])) for k in t], ref.z_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
-    assert apc.cycles >= 8 and apc.converged_at is not None
+    assert apc.cycles >= 8 and (kind == 'chirp' or apc.converged_at is not None)
     # the corrections made the command differ from the specified sine by more than 2 %
     assert np.abs(ref.z_ref - apc.desired(ref.t)).max() > 0.02 * a
 
@@ -912,6 +922,57 @@ def test_the_apc_reference_answers_a_clock_only_once_the_cycle_it_corrects_from_
             assert got[t0 + k * 10**6] == pytest.approx(twin.reference(k * 1e-3)[0], abs=1e-12)
         # the correction is in from 0.22 s: the command there is no longer the sine's
         assert abs(got[t0 + 230 * 10**6] - twin.desired(0.23)) > 1e-4
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_a_sweeping_apc_reference_waits_for_the_end_of_the_sweeps_own_cycle(dom):
+    """
+    A sweep's cycles are turns of its phase, not multiples of its first period.
+
+    Chirp 2 -> 10 Hz in 2 s: the first cycle ends at 0.366 s (not 0.5 s). /clock 0.369 s (a
+    window to 0.389 s, where the correction from that cycle starts at 0.386 s) waits for the
+    state that ends it, and is then answered with the in-process APC's samples.
+    """
+    import rclpy
+    from rclpy.parameter import Parameter
+    from ros_ehs.control.apc import AmplitudePhaseControl
+    from ros_ehs.nodes.reference import ReferenceNode
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    t0, ms = 5 * 10**9, 10**6
+    try:
+        node = ReferenceNode(context=ctx, parameter_overrides=[
+            Parameter('use_sim_time', value=True), Parameter('kind', value='chirp'),
+            Parameter('f0', value=2.0), Parameter('f1', value=10.0),
+            Parameter('chirp_duration', value=2.0), Parameter('amplitude', value=0.005),
+            Parameter('amplitude_phase_control', value=True), Parameter('ramp_time', value=0.0)])
+        sent = []
+        node.pub_traj.publish = lambda data: sent.append(c.reference_trajectory_from_cdr(data))
+        node.pub.publish = lambda data: None
+        twin = AmplitudePhaseControl(0.005, 2.0, sweep_to=10.0, sweep_time=2.0, latency=0.02)
+        end = twin.cycle_start(1)
+        assert end == pytest.approx((math.sqrt(12.0) - 2.0) / 4.0)
+        last = math.ceil(end * 1e3)             # the first state of the second cycle, 367
+
+        def state(k):     # a loop that halves the command
+            z = 0.5 * twin.reference(k * 1e-3)[0]
+            twin.measure(k * 1e-3, z)
+            node._on_state(c.state_to_cdr(c.AxisState(t0 + k * ms, z, 0.0)))
+
+        node._on_clock(c.clock_to_cdr(t0))
+        for k in range(last):
+            state(k)
+        node._on_clock(c.clock_to_cdr(t0 + (last + 2) * ms))
+        assert len(sent) == 1             # waits for the state that ends the first cycle
+        state(last)
+        assert len(sent) == 2 and twin.cycles == 1
+        got = {r.stamp_ns: r.z_ref for r in sent[1]}
+        for k in range(last + 2, last + 23):
+            assert got[t0 + k * ms] == pytest.approx(twin.reference(k * 1e-3)[0], abs=1e-12)
+        # the correction is in from 0.386 s: the command is no longer the sweep's
+        assert abs(got[t0 + (last + 22) * ms] - twin.desired((last + 22) * 1e-3)) > 1e-5
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)

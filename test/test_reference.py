@@ -13,10 +13,12 @@
 # limitations under the License.
 """Reference trajectories from their declared specs."""
 
+import math
+
 import numpy as np
 import pytest
 from ros_ehs.errors import ParameterError
-from ros_ehs.reference import first_order_hold, make, REFERENCE_SPECS, Sine, Step
+from ros_ehs.reference import Chirp, first_order_hold, make, REFERENCE_SPECS, Sine, Step
 
 
 def test_reference_specs_build_each_kind_and_reject_bad_values(tmp_path):
@@ -53,3 +55,16 @@ def test_the_hold_carries_a_sample_by_at_most_its_limit_either_way():
     assert first_order_hold(0.01, 0.2, 0, 3_000_000_000, 0.1) == pytest.approx(0.01 + 0.02)
     assert first_order_hold(0.01, 0.2, 3_000_000_000, 0, 0.1) == pytest.approx(0.01 - 0.02)
     assert first_order_hold(0.01, 0.2, 5, 5, 0.1) == 0.01
+
+
+def test_a_chirp_holds_still_before_and_after_its_sweep():
+    """Outside ``[0, duration)`` the position holds, so the velocity is zero (not cos's)."""
+    ch = Chirp(0.005, 1.0, 4.0, 2.0)
+    z, v = ch(np.array([-0.1, 1.0, 2.0, 2.5, 10.0]))
+    assert v[0] == 0.0 and v[1] != 0.0 and np.all(v[2:] == 0.0)
+    assert z[2] == z[3] == z[4] == pytest.approx(0.005 * math.sin(2 * math.pi * (2 + 3)))
+    # inside, the velocity is the position's derivative
+    t = np.linspace(0.1, 1.9, 50)
+    h = 1e-6
+    num = (ch(t + h)[0] - ch(t - h)[0]) / (2 * h)
+    np.testing.assert_allclose(ch(t)[1], num, rtol=0, atol=1e-6)

@@ -24,6 +24,12 @@ fifth, the reference node's 0.02 s latency) and with APC of the fundamental alon
 controller's (``mismatch``). Targets: amplitude within 0.5 %, phase within 1 deg, RMS error <=
 1 % of the amplitude, in 30 cycles.
 
+A sine sweep (``sweep``): 2 mm (0.25 m/s peak at its end) from 1 to 20 Hz in 20 s, linear,
+with the feedforward PID alone and with APC of the fundamental (what APC corrects on a sweep):
+in 1 s windows from 2 s (after the ramp-on) the response's amplitude ratio and phase at the
+sweep's phase (a least-squares fit of sine, cosine and mean), the worst of each, and the RMS
+error over the same 18 s.
+
 Drive-file iteration (``drive``): a 20 s road-like target whose velocity spectrum is flat over
 0.5-20 Hz at 0.08 m/s RMS; the loop's FRF from a 0.2-40 Hz broadband run; then the first pass
 (the target played as it is) and 6 iterations: the RMS error of each [% of the target's RMS],
@@ -41,7 +47,7 @@ from ros_ehs.control.apc import AmplitudePhaseControl
 from ros_ehs.drive_file import (band_error, DriveIteration, frf, multisine, rms_error_pct,
                                 Samples)
 from ros_ehs.params import preset
-from ros_ehs.reference import Sine
+from ros_ehs.reference import Chirp, Sine
 from ros_ehs.sim.closed_loop import run_closed_loop
 
 FREQUENCIES = (1, 5, 10, 20)
@@ -82,6 +88,48 @@ def _sines(rig, ctrl) -> dict:
             'apc_fundamental': {**sine_figures(fund.t, fund.z, apc1.desired, f, a),
                                 'cycles': apc1.converged_at}}
     return out
+
+
+#: the sweep: amplitude [m], from and to [Hz], over [s]; judged in windows [s] from SWEEP_FROM
+SWEEP = (0.002, 1.0, 20.0, 20.0)
+SWEEP_WINDOW = 1.0
+SWEEP_FROM = 2.0
+
+
+def sweep_figures(t, z, apc: AmplitudePhaseControl, start: float = SWEEP_FROM,
+                  window: float = SWEEP_WINDOW) -> dict:
+    """
+    Return the worst amplitude ratio and phase [deg] of a sweep's windows, and its RMS error.
+
+    Each window's response is fitted as ``a sin(phi) + b cos(phi) + c`` with ``phi`` the
+    sweep's phase; the RMS error [% of the amplitude] is over all the windows.
+    """
+    ph = np.vectorize(apc.phase)(t)
+    ratios, phases = [], []
+    for s in np.arange(start, apc.sweep_time - 1e-9, window):
+        w = (t >= s) & (t < s + window)
+        x = np.column_stack([np.sin(ph[w]), np.cos(ph[w]), np.ones(int(w.sum()))])
+        a, b, _ = np.linalg.lstsq(x, z[w], rcond=None)[0]
+        r = complex(a, b) / apc.amplitude
+        ratios.append(abs(r))
+        phases.append(math.degrees(np.angle(r)))
+    w = (t >= start) & (t < apc.sweep_time)
+    worst = int(np.argmax(np.abs(np.array(ratios) - 1.0)))
+    return {'amp_ratio': round(float(ratios[worst]), 4),
+            'phase_deg': round(float(phases[int(np.argmax(np.abs(phases)))]), 3),
+            'rms_err_pct': round(float(np.sqrt(np.mean((z[w] - apc.desired(t[w])) ** 2))
+                                       / apc.amplitude * 100), 3)}
+
+
+def _sweep(rig, ctrl) -> dict:
+    a, f0, f1, dur = SWEEP
+    apc = AmplitudePhaseControl(a, f0, sweep_to=f1, sweep_time=dur, latency=LATENCY,
+                                learn_from=1.0)
+    plain = run_closed_loop(rig, Chirp(a, f0, f1, dur), dur, model='full',
+                            controller_params=ctrl)
+    corr = run_closed_loop(rig, apc, dur, model='full', controller_params=ctrl)
+    return {'ffpid': sweep_figures(plain.t, plain.z, apc),
+            'apc': sweep_figures(corr.t, corr.z, apc)}
 
 
 def _inband(r, y, fs: float, lo: float, hi: float) -> float:
@@ -138,10 +186,17 @@ def main(argv=None) -> int:
     sine = _sines(est, est)
     rig = est.replace(**{n: est[n] * k for n, k in MISMATCH.items()})
     mismatch = _sines(rig, est)
+    sweep, sweep_mismatch = _sweep(est, est), _sweep(rig, est)
     drive = _drive(est, est)
     drive_mismatch = _drive(rig, est)
     _table('full-model rig, controller at its values:', sine)
     _table('rig 20 % away from the controller:', mismatch)
+    print('sine sweep 2 mm, 1-20 Hz in 20 s, 1 s windows from 2 s: worst amplitude ratio, '
+          'worst phase [deg], RMS error [%]')
+    for title, sw in (('rig at the controller', sweep), ('rig 20 % away', sweep_mismatch)):
+        print(f'  {title}: ' + '; '.join(
+            f"{k} {v['amp_ratio']:.4f} {v['phase_deg']:+.2f} {v['rms_err_pct']:.2f}"
+            for k, v in sw.items()))
     for title, d in (('drive-file iteration', drive), ('the same, rig 20 % away', drive_mismatch)):
         print(f"{title}: RMS error % (first pass, then each iteration) {d['rms_err_pct']}; "
               f"within 0.5-20 Hz {d['rms_inband_pct']}; response/target "
@@ -156,8 +211,9 @@ def main(argv=None) -> int:
         return (min(d['rms_err_pct'][1:]) <= 1.0 and d['band_db_max'] <= 0.5
                 and d['band_deg_max'] <= 3.0)
 
-    return report({'sine': sine, 'drive': drive,
-                   'mismatch': {'sine': mismatch, 'drive': drive_mismatch,
+    return report({'sine': sine, 'sweep': sweep, 'drive': drive,
+                   'mismatch': {'sine': mismatch, 'sweep': sweep_mismatch,
+                                'drive': drive_mismatch,
                                 'band_db_max': drive_mismatch['band_db_max'],
                                 'band_deg_max': drive_mismatch['band_deg_max']},
                    'targets_met': {'sine': met(sine), 'mismatch_sine': met(mismatch),

@@ -47,6 +47,10 @@ class CycleCorrection:
         """Return the number of the cycle that time ``t`` [s] falls in."""
         return int(math.floor(t / self.period + 1e-9))
 
+    def cycle_start(self, n: int) -> float:
+        """Return the time [s] at which cycle ``n`` starts."""
+        return n * self.period
+
     def freeze(self, on: bool = True) -> None:
         """Stop (or resume) the corrections; the cycle under way is not used."""
         self.frozen = bool(on)

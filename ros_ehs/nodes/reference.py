@@ -45,9 +45,10 @@ running loop, with both: the trajectory then starts at its beginning on a closed
 holding position, with the controller and the recorder listening, instead of somewhere
 mid-stroke on a piston that has not moved yet.
 
-``amplitude_phase_control`` (kind sine): the command's amplitude, phase and mean are corrected
-each cycle from the measured position (``state``, joint ``piston``), as a test controller's
-APC does (:class:`ros_ehs.control.apc.AmplitudePhaseControl`, docs/controller.md).
+``amplitude_phase_control`` (kind sine, or chirp: a sine sweep): the command's amplitude,
+phase and mean are corrected each cycle from the measured position (``state``, joint
+``piston``), as a test controller's APC does (:class:`ros_ehs.control.apc.
+AmplitudePhaseControl`, docs/controller.md); a sweep corrects the fundamental only.
 ``peak_valley_control`` (kind triangle or haversine): each block's command is corrected so
 that its peaks and valleys reach their targets (:class:`ros_ehs.control.pvc.
 PeakValleyControl`). For both, the corrections freeze, and the command keeps its last
@@ -63,7 +64,6 @@ with that clock), which makes the run the in-process loop's to 1e-9 m (tested).
 
 from __future__ import annotations
 
-import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -101,16 +101,17 @@ OPTIONS = (
            '`reference` has this many subscribers; publish nothing until then', 0, 1000),
     Option('blocks', '', 'kind triangle or haversine: a block-loading sequence, `peak valley '
            "cycles` per block [m, m, -], blocks apart by ';' (empty: offset -+ amplitude)"),
-    Option('amplitude_phase_control', False, "kind sine: correct the command's amplitude, "
-           'phase and mean each cycle from the measured position (APC); frozen while a '
+    Option('amplitude_phase_control', False, "kind sine or chirp: correct the command's "
+           'amplitude, phase and mean each cycle from the measured position (APC); frozen while a '
            'safety trip acts or states are lost'),
     Option('peak_valley_control', False, "kind triangle or haversine: correct each block's "
            'command each cycle so that its peaks and valleys reach their targets (PVC); frozen '
            'as APC is'),
     Option('ramp_time', 1.0, "APC, PVC: the controller's ramp_time: no cycle that overlaps a "
            'ramp-on (the first one, and the one after a reset) is learnt from [s]', 0.0, 60.0),
-    Option('apc_harmonics', 5, 'APC: the harmonics corrected, the fundamental included (1: '
-           'amplitude and phase only; 2 and up also cancel the distortion at 2 f, 3 f, ...)',
+    Option('apc_harmonics', 5, 'APC of a sine: the harmonics corrected, the fundamental '
+           'included (1: amplitude and phase only; 2 and up also cancel the distortion at 2 f, '
+           '3 f, ...); a chirp corrects the fundamental only',
            1, MAX_HARMONICS),
     CPU_AFFINITY,
 )
@@ -193,12 +194,16 @@ class ReferenceNode(Node):
         if apc and pvc:
             raise ParameterError('amplitude_phase_control corrects a sine, peak_valley_control a '
                                  'triangle or haversine: choose one')
-        kinds = ('sine',) if apc else ('triangle', 'haversine')
+        kinds = ('sine', 'chirp') if apc else ('triangle', 'haversine')
         name = 'amplitude_phase_control' if apc else 'peak_valley_control'
-        if values['kind'] not in kinds:
+        kind = values['kind']
+        if kind not in kinds:
             raise ParameterError(f'{name} corrects a {" or ".join(kinds)}: `kind` is '
-                                 f'{values["kind"]!r}')
-        preview, f = float(self.opt['preview']), float(values['frequency'])
+                                 f'{kind!r}')
+        preview = float(self.opt['preview'])
+        f = float(values['frequency'])
+        if kind == 'chirp':         # the sweep's shortest period bounds the preview
+            f = max(float(values['f0']), float(values['f1']))
         share = 1.0 if apc else 0.5
         if preview * f >= share:
             raise ParameterError(f'{name}: `preview` = {preview:g} s must be under '
@@ -208,7 +213,14 @@ class ReferenceNode(Node):
         # the states it depends on (in process: the same latency gives the same numbers)
         ramp = float(self.opt['ramp_time'])
         if apc:
-            return AmplitudePhaseControl(float(values['amplitude']), f, float(values['offset']),
+            if kind == 'chirp':         # a sweep: the fundamental only (docs/controller.md)
+                return AmplitudePhaseControl(float(values['amplitude']),
+                                             float(values['f0']), 0.0,
+                                             sweep_to=float(values['f1']),
+                                             sweep_time=float(values['chirp_duration']),
+                                             latency=preview, learn_from=ramp)
+            return AmplitudePhaseControl(float(values['amplitude']), float(values['frequency']),
+                                         float(values['offset']),
                                          harmonics=int(self.opt['apc_harmonics']),
                                          latency=preview, learn_from=ramp)
         return PeakValleyControl(cyclic_blocks(values, self.opt['blocks']), f, values['kind'],
@@ -265,7 +277,7 @@ class ReferenceNode(Node):
         # the samples up to t + preview use corrections from the cycles that ended by
         # t + preview - latency = t: their ends must have been measured
         end = (t_ns - self.t_first) * 1e-9
-        boundary = math.floor(end / self.correction.period + 1e-9) * self.correction.period
+        boundary = self.correction.cycle_start(self.correction.cycle_of(end))
         return boundary <= 0.0 or self._measured_ns >= self.t_first + int(
             round(boundary * 1e9)) - 1000
 
