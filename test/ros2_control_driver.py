@@ -8,7 +8,9 @@ piston among others, position only, stamped with the cycle's time; take the newe
 ``/<controller>/commands`` Float64MultiArray), write (apply it over the coming period). Both
 topics use ROS 2's system-default QoS (reliable, keep last 10), as ros2_control's do, and no
 watchdog: the last command holds, as a forward command controller holds it. At SIGINT it
-prints one JSON line: cycles, commands taken, and the state it ended in.
+prints one JSON line: cycles, commands taken, cycles whose command was not new (the
+controller's answer came after the cycle: the command is two periods late or more), and the
+state it ended in.
 """
 
 import argparse
@@ -53,6 +55,7 @@ def main() -> int:
     names = ['table_pitch', a.joint, 'table_roll']
     u = np.zeros(2)
     cycles = [0]
+    fresh = {'seen': 0, 'stale': 0}     # cycles whose command was not new since the last one
     stop = []
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
@@ -65,15 +68,20 @@ def main() -> int:
         msg.position = [0.0, float(x[iz]), 0.0]
         pub.publish(msg)
         u[0] = latest['cmd']                     # forward command controller + write
+        if latest['n'] == fresh['seen']:
+            fresh['stale'] += 1
+        fresh['seen'] = latest['n']
         x = plant.step(x, u, dt)
         cycles[0] += 1
 
+    plant.step(x, u, dt)          # compile (or load) the model's kernels before the loop runs
     node.create_timer(dt, cycle)
     t_end = time.monotonic() + a.seconds if a.seconds > 0 else float('inf')
     while not stop and time.monotonic() < t_end:
         rclpy.spin_once(node, timeout_sec=0.05)
     print(json.dumps({'cycles': cycles[0], 'commands': latest['n'], 'z': float(x[iz]),
-                      'last_command_a': latest['cmd']}), flush=True)
+                      'last_command_a': latest['cmd'], 'stale_cycles': fresh['stale']}),
+          flush=True)
     node.destroy_node()
     rclpy.shutdown()
     return 0

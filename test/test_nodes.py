@@ -1027,7 +1027,8 @@ def test_pvc_block_loading_in_lockstep_over_dds_reproduces_the_in_process_loop(d
 
 @pytest.mark.parametrize('params,match', [
     ({'peak_valley_control': True}, 'peak_valley_control corrects a triangle or haversine'),
-    ({'kind': 'step', 'amplitude_phase_control': True}, "corrects a sine: `kind` is 'step'"),
+    ({'kind': 'step', 'amplitude_phase_control': True},
+     "corrects a sine or chirp: `kind` is 'step'"),
     ({'kind': 'triangle', 'peak_valley_control': True, 'amplitude_phase_control': True},
      'choose one'),
     ({'kind': 'triangle', 'peak_valley_control': True, 'blocks': '0.01 0'}, 'block 1'),
