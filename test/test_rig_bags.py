@@ -54,6 +54,8 @@ LAYOUTS = {
     # 1 kHz with velocity, JointState effort commands (stamped), FluidPressure
     'mcap-1kHz-velocity-jointstate': RigLayout(rate_hz=1000.0, velocity=True,
                                                command='joint_state', command_scale=1.0),
+    # 4 kHz, nothing lost: one run from the ramp-on at rest through the breakaway
+    'mcap-4kHz-unbroken': RigLayout(rate_hz=4000.0, lost=0),
 }
 
 

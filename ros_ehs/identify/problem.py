@@ -107,6 +107,24 @@ class _Exp:
         return e
 
 
+#: the piston has moved once it is this many position-noise sigmas from where it started
+MOVED = 10.0
+#: a run's breakaway starts a replay segment only on a grid this fine or finer [s]
+BREAKAWAY_DT = 1.0e-3
+
+
+def _with_breakaway(edges: list, z: np.ndarray) -> list:
+    """Add a segment edge where a run that starts at rest first moves (its breakaway)."""
+    sz = noise_sigma(z)
+    moved = np.flatnonzero(np.abs(z - z[0]) > MOVED * sz)
+    if not moved.size:
+        return edges
+    k = int(moved[0])
+    if k <= 1 or k >= edges[-1] - 2 or k in edges:
+        return edges
+    return sorted(edges + [k])
+
+
 class Problem:
     """
     The residual of a set of experiments as a function of the scaled free parameters.
@@ -153,6 +171,8 @@ class Problem:
                 x0 = plant.settle_valve(x0, float(e.i[0]))
             seg = max(1, int(round(segment / e.dt))) if segment else e.t.size
             edges = list(range(0, e.t.size - 1, seg)) + [e.t.size]
+            if not getattr(e, 'after_gap', False) and e.dt <= 1.01 * BREAKAWAY_DT:
+                edges = _with_breakaway(edges, e.z)
             self.exps.append(_Exp(name, np.column_stack([e.i[:-1], np.zeros(e.t.size - 1)]),
                                   y, measured, sigma, edges, e.dt, x0, load,
                                   known.get(LOAD) or (noise_sigma(load) if load is not None
