@@ -52,6 +52,59 @@ def _states(bag_path):
     return (np.array(ks), np.array([seen[k].z for k in ks]), np.array([seen[k].i for k in ks]))
 
 
+def _sent_commands(bag_path) -> dict:
+    """
+    Return each period's commands as the reference sent them: stamp [ns] -> set of z_ref.
+
+    Read by rosbags from the bag's ``/reference_trajectory`` (every window, resends
+    included), so a window answered early shows as two values for one stamp.
+    """
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    sent = {}
+    with Reader(bag_path) as r:
+        for conn, _, raw in r.messages([x for x in r.connections
+                                        if x.topic == '/reference_trajectory']):
+            m = ts.deserialize_cdr(raw, conn.msgtype)
+            t0 = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            for p in m.points:
+                k = t0 + p.time_from_start.sec * 10**9 + p.time_from_start.nanosec
+                sent.setdefault(k, set()).add(round(p.positions[0], 12))
+    return sent
+
+
+def _corrected_lockstep(dom, tmp_path, duration: float, reference: dict, correction):
+    """
+    Run the bench's loop in lock-step with ``reference`` options, and the same in process.
+
+    Checks that every period's command was sent one way only (a window answered before the
+    states it depends on would have sent an old one first) and that the position and the
+    commands equal the in-process loop's with ``correction`` (the node's default preview and
+    the controller's ramp_time) to 1e-9 m. Returns the reference node's log.
+    """
+    bag = tmp_path / 'corrected'
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
+                         reference=reference)
+        assert procs.wait_for_log('plant', 'lock-step run complete', 120), \
+            procs['plant'].output()[-3000:]
+        time.sleep(0.5)
+        codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
+        out = procs['reference'].output()
+    assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}
+    t, z, _ = _states(bag)
+    n = int(round(duration * 1000))
+    assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
+    ref = run_closed_loop(Params(), correction, duration, model='simplified', dt=1e-3,
+                          supervised=True)
+    sent = _sent_commands(bag)
+    assert all(len(v) == 1 for v in sent.values())
+    np.testing.assert_allclose([next(iter(sent[k])) for k in t], ref.z_ref, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
+    return ref, out
+
+
 # -- lock-step ---------------------------------------------------------------------------------
 def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     """
@@ -794,27 +847,32 @@ def _fundamental(bag, frequency, cycles=2):
     return math.hypot(a, bb), math.degrees(math.atan2(bb, a))
 
 
-def test_the_reference_nodes_apc_brings_a_5hz_sine_to_its_amplitude_and_phase(dom, tmp_path):
+def test_the_reference_nodes_apc_brings_a_10hz_sine_to_its_amplitude_and_phase(dom, tmp_path):
     """Over DDS in real time: the response's fundamental against the specified sine."""
-    sine = {'amplitude': 0.008, 'frequency': 5.0}
+    a, f = 0.004, 10.0
+    sine = {'amplitude': a, 'frequency': f}
     err = {}
     for apc in (False, True):
         bag = tmp_path / f'bag_{apc}'
         with NodeProcesses(dom, tmp_path / f'logs_{apc}') as procs:
-            procs.start_loop('realtime', bag=bag,
+            # on SCHED_FIFO, as a bench runs (launch_scripts/bench.py --rt-priority): without,
+            # the watchdog zeroed the valve in half the cycles of a busy day, and the figures
+            # measured the machine
+            procs.start_loop('realtime', bag=bag, plant={'rt_priority': 50},
+                             controller={'rt_priority': 50},
                              reference={**sine, 'amplitude_phase_control': apc})
             _wait_for_bag(bag, {'/state': 9000})
             procs.stop(['recorder', 'reference', 'controller', 'plant'])
             out = procs['reference'].output()
-        amp, phase = _fundamental(bag, 5.0, cycles=10)
+        amp, phase = _fundamental(bag, f, cycles=20)
         # the complex error of the response over the specified sine: amplitude and phase
-        ratio = amp / 0.008 * complex(math.cos(math.radians(phase)),
-                                      math.sin(math.radians(phase)))
-        err[apc] = (abs(ratio - 1.0), amp / 0.008, phase)
+        ratio = amp / a * complex(math.cos(math.radians(phase)), math.sin(math.radians(phase)))
+        err[apc] = (abs(ratio - 1.0), amp / a, phase)
         assert ('amplitude/phase control' in out) == apc and 'Traceback' not in out
-    # the last 10 cycles in real time (watchdog zeroings and late ticks move single cycles):
-    # measured 0.5-1.2 % with APC, 2-6 % without (1.01-1.02 and -1.6 to -3.6 deg)
-    assert err[True][0] < 0.015, err
+    # the last 20 cycles in real time: measured 0.5-2.2 % with APC against 3.7-7.5 % without
+    # in the same run (at most 0.29 of it); the machine's stalls (watchdog zeroings, late
+    # ticks) move both from run to run, so the run without APC is the yardstick
+    assert err[True][0] < 0.03, err
     assert err[False][0] > 1.5 * err[True][0], err
 
 
@@ -830,8 +888,6 @@ def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path, 
     window's corrections come from (a correction starts ``preview`` after its cycle).
     """
     from ros_ehs.control.apc import AmplitudePhaseControl
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import get_typestore, Stores
     duration = 3.0
     if kind == 'sine':
         a, f = 0.008, 5.0
@@ -843,36 +899,8 @@ def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path, 
                    'chirp_duration': duration}
         apc = AmplitudePhaseControl(a, f, sweep_to=8.0, sweep_time=duration, latency=0.02,
                                     learn_from=1.0)
-    bag = tmp_path / 'apc'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
-        procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
-                         reference={**options, 'amplitude_phase_control': True})
-        assert procs.wait_for_log('plant', 'lock-step run complete', 120), \
-            procs['plant'].output()[-3000:]
-        time.sleep(0.5)
-        codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
-    assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}
-    t, z, _ = _states(bag)
-    n = int(round(duration * 1000))
-    assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
-    # the node's default preview and the controller's ramp_time
-    ref = run_closed_loop(Params(), apc, duration, model='simplified', dt=1e-3,
-                          supervised=True)
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    sent = {}
-    with Reader(bag) as r:
-        for conn, _, raw in r.messages([x for x in r.connections
-                                        if x.topic == '/reference_trajectory']):
-            m = ts.deserialize_cdr(raw, conn.msgtype)
-            t0 = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-            for p in m.points:
-                k = t0 + p.time_from_start.sec * 10**9 + p.time_from_start.nanosec
-                sent.setdefault(k, set()).add(round(p.positions[0], 12))
-    # each period's command was sent the same every time (a window answered early would
-    # have sent an old one first), and it is the in-process loop's
-    assert all(len(v) == 1 for v in sent.values())
-    np.testing.assert_allclose([next(iter(sent[k])) for k in t], ref.z_ref, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
+    ref, _ = _corrected_lockstep(dom, tmp_path, duration,
+                                 {**options, 'amplitude_phase_control': True}, apc)
     assert apc.cycles >= 8 and (kind == 'chirp' or apc.converged_at is not None)
     # the corrections made the command differ from the specified sine by more than 2 %
     assert np.abs(ref.z_ref - apc.desired(ref.t)).max() > 0.02 * a
@@ -986,41 +1014,11 @@ def test_pvc_block_loading_in_lockstep_over_dds_reproduces_the_in_process_loop(d
     period, and the blocks' commands were corrected.
     """
     from ros_ehs.control.pvc import PeakValleyControl, parse_blocks
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import get_typestore, Stores
     duration, f, blocks = 4.0, 5.0, '0.005 -0.005 2; 0.008 0 2'
-    bag = tmp_path / 'pvc'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
-        procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
-                         reference={'kind': 'triangle', 'frequency': f, 'blocks': blocks,
-                                    'peak_valley_control': True})
-        assert procs.wait_for_log('plant', 'lock-step run complete', 120), \
-            procs['plant'].output()[-3000:]
-        time.sleep(0.5)
-        codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
-        out = procs['reference'].output()
-    assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}
-    assert 'triangle reference, on /clock, peak/valley control' in out, out
-    t, z, _ = _states(bag)
-    n = int(round(duration * 1000))
-    assert len(t) == n + 1 and np.all(np.diff(t) == 1_000_000)
-    # the node's default preview and the controller's ramp_time
     pvc = PeakValleyControl(parse_blocks(blocks), f, 'triangle', latency=0.02, learn_from=1.0)
-    ref = run_closed_loop(Params(), pvc, duration, model='simplified', dt=1e-3,
-                          supervised=True)
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    sent = {}
-    with Reader(bag) as r:
-        for conn, _, raw in r.messages([x for x in r.connections
-                                        if x.topic == '/reference_trajectory']):
-            m = ts.deserialize_cdr(raw, conn.msgtype)
-            t0 = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-            for p in m.points:
-                k = t0 + p.time_from_start.sec * 10**9 + p.time_from_start.nanosec
-                sent.setdefault(k, set()).add(round(p.positions[0], 12))
-    assert all(len(v) == 1 for v in sent.values())
-    np.testing.assert_allclose([next(iter(sent[k])) for k in t], ref.z_ref, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(z, ref.z, rtol=0, atol=1e-9)
+    _, out = _corrected_lockstep(dom, tmp_path, duration, {
+        'kind': 'triangle', 'frequency': f, 'blocks': blocks, 'peak_valley_control': True}, pvc)
+    assert 'triangle reference, on /clock, peak/valley control' in out, out
     assert len(pvc.history) >= 4
     assert abs(pvc.amp[1] / 0.004 - 1) > 0.01 or abs(pvc.amp[0] / 0.005 - 1) > 0.01
 
