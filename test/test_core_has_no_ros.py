@@ -18,7 +18,7 @@ import sys
 
 CORE = ['ros_ehs_msgs_py', 'ros_ehs.params', 'ros_ehs.model', 'ros_ehs.control',
         'ros_ehs.sim.closed_loop',
-        'ros_ehs.reference', 'ros_ehs.metrics', 'ros_ehs.cli', 'ros_ehs.bag',
+        'ros_ehs.reference', 'ros_ehs.metrics', 'ros_ehs.noise', 'ros_ehs.cli', 'ros_ehs.bag',
         'ros_ehs.bag.experiment', 'ros_ehs.identify', 'ros_ehs.identify.run',
         'ros_ehs.identify.report', 'ros_ehs.identify.live', 'ros_ehs.identify.trend',
         'ros_ehs.model.drift', 'ros_ehs.sim', 'ros_ehs.sim.synthetic_bag', 'ros_ehs.sim.rig_bag',

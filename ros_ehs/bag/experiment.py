@@ -62,6 +62,7 @@ from ros_ehs.bag.mapping import (COMMAND_TYPES, FLOAT64, FLUID_PRESSURE, JOINT_S
                                  TopicMap)
 from ros_ehs.bag.reader import Bag, open_bag
 from ros_ehs.errors import BagError, DataError
+from ros_ehs.noise import noise_sigma
 import ros_ehs_msgs_py as contract
 
 __all__ = ['Experiment', 'MIN_SAMPLES', 'experiment_from_arrays', 'experiments_from_series',
@@ -423,7 +424,6 @@ def _experiment(rec: _Record, a: int, b: int, name: str) -> Experiment:
     z, v, applied = rec.z[a:b], rec.v[a:b], rec.applied[a:b]
     exact = dts.size == 0 or float(np.max(np.abs(dts - np.median(dts)))) <= 1e-6 * dt
     # each measured signal's noise, on its raw samples, before the grid averages neighbours
-    from ros_ehs.identify.problem import noise_sigma
     noise = {'z': noise_sigma(z, span)}
     if np.all(np.isfinite(v)):
         noise['z_dot'] = noise_sigma(v, span)

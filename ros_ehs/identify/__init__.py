@@ -14,6 +14,6 @@
 """Identification: refit Table 1's hard-to-measure parameters from recorded bags."""
 
 from ros_ehs.identify.estimator import IdentificationResult, identify, score
-from ros_ehs.identify.problem import noise_sigma
+from ros_ehs.noise import noise_sigma
 
 __all__ = ['IdentificationResult', 'identify', 'noise_sigma', 'score']

@@ -18,9 +18,9 @@ The residual a fit minimises, and its Jacobian.
 segment (each from the measured state; unmeasured states carry over), and returns the
 normalised residuals of the fitted signals (each divided by its noise, position up to a
 constant per segment) as a function of the scaled free parameters: the unchecked fast path
-of :func:`ros_ehs.identify.estimator.identify`. :func:`noise_sigma` estimates a signal's
-white noise; :func:`_fd_jacobian` differentiates the residual by forward differences,
-its columns on threads.
+of :func:`ros_ehs.identify.estimator.identify` (each signal's noise from
+:func:`ros_ehs.noise.noise_sigma`); :func:`_fd_jacobian` differentiates the residual by
+forward differences, its columns on threads.
 """
 
 from __future__ import annotations
@@ -34,9 +34,10 @@ from ros_ehs.bag.experiment import Experiment
 from ros_ehs.model import kernels as K
 from ros_ehs.model.coefficients import pack
 from ros_ehs.model.plant import DEFAULT_H, DEFAULT_JAC_EVERY, MODELS, Plant
+from ros_ehs.noise import noise_sigma
 from ros_ehs.params import Params, spec
 
-__all__ = ['FIT_H', 'LOAD', 'Problem', 'SIGNALS', 'noise_sigma']
+__all__ = ['FIT_H', 'LOAD', 'Problem', 'SIGNALS']
 
 
 SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT', 'p_L')
@@ -55,30 +56,6 @@ _FD_STEP = 1e-3
 #: truth at either (the closed-loop error at 125 us stays <= 1.6e-5 m, docs/model.md).
 FIT_H = {'full': 1e-3 / 7, 'reduced': DEFAULT_H['reduced'],
          'simplified': DEFAULT_H['simplified']}
-
-
-def noise_sigma(y: np.ndarray, t: np.ndarray | None = None) -> float:
-    """
-    Robust white-noise level of a sampled signal [its unit].
-
-    The third difference of a smooth signal is tiny while white noise of sigma gives
-    sigma * sqrt(20); the median absolute deviation keeps stick-slip spikes out. With the
-    sample times ``t`` [s] of a signal sampled unevenly (a driver's jitter), the third
-    *divided* difference scaled by ``6 h^3`` (``h`` the mean step) is used instead: zero for
-    a quadratic at any sample times, so the jitter does not pass for noise.
-    """
-    y = np.asarray(y, dtype=float)
-    x = None if t is None or y.size < 8 else np.asarray(t, dtype=float)
-    if x is not None and np.any(np.abs(np.diff(x, 2)) > 1e-9 * (x[-1] - x[0])):
-        d = y
-        for order in (1, 2, 3):
-            d = (d[1:] - d[:-1]) / (x[order:] - x[:-order])
-        d = 6.0 * float(np.mean(np.diff(x))) ** 3 * d
-    else:
-        d = np.diff(y, 3)
-    mad = np.median(np.abs(d - np.median(d))) * 1.4826
-    floor = 1e-6 * max(np.ptp(y), np.finfo(float).tiny)
-    return float(max(mad / math.sqrt(20.0), floor))
 
 
 @dataclass
