@@ -45,6 +45,7 @@ from typing import Any, Iterator
 
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import get_chunk_data_stream, StreamReader
 from ros_ehs.errors import BagError
@@ -59,6 +60,15 @@ _MAX_NS = 9223372036854775807
 _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x03, 0x04, 0x05
 _RECORD = struct.Struct('<BQ')          # opcode, content length
 _MESSAGE = struct.Struct('<HIQQ')       # channel id, sequence, log time, publish time
+
+
+class _ChunkReader(StreamReader):
+    """mcap's stream reader that skips the message indexes: the chunks carry every message."""
+
+    def _read_record(self, opcode: int, length: int):
+        if opcode == Opcode.MESSAGE_INDEX:
+            return None         # left unread: the stream skips its ``length`` bytes
+        return super()._read_record(opcode, length)
 
 
 def _chunk_records(chunk: Chunk):
@@ -276,7 +286,7 @@ class Bag:
         schemas: dict[int, Schema] = {}
         channels: dict[int, tuple[str, str]] = {}
         n_before = len(self._msgs)
-        reader = StreamReader(io.BytesIO(data), emit_chunks=True)
+        reader = _ChunkReader(io.BytesIO(data), emit_chunks=True)
 
         def records():
             for r in reader.records:
@@ -284,12 +294,15 @@ class Bag:
                     yield from _chunk_records(r)
                 else:
                     yield r
-        msgs, topics, keep = self._msgs, self.topics, self._keep
+        msgs, topics = self._msgs, self.topics
+        lo, hi = self._window
+        lo = -2**63 if lo is None else lo       # int64 log times: no window keeps them all
+        hi = 2**64 if hi is None else hi
         try:
             for rec in records():
                 if type(rec) is tuple:      # a message of a chunk (the fast path)
                     ch = channels.get(rec[0])
-                    if ch is None or not keep(rec[1]):
+                    if ch is None or not lo <= rec[1] <= hi:
                         continue
                     msgs.append(BagMessage(ch[0], rec[1], rec[2], rec[3], ch[1]))
                     topics[ch[0]].count += 1
