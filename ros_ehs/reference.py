@@ -30,7 +30,7 @@ from ros_ehs.errors import DataError, InputError, ParameterError
 from ros_ehs.params import ParamSpec
 
 __all__ = ['Chirp', 'CsvTrajectory', 'cyclic_blocks', 'first_order_hold', 'KINDS',
-           'REFERENCE_SPECS', 'Samples', 'Sine', 'Step', 'make']
+           'REFERENCE_SPECS', 'Samples', 'Sine', 'Step', 'make', 'sweep_phase']
 
 
 def _finite(name: str, value: float) -> float:
@@ -105,6 +105,18 @@ class Step:
         return z, v
 
 
+def sweep_phase(t, f0: float, f1: float, duration: float):
+    """
+    Return the phase [rad] and frequency [Hz] of a linear sweep at ``t`` [s] (number or array).
+
+    From ``f0`` to ``f1`` over ``duration``: ``2 pi (f0 t + (f1 - f0) t^2 / 2 duration)``;
+    held at its ends outside ``[0, duration]``. Unchecked (the callers validate).
+    """
+    tc = np.clip(t, 0.0, duration)
+    k = (f1 - f0) / duration
+    return 2 * math.pi * (f0 * tc + 0.5 * k * tc * tc), f0 + k * tc
+
+
 @dataclass(frozen=True)
 class Chirp:
     """Linear chirp from ``f0`` to ``f1`` Hz over ``duration`` s, amplitude [m]."""
@@ -124,10 +136,7 @@ class Chirp:
     def __call__(self, t):
         """Return (z_ref, v_ref) at times ``t``."""
         t = np.asarray(t, dtype=float)
-        tc = np.clip(t, 0.0, self.duration)
-        k = (self.f1 - self.f0) / self.duration
-        phase = 2 * math.pi * (self.f0 * tc + 0.5 * k * tc * tc)
-        f = self.f0 + k * tc
+        phase, f = sweep_phase(t, self.f0, self.f1, self.duration)
         v = self.amplitude * 2 * math.pi * f * np.cos(phase)
         # before and after the sweep the position holds: no velocity
         return self.amplitude * np.sin(phase), np.where((t >= 0.0) & (t < self.duration), v, 0.0)

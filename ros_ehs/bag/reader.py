@@ -271,10 +271,6 @@ class Bag:
             raise BagError(f'{str(file)!r} is not an MCAP file (bad magic bytes) nor a '
                            'sqlite3 (.db3) bag file')
 
-    def _keep(self, t: int) -> bool:
-        lo, hi = self._window
-        return (lo is None or t >= lo) and (hi is None or t <= hi)
-
     def _topic(self, name: str, msg_type: str, qos: Any, type_hash: str, encoding: str,
                schema_encoding: str) -> None:
         if name not in self.topics:
@@ -296,8 +292,8 @@ class Bag:
                     yield r
         msgs, topics = self._msgs, self.topics
         lo, hi = self._window
-        lo = -2**63 if lo is None else lo       # int64 log times: no window keeps them all
-        hi = 2**64 if hi is None else hi
+        lo = -_MAX_NS if lo is None else lo     # no window: every int64 log time
+        hi = _MAX_NS if hi is None else hi
         try:
             for rec in records():
                 if type(rec) is tuple:      # a message of a chunk (the fast path)
@@ -308,7 +304,7 @@ class Bag:
                     topics[ch[0]].count += 1
                 elif isinstance(rec, Message):
                     ch = channels.get(rec.channel_id)
-                    if ch is None or not self._keep(rec.log_time):
+                    if ch is None or not lo <= rec.log_time <= hi:
                         continue
                     self._msgs.append(BagMessage(ch[0], rec.log_time, rec.publish_time,
                                                  rec.data, ch[1]))

@@ -104,7 +104,7 @@ def sweep_figures(t, z, apc: AmplitudePhaseControl, start: float = SWEEP_FROM,
     Each window's response is fitted as ``a sin(phi) + b cos(phi) + c`` with ``phi`` the
     sweep's phase; the RMS error [% of the amplitude] is over all the windows.
     """
-    ph = np.vectorize(apc.phase)(t)
+    ph = apc.phase(t)
     ratios, phases = [], []
     for s in np.arange(start, apc.sweep_time - 1e-9, window):
         w = (t >= s) & (t < s + window)

@@ -69,6 +69,7 @@ import math
 import numpy as np
 from ros_ehs.control.cycles import CycleCorrection
 from ros_ehs.errors import InputError
+from ros_ehs.reference import sweep_phase
 
 __all__ = ['AmplitudePhaseControl', 'MAX_HARMONICS']
 
@@ -154,16 +155,17 @@ class AmplitudePhaseControl(CycleCorrection):
         #: per cycle: amplitude ratio, phase [deg], mean error [m], harmonics [% of amplitude]
         self.history: list[dict] = []
 
-    def phase(self, t: float) -> float:
+    def phase(self, t):
         """Return the sine's phase [rad] at ``t`` [s] (a sweep's: ``2 pi (f0 t + r t^2 / 2)``)."""
         if self._rate == 0.0:
             return self.omega * t
-        tt = min(max(t, 0.0), self.sweep_time)
-        return 2.0 * math.pi * (self.frequency * tt + 0.5 * self._rate * tt * tt)
+        return sweep_phase(t, self.frequency, self.sweep_to, self.sweep_time)[0]
 
-    def frequency_at(self, t: float) -> float:
+    def frequency_at(self, t):
         """Return the instantaneous frequency [Hz] at ``t`` [s]."""
-        return self.frequency + self._rate * min(max(t, 0.0), self.sweep_time)
+        if self._rate == 0.0:
+            return self.frequency
+        return sweep_phase(t, self.frequency, self.sweep_to, self.sweep_time)[1]
 
     def cycle_of(self, t: float) -> int:
         """Return the number of the cycle (of the phase) that time ``t`` [s] falls in."""
@@ -174,7 +176,7 @@ class AmplitudePhaseControl(CycleCorrection):
     def cycle_start(self, n: int) -> float:
         """Return the time [s] at which cycle ``n`` starts."""
         if self._rate == 0.0:
-            return n * self.period
+            return super().cycle_start(n)
         # f0 t + r t^2 / 2 = n; within the sweep (after it the phase stops)
         f0, r = self.frequency, self._rate
         return min((-f0 + math.sqrt(max(f0 * f0 + 2.0 * r * n, 0.0))) / r, self.sweep_time)
@@ -206,10 +208,7 @@ class AmplitudePhaseControl(CycleCorrection):
 
     def desired(self, t):
         """Return the specified position [m] at ``t`` (a number or an array) [s]."""
-        if self._rate == 0.0:
-            return self.mean + self.amplitude * np.sin(self.omega * np.asarray(t, dtype=float))
-        ph = np.vectorize(self.phase)(np.asarray(t, dtype=float))
-        return self.mean + self.amplitude * np.sin(ph)
+        return self.mean + self.amplitude * np.sin(self.phase(np.asarray(t, dtype=float)))
 
     def _take(self, t: float, z: float) -> None:
         # a sweep's samples are weighted by its frequency, so that the sums are over its phase
