@@ -1033,6 +1033,9 @@ def test_pvc_block_loading_in_lockstep_over_dds_reproduces_the_in_process_loop(d
     ({'kind': 'haversine', 'peak_valley_control': True, 'frequency': 30.0},
      '`preview` = 0.02 s must be under half the period'),
     ({'kind': 'triangle', 'amplitude': 0.0}, '`amplitude` must not be 0'),
+    # a sweep's preview is bounded by its shortest period, wherever it ends (here 1/60 s)
+    ({'kind': 'chirp', 'f0': 60.0, 'f1': 1.0, 'amplitude': 0.001,
+      'amplitude_phase_control': True}, r'`preview` = 0.02 s must be under the period \(0.0166'),
 ])
 def test_a_reference_node_with_a_correction_it_cannot_make_names_why(dom, params, match):
     import rclpy
