@@ -856,8 +856,8 @@ def test_the_reference_nodes_apc_brings_a_10hz_sine_to_its_amplitude_and_phase(d
         bag = tmp_path / f'bag_{apc}'
         with NodeProcesses(dom, tmp_path / f'logs_{apc}') as procs:
             # on SCHED_FIFO, as a bench runs (launch_scripts/bench.py --rt-priority): without,
-            # the watchdog zeroed the valve in half the cycles of a busy day, and the figures
-            # measured the machine
+            # the watchdog zeroed the valve in half the cycles of a loaded machine, and the
+            # figures measured the machine
             procs.start_loop('realtime', bag=bag, plant={'rt_priority': 50},
                              controller={'rt_priority': 50},
                              reference={**sine, 'amplitude_phase_control': apc})
