@@ -219,6 +219,12 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'feedforward A v_ref / (K_q K_x); 0 = the law of the paper as printed', 'feedforward', 'D'),
     _p('ff_max', 'A', 0.015, 0.0, 0.1, 'limit of the feedforward current alone',
        'feedforward', 'D'),
+    _p('dp_gain', 'A/N', 0.0, 0.0, 1.0e-4, 'delta-P stabilisation: current per newton of '
+       'the high-passed hydraulic force A_p (p_P - p_T) taken off the command, damping the oil '
+       "column; 0: off (the paper's controller). Needs the force in the state", 'stabilisation',
+       'D'),
+    _p('dp_tau', 's', 0.05, 1.0e-4, 10.0, 'time constant of the delta-P high-pass: force '
+       'held longer than this (the static load) is not opposed', 'stabilisation', 'D'),
     _p('stale_timeout', 's', 0.005, 1.0e-4, 10.0, 'state older than this is stale: hold, '
        'then zero the command', 'safety', 'D'),
 )

@@ -18,8 +18,8 @@ import math
 import numpy as np
 import pytest
 
-from ros_ehs.control import (Controller, DelayLine, Feedforward, Pid, PidGains, psc_force,
-                             stribeck_estimate, xi_blend)
+from ros_ehs.control import (Controller, DelayLine, DeltaP, Feedforward, Pid, PidGains,
+                             psc_force, stribeck_estimate, xi_blend)
 from ros_ehs.errors import InputError, ParameterError
 from ros_ehs.metrics import tracking_metrics
 from ros_ehs.model import ff_force_gain
@@ -175,6 +175,78 @@ def test_controller_nan_state_gives_zero_and_hold_freezes_output():
     c.hold(False)
     assert c.step(-0.03, 0.0, 0.0) != u
     assert abs(c.step(10.0, 0.0, 0.0)) <= c.params['u_max']
+
+
+def test_delta_p_high_pass_starts_at_zero_and_lets_a_held_load_pass():
+    dp = DeltaP(2e-7, 0.05)
+    assert dp.update(5000.0, 1e-3) == 0.0           # the first force is the filter's memory
+    step = dp.update(6000.0, 1e-3)                  # a 1 kN step: its high-passed share
+    assert step == pytest.approx(2e-7 * 1000.0 * 0.05 / 0.051)
+    for _ in range(1000):                           # held for 20 time constants
+        held = dp.update(6000.0, 1e-3)
+    assert 0.0 < held < 1e-8 * step
+    dp.reset()
+    assert dp.update(-3000.0, 1e-3) == 0.0
+
+
+def test_delta_p_needs_the_force_only_when_on():
+    off, on = (Controller(preset('table1_estimated', dp_gain=g)) for g in (0.0, 2e-7))
+    assert off.step(0.01, 0.0, 0.0) != 0.0 and not off.fault     # no force: not needed
+    assert on.step(0.01, 0.0, 0.0) == 0.0 and on.fault           # no force: bad input
+    assert on.step(0.01, 0.0, 0.0, force=100.0) != 0.0 and not on.fault
+    # a rising force takes current off the command: the loop gives way to the load
+    a, b = (Controller(preset('table1_estimated', dp_gain=g)) for g in (0.0, 2e-7))
+    for k in range(5):
+        ua, ub = (c.step(0.001, 0.0, 0.0, force=1000.0 * k) for c in (a, b))
+    assert ub < ua
+    assert a.dp.last == 0.0 and b.dp.last > 0.0
+
+
+def test_delta_p_gain_changes_are_bumpless():
+    c = Controller(preset('table1_estimated', dp_gain=2e-7))
+    f = 0.0
+    for k in range(200):                   # a rising force keeps the high-pass away from 0
+        f = 20.0 * k
+        u = c.step(0.002, 0.0, 0.001, force=f)
+    assert c.dp.last > 2e-5          # 40 uA: a bump would show
+    c.set_params(preset('table1_estimated', dp_gain=0.0))
+    # the same error, the force still rising by one period: the command moves by the
+    # PID's and feedforward's share of a period, not by the delta-P current it dropped
+    off = c.step(0.002, 0.0, 0.001, force=f + 20.0)
+    assert off == pytest.approx(u, abs=1e-6)
+    c.set_params(preset('table1_estimated', dp_gain=2e-7))
+    assert c.step(0.002, 0.0, 0.001, force=f + 40.0) == pytest.approx(off, abs=1e-6)
+
+
+def test_the_supervised_loop_gives_delta_p_the_force_of_each_state():
+    from ros_ehs.reference import Sine
+    from ros_ehs.sim.closed_loop import run_closed_loop
+    p = preset('table1_estimated')
+    off, on = (run_closed_loop(p, Sine(0.004, 10.0), 1.0, model='simplified', supervised=True,
+                               controller_params=p.replace(dp_gain=g)) for g in (0.0, 2e-7))
+    assert np.abs(on.i - off.i).max() > 1e-4
+    blind = run_closed_loop(p, Sine(0.004, 10.0), 1.0, model='simplified', supervised=True,
+                            controller_params=p.replace(dp_gain=2e-7),
+                            fault=lambda k, z, v, f: (z, v, math.nan))
+    assert np.all(blind.i == 0.0)         # no force to stabilise with: the valve at null
+
+
+def test_delta_p_damps_the_oil_column_of_a_rig_the_controller_does_not_know():
+    """The loop's ringing (40-80 Hz) on a road-like target falls with delta-P on."""
+    from ros_ehs.benchmarks.tracking import MISMATCH
+    from ros_ehs.drive_file import multisine, Samples
+    from ros_ehs.sim.closed_loop import run_closed_loop
+    est = preset('table1_estimated')
+    rig = est.replace(**{n: est[n] * k for n, k in MISMATCH.items()})
+    t, r = multisine(5.0, 1000.0, 0.5, 20.0, 0.08, seed=1)
+    ring = []
+    for g in (0.0, 1.5e-7):
+        run = run_closed_loop(rig, Samples(t, r), 5.0, model='full',
+                              controller_params=est.replace(dp_gain=g, dp_tau=0.05))
+        e = np.fft.rfft(r - run.z[:-1])
+        f = np.fft.rfftfreq(r.size, 1e-3)
+        ring.append(np.sqrt(np.sum(np.abs(e[(f > 40) & (f < 80)]) ** 2)))
+    assert ring[1] < 0.6 * ring[0], ring
 
 
 def test_metrics_on_a_perfect_and_a_delayed_track():

@@ -19,13 +19,13 @@ Controller core: PID (eq. 19), feedforward (eqs. 9-20), their combination (eq. 1
 """
 
 from ros_ehs.control.axis import AxisController
-from ros_ehs.control.controller import Controller
+from ros_ehs.control.controller import Controller, DeltaP
 from ros_ehs.control.feedforward import (
     DelayLine, Feedforward, psc_force, stribeck_estimate, xi_blend)
 from ros_ehs.control.pid import Pid, PidGains
 from ros_ehs.control.safety import (braking_distance, DETECTORS, SafetyConfig,
                                     Supervisor)
 
-__all__ = ['AxisController', 'Controller', 'DETECTORS', 'DelayLine', 'Feedforward', 'Pid',
-           'PidGains', 'SafetyConfig', 'Supervisor', 'braking_distance', 'psc_force',
+__all__ = ['AxisController', 'Controller', 'DETECTORS', 'DelayLine', 'DeltaP', 'Feedforward',
+           'Pid', 'PidGains', 'SafetyConfig', 'Supervisor', 'braking_distance', 'psc_force',
            'stribeck_estimate', 'xi_blend']

@@ -68,4 +68,4 @@ class AxisController:
             if c.output != 0.0 or c.pid.prev_error is not None:
                 c.reset()
             return 0.0
-        return c.step(d.z_ref, d.v_ref, z)
+        return c.step(d.z_ref, d.v_ref, z, force=force)

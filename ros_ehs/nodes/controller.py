@@ -325,6 +325,11 @@ class ControllerNode(Node):
             if not self.axis.supervisor.latches['feedback'].tripped:   # else reported once
                 self.get_logger().warning('non-finite state or reference: command 0 A',
                                           throttle_duration_sec=1.0)
+        elif self.ctrl.dp.gain > 0 and not math.isfinite(s.force):
+            self.counts['nonfinite'] += 1
+            self.get_logger().warning('dp_gain > 0 needs the hydraulic force in each state '
+                                      '(effort[0]) and this one has none: command 0 A',
+                                      throttle_duration_sec=1.0)
         self._meas = (s.stamp_ns, s.z, s.z_dot, s.force)
         self._last_stamp = s.stamp_ns
         self.counts['answered'] += 1
@@ -441,6 +446,7 @@ class ControllerNode(Node):
                  tracking_max_m=float(abs(e).max()) if e.size else math.nan,
                  command_a=float(self.ctrl.output), fault=self.ctrl.fault,
                  saturated=self.ctrl.pid.saturated, feedforward_a=float(self.ctrl.last_ff),
+                 delta_p_a=float(self.ctrl.dp.last),
                  compute_p99_us=self.compute.pct(99) * 1e6, state_lost=self._lost)
         sup = self.axis.supervisor
         f.update(mode=sup.mode, interlock=sup.action, tripped=','.join(sup.tripped()),
@@ -458,7 +464,9 @@ class ControllerNode(Node):
         elif act == 'indicate':
             level, msg = WARN, f'limit indicated: {", ".join(sup.tripped())} (~/reset)'
         elif self.ctrl.fault:
-            level, msg = ERROR, 'non-finite input: command 0 A'
+            level, msg = ERROR, ('non-finite input: command 0 A' if math.isfinite(self._meas[3])
+                                 or self.ctrl.dp.gain == 0 else
+                                 'no hydraulic force in the state for dp_gain: command 0 A')
         elif self._lost:
             level, msg = WARN, 'no state: command 0 A'
         elif self.counts['future'] > self._diag_future:

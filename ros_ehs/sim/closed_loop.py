@@ -140,7 +140,8 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
             reference.measure(tk, float(z_meas[k]))
             z_ref[k], v_ref[k] = reference.reference(tk)
         if axis is None:
-            u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]))
+            u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]),
+                             force=a_p * float(x[ipa] - x[ipb]))
         else:
             zm, vm, fm = float(z_meas[k]), float(x[iv]), a_p * float(x[ipa] - x[ipb])
             if fault is not None:
