@@ -33,6 +33,8 @@ def main() -> int:
     ap.add_argument('--controller', default='servo_valve_controller')
     ap.add_argument('--model', default='simplified')
     ap.add_argument('--seconds', type=float, default=0.0)
+    ap.add_argument('--effort', action='store_true', help="export the piston's effort state "
+                    'interface: the hydraulic force from the chamber pressures [N]')
     a = ap.parse_args()
     from ros_ehs.model.plant import Plant
     from ros_ehs.params import Params
@@ -40,17 +42,20 @@ def main() -> int:
     node = rclpy.create_node('rig_driver')
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     pub = node.create_publisher(JointState, '/joint_states', qos)
-    latest = {'cmd': 0.0, 'n': 0}
+    latest = {'cmd': 0.0, 'n': 0, 'max': 0.0}
 
     def on_cmd(msg: Float64MultiArray) -> None:
         if len(msg.data) >= 1:
             latest['cmd'] = float(msg.data[0])
             latest['n'] += 1
+            latest['max'] = max(latest['max'], abs(latest['cmd']))
 
     node.create_subscription(Float64MultiArray, f'/{a.controller}/commands', on_cmd, qos)
     plant = Plant(Params(), a.model)
     x = plant.equilibrium()
     iz = plant.state_names.index('z')
+    ipa, ipb = plant.state_names.index('p_CP'), plant.state_names.index('p_CT')
+    a_p = Params()['A_p']
     dt = 1.0 / a.rate
     names = ['table_pitch', a.joint, 'table_roll']
     u = np.zeros(2)
@@ -66,6 +71,8 @@ def main() -> int:
         msg.header.stamp = node.get_clock().now().to_msg()
         msg.name = names
         msg.position = [0.0, float(x[iz]), 0.0]
+        if a.effort:
+            msg.effort = [0.0, float(a_p * (x[ipa] - x[ipb])), 0.0]
         pub.publish(msg)
         u[0] = latest['cmd']                     # forward command controller + write
         if latest['n'] == fresh['seen']:
@@ -80,7 +87,8 @@ def main() -> int:
     while not stop and time.monotonic() < t_end:
         rclpy.spin_once(node, timeout_sec=0.05)
     print(json.dumps({'cycles': cycles[0], 'commands': latest['n'], 'z': float(x[iz]),
-                      'last_command_a': latest['cmd'], 'stale_cycles': fresh['stale']}),
+                      'last_command_a': latest['cmd'], 'max_command_a': latest['max'],
+                      'stale_cycles': fresh['stale']}),
           flush=True)
     node.destroy_node()
     rclpy.shutdown()
