@@ -140,7 +140,7 @@ def _cmd_drive(args) -> int:
     from ros_ehs.drive_file import BenchPlayer, InProcessPlayer, iterate, load_drive
     from ros_ehs.params import PLANT_SPECS, preset
     t, z = load_drive(args.target)
-    rig, ctrl = preset(args.plant), preset(args.controller)
+    rig, ctrl = preset(args.plant), preset(args.controller).replace(**dict(args.set))
     if args.bench:
         rt = {'rt_priority': args.rt_priority} if args.rt_priority else {}
         play = BenchPlayer(args.out, mode=args.bench, domain_id=args.domain_id,
@@ -192,6 +192,16 @@ def _cmd_record(args) -> int:
     return 0
 
 
+def _name_value(text: str) -> tuple[str, float | str]:
+    name, eq, value = text.partition('=')
+    if not (eq and name):
+        raise argparse.ArgumentTypeError(f'{text!r} is not NAME=VALUE')
+    try:
+        return name, float(value)
+    except ValueError:
+        return name, value
+
+
 def main(argv=None) -> int:
     """Parse arguments and run; core errors become one clear line and exit code 2."""
     ap = argparse.ArgumentParser(prog='ehs_sim', description=__doc__.strip().splitlines()[0])
@@ -233,6 +243,9 @@ def main(argv=None) -> int:
     dv.add_argument('--rms', type=float, default=1.0, help='stop at this RMS error [%%]')
     dv.add_argument('--plant', default='table1_estimated', help='the rig: a parameter preset')
     dv.add_argument('--controller', default='table1_estimated', help='controller preset')
+    dv.add_argument('--set', action='append', type=_name_value, default=[],
+                    metavar='NAME=VALUE', help='a controller value over its preset, e.g. '
+                    'dp_gain=1.5e-7 (delta-P stabilisation); repeat for more')
     dv.add_argument('--model', choices=['full', 'reduced', 'simplified'], default='full')
     dv.add_argument('--bench', choices=['lockstep', 'realtime'], default=None,
                     help="play each run on the bench's nodes over DDS (default: in process)")

@@ -130,7 +130,8 @@ def test_the_cli_iterates_on_the_bench_in_lockstep_as_in_process(dom, tmp_path):
 
     Each run's bag (written by our recorder, read by rosbags too) holds the response the
     in-process iteration computes, to 1e-9 m at every period, so the errors and the drive
-    are the same.
+    are the same. Delta-P stabilisation is on: the controller node reads the force of each
+    state as the in-process loop does.
     """
     import subprocess
     import sys
@@ -142,7 +143,8 @@ def test_the_cli_iterates_on_the_bench_in_lockstep_as_in_process(dom, tmp_path):
     for how in ('lockstep', None):
         out = tmp_path / (how or 'inprocess')
         cmd = [sys.executable, '-m', 'ros_ehs.cli', 'drive', str(tmp_path / 'target.csv'),
-               '--out', str(out), '--model', 'simplified', '--iterations', '1', '--rms', '0.1']
+               '--out', str(out), '--model', 'simplified', '--iterations', '1', '--rms', '0.1',
+               '--set', 'dp_gain=1.5e-7', '--set', 'dp_tau=0.05']
         cmd += ['--bench', how, '--domain-id', str(dom)] if how else []
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
         assert p.returncode == 1, p.stdout + p.stderr       # 0.1 %: not met in one
