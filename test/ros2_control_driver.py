@@ -65,8 +65,19 @@ def main() -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
 
+    clock = {'t0': 0.0, 'steps': 0, 'unread': 0}
+
     def cycle() -> None:
+        # the axis does not wait for its driver: the model runs on the wall clock, with the
+        # command written last, through the periods a stalled process let pass unread
         nonlocal x
+        due = round((time.monotonic() - clock['t0']) / dt)
+        if due <= clock['steps']:
+            return                               # a timer early: no new period yet
+        clock['unread'] += due - clock['steps'] - 1
+        while clock['steps'] < due:
+            x = plant.step(x, u, dt)
+            clock['steps'] += 1
         msg = JointState()                       # read + joint_state_broadcaster
         msg.header.stamp = node.get_clock().now().to_msg()
         msg.name = names
@@ -78,17 +89,17 @@ def main() -> int:
         if latest['n'] == fresh['seen']:
             fresh['stale'] += 1
         fresh['seen'] = latest['n']
-        x = plant.step(x, u, dt)
         cycles[0] += 1
 
     plant.step(x, u, dt)          # compile (or load) the model's kernels before the loop runs
+    clock['t0'] = time.monotonic()
     node.create_timer(dt, cycle)
     t_end = time.monotonic() + a.seconds if a.seconds > 0 else float('inf')
     while not stop and time.monotonic() < t_end:
         rclpy.spin_once(node, timeout_sec=0.05)
     print(json.dumps({'cycles': cycles[0], 'commands': latest['n'], 'z': float(x[iz]),
                       'last_command_a': latest['cmd'], 'max_command_a': latest['max'],
-                      'stale_cycles': fresh['stale']}),
+                      'stale_cycles': fresh['stale'], 'unread_periods': clock['unread']}),
           flush=True)
     node.destroy_node()
     rclpy.shutdown()
