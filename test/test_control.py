@@ -218,6 +218,18 @@ def test_delta_p_gain_changes_are_bumpless():
     assert c.step(0.002, 0.0, 0.001, force=f + 40.0) == pytest.approx(off, abs=1e-6)
 
 
+def test_delta_p_follows_the_load_through_a_hold_so_release_has_no_kick():
+    c = Controller(preset('table1_estimated', dp_gain=2e-7, dp_tau=0.05))
+    for _ in range(200):
+        u = c.step(0.002, 0.0, 0.001, force=1000.0)
+    c.hold()
+    for k in range(1000):       # the load rises 5 kN in 0.5 s, then stays for 10 dp_tau
+        assert c.step(0.002, 0.0, 0.001, force=1000.0 + 10.0 * min(k, 500)) == u
+    c.hold(False)
+    # a filter left at the hold's first force would give 2e-7 * 5000 N = 1 mA at once
+    assert c.step(0.002, 0.0, 0.001, force=6000.0) == pytest.approx(u, abs=5e-5)
+
+
 def test_the_supervised_loop_gives_delta_p_the_force_of_each_state():
     from ros_ehs.reference import Sine
     from ros_ehs.sim.closed_loop import run_closed_loop

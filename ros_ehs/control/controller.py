@@ -101,6 +101,8 @@ class Controller:
         """
         dt = self.dt if dt is None else dt
         if self.held:
+            if dt > 0 and self.dp.gain > 0 and math.isfinite(force):
+                self.dp.update(force, dt)       # follows the load, so release has no kick
             return self.pid.last_u
         if not all(math.isfinite(v) for v in (z_ref, v_ref, z)) or (
                 self.dp.gain > 0 and not math.isfinite(force)):

@@ -150,6 +150,7 @@ class ControllerNode(Node):
         self.axis = AxisController(self.params, self.dt, bool(self.opt['start_enabled']))
         self.ctrl = self.axis.ctrl
         self._meas = (-1, math.nan, math.nan, math.nan)    # newest state: stamp, z, z_dot, F
+        self._no_force = False          # dp_gain > 0 and the states carry no force (logged)
         self.lockstep = bool(self.opt['lockstep'])
         # staleness is a wall-clock notion: off under sim time and in lock-step (where the
         # plant waits for us, so nothing can be stale)
@@ -327,9 +328,13 @@ class ControllerNode(Node):
                                           throttle_duration_sec=1.0)
         elif self.ctrl.dp.gain > 0 and not math.isfinite(s.force):
             self.counts['nonfinite'] += 1
-            self.get_logger().warning('dp_gain > 0 needs the hydraulic force in each state '
-                                      '(effort[0]) and this one has none: command 0 A',
-                                      throttle_duration_sec=1.0)
+            if not self._no_force:
+                self._no_force = True
+                self.get_logger().error('dp_gain > 0 needs the hydraulic force in each state '
+                                        '(effort[0]) and this one has none: command 0 A')
+        elif self._no_force and math.isfinite(s.force):
+            self._no_force = False
+            self.get_logger().info('the hydraulic force is back in the state: delta-P on')
         self._meas = (s.stamp_ns, s.z, s.z_dot, s.force)
         self._last_stamp = s.stamp_ns
         self.counts['answered'] += 1
