@@ -65,19 +65,22 @@ def main() -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
 
-    clock = {'t0': 0.0, 'steps': 0, 'unread': 0}
+    clock = {'t0': None, 'steps': 0, 'unread': 0}
 
     def cycle() -> None:
-        # the axis does not wait for its driver: the model runs on the wall clock, with the
-        # command written last, through the periods a stalled process let pass unread
+        # the axis does not wait for its driver: when a stall of this process let two periods
+        # or more pass unread, the model runs through them with the command written last, so
+        # it stays within two periods of the wall clock; otherwise one period a cycle
         nonlocal x
-        due = round((time.monotonic() - clock['t0']) / dt)
-        if due <= clock['steps']:
-            return                               # a timer early: no new period yet
-        clock['unread'] += due - clock['steps'] - 1
-        while clock['steps'] < due:
+        now = time.monotonic()
+        first = now - (clock['steps'] + 1) * dt  # the timer's phase: its least late cycle's
+        clock['t0'] = first if clock['t0'] is None else min(clock['t0'], first)
+        behind = int((now - clock['t0']) / dt) - clock['steps']
+        n = behind - 1 if behind >= 3 else 1
+        clock['unread'] += n - 1
+        for _ in range(n):
             x = plant.step(x, u, dt)
-            clock['steps'] += 1
+        clock['steps'] += n
         msg = JointState()                       # read + joint_state_broadcaster
         msg.header.stamp = node.get_clock().now().to_msg()
         msg.name = names
@@ -92,7 +95,6 @@ def main() -> int:
         cycles[0] += 1
 
     plant.step(x, u, dt)          # compile (or load) the model's kernels before the loop runs
-    clock['t0'] = time.monotonic()
     node.create_timer(dt, cycle)
     t_end = time.monotonic() + a.seconds if a.seconds > 0 else float('inf')
     while not stop and time.monotonic() < t_end:
