@@ -62,6 +62,17 @@ def _tracking(bag: Path, state: str, joint: str, skip: float = 2.0) -> tuple[flo
     return float(np.sqrt(np.mean((z_ref[m] - z[m]) ** 2))), int(m.sum())
 
 
+def _start_controller_and_driver(procs, controller=None, driver=()):
+    """Start the controller on the driver's topics (with ``controller`` options), then it."""
+    procs.start('controller', {
+        'rate_hz': RATE, 'state_topic': '/joint_states', 'joint': JOINT,
+        'command_interface': 'forward_command',
+        'command_topic': '/servo_valve_controller/commands', **(controller or {})})
+    assert procs.wait_for_log('controller', 'PID')
+    return procs.start('driver', cmd=[sys.executable, str(DRIVER), '--rate', str(RATE),
+                                      '--joint', JOINT, *driver])
+
+
 def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
     seconds = 5.0
     rig_bag, our_bag = tmp_path / 'rig', tmp_path / 'ours'
@@ -69,13 +80,7 @@ def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
         procs.start('recorder', {'out': str(rig_bag), 'topics': [
             '/joint_states', '/servo_valve_controller/commands', '/reference', '/events']})
         assert procs.wait_status(c.RECORDER_STATUS, lambda st: True)
-        procs.start('controller', {
-            'rate_hz': RATE, 'state_topic': '/joint_states', 'joint': JOINT,
-            'command_interface': 'forward_command',
-            'command_topic': '/servo_valve_controller/commands'})
-        assert procs.wait_for_log('controller', 'PID')
-        drv = procs.start('driver', cmd=[sys.executable, str(DRIVER), '--rate', str(RATE),
-                                         '--joint', JOINT])
+        drv = _start_controller_and_driver(procs)
         assert procs.wait_status(c.RECORDER_STATUS, recording('/joint_states'), 30), \
             procs['recorder'].output()[-2000:]
         procs.start('reference', {'wait_subscribers': 2})
@@ -139,13 +144,7 @@ def test_delta_p_on_a_ros2_control_driver_needs_its_effort_interface(dom, tmp_pa
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         procs.start('recorder', {'out': str(bag), 'topics': ['/joint_states', '/reference']})
         assert procs.wait_status(c.RECORDER_STATUS, lambda st: True)
-        procs.start('controller', {
-            'rate_hz': RATE, 'state_topic': '/joint_states', 'joint': JOINT,
-            'command_interface': 'forward_command', **dp,
-            'command_topic': '/servo_valve_controller/commands'})
-        assert procs.wait_for_log('controller', 'PID')
-        drv = procs.start('driver', cmd=[sys.executable, str(DRIVER), '--rate', str(RATE),
-                                         '--joint', JOINT] + (['--effort'] if effort else []))
+        drv = _start_controller_and_driver(procs, dp, ['--effort'] if effort else [])
         assert procs.wait_status(c.CONTROLLER_STATUS,                  # the driver's states
                                  lambda st: int(st.values.get('answered', 0)) > 250, 30)
         procs.start('reference', {'wait_subscribers': 2})

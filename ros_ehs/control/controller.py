@@ -85,12 +85,13 @@ class Controller:
         self.ff_enabled = params['ff_enable'] >= 0.5
         old = self.dp.last
         self.dp.set_gains(params['dp_gain'], params['dp_tau'])
-        if self.dp.gain == 0:
-            self.dp.reset()     # a later restart takes its memory from a fresh force
         if self.pid.prev_error is not None:     # bumpless: the integrator takes the step
-            self.pid.i_term += self.dp.gain * self.dp.hp - old
-        self.dp.last = self.dp.gain * self.dp.hp
+            self.pid.i_term += self.dp.last - old
         self.params = params
+
+    def force_missing(self, force: float) -> bool:
+        """Return True if delta-P is on and ``force`` [N] is no measurement (bad input)."""
+        return self.dp.gain > 0 and not math.isfinite(force)
 
     def step(self, z_ref: float, v_ref: float, z: float, dt: float | None = None,
              force: float = math.nan) -> float:
@@ -104,8 +105,7 @@ class Controller:
             if dt > 0 and self.dp.gain > 0 and math.isfinite(force):
                 self.dp.update(force, dt)       # follows the load, so release has no kick
             return self.pid.last_u
-        if not all(math.isfinite(v) for v in (z_ref, v_ref, z)) or (
-                self.dp.gain > 0 and not math.isfinite(force)):
+        if not all(math.isfinite(v) for v in (z_ref, v_ref, z)) or self.force_missing(force):
             return self.pid.update(math.nan, dt if dt > 0 else self.dt)
         ff = 0.0
         if self.ff_enabled and dt > 0:
@@ -125,12 +125,20 @@ class DeltaP:
     """
 
     def __init__(self, gain: float, tau: float) -> None:
-        self.set_gains(gain, tau)
+        self.gain, self.tau = float(gain), float(tau)
         self.reset()
 
     def set_gains(self, gain: float, tau: float) -> None:
-        """Take a new gain [A/N] and time constant [s]; the filter's memory stays."""
+        """
+        Take a new gain [A/N] and time constant [s]; ``last`` is the current they give now.
+
+        The filter's memory stays, unless the gain is 0: then it is forgotten, and a later
+        restart takes its memory from a fresh force.
+        """
         self.gain, self.tau = float(gain), float(tau)
+        if self.gain == 0:
+            self.reset()
+        self.last = self.gain * self.hp
 
     def reset(self) -> None:
         """Forget the filter's memory."""

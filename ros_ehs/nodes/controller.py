@@ -326,7 +326,7 @@ class ControllerNode(Node):
             if not self.axis.supervisor.latches['feedback'].tripped:   # else reported once
                 self.get_logger().warning('non-finite state or reference: command 0 A',
                                           throttle_duration_sec=1.0)
-        elif self.ctrl.dp.gain > 0 and not math.isfinite(s.force):
+        elif self.ctrl.force_missing(s.force):
             self.counts['nonfinite'] += 1
             if not self._no_force:
                 self._no_force = True
@@ -469,9 +469,9 @@ class ControllerNode(Node):
         elif act == 'indicate':
             level, msg = WARN, f'limit indicated: {", ".join(sup.tripped())} (~/reset)'
         elif self.ctrl.fault:
-            level, msg = ERROR, ('non-finite input: command 0 A' if math.isfinite(self._meas[3])
-                                 or self.ctrl.dp.gain == 0 else
-                                 'no hydraulic force in the state for dp_gain: command 0 A')
+            level, msg = ERROR, ('no hydraulic force in the state for dp_gain: command 0 A'
+                                 if self.ctrl.force_missing(self._meas[3]) else
+                                 'non-finite input: command 0 A')
         elif self._lost:
             level, msg = WARN, 'no state: command 0 A'
         elif self.counts['future'] > self._diag_future:

@@ -139,11 +139,11 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
             tk = (k * dt_ns) * 1e-9
             reference.measure(tk, float(z_meas[k]))
             z_ref[k], v_ref[k] = reference.reference(tk)
+        fm = a_p * float(x[ipa] - x[ipb])          # the hydraulic force the state carries
         if axis is None:
-            u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]),
-                             force=a_p * float(x[ipa] - x[ipb]))
+            u[0] = ctrl.step(float(z_ref[k]), float(v_ref[k]), float(z_meas[k]), force=fm)
         else:
-            zm, vm, fm = float(z_meas[k]), float(x[iv]), a_p * float(x[ipa] - x[ipb])
+            zm, vm = float(z_meas[k]), float(x[iv])
             if fault is not None:
                 zm, vm, fm = fault(k, zm, vm, fm)
                 z_meas[k] = zm
