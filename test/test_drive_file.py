@@ -113,6 +113,27 @@ def test_the_cli_iterates_a_target_and_keeps_every_run_as_a_bag(tmp_path):
     assert fs == pytest.approx(FS) and coh[np.argmin(abs(f - 5.0))] > 0.99
 
 
+@pytest.mark.parametrize('setting, says', [
+    ('dp_gain=nan', 'parameter `dp_gain` = nan is not finite'),
+    ('dp_gain=-1e-7', 'parameter `dp_gain` = -1e-07 A/N is outside its valid range'),
+    ('dp_gain=lots', "parameter `dp_gain` = 'lots' must be a number [A/N]"),
+    ('dp_gian=1e-7', 'unknown parameter `dp_gian`'),
+    ('dp_gain', "'dp_gain' is not NAME=VALUE")])
+def test_the_cli_refuses_a_bad_controller_value_by_name_before_any_run(tmp_path, capsys,
+                                                                       setting, says):
+    from ros_ehs.cli import main
+    t, z = multisine(2.0, FS, 0.5, 20.0, 0.08, seed=1, taper=0.5)
+    save_drive(tmp_path / 'target.csv', t, z)
+    argv = ['drive', str(tmp_path / 'target.csv'), '--out', str(tmp_path / 'o'),
+            '--set', setting]
+    try:
+        code = main(argv)
+    except SystemExit as e:         # argparse's own refusal
+        code = e.code
+    assert code == 2 and says in capsys.readouterr().err
+    assert not (tmp_path / 'o').exists()
+
+
 def test_the_cli_refuses_a_bad_target_by_name(tmp_path):
     import subprocess
     import sys
