@@ -24,7 +24,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'ehs_sim = ros_ehs.cli:main',
+            'ehs_sim = ros_ehs.tools.cli:main',
             'plant = ros_ehs.nodes.plant:main',
             'controller = ros_ehs.nodes.controller:main',
             'reference = ros_ehs.nodes.reference:main',

@@ -57,9 +57,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checko
 
 from ros_ehs.benchmarks.sleeper import coincident, HICCUP_MS, hiccups, STALL_MS  # noqa: E402
 from ros_ehs.benchmarks.sleeper import command as probe_command  # noqa: E402
+from ros_ehs.data.synthetic_bag import SensorNoise  # noqa: E402
+from ros_ehs.nodes.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
-from ros_ehs.processes import NodeProcesses, StartupError  # noqa: E402
-from ros_ehs.sim.synthetic_bag import SensorNoise  # noqa: E402
 import ros_ehs_msgs_py as contract  # noqa: E402
 
 FASTDDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
@@ -126,9 +126,9 @@ def _bag_lines(bag: Path, live: bool, error: str = '') -> None:
     ``error``: why the recorder stopped recording (its status, or its exit), printed as one
     line with what stays readable.
     """
-    from ros_ehs.bag import open_bag
-    from ros_ehs.errors import BagError
-    from ros_ehs.identify.trend import trend_table
+    from ros_ehs.data.bag import open_bag
+    from ros_ehs.core.errors import BagError
+    from ros_ehs.data.trend import trend_table
 
     def decoded(topic, convert):
         topic = '/' + topic.name
@@ -224,7 +224,7 @@ def main(argv=None) -> int:
     with NodeProcesses(a.domain_id, logs, env=env) as procs:
         if procs.shm_cleanup is not None and procs.shm_cleanup.removed:
             # left by processes that did not exit cleanly; reused, they carry the timeouts
-            # of whoever created them (a 333 ms stall under SCHED_FIFO): ros_ehs.fastdds_shm
+            # of whoever created them (a 333 ms stall under SCHED_FIFO): ros_ehs.nodes.fastdds_shm
             print(f'bench: {procs.shm_cleanup.summary()}', flush=True)
         plant = {'model': a.model}
         loop = {'rt_priority': a.rt_priority} if a.rt_priority else {}

@@ -31,7 +31,7 @@ import sys
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checkout works too
 
-from ros_ehs.processes import node_command  # noqa: E402
+from ros_ehs.nodes.processes import node_command  # noqa: E402
 
 
 def main(argv=None) -> int:

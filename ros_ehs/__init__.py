@@ -14,6 +14,16 @@
 """
 ros_ehs: electro-hydraulic servo axis (MOOG G761-class valve, symmetric cylinder).
 
+Four layers, whose imports run one way (``LAYERS``, lowest first; ``test/test_layers.py``
+walks every module and checks it):
+
+* ``ros_ehs.core``: the numerical core, every rule (numpy, scipy, numba; no ROS, no files);
+* ``ros_ehs.data``: bag and data I/O (rosbag2 bags, a rig's topic map, reports, drive files);
+* ``ros_ehs.nodes``: the rclpy nodes and the processes that run them;
+* ``ros_ehs.tools`` and ``ros_ehs.benchmarks``: the ``ehs_sim`` command line, the benchmarks.
+
+Below them all, the topic contract ``ros_ehs_msgs_py`` (plain records, no ROS import).
+
 Importing the package sets ``OPENBLAS_NUM_THREADS=1`` unless it is set already (so before
 numpy loads OpenBLAS, when ``ros_ehs`` is imported first, as every entry point does): the
 fit's matrices are small (40000 x 7), and OpenBLAS's spinning threads made a refit of the
@@ -26,3 +36,18 @@ import os
 os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 __version__ = '0.1.0'
+
+#: The layers, lowest first: a module may import its own layer and those below it.
+LAYERS = ('contract', 'core', 'data', 'nodes', 'tools')
+_PACKAGES = {'ros_ehs_msgs_py': 'contract', 'ros_ehs.core': 'core', 'ros_ehs.data': 'data',
+             'ros_ehs.nodes': 'nodes', 'ros_ehs.tools': 'tools', 'ros_ehs.benchmarks': 'tools'}
+
+
+def layer_of(module: str) -> str:
+    """Return the layer of ``module`` (a dotted name); ValueError naming it if it has none."""
+    if module == 'ros_ehs':
+        return LAYERS[0]
+    for pkg, layer in _PACKAGES.items():
+        if module == pkg or module.startswith(pkg + '.'):
+            return layer
+    raise ValueError(f'module {module!r} is in no layer of ros_ehs ({sorted(_PACKAGES)})')

@@ -36,8 +36,8 @@ def main() -> int:
     ap.add_argument('--effort', action='store_true', help="export the piston's effort state "
                     'interface: the hydraulic force from the chamber pressures [N]')
     a = ap.parse_args()
-    from ros_ehs.model.plant import Plant
-    from ros_ehs.params import Params
+    from ros_ehs.core.model.plant import Plant
+    from ros_ehs.core.params import Params
     rclpy.init()
     node = rclpy.create_node('rig_driver')
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)

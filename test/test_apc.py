@@ -1,14 +1,14 @@
-"""Amplitude/phase control in process (ros_ehs.control.apc): convergence, freeze, bad input."""
+"""Amplitude/phase control in process (ros_ehs.core.control.apc): convergence, freeze, input."""
 
 import math
 
 import numpy as np
 import pytest
-from ros_ehs.control.apc import AmplitudePhaseControl
-from ros_ehs.errors import InputError
-from ros_ehs.params import preset
-from ros_ehs.reference import Chirp, Sine
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.apc import AmplitudePhaseControl
+from ros_ehs.core.control.waveforms import Chirp, Sine
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.closed_loop import run_closed_loop
 
 
 def _fundamental(t, z, f):

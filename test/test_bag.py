@@ -19,9 +19,9 @@ import textwrap
 
 import numpy as np
 import pytest
-from ros_ehs.bag import BagWriter, full_definition, open_bag, type_hash
-from ros_ehs.bag.experiment import load_experiment
-from ros_ehs.errors import BagError, DataError
+from ros_ehs.core.errors import BagError, DataError
+from ros_ehs.data.bag import BagWriter, full_definition, open_bag, type_hash
+from ros_ehs.data.experiments import load_experiment
 import ros_ehs_msgs_py as c
 import yaml
 
@@ -180,7 +180,7 @@ def test_a_cut_anywhere_gives_a_truncated_bag_or_a_bag_error(tmp_path):
 
 _KILL_SCRIPT = textwrap.dedent("""
     import sys, time
-    from ros_ehs.bag import BagWriter
+    from ros_ehs.data.bag import BagWriter
     import ros_ehs_msgs_py as c
     w = BagWriter(sys.argv[1], flush_period=0.05)
     w.add_topic('/state', c.STATE.msg_type, c.STATE.qos)
@@ -247,7 +247,7 @@ def test_writer_rejects_bad_input_without_losing_what_is_written(tmp_path):
 
 
 def test_experiment_rejects_non_finite_and_irregular_samples():
-    from ros_ehs.bag.experiment import experiment_from_arrays
+    from ros_ehs.core.identify.experiment import experiment_from_arrays
     t = np.arange(1000) * 1e-3
     i = 1e-3 * np.sin(t * 6.28)
     z = 0.04 * np.sin(t * 6.28)
@@ -276,7 +276,8 @@ def _without_states(bag, out, drop):
 
 
 def test_missing_samples_split_the_record_into_runs(tmp_path):
-    from ros_ehs.bag.experiment import load_experiments, MIN_SAMPLES
+    from ros_ehs.core.identify.experiment import MIN_SAMPLES
+    from ros_ehs.data.experiments import load_experiments
     bag = _write(tmp_path / 'gappy', n=2000)
     # rewrite without states 700..849 (a recorder that missed 150 ms)
     b = open_bag(bag)
@@ -296,7 +297,7 @@ def test_missing_samples_split_the_record_into_runs(tmp_path):
 
 def test_stray_states_from_another_clock_are_dropped_not_fatal(tmp_path):
     """Stamp policy of the bag reader: strangers off the grid are dropped and named."""
-    from ros_ehs.bag.experiment import load_experiments
+    from ros_ehs.data.experiments import load_experiments
     clean = _write(tmp_path / 'clean', n=2000)
     bag = tmp_path / 'stray'
     src = open_bag(clean)
@@ -318,7 +319,7 @@ def test_stray_states_from_another_clock_are_dropped_not_fatal(tmp_path):
 
 def test_a_still_run_before_the_trajectory_is_dropped_when_another_moves(tmp_path):
     """A real-time bench bag: the hold before the reference started, a gap, the sine."""
-    from ros_ehs.bag.experiment import load_experiments
+    from ros_ehs.data.experiments import load_experiments
 
     def write(path, moving_after_gap):
         with BagWriter(path) as w:

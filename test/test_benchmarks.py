@@ -39,11 +39,10 @@ def test_the_benchmarks_refuse_bad_numbers_by_name(bench, args, says):
     assert r.returncode == 2 and says in r.stderr, r.stderr
 
 
-@pytest.mark.parametrize('module', ['ros_ehs.benchmarks', 'ros_ehs.bench'])
-def test_both_names_run_the_benchmarks_and_name_them_when_asked_wrong(module):
-    """``python -m ros_ehs.bench <name>``, the earlier name, still runs the same benchmarks."""
+def test_the_benchmarks_are_named_when_asked_wrong():
     import subprocess
     import sys
+    module = 'ros_ehs.benchmarks'
     r = subprocess.run([sys.executable, '-m', module, 'nope'], capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 2 and 'usage: python -m ros_ehs.benchmarks {model,paper,' in r.stderr

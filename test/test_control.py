@@ -18,13 +18,13 @@ import math
 import numpy as np
 import pytest
 
-from ros_ehs.control import (Controller, DelayLine, DeltaP, Feedforward, Pid, PidGains,
-                             psc_force, stribeck_estimate, xi_blend)
-from ros_ehs.errors import InputError, ParameterError
-from ros_ehs.metrics import tracking_metrics
-from ros_ehs.model import ff_force_gain
-from ros_ehs.params import preset
-from ros_ehs.sim.paper_runs import paper_runs
+from ros_ehs.core.control import (Controller, DelayLine, DeltaP, Feedforward, Pid, PidGains,
+                                  psc_force, stribeck_estimate, xi_blend)
+from ros_ehs.core.errors import InputError, ParameterError
+from ros_ehs.core.metrics import tracking_metrics
+from ros_ehs.core.model import ff_force_gain
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.paper_runs import paper_runs
 
 
 def test_p_i_d_terms_match_eq_19():
@@ -99,9 +99,9 @@ def test_a_start_mid_stroke_leaves_no_offset_with_the_default_antiwindup():
     integrator to several mA of the wrong sign, which ki = 0.051 A/(m s) unwinds over ~15 s.
     Conditional integration (the default) is back on the sine within the first second.
     """
-    from ros_ehs.sim.closed_loop import run_closed_loop
-    from ros_ehs.params import Params
-    from ros_ehs.reference import Sine
+    from ros_ehs.core.sim.closed_loop import run_closed_loop
+    from ros_ehs.core.params import Params
+    from ros_ehs.core.control.waveforms import Sine
     sine = Sine(0.04, 1.0)
 
     def peak_first(t):
@@ -231,8 +231,8 @@ def test_delta_p_follows_the_load_through_a_hold_so_release_has_no_kick():
 
 
 def test_the_supervised_loop_gives_delta_p_the_force_of_each_state():
-    from ros_ehs.reference import Sine
-    from ros_ehs.sim.closed_loop import run_closed_loop
+    from ros_ehs.core.control.waveforms import Sine
+    from ros_ehs.core.sim.closed_loop import run_closed_loop
     p = preset('table1_estimated')
     off, on = (run_closed_loop(p, Sine(0.004, 10.0), 1.0, model='simplified', supervised=True,
                                controller_params=p.replace(dp_gain=g)) for g in (0.0, 2e-7))
@@ -246,8 +246,9 @@ def test_the_supervised_loop_gives_delta_p_the_force_of_each_state():
 def test_delta_p_damps_the_oil_column_of_a_rig_the_controller_does_not_know():
     """The loop's ringing (40-80 Hz) on a road-like target falls with delta-P on."""
     from ros_ehs.benchmarks.tracking import MISMATCH
-    from ros_ehs.drive_file import multisine, Samples
-    from ros_ehs.sim.closed_loop import run_closed_loop
+    from ros_ehs.core.control.drive import multisine
+    from ros_ehs.core.control.waveforms import Samples
+    from ros_ehs.core.sim.closed_loop import run_closed_loop
     est = preset('table1_estimated')
     rig = est.replace(**{n: est[n] * k for n, k in MISMATCH.items()})
     t, r = multisine(5.0, 1000.0, 0.5, 20.0, 0.08, seed=1)
@@ -286,8 +287,8 @@ def test_paper_experiments_reproduce_dead_zone_and_feedforward_gain():
 
 
 def test_closed_loop_position_noise_reaches_the_controller_and_is_checked():
-    from ros_ehs.sim.closed_loop import run_closed_loop
-    from ros_ehs.reference import Sine
+    from ros_ehs.core.sim.closed_loop import run_closed_loop
+    from ros_ehs.core.control.waveforms import Sine
     p = preset('table1_estimated')
     noise = np.full(200, 1e-3)
     r = run_closed_loop(p, Sine(0.04, 1.0), 0.2, model='simplified', z_noise=noise)
@@ -302,8 +303,8 @@ def test_closed_loop_position_noise_reaches_the_controller_and_is_checked():
 
 
 def test_closed_loop_command_delay_holds_each_command_one_period_late():
-    from ros_ehs.sim.closed_loop import run_closed_loop
-    from ros_ehs.reference import Sine
+    from ros_ehs.core.sim.closed_loop import run_closed_loop
+    from ros_ehs.core.control.waveforms import Sine
     p = preset('table1_estimated')
     now = run_closed_loop(p, Sine(0.04, 1.0), 2.0, model='simplified', dt=2e-3)
     late = run_closed_loop(p, Sine(0.04, 1.0), 2.0, model='simplified', dt=2e-3,

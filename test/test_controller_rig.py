@@ -17,13 +17,13 @@ import time
 
 import numpy as np
 import pytest
-from ros_ehs.bag import open_bag
-from ros_ehs.bag.experiment import load_experiments
-from ros_ehs.bag.mapping import TopicMap
-from ros_ehs.params import Params
-from ros_ehs.processes import NodeProcesses, recording, reference_started
-from ros_ehs.reference import Sine
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.waveforms import Sine
+from ros_ehs.core.params import Params
+from ros_ehs.core.sim.closed_loop import run_closed_loop
+from ros_ehs.data.bag import open_bag
+from ros_ehs.data.experiments import load_experiments
+from ros_ehs.data.mapping import TopicMap
+from ros_ehs.nodes.processes import NodeProcesses, recording, reference_started
 import ros_ehs_msgs_py as c
 
 pytestmark = pytest.mark.ros

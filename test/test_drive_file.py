@@ -1,14 +1,14 @@
-"""Drive-file iteration (ros_ehs.drive_file): on a known linear loop, then on the full model."""
+"""Drive-file iteration (ros_ehs.data.drive_files): a known linear loop, then the full model."""
 
 import numpy as np
 import pytest
-from ros_ehs.drive_file import (band_error, DriveIteration, frf, frf_from_bag, load_drive,
-                                multisine,
-                                rms_error_pct, Samples, save_drive)
-from ros_ehs.errors import DataError, InputError
-from ros_ehs.params import preset
-from ros_ehs.reference import CsvTrajectory
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.drive import band_error, DriveIteration, frf, multisine, rms_error_pct
+from ros_ehs.core.control.waveforms import CsvTrajectory
+from ros_ehs.core.control.waveforms import Samples
+from ros_ehs.core.errors import DataError, InputError
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.closed_loop import run_closed_loop
+from ros_ehs.data.drive_files import frf_from_bag, load_drive, save_drive
 
 FS = 1000.0
 
@@ -99,7 +99,8 @@ def test_the_cli_iterates_a_target_and_keeps_every_run_as_a_bag(tmp_path):
     t, z = multisine(5.0, FS, 0.5, 20.0, 0.08, seed=1, taper=0.5)
     save_drive(tmp_path / 'target.csv', t, z)
     out = tmp_path / 'drive'
-    p = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'drive', str(tmp_path / 'target.csv'),
+    p = subprocess.run([sys.executable, '-m', 'ros_ehs.tools.cli',
+                        'drive', str(tmp_path / 'target.csv'),
                         '--out', str(out), '--model', 'simplified', '--iterations', '4'],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stdout + p.stderr
@@ -121,7 +122,7 @@ def test_the_cli_iterates_a_target_and_keeps_every_run_as_a_bag(tmp_path):
     ('dp_gain', "'dp_gain' is not NAME=VALUE")])
 def test_the_cli_refuses_a_bad_controller_value_by_name_before_any_run(tmp_path, capsys,
                                                                        setting, says):
-    from ros_ehs.cli import main
+    from ros_ehs.tools.cli import main
     t, z = multisine(2.0, FS, 0.5, 20.0, 0.08, seed=1, taper=0.5)
     save_drive(tmp_path / 'target.csv', t, z)
     argv = ['drive', str(tmp_path / 'target.csv'), '--out', str(tmp_path / 'o'),
@@ -138,7 +139,8 @@ def test_the_cli_refuses_a_bad_target_by_name(tmp_path):
     import subprocess
     import sys
     (tmp_path / 'bad.csv').write_text('t,z\n0,0\n0,1\n')
-    p = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'drive', str(tmp_path / 'bad.csv'),
+    p = subprocess.run([sys.executable, '-m', 'ros_ehs.tools.cli',
+                        'drive', str(tmp_path / 'bad.csv'),
                         '--out', str(tmp_path / 'o')], capture_output=True, text=True,
                        timeout=120)
     assert p.returncode == 2 and 'column `t` must increase strictly' in p.stderr, p.stderr
@@ -156,14 +158,14 @@ def test_the_cli_iterates_on_the_bench_in_lockstep_as_in_process(dom, tmp_path):
     """
     import subprocess
     import sys
-    from ros_ehs.drive_file import run_from_bag
+    from ros_ehs.data.drive_files import run_from_bag
     from rosbags.rosbag2 import Reader
     t, z = multisine(2.5, FS, 0.5, 20.0, 0.08, seed=1, taper=0.5)
     save_drive(tmp_path / 'target.csv', t, z)
     outs = {}
     for how in ('lockstep', None):
         out = tmp_path / (how or 'inprocess')
-        cmd = [sys.executable, '-m', 'ros_ehs.cli', 'drive', str(tmp_path / 'target.csv'),
+        cmd = [sys.executable, '-m', 'ros_ehs.tools.cli', 'drive', str(tmp_path / 'target.csv'),
                '--out', str(out), '--model', 'simplified', '--iterations', '1', '--rms', '0.1',
                '--set', 'dp_gain=1.5e-7', '--set', 'dp_tau=0.05']
         cmd += ['--bench', how, '--domain-id', str(dom)] if how else []
@@ -195,8 +197,8 @@ def test_a_target_of_a_few_seconds_converges_too(tmp_path):
     With one segment as long as the run, the coherence was 1 everywhere and the iteration
     went from 2.1 % (played as it is) to 3.7 % after three runs.
     """
-    from ros_ehs.drive_file import InProcessPlayer, iterate
-    from ros_ehs.params import Params
+    from ros_ehs.data.drive_files import InProcessPlayer, iterate
+    from ros_ehs.core.params import Params
     t, z = multisine(3.0, FS, 0.5, 20.0, 0.08, seed=1, taper=0.5)
     res = iterate(InProcessPlayer(Params(), tmp_path, model='simplified'), t, z, tmp_path,
                   iterations=2, rms_target_pct=0.1)
@@ -208,7 +210,7 @@ def test_a_target_of_a_few_seconds_converges_too(tmp_path):
 
 def test_a_disturbed_run_is_played_again_and_not_learnt_from(tmp_path):
     """A player that marks runs disturbed (the bench: watchdog trips) gets them again."""
-    from ros_ehs.drive_file import iterate
+    from ros_ehs.data.drive_files import iterate
 
     class Flaky:
         def __init__(self, bad):

@@ -14,8 +14,8 @@
 """Experiments read from bags: which current the fit replays."""
 
 import numpy as np
-from ros_ehs.bag import BagWriter
-from ros_ehs.bag.experiment import load_experiment
+from ros_ehs.data.bag import BagWriter
+from ros_ehs.data.experiments import load_experiment
 import ros_ehs_msgs_py as c
 
 

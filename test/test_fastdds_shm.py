@@ -22,7 +22,7 @@ import sys
 import time
 
 import pytest
-from ros_ehs.fastdds_shm import _locked, clean_zombies, main, SHM_DIR
+from ros_ehs.nodes.fastdds_shm import _locked, clean_zombies, main, SHM_DIR
 
 
 def _port(d: Path, n: int, locks=('_el',)) -> None:

@@ -19,13 +19,13 @@ import warnings
 
 import numpy as np
 import pytest
-from ros_ehs import cli
-from ros_ehs.bag.experiment import load_experiment
-from ros_ehs.errors import IdentificationWarning, InputError
-from ros_ehs.identify import identify, score
-from ros_ehs.params import ESTIMATED, preset
-from ros_ehs.reference import Sine
-from ros_ehs.sim.synthetic_bag import record_synthetic_bag
+from ros_ehs.core.control.waveforms import Sine
+from ros_ehs.core.errors import IdentificationWarning, InputError
+from ros_ehs.core.identify import identify, score
+from ros_ehs.core.params import ESTIMATED, preset
+from ros_ehs.data.experiments import load_experiment
+from ros_ehs.data.synthetic_bag import record_synthetic_bag
+from ros_ehs.tools import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / 'bags' / 'sample_sine_1hz'
@@ -173,7 +173,7 @@ def test_cli_writes_params_report_and_json(tmp_path, capsys):
     assert s['excitation']['identifiability']['weak'] == []
     assert s['excitation']['recommended'] is None
     assert 'excitation: every parameter is pinned down' in out
-    from ros_ehs.params import load_yaml
+    from ros_ehs.core.params import load_yaml
     p = load_yaml(tmp_path / 'rep' / 'identified_params.yaml')
     assert p['c_c'] == pytest.approx(TRUE['c_c'], rel=0.02)
 
@@ -196,8 +196,8 @@ def test_cli_clear_errors(tmp_path, capsys):
     record_synthetic_bag(short, duration=0.3)
     assert 'too little data' in _cli_error(capsys, short, '--out', tmp_path / 'o')
     still = tmp_path / 'still'
-    from ros_ehs.reference import Sine
-    from ros_ehs.sim.synthetic_bag import SensorNoise
+    from ros_ehs.core.control.waveforms import Sine
+    from ros_ehs.data.synthetic_bag import SensorNoise
     record_synthetic_bag(still, duration=1.0, reference=Sine(1e-6, 1.0),
                          noise=SensorNoise(0, 0, 0))
     assert 'no excitation' in _cli_error(capsys, still, '--out', tmp_path / 'o')
@@ -209,7 +209,7 @@ def test_an_adequate_fit_says_so_with_its_noise_ratios(fits, tmp_path):
     assert r.adequate and r.inadequacy == [] and r.advice == [] and r.stderr_widening == 1.0
     for m in r.metrics['sample_sine_1hz'].values():
         assert 0.9 < m['noise_ratio'] < 1.1 and abs(m['acf1']) < 0.1
-    from ros_ehs.identify.report import write_report
+    from ros_ehs.data.report import write_report
     summary = json.loads(write_report(r, e, tmp_path, figures=False)['summary'].read_text())
     assert summary['adequate'] is True and summary['inadequacy'] == []
 
@@ -249,7 +249,7 @@ def test_a_stop_at_the_evaluation_limit_is_flagged(fits, tmp_path):
 
 
 def test_random_starts_report_how_many_reach_the_same_optimum(fits):
-    from ros_ehs.identify.estimator import multistart
+    from ros_ehs.core.identify.estimator import multistart
     e, r = fits[0]
     with pytest.raises(InputError, match='`starts`'):
         multistart(e, r, starts=0)
@@ -305,7 +305,7 @@ def test_the_report_names_what_the_bag_cannot_pin_down_and_an_excitation_that_do
     The report says so and recommends a trajectory for the reference node; a bag recorded
     with it, fitted jointly from the first fit (the command's own workflow), pins r_c down.
     """
-    from ros_ehs.identify.design import trajectory, PINNED
+    from ros_ehs.core.identify.design import trajectory, PINNED
     bag = tmp_path / 'fast'
     record_synthetic_bag(bag, reference=Sine(0.04, 4.0), seed=3)
     rc = cli.main(['identify', str(bag), '--out', str(tmp_path / 'rep'), '--quiet',
@@ -337,7 +337,7 @@ def test_the_report_names_what_the_bag_cannot_pin_down_and_an_excitation_that_do
 def test_excitation_advice_validates_its_inputs(fits):
     from dataclasses import replace
 
-    from ros_ehs.identify.design import identifiability, recommend
+    from ros_ehs.core.identify.design import identifiability, recommend
     e, r = fits[0]
     with pytest.raises(InputError, match='`candidates` is empty'):
         recommend(r, [e], candidates=())

@@ -17,14 +17,14 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.bag.experiment import load_experiment
 from ros_ehs.benchmarks.drift import run
-from ros_ehs.errors import DataError, InputError, ParameterError
-from ros_ehs.identify.live import LiveIdentifier, SampleWindow
-from ros_ehs.model import Plant
-from ros_ehs.model.drift import Drift, DriftStage, smoothstep
-from ros_ehs.params import ESTIMATED, preset
-from ros_ehs.sim.synthetic_bag import record_synthetic_bag
+from ros_ehs.core.errors import DataError, InputError, ParameterError
+from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
+from ros_ehs.core.model import Plant
+from ros_ehs.core.model.drift import Drift, DriftStage, smoothstep
+from ros_ehs.core.params import ESTIMATED, preset
+from ros_ehs.data.experiments import load_experiment
+from ros_ehs.data.synthetic_bag import record_synthetic_bag
 import ros_ehs_msgs_py as c
 
 TRUE = preset('table1_estimated')
@@ -198,8 +198,8 @@ def _rosbags_estimates(out, estimates, storage='mcap'):
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_the_trend_reads_a_bag_from_another_writer_and_plots_each_parameter(tmp_path, storage):
-    from ros_ehs.cli import main
-    from ros_ehs.identify.trend import read_estimates, trend_table
+    from ros_ehs.tools.cli import main
+    from ros_ehs.data.trend import read_estimates, trend_table
     est = [c.ParameterEstimate(int(5e9 * k) + 7, {'F_cc': 1000.0 - 10 * k, 'c_c': 16000.0},
                                {'F_cc': 2.0, 'c_c': 9.0}, k != 2, 'v', k == 3, 'r', 10.0,
                                0.3, 4) for k in range(6)]
@@ -215,7 +215,7 @@ def test_the_trend_reads_a_bag_from_another_writer_and_plots_each_parameter(tmp_
 
 
 def test_the_trend_of_a_bag_without_estimates_names_the_topics_it_has(tmp_path, capsys):
-    from ros_ehs.cli import main
+    from ros_ehs.tools.cli import main
     assert main(['trend', 'bags/sample_sine_1hz']) == 2
     err = capsys.readouterr().err
     assert "no topic 'parameter_estimates'" in err and '/state' in err

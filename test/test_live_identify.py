@@ -20,8 +20,8 @@ Pushes reach a running controller, and a rig that is not the fitted model is nev
 import time
 
 import pytest
-from ros_ehs.params import preset
-from ros_ehs.processes import NodeProcesses
+from ros_ehs.core.params import preset
+from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
 
 pytestmark = pytest.mark.ros

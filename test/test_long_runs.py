@@ -29,9 +29,9 @@ import warnings
 
 import numpy as np
 import pytest
-from ros_ehs.bag import BagWriter, open_bag
-from ros_ehs.bag.experiment import load_experiments
-from ros_ehs.errors import BagError, DataError
+from ros_ehs.core.errors import BagError, DataError
+from ros_ehs.data.bag import BagWriter, open_bag
+from ros_ehs.data.experiments import load_experiments
 import ros_ehs_msgs_py as c
 import yaml
 
@@ -150,7 +150,7 @@ def test_a_split_bag_missing_a_file_or_its_metadata(tmp_path):
 
 _KILL_SPLIT = textwrap.dedent("""
     import sys, time
-    from ros_ehs.bag import BagWriter
+    from ros_ehs.data.bag import BagWriter
     import ros_ehs_msgs_py as c
     w = BagWriter(sys.argv[1], flush_period=0.05, max_bag_duration=0.25, compression='zstd')
     w.add_topic('/state', c.STATE.msg_type, c.STATE.qos)
@@ -285,12 +285,12 @@ def test_a_time_window_of_a_split_bag_reads_only_its_files(tmp_path):
 
 
 def test_identify_command_fits_a_window(tmp_path):
-    res = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'identify', str(SAMPLE),
+    res = subprocess.run([sys.executable, '-m', 'ros_ehs.tools.cli', 'identify', str(SAMPLE),
                           '--start', '1', '--end', '6', '--no-figures', '--quiet',
                           '--out', str(tmp_path / 'id')], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert 'sample_sine_1hz [1-6 s]' in res.stdout
-    res = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'identify', str(SAMPLE),
+    res = subprocess.run([sys.executable, '-m', 'ros_ehs.tools.cli', 'identify', str(SAMPLE),
                           '--start', '50', '--out', str(tmp_path / 'none')],
                          capture_output=True, text=True)
     assert res.returncode == 2 and 'holds no message' in res.stderr
@@ -301,8 +301,8 @@ def test_identify_command_fits_a_window(tmp_path):
 _LIMITED = textwrap.dedent("""
     import resource, sys
     resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, 300_000))   # Python ignores SIGXFSZ
-    from ros_ehs.bag import BagWriter
-    from ros_ehs.errors import BagWriteError
+    from ros_ehs.data.bag import BagWriter
+    from ros_ehs.core.errors import BagWriteError
     import ros_ehs_msgs_py as c
     w = BagWriter(sys.argv[1], compression='none', flush_period=1e-4)
     w.add_topic('/state', c.STATE.msg_type, c.STATE.qos)

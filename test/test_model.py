@@ -16,12 +16,12 @@
 import numpy as np
 import pytest
 
-from ros_ehs.errors import InputError, ParameterError
-from ros_ehs.model import flow_gain_kq, Plant
-from ros_ehs.model.kernels import edge_gap
-from ros_ehs.params import preset
-from ros_ehs.reference import Sine
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.waveforms import Sine
+from ros_ehs.core.errors import InputError, ParameterError
+from ros_ehs.core.model import flow_gain_kq, Plant
+from ros_ehs.core.model.kernels import edge_gap
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.closed_loop import run_closed_loop
 
 EST = preset('table1_estimated', ff_enable=0.0)
 FRICTIONLESS = EST.replace(F_cc=0.0, F_sc=0.0, c_c=0.0, K_C=0.0)
@@ -119,9 +119,9 @@ def test_fast_integrator_matches_the_radau_reference(model, tol):
 
 def _valve_alone(i, p_load):
     """Return the full model's six valve equations, chambers frozen at load ``p_load``."""
-    from ros_ehs.model.coefficients import pack
-    from ros_ehs.model.kernels import rhs_full
-    c = pack(EST)
+    from ros_ehs.core.model.kernels import coefficients
+    from ros_ehs.core.model.kernels import rhs_full
+    c = coefficients(EST)
     pm = 0.5 * (EST['p_s'] + EST['p_t'])
     x = np.array([0.0, 0.0, pm, pm, 0.0, 0.0, pm + p_load / 2, pm - p_load / 2, 0.0, 0.0])
     u = np.array([i, 0.0])
@@ -144,8 +144,9 @@ def test_reduced_valve_gain_and_lag_match_the_full_valve(p_load):
     valve is a second-order lag, the full one sixth-order.
     """
     from scipy.integrate import solve_ivp
-    from ros_ehs.model.coefficients import C_A2V, C_TAUV, pack
-    from ros_ehs.model.kernels import spool_reduced
+    from ros_ehs.core.model.coefficients import C_A2V, C_TAUV
+    from ros_ehs.core.model.kernels import coefficients
+    from ros_ehs.core.model.kernels import spool_reduced
     i = 5e-3
     f, y0 = _valve_alone(i, p_load)
     f0, _ = _valve_alone(0.0, p_load)
@@ -154,7 +155,7 @@ def test_reduced_valve_gain_and_lag_match_the_full_valve(p_load):
     full = solve_ivp(f, (0, t[-1]), y0, method='Radau', t_eval=t, rtol=1e-9,
                      atol=1e-12).y[5]
     pm = 0.5 * (EST['p_s'] + EST['p_t'])
-    c = pack(EST)
+    c = coefficients(EST)
     x_ss = spool_reduced(i, pm + p_load / 2, pm - p_load / 2, c)
     x0 = spool_reduced(0.0, pm + p_load / 2, pm - p_load / 2, c)
     assert x_ss - x0 == pytest.approx(full[-1] - full[0], rel=5e-3)
@@ -179,8 +180,8 @@ def test_reduced_model_follows_the_full_one_where_the_simplified_does_not(case):
 
     Targets (docs/model.md): velocity <= 1 %, load pressure <= 3 % of the full model's RMS.
     """
-    from ros_ehs.sim.closed_loop import model_difference
-    from ros_ehs.reference import Chirp
+    from ros_ehs.core.sim.closed_loop import model_difference
+    from ros_ehs.core.control.waveforms import Chirp
     ref = Sine(0.04, 1.0) if case == 'sine' else Chirp(0.02, 0.2, 5.0, 10.0)
     p = preset('table1_estimated')
     red = model_difference(p, ref, 10.0, 'reduced')
@@ -198,7 +199,7 @@ def test_integrator_error_shrinks_as_h_squared():
 
 def test_smoothing_leaves_the_response_unchanged():
     smooth = run_closed_loop(EST, Sine(), 1.0, model='simplified', h=1e-4)
-    from ros_ehs.control import Controller
+    from ros_ehs.core.control import Controller
     plant = Plant(EST, 'simplified', h=1e-6, smooth=False)   # exact sign/sat/sqrt
     ctrl = Controller(EST)
     x = plant.equilibrium()
@@ -253,9 +254,9 @@ def test_the_unchecked_advance_is_step_to_the_bit_and_says_when_the_state_leaves
                                              ('renormalised', 'orifice', False)])
 def test_the_exact_jacobians_match_central_differences(model, law, flow, smooth):
     """The integrator's W for the simplified and reduced models: exact, and the same rhs."""
-    from ros_ehs.model import kernels as K
-    from ros_ehs.model.coefficients import pack
-    c = pack(EST.replace(friction_law=law, flow_law=flow), smooth=smooth)
+    from ros_ehs.core.model import kernels as K
+    from ros_ehs.core.model.kernels import coefficients
+    c = coefficients(EST.replace(friction_law=law, flow_law=flow), smooth=smooth)
     rhs, both = ((K.rhs_simplified, K.rhs_jacobian_simplified) if model == 'simplified' else
                  (K.rhs_reduced, K.rhs_jacobian_reduced))
     rng = np.random.default_rng(3)

@@ -27,12 +27,12 @@ import time
 
 import numpy as np
 import pytest
-from ros_ehs.bag import open_bag
-from ros_ehs.errors import BagError
-from ros_ehs.params import Params
-from ros_ehs.processes import loop_closed, loop_placement, node_command, NodeProcesses
-from ros_ehs.reference import Sine
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.waveforms import Sine
+from ros_ehs.core.errors import BagError
+from ros_ehs.core.params import Params
+from ros_ehs.core.sim.closed_loop import run_closed_loop
+from ros_ehs.data.bag import open_bag
+from ros_ehs.nodes.processes import loop_closed, loop_placement, node_command, NodeProcesses
 import ros_ehs_msgs_py as c
 import yaml
 
@@ -895,7 +895,7 @@ def test_apc_in_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path, 
     It depends on the node answering each /clock only once it has measured the states the
     window's corrections come from (a correction starts ``preview`` after its cycle).
     """
-    from ros_ehs.control.apc import AmplitudePhaseControl
+    from ros_ehs.core.control.apc import AmplitudePhaseControl
     duration = 3.0
     if kind == 'sine':
         a, f = 0.008, 5.0
@@ -925,7 +925,7 @@ def test_the_apc_reference_answers_a_clock_only_once_the_cycle_it_corrects_from_
     """
     import rclpy
     from rclpy.parameter import Parameter
-    from ros_ehs.control.apc import AmplitudePhaseControl
+    from ros_ehs.core.control.apc import AmplitudePhaseControl
     from ros_ehs.nodes.reference import ReferenceNode
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=dom)
@@ -973,7 +973,7 @@ def test_a_sweeping_apc_reference_waits_for_the_end_of_the_sweeps_own_cycle(dom)
     """
     import rclpy
     from rclpy.parameter import Parameter
-    from ros_ehs.control.apc import AmplitudePhaseControl
+    from ros_ehs.core.control.apc import AmplitudePhaseControl
     from ros_ehs.nodes.reference import ReferenceNode
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=dom)
@@ -1021,7 +1021,7 @@ def test_pvc_block_loading_in_lockstep_over_dds_reproduces_the_in_process_loop(d
     The position and each command sent equal the in-process loop's to 1e-9 m at every
     period, and the blocks' commands were corrected.
     """
-    from ros_ehs.control.pvc import PeakValleyControl, parse_blocks
+    from ros_ehs.core.control.pvc import PeakValleyControl, parse_blocks
     duration, f, blocks = 4.0, 5.0, '0.005 -0.005 2; 0.008 0 2'
     pvc = PeakValleyControl(parse_blocks(blocks), f, 'triangle', latency=0.02, learn_from=1.0)
     _, out = _corrected_lockstep(dom, tmp_path, duration, {
@@ -1048,7 +1048,7 @@ def test_pvc_block_loading_in_lockstep_over_dds_reproduces_the_in_process_loop(d
 def test_a_reference_node_with_a_correction_it_cannot_make_names_why(dom, params, match):
     import rclpy
     from rclpy.parameter import Parameter
-    from ros_ehs.errors import EhsError
+    from ros_ehs.core.errors import EhsError
     from ros_ehs.nodes.reference import ReferenceNode
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=dom)

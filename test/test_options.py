@@ -16,9 +16,9 @@
 import math
 
 import pytest
-from ros_ehs.control.controller import Controller
-from ros_ehs.control.feedforward import MODEL_PARAMS
-from ros_ehs.params import CONTROL_SPECS, Params
+from ros_ehs.core.control.controller import Controller
+from ros_ehs.core.control.feedforward import MODEL_PARAMS
+from ros_ehs.core.params import CONTROL_SPECS, Params
 
 
 @pytest.mark.ros
@@ -47,7 +47,7 @@ def test_live_changes_are_validated_as_a_whole_with_a_reason():
     res, _ = validate_changes(cur, [Parameter('antiwindup', value='clamp')], SPECS)
     assert not res.successful and "`antiwindup` = 'clamp' is not one of" in res.reason
     from ros_ehs.nodes.plant import OPTIONS
-    from ros_ehs.params import PLANT_SPECS
+    from ros_ehs.core.params import PLANT_SPECS
     res, _ = validate_changes(cur, [Parameter('timing', value='bogus')], PLANT_SPECS, OPTIONS)
     assert not res.successful and res.reason == (
         "parameter `timing` = 'bogus' is not one of ['timer', 'thread']")

@@ -86,7 +86,7 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
 
     # the colcon-built executables start and talk (what `ros2 run ros_ehs plant` starts)
     from domain_coordinator import domain_id
-    from ros_ehs.processes import loop_closed, NodeProcesses
+    from ros_ehs.nodes.processes import loop_closed, NodeProcesses
     from ros_ehs_msgs_py import PLANT_STATUS
     site = next(install.glob('lib/python*/site-packages'))
     with domain_id() as dom:
@@ -105,7 +105,7 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
 
 def test_launch_scripts_are_found_from_the_source_tree_or_the_install(tmp_path, monkeypatch):
     """Benches find launch_scripts/ beside the code, else in the ament share directory."""
-    import ros_ehs.processes as processes
+    import ros_ehs.nodes.processes as processes
     assert processes.launch_script('bench.py') == ROOT / 'launch_scripts' / 'bench.py'
     share = tmp_path / 'share' / 'ros_ehs' / 'launch_scripts'
     share.mkdir(parents=True)

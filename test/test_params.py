@@ -17,8 +17,8 @@ import math
 
 import pytest
 
-from ros_ehs.errors import ParameterError
-from ros_ehs.params import ALL_SPECS, ESTIMATED, load_yaml, Params, preset, save_yaml, spec
+from ros_ehs.core.errors import ParameterError
+from ros_ehs.core.params import ALL_SPECS, ESTIMATED, load_yaml, Params, preset, save_yaml, spec
 
 
 def test_every_spec_has_unit_meaning_and_default_inside_its_range():
@@ -71,7 +71,7 @@ def test_params_are_immutable_and_replace_validates():
 
 def test_parameter_doc_is_generated_from_the_table():
     from pathlib import Path
-    from ros_ehs.params import markdown_table
+    from ros_ehs.core.params import markdown_table
     doc = Path(__file__).resolve().parents[1] / 'docs' / 'parameters.md'
     assert doc.read_text() == markdown_table() + '\n', 'run: ehs_sim params-doc'
 

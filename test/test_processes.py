@@ -14,7 +14,7 @@
 """Process supervision without DDS: node commands, CPU placement."""
 
 import pytest
-from ros_ehs.processes import node_command
+from ros_ehs.nodes.processes import node_command
 
 
 def test_bare_params_file_moves_inside_ros_args():
@@ -43,7 +43,7 @@ def test_node_command_writes_doubles_as_doubles():
     ({0, 1}, None, (0, 1)), ({5, 3, 7}, None, (3, 5)), ({2}, None, None), ({2}, True, (2, 2)),
     ({0, 1}, False, None), ({4, 9}, True, (4, 9))])
 def test_loop_placement_takes_the_first_two_allowed_cpus(monkeypatch, allowed, pin, want):
-    import ros_ehs.processes as processes
+    import ros_ehs.nodes.processes as processes
     monkeypatch.setattr(processes.os, 'sched_getaffinity', lambda pid: set(allowed))
     assert processes.loop_placement(pin) == want
 
@@ -66,7 +66,7 @@ def _diagnostic_array(statuses):
 
 def test_readiness_is_read_from_the_statuses_a_diagnostics_message_carries():
     import ros_ehs_msgs_py as c
-    from ros_ehs.processes import loop_closed, recording, reference_started
+    from ros_ehs.nodes.processes import loop_closed, recording, reference_started
     msg = _diagnostic_array([
         (c.RECORDER_STATUS, 0, 'recording', [('recording', '/reference,/servo_current,/state'),
                                              ('matched', '/reference')]),
@@ -88,7 +88,7 @@ def test_readiness_is_read_from_the_statuses_a_diagnostics_message_carries():
 @pytest.mark.ros
 def test_start_loop_names_the_status_it_waited_for(dom, tmp_path):
     """A recorder told to record no loop topic never matches the commands: named, with why."""
-    from ros_ehs.processes import NodeProcesses, StartupError
+    from ros_ehs.nodes.processes import NodeProcesses, StartupError
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         with pytest.raises(StartupError, match=r"the recorder did not match the controller's "
                                                r'commands \(ros_ehs/recorder in diagnostics, '

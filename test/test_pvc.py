@@ -1,13 +1,13 @@
-"""Peak/valley control in process (ros_ehs.control.pvc): waveforms, blocks, no jumps, input."""
+"""Peak/valley control in process (ros_ehs.core.control.pvc): waveforms, blocks, jumps, input."""
 
 import math
 
 import numpy as np
 import pytest
-from ros_ehs.control.pvc import Block, PeakValleyControl
-from ros_ehs.errors import InputError
-from ros_ehs.params import preset
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.pvc import Block, PeakValleyControl
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.closed_loop import run_closed_loop
 
 
 @pytest.mark.parametrize('waveform,f,blocks', [
@@ -74,8 +74,8 @@ def test_a_correction_changes_no_sample_computed_before_its_latency():
 
 
 def test_blocks_are_read_from_text_and_a_wrong_block_is_named():
-    from ros_ehs.control.pvc import Cyclic, parse_blocks
-    from ros_ehs.reference import make
+    from ros_ehs.core.control.pvc import Cyclic, parse_blocks
+    from ros_ehs.core.control.waveforms import make
     want = [Block(0.01, -0.01, 4), Block(0.02, 0.0, 2)]
     assert parse_blocks('0.01 -0.01 4; 0.02, 0, 2;') == want
     for bad, what in (('0.01 -0.01', 'block 1'), ('0.01 -0.01 4; 0.02 0 2.5', 'block 2'),
@@ -92,6 +92,6 @@ def test_blocks_are_read_from_text_and_a_wrong_block_is_named():
     assert isinstance(hav, Cyclic)
     z, _ = hav(np.array([0.0, 0.5, 1.5]))
     np.testing.assert_allclose(z, [0.0, 0.02, 0.01], atol=1e-15)
-    from ros_ehs.errors import ParameterError
+    from ros_ehs.core.errors import ParameterError
     with pytest.raises(ParameterError, match='amplitude'):
         make({'kind': 'triangle', 'amplitude': 0.0})

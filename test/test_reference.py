@@ -17,8 +17,9 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.errors import ParameterError
-from ros_ehs.reference import Chirp, first_order_hold, make, REFERENCE_SPECS, Sine, Step
+from ros_ehs.core.control.waveforms import (Chirp, first_order_hold, make, REFERENCE_SPECS, Sine,
+                                            Step)
+from ros_ehs.core.errors import ParameterError
 
 
 def test_reference_specs_build_each_kind_and_reject_bad_values(tmp_path):

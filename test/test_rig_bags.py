@@ -1,7 +1,7 @@
 """
 A real rig's bags: written by rosbags (MCAP and sqlite3), in ros2_control drivers' layouts.
 
-The rig is the full model (ros_ehs.sim.rig_bag); the bags have /joint_states with the
+The rig is the full model (ros_ehs.data.rig_bag); the bags have /joint_states with the
 axis's joint among others, Float64MultiArray/Float64/JointState commands without our stamps,
 pressures in Pa, bar, as a load pressure or none, state rates of 250 Hz to 4 kHz, jittered
 driver stamps on another clock, lost samples, /rosout and /tf. Each mapping error is one
@@ -18,13 +18,13 @@ import warnings
 
 import numpy as np
 import pytest
-from ros_ehs.bag.experiment import load_experiment, load_experiments
-from ros_ehs.bag.mapping import load_topic_map, TopicMap
-from ros_ehs.errors import BagError, DataError, IdentificationWarning, InputError
-from ros_ehs.identify import identify
-from ros_ehs.identify.run import run_identification
-from ros_ehs.params import preset
-from ros_ehs.sim.rig_bag import record_rig_bag, RigLayout
+from ros_ehs.core.errors import BagError, DataError, IdentificationWarning, InputError
+from ros_ehs.core.identify import identify
+from ros_ehs.core.params import preset
+from ros_ehs.data.experiments import load_experiment, load_experiments
+from ros_ehs.data.identification import run_identification
+from ros_ehs.data.mapping import load_topic_map, TopicMap
+from ros_ehs.data.rig_bag import record_rig_bag, RigLayout
 
 TRUTH = preset('table1_estimated')
 FIVE = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')
@@ -212,7 +212,8 @@ def test_the_cli_identifies_a_rig_bag_from_a_topic_map_file(rig_bags, tmp_path):
     assert load_topic_map(rig) == lay.topic_map(round(truth['input_delay'], 6))
     before = _digest(bag)
     out = tmp_path / 'id'
-    p = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'identify', str(bag), '--topics',
+    p = subprocess.run([sys.executable, '-m', 'ros_ehs.tools.cli',
+                        'identify', str(bag), '--topics',
                         str(rig), '--model', 'reduced', '--out', str(out), '--no-figures',
                         '--no-advice', '--quiet'], capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
@@ -246,7 +247,7 @@ def test_a_wrong_mapping_is_one_clear_error(rig_bags, change, match):
 
 
 def test_an_ambiguous_relative_topic_names_the_candidates(tmp_path):
-    from ros_ehs.bag.writer import BagWriter
+    from ros_ehs.data.bag.writer import BagWriter
     import ros_ehs_msgs_py as c
     with BagWriter(tmp_path / 'two') as w:
         for ns in ('/axis1', '/axis2'):
@@ -278,7 +279,7 @@ def test_a_bad_topic_map_file_names_the_key(tmp_path, text, match):
 @pytest.mark.ros
 def test_the_identify_node_reads_a_rig_bag_through_its_topic_map(rig_bags, tmp_path, dom):
     """The node's `topic_map` and `joint` parameters, as `ehs_sim identify --topics`."""
-    from ros_ehs.processes import NodeProcesses
+    from ros_ehs.nodes.processes import NodeProcesses
     bag, lay, truth = rig_bags['mcap-2kHz-array-fluid']
     rig = tmp_path / 'rig.yaml'
     m = {**lay.topic_map(0.0003).as_dict(), 'joint': 'wrong_joint'}
@@ -298,7 +299,7 @@ def test_the_identify_node_reads_a_rig_bag_through_its_topic_map(rig_bags, tmp_p
 def test_the_player_node_replays_a_rig_bag_as_our_topics(rig_bags, tmp_path, dom, ros):
     """Over DDS: the player with the rig's map publishes ``state`` (joint piston)."""
     from rclpy.qos import QoSProfile
-    from ros_ehs.processes import NodeProcesses
+    from ros_ehs.nodes.processes import NodeProcesses
     from sensor_msgs.msg import JointState
     import ros_ehs_msgs_py as c
     bag, lay, truth = rig_bags['db3-250Hz-float64-bar']
@@ -369,6 +370,7 @@ def test_symmetric_jitter_is_kept_and_states_before_the_first_command_are_not_a_
 
 
 def test_the_cli_refuses_a_bad_input_delay_by_name(tmp_path):
-    p = subprocess.run([sys.executable, '-m', 'ros_ehs.cli', 'identify', str(tmp_path / 'x'),
+    p = subprocess.run([sys.executable, '-m', 'ros_ehs.tools.cli',
+                        'identify', str(tmp_path / 'x'),
                         '--input-delay', 'soon'], capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "--input-delay 'soon': give seconds or auto" in p.stderr

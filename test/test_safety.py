@@ -1,5 +1,5 @@
 """
-The safety layer in process: ros_ehs.control.safety and ros_ehs.control.axis.
+The safety layer in process: ros_ehs.core.control.safety and ros_ehs.core.control.supervised.
 
 Each detector at its limit, each action, the latch and its reset, ramp-on, NaN in every input.
 """
@@ -8,13 +8,13 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.control.axis import AxisController
-from ros_ehs.control.safety import (braking_distance, DETECTORS, ramp_weight, SafetyConfig,
-                                    Supervisor)
-from ros_ehs.errors import ParameterError
-from ros_ehs.params import Params, preset
-from ros_ehs.reference import Sine
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.safety import (braking_distance, DETECTORS, ramp_weight, SafetyConfig,
+                                         Supervisor)
+from ros_ehs.core.control.supervised import AxisController
+from ros_ehs.core.control.waveforms import Sine
+from ros_ehs.core.errors import ParameterError
+from ros_ehs.core.params import Params, preset
+from ros_ehs.core.sim.closed_loop import run_closed_loop
 import ros_ehs_msgs_py as c
 
 MS = 1_000_000   # one 1 kHz period [ns]
@@ -273,7 +273,7 @@ def test_ramp_on_starts_a_loop_80_mm_away_without_a_current_jump():
         return np.full_like(t, 0.04), np.zeros_like(t)
 
     x0 = None
-    from ros_ehs.model.plant import Plant
+    from ros_ehs.core.model.plant import Plant
     x0 = Plant(p, 'simplified').equilibrium(z=-0.04)
     ramp = run_closed_loop(p, ref, 2.0, model='simplified', supervised=True, x0=x0)
     jump = run_closed_loop(p, ref, 2.0, model='simplified', supervised=True, x0=x0,

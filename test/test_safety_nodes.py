@@ -13,11 +13,11 @@ import time
 
 import numpy as np
 import pytest
-from ros_ehs.control.safety import braking_distance
-from ros_ehs.params import Params
-from ros_ehs.processes import NodeProcesses
-from ros_ehs.reference import Sine
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.safety import braking_distance
+from ros_ehs.core.control.waveforms import Sine
+from ros_ehs.core.params import Params
+from ros_ehs.core.sim.closed_loop import run_closed_loop
+from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
 
 pytestmark = pytest.mark.ros

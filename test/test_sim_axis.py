@@ -22,10 +22,10 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.errors import InputError
-from ros_ehs.model.plant import Plant
-from ros_ehs.params import Params
-from ros_ehs.sim.axis import MAX_CATCHUP, SimulatedAxis
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.model.plant import Plant
+from ros_ehs.core.params import Params
+from ros_ehs.core.sim.axis import MAX_CATCHUP, SimulatedAxis
 
 MS = 1_000_000      # ns
 

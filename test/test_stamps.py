@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 import pytest
-from ros_ehs.processes import loop_closed, NodeProcesses
+from ros_ehs.nodes.processes import loop_closed, NodeProcesses
 import ros_ehs_msgs_py as c
 
 pytestmark = pytest.mark.ros

@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Dispatch ``python -m ros_ehs.benchmarks <name>`` (also ``python -m ros_ehs.bench <name>``)."""
+"""Dispatch ``python -m ros_ehs.benchmarks <name>`` ."""
 
 import importlib
 import sys

@@ -21,7 +21,7 @@ bench's sensor noise. The plant warms up in two stages (``DRIFT``): F_cc and F_s
 30 % over 60-240 s, then c_c by 20 % over 300-420 s; then the same the other way
 (``RISING``: +30 %, +20 %), under ``rising`` in the JSON. Each run three ways:
 
-* ``live``: the live identifier (:class:`ros_ehs.identify.live.LiveIdentifier`, one thread)
+* ``live``: the live identifier (:class:`ros_ehs.core.identify.live.LiveIdentifier`, one thread)
   refits the last 10 s every 5 s of simulated time, warm, and pushes significant adequate
   fits to the controller (push_period 10 s); a push takes effect at the next period;
 * ``static``: the controller keeps Table 1's values (no updates);
@@ -45,16 +45,16 @@ import time
 
 import numpy as np
 from ros_ehs.benchmarks import report
-from ros_ehs.control.axis import AxisController
-from ros_ehs.control.feedforward import MODEL_PARAMS
-from ros_ehs.errors import DataError
-from ros_ehs.identify.live import LiveIdentifier, SampleWindow
-from ros_ehs.metrics import tracking_metrics
-from ros_ehs.model import Plant
-from ros_ehs.model.drift import Drift, DriftStage
-from ros_ehs.params import ESTIMATED, preset
-from ros_ehs.reference import Sine
-from ros_ehs.sim.synthetic_bag import SensorNoise
+from ros_ehs.core.control.feedforward import MODEL_PARAMS
+from ros_ehs.core.control.supervised import AxisController
+from ros_ehs.core.control.waveforms import Sine
+from ros_ehs.core.errors import DataError
+from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
+from ros_ehs.core.metrics import tracking_metrics
+from ros_ehs.core.model import Plant
+from ros_ehs.core.model.drift import Drift, DriftStage
+from ros_ehs.core.params import ESTIMATED, preset
+from ros_ehs.data.synthetic_bag import SensorNoise
 
 DRIFT = Drift([DriftStage(60.0, 180.0, {'F_cc': -0.30, 'F_sc': -0.30}),
                DriftStage(300.0, 120.0, {'c_c': -0.20})])

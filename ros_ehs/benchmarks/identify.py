@@ -33,13 +33,13 @@ import tempfile
 import time
 import warnings
 
-from ros_ehs.bag.experiment import load_experiment
 from ros_ehs.benchmarks import report
-from ros_ehs.errors import IdentificationWarning
-from ros_ehs.identify import identify
-from ros_ehs.identify.verdict import worst_noise_ratio
-from ros_ehs.params import ESTIMATED, preset
-from ros_ehs.sim.synthetic_bag import record_synthetic_bag
+from ros_ehs.core.errors import IdentificationWarning
+from ros_ehs.core.identify import identify
+from ros_ehs.core.identify.verdict import worst_noise_ratio
+from ros_ehs.core.params import ESTIMATED, preset
+from ros_ehs.data.experiments import load_experiment
+from ros_ehs.data.synthetic_bag import record_synthetic_bag
 
 
 #: the mismatch case's rig: Table 1's estimated values scaled by these factors
@@ -72,9 +72,9 @@ def _mismatch() -> dict:
 
 def _read_costs(d: str) -> dict:
     """Read cost per message [us]: our 1 kHz bag, and a rig's (ros2_control layout, rosbags)."""
-    from ros_ehs.bag import open_bag
-    from ros_ehs.bag.experiment import load_experiments
-    from ros_ehs.sim.rig_bag import record_rig_bag, RigLayout
+    from ros_ehs.data.bag import open_bag
+    from ros_ehs.data.experiments import load_experiments
+    from ros_ehs.data.rig_bag import record_rig_bag, RigLayout
     lay = RigLayout()
     record_rig_bag(f'{d}/rig', lay, duration=10.0)
     out = {}

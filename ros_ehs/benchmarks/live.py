@@ -34,7 +34,7 @@ import time
 from domain_coordinator import domain_id
 import psutil
 from ros_ehs.benchmarks import count, positive, report
-from ros_ehs.processes import loop_placement, NodeProcesses
+from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 
 LIVE = {'live': True, 'push': True, 'window': 10.0, 'period': 5.0}
 

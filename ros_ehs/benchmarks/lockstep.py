@@ -17,7 +17,7 @@
 Plant (lock-step), controller (reference-synchronised) and reference (on ``/clock``) run as
 separate processes for ``--seconds`` of sim time; the plant reports how many steps per
 second of wall time the loop made. In the same run, two yardsticks: the in-process loop (no
-DDS, :func:`ros_ehs.sim.closed_loop.run_closed_loop`), and a bare rclpy ping-pong sending each
+DDS, :func:`ros_ehs.core.sim.closed_loop.run_closed_loop`), and a bare rclpy ping-pong sending each
 message as soon as the last echo is back (the most round trips per second rclpy makes on this
 machine over JointState objects), best effort and with the lock-step QoS; and the barest
 lock-step of the bench's earlier topology (``--relay``: a third process turns
@@ -26,7 +26,8 @@ a clock every period into the reference the pong waits for, reliable; the bench 
 none of our code in any of them. And, for reference, the bare ping-pong over serialized
 messages (``--raw``), the path our loop nodes take: the ceiling for them.
 
-Placement: by default the loop runs as :meth:`ros_ehs.processes.NodeProcesses.start_loop` places a
+Placement: by default the loop runs as
+:meth:`ros_ehs.nodes.processes.NodeProcesses.start_loop` places a
 lock-step loop (plant and controller on one CPU, the reference on another), and every
 yardstick is placed alike; one more bare ping-pong, unpinned, shows what the placement is
 worth (``bare_unpinned_*``). ``--no-cpu-affinity`` leaves everything to the scheduler.
@@ -43,10 +44,10 @@ import time
 
 from domain_coordinator import domain_id
 from ros_ehs.benchmarks import count, positive, report
-from ros_ehs.params import Params
-from ros_ehs.processes import loop_placement, NodeProcesses
-from ros_ehs.reference import Sine
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.waveforms import Sine
+from ros_ehs.core.params import Params
+from ros_ehs.core.sim.closed_loop import run_closed_loop
+from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 
 
 def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> dict:
@@ -54,7 +55,7 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
     Return the ceiling: a bare rclpy ping-pong, back to back (``extra``: its options).
 
     ``pin``: volley and pong on one CPU, the relay on another, as ``--cpu-affinity`` places
-    ours (:func:`ros_ehs.processes.loop_placement`).
+    ours (:func:`ros_ehs.nodes.processes.loop_placement`).
     """
     cpus = loop_placement(True) if pin else None
     roles = ['pong', 'relay', 'volley'] if '--relay' in extra else ['pong', 'volley']

@@ -41,7 +41,7 @@ import time
 from domain_coordinator import domain_id
 import psutil
 from ros_ehs.benchmarks import count, positive, report
-from ros_ehs.processes import loop_closed, loop_placement, NodeProcesses
+from ros_ehs.nodes.processes import loop_closed, loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
 
 

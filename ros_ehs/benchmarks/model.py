@@ -31,10 +31,10 @@ import time
 import numpy as np
 
 from ros_ehs.benchmarks import report
-from ros_ehs.model.plant import DEFAULT_H, Plant
-from ros_ehs.params import preset
-from ros_ehs.reference import Chirp, Sine
-from ros_ehs.sim.closed_loop import model_difference, reference_step, run_closed_loop
+from ros_ehs.core.control.waveforms import Chirp, Sine
+from ros_ehs.core.model.plant import DEFAULT_H, Plant
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.closed_loop import model_difference, reference_step, run_closed_loop
 
 
 def _best_of(fn, repeat=3):

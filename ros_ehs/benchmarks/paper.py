@@ -14,7 +14,7 @@
 """
 ``python -m ros_ehs.benchmarks paper``: the paper's experiments, with numbers.
 
-Dead zone, plateau and lag are per half cycle (see ros_ehs.metrics); RMS error per run after
+Dead zone, plateau and lag are per half cycle (see ros_ehs.core.metrics); RMS error per run after
 the first period. ``*_ffpid_*`` is the default feedforward; ``*_ffpid_paper_*`` the law as
 printed (tau 0.016 s), ``*_ffpid_paper_tau_*`` with tau = the measured PID loop delay.
 ``controller_step_us`` is the mean cost of one ``Controller.step`` (PID + feedforward).
@@ -23,9 +23,9 @@ printed (tau 0.016 s), ``*_ffpid_paper_tau_*`` with tau = the measured PID loop 
 import time
 
 from ros_ehs.benchmarks import report
-from ros_ehs.control import Controller
-from ros_ehs.params import preset
-from ros_ehs.sim.paper_runs import paper_runs
+from ros_ehs.core.control import Controller
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.paper_runs import paper_runs
 
 
 def run(duration: float = 4.0) -> dict:

@@ -20,7 +20,7 @@ then counts what the bag holds and which numbers are missing. Rates are tried fr
 ``--rates`` in order, for each chunk compression of ``--compressions``; ``msgs_per_s`` is
 the highest rate recorded without loss (per compression in ``by_compression``, with the
 recorder's CPU share at that rate). In the same run, the raw write speed of
-:class:`ros_ehs.bag.BagWriter` (no DDS) is the yardstick. Last line: one JSON object.
+:class:`ros_ehs.data.bag.BagWriter` (no DDS) is the yardstick. Last line: one JSON object.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ import time
 from domain_coordinator import domain_id
 import numpy as np
 import psutil
-from ros_ehs.bag import BagWriter, open_bag
 from ros_ehs.benchmarks import positive, positives, report
-from ros_ehs.processes import NodeProcesses, recording
+from ros_ehs.data.bag import BagWriter, open_bag
+from ros_ehs.nodes.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as contract
 
 TOPIC = '/bench/blast'

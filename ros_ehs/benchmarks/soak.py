@@ -42,9 +42,9 @@ import time
 from domain_coordinator import domain_id
 import numpy as np
 import psutil
-from ros_ehs.bag import BagWriter, open_bag
 from ros_ehs.benchmarks import positive, report
-from ros_ehs.processes import launch_script, NodeProcesses
+from ros_ehs.data.bag import BagWriter, open_bag
+from ros_ehs.nodes.processes import launch_script, NodeProcesses
 import yaml
 
 NODES = ('plant', 'controller', 'reference', 'recorder')

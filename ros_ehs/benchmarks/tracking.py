@@ -46,12 +46,12 @@ import math
 
 import numpy as np
 from ros_ehs.benchmarks import report
-from ros_ehs.control.apc import AmplitudePhaseControl
-from ros_ehs.drive_file import (band_error, DriveIteration, frf, multisine, rms_error_pct,
-                                Samples)
-from ros_ehs.params import preset
-from ros_ehs.reference import Chirp, Sine
-from ros_ehs.sim.closed_loop import run_closed_loop
+from ros_ehs.core.control.apc import AmplitudePhaseControl
+from ros_ehs.core.control.drive import band_error, DriveIteration, frf, multisine, rms_error_pct
+from ros_ehs.core.control.waveforms import Chirp, Sine
+from ros_ehs.core.control.waveforms import Samples
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.closed_loop import run_closed_loop
 
 FREQUENCIES = (1, 5, 10, 20)
 PEAK_VELOCITY = 0.25

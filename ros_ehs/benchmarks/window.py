@@ -54,7 +54,7 @@ import time
 from domain_coordinator import domain_id
 from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.benchmarks.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
-from ros_ehs.processes import launch_script, loop_placement, NodeProcesses
+from ros_ehs.nodes.processes import launch_script, loop_placement, NodeProcesses
 
 BENCH = launch_script('bench.py')
 RT_PROFILE = BENCH.with_name('fastdds_rt.xml')

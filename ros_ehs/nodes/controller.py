@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The controller node: PID + damping/Stribeck feedforward (:class:`ros_ehs.control.Controller`).
+The controller node: PID + damping/Stribeck feedforward (:class:`ros_ehs.core.control.Controller`).
 
 It answers every ``state`` message with one ``servo_current`` command stamped with that
 state's stamp (so the plant measures the round trip and lock-step stays exact). Gains and
@@ -21,7 +21,7 @@ a live change is validated as a whole and rejected with the reason.
 
 Edge-case policy (tested in ``test/test_nodes.py`` and ``test/test_stamps.py``):
 
-* safety (:mod:`ros_ehs.control.safety`, docs/safety.md): limit and error detectors run on
+* safety (:mod:`ros_ehs.core.control.safety`, docs/safety.md): limit and error detectors run on
   every state, inside the command that answers it; each trip is latched, logged once,
   published on ``events`` and counted in diagnostics; ``~/reset`` (std_srvs/Trigger) clears
   the latches (refused, with the reason, while a detector still trips), ``~/enable``
@@ -72,17 +72,17 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from ros_ehs.control.axis import AxisController
-from ros_ehs.control.feedforward import MODEL_PARAMS
-from ros_ehs.errors import ParameterError
+from ros_ehs.core.control.feedforward import MODEL_PARAMS
+from ros_ehs.core.control.supervised import AxisController
+from ros_ehs.core.control.waveforms import first_order_hold
+from ros_ehs.core.errors import ParameterError
+from ros_ehs.core.params import CONTROL_SPECS, Params, SAFETY_SPECS, spec
 from ros_ehs.nodes.loop_stats import Window
 from ros_ehs.nodes.options import (declare_options, declare_specs, node_params, Option,
                                    update_options, validate_changes)
 from ros_ehs.nodes.ros_common import (diagnostics, EPOCH_PERIODS, ERROR, OK, qos_profile, read_msg,
                                       run, steady_clock, WARN)
 from ros_ehs.nodes.scheduling import CPU_AFFINITY, RT_PRIORITY
-from ros_ehs.params import CONTROL_SPECS, Params, SAFETY_SPECS, spec
-from ros_ehs.reference import first_order_hold
 import ros_ehs_msgs_py as contract
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray

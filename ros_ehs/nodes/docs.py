@@ -25,7 +25,7 @@ import importlib
 from pathlib import Path
 import sys
 
-from ros_ehs.processes import NODES
+from ros_ehs.nodes.processes import NODES
 
 BEGIN, END = '<!-- options:begin -->', '<!-- options:end -->'
 DOC = Path(__file__).resolve().parents[2] / 'docs' / 'nodes.md'

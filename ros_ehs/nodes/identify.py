@@ -14,7 +14,8 @@
 """
 The identify node: ``ros2 run ros_ehs identify --ros-args -p bags:=[bags/run1]``.
 
-A thin wrapper over :func:`ros_ehs.identify.run.run_identification` (what ``ehs_sim identify``
+A thin wrapper over :func:`ros_ehs.data.identification.run_identification` (what
+``ehs_sim identify``
 runs): it reads the bags, refits the free parameters, logs each iteration and writes the
 report folder ``out`` (``identified_params.yaml``, ``summary.json``, figures). With
 ``push: true`` it then sets the fitted values the controller declares (friction, damping and
@@ -23,7 +24,7 @@ valve values its feedforward uses) on the running controller ``controller`` thro
 and logs what the controller accepted or why it refused. The node exits when done: 0 on
 success, 1 if the fit or the push failed, 2 for bad input (missing bag, foreign topics...).
 
-**Live mode** (``live: true``, :mod:`ros_ehs.identify.live`): no bags; the node listens to the
+**Live mode** (``live: true``, :mod:`ros_ehs.core.identify.live`): no bags; the node listens to the
 running loop (``state``, the pressures and, where the state does not carry the applied
 current, the commands: our contract, or a rig's topics and joint from the same options or
 ``topic_map``), keeps the last ``window`` seconds and every ``period`` seconds of the state
@@ -49,16 +50,16 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
-from ros_ehs.bag.mapping import (FLOAT64, FLOAT64_ARRAY, FLUID_PRESSURE, JOINT_STATE,
-                                 PRESSURE_UNITS, topic_map, TopicMap)
-from ros_ehs.control.feedforward import MODEL_PARAMS
-from ros_ehs.errors import DataError, EhsError
-from ros_ehs.identify.live import LiveIdentifier, SampleWindow
-from ros_ehs.identify.run import run_identification
+from ros_ehs.core.control.feedforward import MODEL_PARAMS
+from ros_ehs.core.errors import DataError, EhsError
+from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
+from ros_ehs.core.params import CONTROL_SPECS, ESTIMATED, load_yaml, preset
+from ros_ehs.data.identification import run_identification
+from ros_ehs.data.mapping import (FLOAT64, FLOAT64_ARRAY, FLUID_PRESSURE, JOINT_STATE,
+                                  PRESSURE_UNITS, topic_map, TopicMap)
 from ros_ehs.nodes.options import declare_options, Option
 from ros_ehs.nodes.ros_common import msg_class, qos_profile, read_msg, run, steady_clock
 from ros_ehs.nodes.scheduling import CPU_AFFINITY
-from ros_ehs.params import CONTROL_SPECS, ESTIMATED, load_yaml, preset
 import ros_ehs_msgs_py as contract
 
 __all__ = ['OPTIONS', 'IdentifyNode', 'main', 'pushable']

@@ -15,7 +15,7 @@
 A node's parameters, declared from the one table: options, specs, live changes.
 
 :class:`Option` declares a node's own setting (name, default, meaning, range or choices);
-:func:`declare_specs` declares model and controller parameters from :mod:`ros_ehs.params`
+:func:`declare_specs` declares model and controller parameters from :mod:`ros_ehs.core.params`
 with their unit, meaning and range; :func:`validate_changes` checks a live change as a whole
 and turns a rejection into ``SetParametersResult`` with the reason; :func:`check_names`
 refuses parameters a node does not declare, naming them.
@@ -30,8 +30,8 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from ros_ehs.errors import ParameterError
-from ros_ehs.params import Params, ParamSpec
+from ros_ehs.core.errors import ParameterError
+from ros_ehs.core.params import Params, ParamSpec
 
 __all__ = ['Option', 'check_names', 'declare_options', 'declare_specs', 'node_params',
            'rejected_names', 'update_options', 'validate_changes']

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The plant node: the simulated axis (:class:`ros_ehs.sim.axis.SimulatedAxis`) on the bench network.
+The plant node: the simulated axis (:class:`ros_ehs.core.sim.axis.SimulatedAxis`) on the bench.
 
 The axis decides the stamp policy, the watchdog, when time starts, the lock-step protocol, the
 faults and the sensor noise (its docstring states each rule); this node converts messages,
@@ -71,14 +71,14 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from ros_ehs.core.params import Params, PLANT_SPECS
+from ros_ehs.core.sim.axis import FAULTS, SimulatedAxis
 from ros_ehs.nodes.loop_stats import LoopStats
 from ros_ehs.nodes.options import (declare_options, declare_specs, node_params, Option,
                                    update_options, validate_changes)
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, PLANT_STATUS, qos_profile, read_msg,
                                       run, steady_clock, WARN)
 from ros_ehs.nodes.scheduling import CPU_AFFINITY, RT_PRIORITY
-from ros_ehs.params import Params, PLANT_SPECS
-from ros_ehs.sim.axis import FAULTS, SimulatedAxis
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState

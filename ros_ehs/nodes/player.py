@@ -44,10 +44,10 @@ import time
 import numpy as np
 from rclpy.node import Node
 from rclpy.task import Future
-from ros_ehs.bag.experiment import load_experiments
-from ros_ehs.bag.mapping import load_topic_map
-from ros_ehs.bag.reader import BagMessage, open_bag
-from ros_ehs.errors import BagError
+from ros_ehs.core.errors import BagError
+from ros_ehs.data.bag.reader import BagMessage, open_bag
+from ros_ehs.data.experiments import load_experiments
+from ros_ehs.data.mapping import load_topic_map
 from ros_ehs.nodes.options import declare_options, Option
 from ros_ehs.nodes.ros_common import msg_class, qos_profile, run
 import ros_ehs_msgs_py as contract

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The recorder node: topics into a rosbag2-style MCAP bag (:class:`ros_ehs.bag.BagWriter`).
+The recorder node: topics into a rosbag2-style MCAP bag (:class:`ros_ehs.data.bag.BagWriter`).
 
 Subscriptions are raw (the CDR bytes go to the file without a decode). ``topics`` defaults
 to every contract topic of this namespace; other topics named there are subscribed when
@@ -54,8 +54,8 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.task import Future
-from ros_ehs.bag.writer import BagWriter, COMPRESSION, free_bytes
-from ros_ehs.errors import BagError
+from ros_ehs.core.errors import BagError
+from ros_ehs.data.bag.writer import BagWriter, COMPRESSION, free_bytes
 from ros_ehs.nodes.options import declare_options, Option
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, msg_class, OK, qos_profile, qos_spec,
                                       run, steady_clock)

@@ -47,10 +47,10 @@ mid-stroke on a piston that has not moved yet.
 
 ``amplitude_phase_control`` (kind sine, or chirp: a sine sweep): the command's amplitude,
 phase and mean are corrected each cycle from the measured position (``state``, joint
-``piston``), as a test controller's APC does (:class:`ros_ehs.control.apc.
+``piston``), as a test controller's APC does (:class:`ros_ehs.core.control.apc.
 AmplitudePhaseControl`, docs/controller.md); a sweep corrects the fundamental only.
 ``peak_valley_control`` (kind triangle or haversine): each block's command is corrected so
-that its peaks and valleys reach their targets (:class:`ros_ehs.control.pvc.
+that its peaks and valleys reach their targets (:class:`ros_ehs.core.control.pvc.
 PeakValleyControl`). For both, the corrections freeze, and the command keeps its last
 amplitude and phase, while a safety trip that acts (hold, stop, power off: the controller's
 ``events``) is latched, and while no state has come for ``APC_LOST`` seconds; they resume
@@ -70,15 +70,15 @@ from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from ros_ehs.control.apc import AmplitudePhaseControl, MAX_HARMONICS
-from ros_ehs.control.cycles import CycleCorrection
-from ros_ehs.control.pvc import PeakValleyControl
-from ros_ehs.errors import ParameterError
+from ros_ehs.core.control.apc import AmplitudePhaseControl, MAX_HARMONICS
+from ros_ehs.core.control.cycles import CycleCorrection
+from ros_ehs.core.control.pvc import PeakValleyControl
+from ros_ehs.core.control.waveforms import cyclic_blocks, make, REFERENCE_SPECS
+from ros_ehs.core.errors import ParameterError
 from ros_ehs.nodes.options import declare_options, declare_specs, Option
 from ros_ehs.nodes.ros_common import (diagnostics, EPOCH_PERIODS, OK, PLANT_STATUS, qos_profile,
                                       read_msg, run, steady_clock)
 from ros_ehs.nodes.scheduling import CPU_AFFINITY
-from ros_ehs.reference import cyclic_blocks, make, REFERENCE_SPECS
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState

@@ -93,7 +93,8 @@ def set_cpu_affinity(cpu: int) -> str:
 
 
 #: The ``cpu_affinity`` option of the loop nodes; ``NodeProcesses.start_loop`` sets it by default
-#: (``ros_ehs.processes.loop_placement``). Measured on the 2-core VM, plant and controller on one
+#: (``ros_ehs.nodes.processes.loop_placement``). Measured on the 2-core VM, plant and controller on
+#: one
 #: CPU and the reference on the other: 12400-14450 lock-step steps/s against 6280-8060
 #: unpinned (a ping-pong between two processes on one core skips the cross-core wake-up; the
 #: bare rclpy ping-pong gains 1.2-1.5x), and in real time no watchdog trip in 30 of 30 10 s

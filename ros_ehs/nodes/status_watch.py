@@ -14,7 +14,7 @@
 """
 The latest status of each node on a ROS domain, from ``diagnostics``.
 
-What :class:`ros_ehs.processes.NodeProcesses` waits on while it starts a loop (the recorder
+What :class:`ros_ehs.nodes.processes.NodeProcesses` waits on while it starts a loop (the recorder
 records and has matched a topic, the plant's loop is closed, the reference has started), so
 that processes tell each other their readiness in messages, never in log text. The statuses
 and their readiness values are the contract's (:mod:`ros_ehs_msgs_py.topics`).

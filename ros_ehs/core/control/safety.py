@@ -1,0 +1,492 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Limit and error detectors with latched actions, hydraulics on/off and ramp-on (ROS-free).
+
+A :class:`Supervisor` sits between the trajectory and the position controller, as the limit
+detectors of a servo-hydraulic test controller do. Every control period
+:meth:`Supervisor.update` takes the measurement and the trajectory's reference and returns
+the reference the controller must track, or that the valve current must be zero.
+
+Detectors (``ros_ehs.core.params.SAFETY_SPECS`` holds their limits and actions):
+
+=====================  ======================================================================
+``limit_position_max``  ``z > limit_position_max``
+``limit_position_min``  ``z < limit_position_min``
+``limit_velocity``      ``|z_dot| > limit_velocity`` (z_dot measured, or differenced)
+``limit_force``         ``|force| > limit_force`` (when the state carries the force)
+``limit_error``         ``|z_ref - z| > limit_error`` for longer than ``limit_error_time``
+``feedback``            position non-finite, lost (:meth:`Supervisor.feedback_lost`), or
+                        frozen: bit-identical for ``frozen_periods`` periods with
+                        ``|i| >= frozen_current`` (periods without neither count nor clear)
+``saturation``          the command at ``u_max`` for longer than ``limit_saturation_time``
+=====================  ======================================================================
+
+Edge-case policy (each branch tested in ``test/test_safety.py``):
+
+* a value exactly at its limit does not trip; a time-qualified detector trips when the
+  condition has held for *longer* than its time (``n`` periods with ``n dt > T``);
+* a trip is **latched** (and reported once, as an :class:`Event`) until :meth:`reset`
+  succeeds; the action applies from the command that answers the state on which the
+  condition became true: the period after it;
+* several latched detectors: the most severe action rules
+  (``indicate < hold < stop < power_off``);
+* ``hold`` freezes the reference at the measured position of the trip; ``stop`` ramps it
+  from there to ``safe_position`` at ``safe_velocity``, then holds; ``power_off`` zeroes the
+  valve current; from ``hold`` or ``stop`` a more severe action starts from the measured
+  position again;
+* :meth:`reset` is refused, naming the detectors, while a latched limit is still beyond its
+  limit less the hysteresis (``limit_hysteresis`` of the limit, of the position span for the
+  position limits), or the feedback is still non-finite or lost. The tracking-error,
+  saturation and frozen conditions cannot be judged while the axis is held or off: they
+  count as clear, and are judged again from the ramp-on;
+* **ramp-on** at the start, on :meth:`enable` and after a reset: the reference starts at the
+  measured position ``z0`` and blends into the trajectory,
+  ``z_ref = z0 + w (z_traj - z0)``, ``v_ref = w v_traj + w' (z_traj - z0)`` with the quintic
+  ``w(s) = 10 s^3 - 15 s^4 + 6 s^5``, ``s = t / ramp_time``: the reference's position,
+  velocity and acceleration are continuous, so the command does not jump. A ramp waits for
+  the first finite position (0 A until then);
+* disabled (hydraulics off): 0 A; :meth:`enable` is refused while a hold, stop or power-off
+  is latched ("reset first");
+* non-finite velocity or force in a state: the velocity is differenced from the position,
+  the force detector skips the sample; a non-finite trajectory is passed on (the PID's
+  policy: 0 A and ``fault``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from typing import Mapping, NamedTuple
+
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.params import ACTIONS, spec
+from ros_ehs_msgs_py.records import SafetyEvent as Event
+
+__all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'SafetyConfig', 'Supervisor',
+           'braking_distance', 'ramp_weight']
+
+#: The detectors, in the order they are checked and reported.
+DETECTORS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
+             'limit_error', 'feedback', 'saturation')
+_SEVERITY = {a: k for k, a in enumerate(ACTIONS)}
+_UNITS = {'limit_position_max': 'm', 'limit_position_min': 'm', 'limit_velocity': 'm/s',
+          'limit_force': 'N', 'limit_error': 'm', 'feedback': '', 'saturation': 's'}
+_NUMBERS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
+            'limit_error', 'limit_error_time', 'feedback_timeout', 'frozen_periods',
+            'frozen_current', 'limit_saturation_time', 'limit_hysteresis', 'safe_position',
+            'safe_velocity', 'ramp_time')
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """The detectors' limits [SI] and actions; build with :meth:`from_params`."""
+
+    limit_position_max: float = 0.095
+    limit_position_min: float = -0.095
+    limit_velocity: float = 1.0
+    limit_force: float = 3.0e4
+    limit_error: float = 5.0e-3
+    limit_error_time: float = 0.05
+    feedback_timeout: float = 1.0
+    frozen_periods: float = 100.0
+    frozen_current: float = 3.0e-4
+    limit_saturation_time: float = 0.5
+    limit_hysteresis: float = 0.05
+    safe_position: float = 0.0
+    safe_velocity: float = 0.01
+    ramp_time: float = 1.0
+    actions: Mapping[str, str] = field(default_factory=lambda: {
+        d: spec(d + '_action').default for d in DETECTORS})
+
+    def __post_init__(self) -> None:
+        """Validate every value against its declaration in ros_ehs.core.params."""
+        for name in _NUMBERS:
+            spec(name).check(getattr(self, name))
+        for d in DETECTORS:
+            spec(d + '_action').check(self.actions.get(d, 'off'))
+        unknown = set(self.actions) - set(DETECTORS)
+        if unknown:
+            raise InputError(f'`actions` names unknown detectors {sorted(unknown)}; '
+                             f'known: {list(DETECTORS)}')
+        if not self.limit_position_min < self.limit_position_max:
+            raise InputError(f'`limit_position_min` = {self.limit_position_min!r} m must be '
+                             f'below `limit_position_max` = {self.limit_position_max!r} m')
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, object]) -> 'SafetyConfig':
+        """Build from a :class:`~ros_ehs.core.params.Params` (or any mapping with the names)."""
+        return cls(**{n: float(params[n]) for n in _NUMBERS},
+                   actions={d: str(params[d + '_action']) for d in DETECTORS})
+
+    def action(self, detector: str) -> str:
+        """Return what ``detector`` does when it trips."""
+        return self.actions.get(detector, 'off')
+
+    def limit(self, detector: str) -> float:
+        """Return the limit a detector compares with, in its unit (feedback: the timeout)."""
+        return {'limit_error': self.limit_error, 'feedback': self.feedback_timeout,
+                'saturation': self.limit_saturation_time}.get(
+                    detector, getattr(self, detector, math.nan))
+
+
+class Demand(NamedTuple):
+    """What the controller must do this period."""
+
+    mode: str        #: 'run', 'ramp', 'hold', 'stop', 'power_off', 'disabled', 'waiting'
+    z_ref: float     #: reference position [m] (NaN when the current must be zero)
+    v_ref: float     #: reference velocity [m/s]
+    power: bool      #: False: valve current 0 A
+
+
+def ramp_weight(s: float) -> tuple[float, float]:
+    """Return the quintic blend ``w(s)`` and ``dw/ds`` for ``s`` in [0, 1] (clipped)."""
+    if s <= 0.0:
+        return 0.0, 0.0
+    if s >= 1.0:
+        return 1.0, 0.0
+    return s * s * s * (10.0 + s * (-15.0 + 6.0 * s)), 30.0 * s * s * (1.0 - s) ** 2
+
+
+def braking_distance(params: Mapping[str, object], v: float, dt: float,
+                     periods: float = 2.0) -> float:
+    """
+    Return how far the piston runs past a position limit it crosses at speed ``v`` [m].
+
+    ``d = |v| (periods dt + tau_v) + |v| / omega_h``: the detection and action take
+    ``periods`` control periods (the action applies to the command answering the state that
+    tripped: one period in lock-step, at most two in real time); the valve closes with the
+    time constant ``tau_v`` of its spool (``sqrt(m_s / K_w)``, the spool's own natural
+    period, at least 2 ms for a G761-class valve); then the oil column's stiffness
+    ``k_h = 2 beta_e A_p / l_iac`` against the moving mass ``m_p`` stops the piston within
+    ``|v| / omega_h`` (``omega_h = sqrt(k_h / m_p)``, the hydraulic natural frequency at
+    mid-stroke, where the chambers are softest together). Friction and the specimen only
+    shorten it. ``test/test_safety.py`` checks it against the full model.
+    """
+    beta, a_p, l_iac, m_p = (float(params[k]) for k in ('beta_e', 'A_p', 'l_iac', 'm_p'))
+    tau_v = max(2.0e-3, math.sqrt(float(params['m_s']) / float(params['K_w'])))
+    omega_h = math.sqrt(2.0 * beta * a_p / l_iac / m_p)
+    return abs(v) * (periods * dt + tau_v) + abs(v) / omega_h
+
+
+class _Latch:
+    """One detector's state: latched, and the periods its condition has held."""
+
+    __slots__ = ('tripped', 'count')
+
+    def __init__(self) -> None:
+        self.tripped = False
+        self.count = 0
+
+
+class Supervisor:
+    """Detectors, latched actions, hydraulics on/off and ramp-on (see the module docstring)."""
+
+    def __init__(self, config: SafetyConfig | None = None, dt: float = 1e-3,
+                 enabled: bool = True) -> None:
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise InputError(f'`dt` = {dt!r} s must be finite and > 0')
+        if config is not None and not isinstance(config, SafetyConfig):
+            raise InputError(f'`config` must be SafetyConfig, got {type(config).__name__}')
+        self.config = config or SafetyConfig()
+        self.dt = float(dt)
+        self.latches = {d: _Latch() for d in DETECTORS}
+        self.enabled = bool(enabled)
+        self.counts = dict.fromkeys(DETECTORS, 0)
+        self._restart()
+
+    # -- state -------------------------------------------------------------------------------
+    def _restart(self) -> None:
+        self._ramp_pending = True       # a ramp-on starts at the next finite position
+        self._ramp_t0 = 0
+        self._ramp_z0 = math.nan
+        self._ramp_from = math.nan      # ramp_again: from the last demand, not the measurement
+        self._mode = 'run'              # 'run' | 'hold' | 'stop' | 'power_off'
+        self._hold_z = math.nan
+        self._last_z = math.nan
+        self._last_stamp: int | None = None
+        self._same = 0
+        self._last_ref = math.nan
+
+    def restart(self) -> None:
+        """Forget the run (a new epoch): ramp on again at the next state; latches stay."""
+        self._restart()
+
+    def ramp_again(self) -> None:
+        """
+        Ramp onto the trajectory again, from the last demanded position, over ``ramp_time``.
+
+        For a trajectory that jumps: a reference that comes back after being held stale
+        (the controller node) has moved on meanwhile, and following it at once would step
+        the demand by all it moved.
+        """
+        if math.isfinite(self._last_ref):
+            self._ramp_pending = True
+            self._ramp_from = self._last_ref
+
+    @property
+    def mode(self) -> str:
+        """Return what the axis does now (see :class:`Demand`)."""
+        if not self.enabled:
+            return 'disabled'
+        return self._mode
+
+    @property
+    def action(self) -> str:
+        """Return the most severe of the latched actions, or 'off' when nothing is latched."""
+        acts = [self.config.action(d) for d, s in self.latches.items() if s.tripped]
+        return max(acts, key=_SEVERITY.__getitem__, default='off')
+
+    def tripped(self) -> list[str]:
+        """Return the latched detectors."""
+        return [d for d, s in self.latches.items() if s.tripped]
+
+    def set_config(self, config: SafetyConfig) -> None:
+        """Take new limits and actions; a latched detector stays latched."""
+        if not isinstance(config, SafetyConfig):
+            raise InputError(f'`config` must be SafetyConfig, got {type(config).__name__}')
+        self.config = config
+
+    # -- per period --------------------------------------------------------------------------
+    def update(self, stamp_ns: int, z: float, z_dot: float, force: float,
+               z_traj: float, v_traj: float, i_last: float,
+               saturated: bool) -> tuple[Demand, list[Event]]:
+        """
+        Check the detectors on one state; return the demand for its command and the events.
+
+        ``i_last`` is the command the controller sent for the previous state and
+        ``saturated`` whether it was at the limit (the frozen and saturation detectors).
+        """
+        cfg = self.config
+        events: list[Event] = []
+        dt = self.dt
+        if self._last_stamp is not None and stamp_ns > self._last_stamp:
+            dt = (stamp_ns - self._last_stamp) * 1e-9
+        finite = math.isfinite(z)
+        if not math.isfinite(z_dot) and finite and math.isfinite(self._last_z):
+            z_dot = (z - self._last_z) / dt
+        powered = self.enabled and self._mode != 'power_off'
+        # feedback: non-finite, or frozen while the command drives the valve. A period without
+        # a command (|i| below frozen_current: a sine's zero crossing) neither counts nor
+        # clears: the count restarts only when the position changes (a frozen sensor under a
+        # sine tripped 385 periods late once, its count cleared at each crossing)
+        if finite and z == self._last_z and powered:
+            if abs(i_last) >= cfg.frozen_current:
+                self._same += 1
+        else:
+            self._same = 0
+        if not finite:
+            self._check('feedback', True, stamp_ns, z, 'non-finite position', events)
+        elif self._same >= cfg.frozen_periods:
+            self._check('feedback', True, stamp_ns, float(self._same), 'position frozen for '
+                        f'{self._same} periods at {z:.6g} m while |i| >= '
+                        f'{cfg.frozen_current:g} A', events)
+        if finite:
+            self._check('limit_position_max', z > cfg.limit_position_max, stamp_ns, z, '',
+                        events)
+            self._check('limit_position_min', z < cfg.limit_position_min, stamp_ns, z, '',
+                        events)
+        if math.isfinite(z_dot):
+            self._check('limit_velocity', abs(z_dot) > cfg.limit_velocity, stamp_ns, z_dot, '',
+                        events)
+        if math.isfinite(force):
+            self._check('limit_force', abs(force) > cfg.limit_force, stamp_ns, force, '',
+                        events)
+        # saturation: the previous command at its limit for longer than the time
+        sat = self.latches['saturation']
+        sat.count = sat.count + 1 if (saturated and powered) else 0
+        self._check('saturation', sat.count * dt > cfg.limit_saturation_time, stamp_ns,
+                    sat.count * dt, '', events)
+        self._last_z = z if finite else self._last_z
+        self._last_stamp = stamp_ns
+        demand = self._demand(stamp_ns, z, z_traj, v_traj)
+        # tracking error against the reference this command will track
+        err = self.latches['limit_error']
+        e = demand.z_ref - z if (finite and demand.power) else math.nan
+        bad = math.isfinite(e) and abs(e) > cfg.limit_error and demand.mode != 'waiting'
+        err.count = err.count + 1 if bad else 0
+        if self._check('limit_error', bad and err.count * dt > cfg.limit_error_time, stamp_ns,
+                       e, f'|z_ref - z| = {abs(e):.6g} m above {cfg.limit_error:g} m for '
+                       f'{err.count * dt:.6g} s', events):
+            demand = self._demand(stamp_ns, z, z_traj, v_traj)
+        return demand, events
+
+    def _check(self, det: str, cond: bool, stamp_ns: int, value: float, why: str,
+               events: list[Event]) -> bool:
+        """Latch ``det`` if ``cond`` and its action is not off; return True on a new trip."""
+        act = self.config.action(det)
+        s = self.latches[det]
+        if not cond or act == 'off' or s.tripped:
+            return False
+        s.tripped = True
+        self.counts[det] += 1
+        lim = self.config.limit(det)
+        unit = _UNITS[det]
+        msg = why or f'{det}: {value:.6g} {unit} beyond {lim:.6g} {unit}'
+        events.append(Event(stamp_ns, 'trip', det, float(value), lim, unit, act,
+                            f'{msg}; action {act}'))
+        self._escalate(act)
+        return True
+
+    def _escalate(self, act: str) -> None:
+        """Enter the mode of a new trip's action if it is more severe than the present one."""
+        if act in ('off', 'indicate'):
+            return
+        if _SEVERITY[act] > _SEVERITY.get(self._mode, 0):
+            self._mode = act
+            self._hold_z = math.nan       # set from the measured position in _demand
+
+    def _demand(self, stamp_ns: int, z: float, z_traj: float, v_traj: float) -> Demand:
+        cfg = self.config
+        if not self.enabled:
+            return Demand('disabled', math.nan, 0.0, False)
+        if self._mode == 'power_off':
+            return Demand('power_off', math.nan, 0.0, False)
+        if self._mode in ('hold', 'stop'):
+            if not math.isfinite(self._hold_z):     # the period of the trip: start here
+                self._hold_z = z if math.isfinite(z) else self._last_ref
+                self._ramp_pending = True           # after a reset: ramp on from there
+            if self._mode == 'stop':
+                step = cfg.safe_velocity * self.dt
+                d = cfg.safe_position - self._hold_z
+                if d:
+                    self._hold_z += math.copysign(min(abs(d), step), d)
+                    v = math.copysign(cfg.safe_velocity, d) if abs(d) > step else 0.0
+                    self._last_ref = self._hold_z
+                    return Demand('stop', self._hold_z, v, True)
+            self._last_ref = self._hold_z
+            return Demand(self._mode, self._hold_z, 0.0, True)
+        if self._ramp_pending:
+            if not math.isfinite(z):
+                return Demand('waiting', math.nan, 0.0, False)
+            self._ramp_pending = False
+            self._ramp_t0 = stamp_ns
+            self._ramp_z0 = self._ramp_from if math.isfinite(self._ramp_from) else z
+            self._ramp_from = math.nan
+        t = (stamp_ns - self._ramp_t0) * 1e-9
+        if cfg.ramp_time > 0 and t < cfg.ramp_time:
+            w, dw = ramp_weight(t / cfg.ramp_time)
+            z0 = self._ramp_z0
+            zr = z0 + w * (z_traj - z0)
+            self._last_ref = zr
+            return Demand('ramp', zr, w * v_traj + dw / cfg.ramp_time * (z_traj - z0), True)
+        self._last_ref = z_traj
+        return Demand('run', z_traj, v_traj, True)
+
+    # -- feedback lost (no state at all: the node's timer) -----------------------------------
+    def feedback_lost(self, age_s: float, stamp_ns: int) -> list[Event]:
+        """
+        Report that the newest state is ``age_s`` old; latch ``feedback`` if over the timeout.
+
+        The node calls it from a timer in real time (a lost sensor sends nothing to check).
+        """
+        if not (age_s > self.config.feedback_timeout):
+            return []
+        events: list[Event] = []
+        self._check('feedback', True, stamp_ns, float(age_s),
+                    f'no feedback for {age_s:.6g} s (timeout {self.config.feedback_timeout:g} '
+                    's)', events)
+        return events
+
+    # -- operator ----------------------------------------------------------------------------
+    def still_active(self, z: float, z_dot: float, force: float,
+                     feedback_age_s: float = 0.0) -> list[str]:
+        """
+        Return the latched detectors whose condition still holds, with the hysteresis.
+
+        ``z``, ``z_dot``, ``force``: the newest measurement; ``feedback_age_s``: its age
+        (real time). The tracking-error, saturation and frozen conditions count as clear
+        (see the module docstring).
+        """
+        cfg = self.config
+        h = cfg.limit_hysteresis
+        span = cfg.limit_position_max - cfg.limit_position_min
+        out = []
+        for d, s in self.latches.items():
+            if not s.tripped:
+                continue
+            if d == 'limit_position_max':
+                bad = not (z <= cfg.limit_position_max - h * span)
+            elif d == 'limit_position_min':
+                bad = not (z >= cfg.limit_position_min + h * span)
+            elif d == 'limit_velocity':
+                bad = math.isfinite(z_dot) and abs(z_dot) > (1.0 - h) * cfg.limit_velocity
+            elif d == 'limit_force':
+                bad = math.isfinite(force) and abs(force) > (1.0 - h) * cfg.limit_force
+            elif d == 'feedback':
+                bad = not math.isfinite(z) or feedback_age_s > cfg.feedback_timeout
+            else:
+                bad = False
+            if bad:
+                out.append(d)
+        return out
+
+    def reset(self, stamp_ns: int, z: float, z_dot: float = math.nan,
+              force: float = math.nan, feedback_age_s: float = 0.0) -> tuple[bool, str, Event]:
+        """
+        Clear every latch unless a latched condition still holds; return (ok, reason, event).
+
+        On success the axis ramps on from the measured position (when enabled).
+        """
+        active = self.still_active(z, z_dot, force, feedback_age_s)
+        if active:
+            why = ('still tripping: ' + ', '.join(
+                f'{d} ({self._describe(d, z, z_dot, force, feedback_age_s)})' for d in active))
+            return False, why, Event(stamp_ns, 'reset_refused', ','.join(active), math.nan,
+                                     math.nan, '', self.action, why)
+        cleared = self.tripped()
+        for s in self.latches.values():
+            s.tripped = False
+            s.count = 0
+        self._same = 0
+        was = self._mode
+        self._mode = 'run'
+        if was != 'run' or cleared:
+            self._ramp_pending = True
+        why = ('cleared ' + ', '.join(cleared)) if cleared else 'nothing was latched'
+        return True, why, Event(stamp_ns, 'reset', ','.join(cleared), math.nan, math.nan, '',
+                                'off', why)
+
+    def _describe(self, d: str, z: float, z_dot: float, force: float, age: float) -> str:
+        cfg = self.config
+        if d in ('limit_position_max', 'limit_position_min'):
+            return f'z = {z:.6g} m, limit {cfg.limit(d):g} m'
+        if d == 'limit_velocity':
+            return f'z_dot = {z_dot:.6g} m/s, limit {cfg.limit_velocity:g} m/s'
+        if d == 'limit_force':
+            return f'force = {force:.6g} N, limit {cfg.limit_force:g} N'
+        if not math.isfinite(z):
+            return 'position non-finite'
+        return f'no feedback for {age:.6g} s'
+
+    def enable(self, on: bool, stamp_ns: int) -> tuple[bool, str, Event]:
+        """Turn hydraulics on (ramp-on from the measured position) or off; (ok, why, event)."""
+        if not on:
+            self.enabled = False
+            return True, 'hydraulics off: 0 A', Event(stamp_ns, 'disabled', '', math.nan,
+                                                      math.nan, '', 'off', 'hydraulics off')
+        if _SEVERITY[self.action] > _SEVERITY['indicate']:
+            why = (f'interlock latched ({", ".join(self.tripped())}: {self.action}): reset '
+                   'first')
+            return False, why, Event(stamp_ns, 'enable_refused', ','.join(self.tripped()),
+                                     math.nan, math.nan, '', self.action, why)
+        if not self.enabled:
+            self.enabled = True
+            self._ramp_pending = True
+            self._mode = 'run'
+            return True, 'hydraulics on: ramping on', Event(
+                stamp_ns, 'enabled', '', math.nan, math.nan, '', 'off',
+                'hydraulics on: ramping on from the measured position')
+        return True, 'already on', Event(stamp_ns, 'enabled', '', math.nan, math.nan, '',
+                                         'off', 'already on')

@@ -1,0 +1,434 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Refit plant parameters from experiments: bounded trust-region-reflective least squares.
+
+The paper's section 3, shaped like ``scipy.optimize.least_squares``: :func:`identify`
+validates every input first (naming the argument) and returns an
+:class:`IdentificationResult` with ``x``, ``cost``, ``status``, ``message``, the iteration
+history, standard errors, the correlation matrix, fit metrics and identifiability warnings.
+
+How the fit works (docs/identification.md):
+
+* The model is driven by the *recorded* servo current (open-loop replay) and compared with
+  the measured velocity (the paper's signal), position and chamber pressures when recorded.
+  Each residual is divided by that signal's noise level, estimated from the data.
+* The record is cut into segments (default 1 s). Each segment starts from the measured
+  state; unmeasured states carry over from the previous segment. Position is compared up
+  to a constant per segment, so the noise of the starting sample does not bias the fit.
+  Without this, a noisy start offsets the whole open-loop position trace.
+* Parameters are scaled by Table 1's scale gains and bounded by its bounds. The Jacobian is
+  a forward difference in scaled units with a step of 1e-3 (the simulator's round-off makes
+  scipy's default 1.5e-8 step useless); its columns run in parallel on ``workers``
+  threads.
+* ``cost='sae'`` (the paper) is the pseudo-Huber ``soft_l1`` loss with ``f_scale`` 0.1 noise
+  sigma: |r| to within 5 % above 0.1 sigma, smooth for the Gauss-Newton model at zero.
+  ``cost='sse'`` is plain least squares.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+import math
+import os
+import time
+from typing import Callable, Sequence
+import warnings
+
+import numpy as np
+from ros_ehs.core.errors import IdentificationWarning, InputError, ParameterError
+from ros_ehs.core.identify.experiment import Experiment
+from ros_ehs.core.identify.problem import _fd_jacobian, FIT_H, LOAD, Problem, SIGNALS
+from ros_ehs.core.identify.uncertainty import BLOCK_S, standard_errors
+from ros_ehs.core.identify.verdict import (adequacy, fit_metrics, NOISE_RATIO_LIMIT,
+                                           SMALL_MODEL_ERROR, worst_noise_ratio)
+from ros_ehs.core.model.plant import MODELS
+from ros_ehs.core.params import ESTIMATED, Params, preset, spec
+from scipy.optimize import least_squares
+
+__all__ = ['IdentificationResult', 'fit_bounds', 'identify', 'multistart', 'score']
+
+#: Relative step and cost-change tolerances (``xtol``, ``ftol``) of the solve and of the SSE
+#: stage before an SAE one. The parameters' standard errors are 4e-4 to 1e-2 of their values
+#: on a 10 s bag, and a cost change of 1e-8 of some 2e4 is far below one unit of noise: the
+#: last iterations at 1e-10 moved no value by more than 2e-4 of its standard error.
+_TOL = 1e-8
+_TOL_FIRST = 1e-5
+
+
+@dataclass
+class IdentificationResult:
+    """What :func:`identify` found. ``x``: fitted values by name (SI units)."""
+
+    x: dict[str, float]
+    x0: dict[str, float]
+    params: Params | None
+    cost: float
+    sae: float
+    sse: float
+    status: int
+    message: str
+    success: bool
+    nfev: int
+    njev: int
+    iterations: int
+    history: list[dict]
+    stderr: dict[str, float]
+    correlation: np.ndarray
+    free: tuple[str, ...]
+    metrics: dict[str, dict[str, dict[str, float]]]
+    sigma: dict[str, dict[str, float]]
+    warnings: list[str] = field(default_factory=list)
+    #: the fitted model's signals per experiment (``z`` with the per-segment offsets the fit
+    #: allows), on the experiment's samples; for plots, not in the summary
+    fitted: dict[str, dict[str, np.ndarray]] = field(default_factory=dict, repr=False)
+    wall_s: float = 0.0
+    model: str = 'simplified'
+    cost_kind: str = 'sae'
+    #: the model-adequacy verdict: False when the sensor noise does not explain the fit or
+    #: the solver stopped at its evaluation limit; ``inadequacy`` says why, ``advice`` what
+    #: to run instead
+    adequate: bool = True
+    inadequacy: list[str] = field(default_factory=list)
+    advice: list[str] = field(default_factory=list)
+    #: the largest factor a standard error was widened by for correlated residuals (1: white)
+    stderr_widening: float = 1.0
+    #: :func:`multistart`'s summary when it was run (how many random starts reach this fit)
+    starts: dict = field(default_factory=dict)
+    #: :func:`ros_ehs.core.identify.design.recommend`'s answer when it was run: what the bags pin
+    #: down and the excitation that would pin down the rest
+    excitation: dict = field(default_factory=dict)
+    #: the input delay the current was built with: ``value_s``, and when the fit estimated
+    #: it (:mod:`ros_ehs.core.identify.delay`) ``stderr_s`` and the profile; empty when every run
+    #: records the current the valve got
+    input_delay: dict = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        """Return a JSON-ready summary."""
+        return {
+            'model': self.model, 'cost_kind': self.cost_kind, 'success': self.success,
+            'status': self.status, 'message': self.message, 'cost': self.cost,
+            'sae': self.sae, 'sse': self.sse, 'nfev': self.nfev, 'njev': self.njev,
+            'iterations': self.iterations, 'wall_s': self.wall_s,
+            'parameters': {n: {'value': self.x[n], 'initial': self.x0[n],
+                               'stderr': self.stderr[n], 'unit': spec(n).unit,
+                               'rel_stderr': (self.stderr[n] / abs(self.x[n])
+                                              if self.x[n] else math.inf)}
+                           for n in self.free},
+            'correlation': {'names': list(self.free),
+                            'matrix': np.round(self.correlation, 4).tolist()},
+            'adequate': self.adequate, 'inadequacy': self.inadequacy, 'advice': self.advice,
+            'stderr_widening': self.stderr_widening, 'starts': self.starts,
+            'excitation': self.excitation, 'input_delay': self.input_delay,
+            'fit': self.metrics, 'noise_sigma': self.sigma, 'warnings': self.warnings,
+            'history': self.history,
+        }
+
+
+def _check(experiments, free, model, signals, cost, base, x0, segment, h, workers,
+           max_nfev) -> tuple[list[Experiment], tuple[str, ...], Params]:
+    if isinstance(experiments, Experiment):
+        experiments = [experiments]
+    experiments = list(experiments)
+    if not experiments or not all(isinstance(e, Experiment) for e in experiments):
+        raise InputError('`experiments` must be one or more Experiment records '
+                         '(ros_ehs.data.bag.load_experiment)')
+    if model not in MODELS:
+        raise InputError(f'`model` = {model!r} is not one of {sorted(MODELS)}')
+    if cost not in ('sae', 'sse'):
+        raise InputError(f"`cost` = {cost!r} is not one of ['sae', 'sse']")
+    free = tuple(free)
+    if not free:
+        raise InputError('`free` is empty: name at least one parameter to fit')
+    for n in free:
+        try:
+            s = spec(n)
+        except (KeyError, ParameterError):
+            raise InputError(f'`free`: {n!r} is not a parameter') from None
+        if s.is_choice:
+            raise InputError(f'`free`: {n!r} is a choice, not a number')
+    if len(set(free)) != len(free):
+        raise InputError(f'`free` names a parameter twice: {list(free)}')
+    bad = [s for s in signals if s not in SIGNALS]
+    if bad or 'z_dot' not in signals:
+        raise InputError(f'`signals` = {list(signals)} must include z_dot and be among '
+                         f'{list(SIGNALS)}')
+    if not isinstance(base, Params):
+        raise InputError(f'`base` must be a Params, got {type(base).__name__}')
+    if x0 is not None:
+        unknown = [k for k in x0 if k not in free]
+        if unknown:
+            raise InputError(f'`x0` names parameters that are not free: {unknown}')
+        base = base.replace(**x0)
+    if segment is not None and not (isinstance(segment, (int, float)) and segment > 0):
+        raise InputError(f'`segment` = {segment!r} s must be > 0 or None')
+    if workers is not None and not (isinstance(workers, int) and workers >= 1):
+        raise InputError(f'`workers` = {workers!r} must be an integer >= 1 (or None: auto)')
+    if not (isinstance(max_nfev, int) and max_nfev >= 1):
+        raise InputError(f'`max_nfev` = {max_nfev!r} must be an integer >= 1')
+    dts = {round(e.dt, 12) for e in experiments}
+    if h is not None and not (isinstance(h, (int, float)) and 0 < h <= min(dts)):
+        raise InputError(f'`h` = {h!r} s must be in (0, sample period]')
+    return experiments, free, base
+
+
+def fit_bounds(name: str) -> tuple[float, float]:
+    """Return the bounds the fit keeps parameter ``name`` in: Table 1's, inside its range."""
+    s = spec(name)
+    lo = s.est_lo if s.est_lo is not None else s.lo
+    hi = s.est_hi if s.est_hi is not None else s.hi
+    return max(lo, s.lo), min(hi, s.hi)
+
+
+def _bounds(free, base):
+    lo, hi = [], []
+    for n in free:
+        a, b = fit_bounds(n)
+        lo.append(a)
+        hi.append(b)
+        if not a <= base[n] <= b:
+            raise InputError(f'initial {n} = {base[n]!r} {spec(n).unit} is outside its '
+                             f'bounds [{a:g}, {b:g}]')
+    return np.array(lo), np.array(hi)
+
+
+def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
+           max_nfev: int, workers: int, progress) -> tuple:
+    """
+    Run the TRF solve (SSE then SAE, or one stage).
+
+    Returns scipy's result, the Jacobian at the optimum, the iteration history (with the
+    optimum last) and the number of Jacobians.
+    """
+    lo_s, hi_s = bounds
+    history: list[dict] = []
+    last_jac: list[np.ndarray] = []
+    problem.residual(theta0)   # compile/warm the kernels before the threads use them
+    pool = None
+    if workers > 1 and len(problem.free) > 1:
+        pool = ThreadPoolExecutor(min(workers, len(problem.free)), thread_name_prefix='ehs-jac')
+
+    def jac(theta: np.ndarray) -> np.ndarray:
+        J = _fd_jacobian(problem, theta, hi_s, pool)
+        last_jac[:] = [J, theta.copy()]
+        entry = {'iteration': len(history) + 1,
+                 'cost': _loss(problem.residual(theta), cost), 'x': problem.values(theta)}
+        history.append(entry)
+        if progress:
+            progress(entry)
+        return J
+
+    def solve(start, loss, budget, tol):
+        return least_squares(problem.residual, start, jac=jac, bounds=(lo_s, hi_s),
+                             method='trf', loss=loss, f_scale=0.1 if loss != 'linear' else 1.0,
+                             max_nfev=budget, xtol=tol, ftol=tol, gtol=1e-10)
+
+    try:
+        if cost == 'sae' and warm:
+            sol = solve(theta0, 'soft_l1', max_nfev, _TOL)
+        elif cost == 'sae':
+            # Continuation: far from the optimum nearly every residual sits in soft_l1's
+            # linear (L1) branch and TRF can stall in a poor point (seen on real-time bench
+            # bags). An SSE solve first brings the parameters close, then SAE refines.
+            # Both stages count in the iterations and evaluations.
+            # The first stage only has to come close: its tolerance is looser.
+            first = solve(theta0, 'linear', max(1, max_nfev // 2), _TOL_FIRST)
+            sol = solve(first.x, 'soft_l1', max(1, max_nfev - first.nfev), _TOL)
+            sol.nfev += first.nfev
+        else:
+            sol = solve(theta0, 'linear', max_nfev, _TOL)
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    if last_jac and np.array_equal(last_jac[1], sol.x):
+        J = last_jac[0]
+    else:
+        J = _fd_jacobian(problem, sol.x, hi_s, None)
+    njev = len(history)
+    final = {'iteration': njev + 1, 'cost': _loss(sol.fun, cost), 'x': problem.values(sol.x)}
+    if not history or history[-1]['x'] != final['x']:
+        history.append(final)
+    return sol, J, history, njev
+
+
+def _value_notes(xv: dict, se: np.ndarray, free, theta, lo_s, hi_s) -> list[str]:
+    """Return the notes on the fitted values: not identifiable, or ended on a bound."""
+    notes = []
+    for n, v in xv.items():
+        k = free.index(n)
+        if v != 0 and math.isfinite(se[k]) and se[k] / abs(v) > 0.5:
+            notes.append(f'{n} is not identifiable from these data: standard error '
+                         f'{se[k]:.3g} {spec(n).unit} is {100 * se[k] / abs(v):.0f} % of '
+                         'its value')
+        if np.isclose(theta[k], lo_s[k]) or np.isclose(theta[k], hi_s[k]):
+            notes.append(f'{n} = {v:.6g} {spec(n).unit} ended on a bound; the data push it '
+                         "beyond Table 1's range")
+    return notes
+
+
+def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simplified',
+             signals: Sequence[str] = SIGNALS, cost: str = 'sae', base: Params | None = None,
+             x0: dict[str, float] | None = None, segment: float | None = 1.0,
+             h: float | None = None, workers: int | None = None, max_nfev: int = 100,
+             warm: bool = False,
+             progress: Callable[[dict], None] | None = None) -> IdentificationResult:
+    """
+    Fit the ``free`` parameters of ``model`` to ``experiments`` (jointly).
+
+    Parameters
+    ----------
+    experiments : Experiment or sequence of Experiment
+        Recorded runs (:func:`ros_ehs.data.experiments.load_experiment`).
+    free : names
+        Parameters to fit (default: the paper's seven of Table 1). Others stay at ``base``.
+    model : {'simplified', 'reduced', 'full'}
+        The plant model to fit: the paper's simplified one; the reduced one (the simplified
+        one with the full model's valve lag and load-dependent gain: the one to fit to a real
+        rig, ``docs/model.md``); or the full 10-state model.
+    signals : names
+        Fitted outputs among ``z_dot`` (required), ``z``, ``p_CP``, ``p_CT``; those an
+        experiment did not record are skipped.
+    cost : {'sae', 'sse'}
+        Sum of absolute errors (the paper) or of squared errors.
+    base : Params
+        Starting point and fixed values (default: Table 1's initial values).
+    x0 : dict, optional
+        Override starting values of free parameters.
+    segment : float or None
+        Replay segment length [s] (None: one open-loop replay of the whole record).
+    h : float, optional
+        Integration step [s] (default ``FIT_H[model]``).
+    workers : int or None
+        Threads for the Jacobian's columns (the kernels release the GIL). None (default):
+        2 where the machine has 2 CPUs (the simplified model's cold fit of a 10 s bag
+        measured 0.65-0.8 s against 0.8-1.0 s serially, ``python -m ros_ehs.benchmarks
+        identify``). A live refit beside a running loop takes 1, so it keeps to its CPU.
+    max_nfev : int
+        Limit on residual evaluations (not counting Jacobian columns).
+    warm : bool
+        The starting values are a recent estimate of the same system (a live refit): the
+        SAE solve starts from them directly, without the SSE stage that brings a cold start
+        close first.
+    progress : callable, optional
+        Called with ``{'iteration', 'cost', 'x'}`` after each iteration.
+
+    """
+    t_start = time.perf_counter()
+    base = base if base is not None else preset('table1_initial')
+    experiments, free, base = _check(experiments, free, model, signals, cost, base, x0,
+                                     segment, h, workers, max_nfev)
+    h = FIT_H[model] if h is None else h
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1)
+    lo, hi = _bounds(free, base)
+    problem = Problem(experiments, base, free, model, signals, segment, h)
+    sc = problem.scale
+    theta0 = np.array([base[n] for n in free]) / sc
+    lo_s, hi_s = lo / sc, hi / sc
+    sol, J, history, njev = _solve(problem, theta0, (lo_s, hi_s), cost, warm, max_nfev,
+                                   workers, progress)
+    theta = sol.x
+    r = sol.fun
+    fitted: dict[str, dict[str, np.ndarray]] = {}
+    metrics = fit_metrics(problem, theta, fitted)
+    se, corr, notes, widening = standard_errors(J, r, cost, free, metrics,
+                                                problem.blocks(BLOCK_S))
+    se = se * sc
+    worst = worst_noise_ratio(metrics)
+    if SMALL_MODEL_ERROR < worst <= NOISE_RATIO_LIMIT:
+        notes.append(f'the worst residual is {worst:.2f}x the sensor noise: a small model '
+                     'error remains, and it can bias the values by more than their standard '
+                     'errors (docs/identification.md)')
+    xv = problem.values(theta)
+    notes += _value_notes(xv, se, free, theta, lo_s, hi_s)
+    try:
+        params = base.replace(**xv)
+    except ParameterError as e:
+        params = None
+        notes.append(f'the fitted set is not a valid parameter set: {e}')
+    for note in notes:
+        warnings.warn(note, IdentificationWarning, stacklevel=2)
+    inadequacy, advice = adequacy(metrics, int(sol.status), max_nfev, model)
+    return IdentificationResult(
+        x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
+        sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),
+        message=str(sol.message), success=bool(sol.success), nfev=int(sol.nfev),
+        njev=njev, iterations=njev, history=history,
+        stderr={n: float(s) for n, s in zip(free, se)}, correlation=corr, free=free,
+        metrics=metrics, fitted=fitted,
+        sigma={ex.name: {**{problem.names[j]: float(s) for j, s in zip(ex.measured, ex.sigma)},
+                         **({LOAD: float(ex.load_sigma)} if ex.load is not None else {})}
+               for ex in problem.exps},
+        warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost,
+        adequate=not inadequacy, inadequacy=inadequacy, advice=advice,
+        stderr_widening=widening)
+
+
+def _loss(r: np.ndarray, cost: str) -> float:
+    return float(np.sum(np.abs(r)) if cost == 'sae' else 0.5 * np.sum(r ** 2))
+
+
+def score(params: Params, experiments, *, model: str = 'simplified',
+          signals: Sequence[str] = SIGNALS, segment: float | None = 1.0,
+          h: float | None = None) -> dict[str, dict[str, dict[str, float]]]:
+    """Fit metrics (NRMSE, R^2, RMS per signal) of ``params`` on held-out ``experiments``."""
+    experiments, _, params = _check(experiments, ('c_c',), model, signals, 'sse', params,
+                                    None, segment, h, 1, 1)
+    h = FIT_H[model] if h is None else h
+    problem = Problem(experiments, params, ('c_c',), model, signals, segment, h)
+    return fit_metrics(problem, np.array([params['c_c']]) / problem.scale)
+
+
+def multistart(experiments, result: IdentificationResult, *, starts: int = 10, seed: int = 0,
+               within: float = 0.01, **kwargs) -> dict:
+    """
+    Refit from ``starts`` seeded random starting points; report how many reach ``result``.
+
+    Starts are drawn log-uniformly (uniformly for ``x_bias``) within the fit's bounds and a
+    factor 20 around Table 1's initial values (``x0`` of ``result``), F_cc at most F_sc. A
+    start reaches the same optimum when every parameter lands within ``within`` (relative)
+    or two standard errors of ``result``'s value. ``kwargs`` go to :func:`identify` (the
+    same model, free set, cost...). Returns a JSON-ready summary.
+    """
+    if not (isinstance(starts, int) and starts >= 1):
+        raise InputError(f'`starts` = {starts!r} must be an integer >= 1')
+    rng = np.random.default_rng(seed)
+    free = list(result.free)
+    lo, hi = _bounds(free, kwargs.get('base') or preset('table1_initial'))
+    runs = []
+    for _ in range(starts):
+        x0 = {}
+        for k, n in enumerate(free):
+            a, b = lo[k], hi[k]
+            if a > 0:
+                a, b = max(a, result.x0[n] / 20), min(b, result.x0[n] * 20)
+                x0[n] = float(np.exp(rng.uniform(np.log(a), np.log(b))))
+            else:
+                x0[n] = float(rng.uniform(a, b))
+        if 'F_cc' in x0 and 'F_sc' in x0 and x0['F_cc'] > x0['F_sc']:
+            x0['F_cc'], x0['F_sc'] = x0['F_sc'], x0['F_cc']
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', IdentificationWarning)
+            r = identify(experiments, x0=x0, **kwargs)
+        same = all(abs(r.x[n] - result.x[n])
+                   <= max(within * abs(result.x[n]), 2.0 * result.stderr[n]) for n in free)
+        runs.append({'x0': x0, 'x': r.x, 'cost': r.cost, 'same_optimum': bool(same),
+                     'adequate': r.adequate})
+    n_same = sum(r['same_optimum'] for r in runs)
+    return {'starts': starts, 'seed': seed, 'same_optimum': n_same,
+            'message': f'{n_same} of {starts} random starts reached the same optimum '
+                       f'(every parameter within {within:.0%} or 2 standard errors)',
+            'best_cost_found': min([result.cost] + [r['cost'] for r in runs]),
+            'runs': runs}

@@ -1,0 +1,335 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Identification experiments: one recorded run on a uniform grid, and cutting runs from series.
+
+:class:`Experiment` is what the estimator fits. :func:`experiments_from_series` cuts the
+contiguous runs of time series (stamps in ns on the state's clock) into experiments, as a
+bag's are cut (:mod:`ros_ehs.data.experiments` reads the series from a bag, the live
+identifier from the running loop):
+
+* states closer than 0.45 of the median period to the one kept before them are dropped (a
+  stray publisher, another clock); the experiment's name says how many;
+* a gap (a missed sample: more than 1.5 periods) splits the series into runs, and runs too
+  short to fit (:data:`MIN_SAMPLES`) are dropped, as are runs in which the piston does not
+  move when another run does;
+* a run whose stamps jitter (a driver's timestamps) is resampled onto a uniform grid at its
+  mean period, the position (and velocity) linearly;
+* the current of each period is the applied current the state reports where it does (our
+  plant's joint ``servo_valve``), otherwise the command in force, averaged over the period,
+  ``delay`` later than its stamp;
+* a missing velocity is derived from the position by a Savitzky-Golay derivative (quadratic,
+  about 5 ms wide) and its noise is the position's noise times that filter's gain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import math
+
+import numpy as np
+from ros_ehs.core.errors import DataError
+from ros_ehs.core.noise import noise_sigma
+
+__all__ = ['Experiment', 'MIN_SAMPLES', 'NoExcitation', 'Series', 'cut_experiment',
+           'experiment_from_arrays', 'experiments_from_series', 'on_grid', 'run_bounds',
+           'sorted_by_time', 'split_runs']
+
+#: Fewer state samples than this is "too little data" for a 7-parameter fit.
+MIN_SAMPLES = 500
+#: Width of the Savitzky-Golay derivative that derives a missing velocity [s] (>= 5 samples).
+DERIVATIVE_WIDTH = 5.0e-3
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """
+    One recorded run on a uniform grid: ``t`` [s], ``i`` [A], ``z`` [m], ``v`` [m/s], ...
+
+    ``noise`` holds a known noise level [unit] per signal (the derived velocity's), used
+    instead of an estimate from the signal; ``derived`` names the signals computed rather
+    than measured. ``commands`` (times [s] on ``t``'s clock, values [A]) is the command
+    series ``i`` was built from with ``delay`` [s], kept so the fit can try another delay
+    (:meth:`with_delay`); None when ``i`` is the current the valve got.
+    """
+
+    name: str
+    t: np.ndarray
+    i: np.ndarray
+    z: np.ndarray
+    v: np.ndarray
+    p_a: np.ndarray | None = None
+    p_b: np.ndarray | None = None
+    noise: dict | None = None
+    derived: tuple[str, ...] = ()
+    commands: tuple[np.ndarray, np.ndarray] | None = None
+    delay: float = 0.0
+    p_load: np.ndarray | None = None
+    t0_ns: int = 0      #: the state clock's stamp of ``t = 0`` [ns]
+    #: the run starts after a gap in the record, mid-motion: the fit settles the valve's
+    #: states for the first sample instead of starting them at rest
+    after_gap: bool = False
+
+    @property
+    def dt(self) -> float:
+        """Sample period [s]."""
+        return float(self.t[1] - self.t[0])
+
+    @property
+    def duration(self) -> float:
+        """Length of the record [s]."""
+        return float(self.t[-1] - self.t[0])
+
+    def signals(self) -> dict[str, np.ndarray]:
+        """Measured outputs by name: ``z_dot``, ``z`` and, when recorded, ``p_CP``, ``p_CT``."""
+        out = {'z_dot': self.v, 'z': self.z}
+        if self.p_a is not None and self.p_b is not None:
+            out['p_CP'] = self.p_a
+            out['p_CT'] = self.p_b
+        return out
+
+    def with_delay(self, delay: float) -> 'Experiment':
+        """Return this run with the current rebuilt from its commands ``delay`` [s] later."""
+        if self.commands is None:
+            raise DataError(f'{self.name}: the current is the one the valve got; it has no '
+                            'command series to delay')
+        tc, vc = self.commands
+        return replace(self, i=_held_average(tc, vc, self.t, delay), delay=float(delay))
+
+
+class NoExcitation(DataError):
+    """A run in which the piston did not move (a hold before the trajectory started)."""
+
+
+def _held_average(tc: np.ndarray, vc: np.ndarray, t: np.ndarray, delay: float) -> np.ndarray:
+    """
+    Return the mean over each period ``[t_k, t_k+1]`` of the command ``delay`` earlier.
+
+    ``tc`` (sorted) / ``vc``: when each command took over and its value; before the first
+    command, the first value. The last sample repeats the last period's value.
+    """
+    if t.size < 2:
+        return np.full(t.shape, vc[0] if vc.size else math.nan)
+    # the cumulative integral of the held command: piecewise linear, exact under np.interp
+    edges = np.concatenate([[min(tc[0], t[0] - delay) - 1.0], tc[1:],
+                            [max(tc[-1], t[-1] - delay) + 1.0]])
+    area = np.concatenate([[0.0], np.cumsum(vc * np.diff(edges))])
+    a = np.interp(t - delay, edges, area)
+    out = np.empty(t.shape)
+    out[:-1] = np.diff(a) / np.diff(t)
+    out[-1] = out[-2]
+    return out
+
+
+def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experiment:
+    """Build and check an :class:`Experiment` from arrays (``t`` uniform, seconds)."""
+    t = np.asarray(t, dtype=float)
+    arrs = {'i': np.asarray(i, dtype=float), 'z': np.asarray(z, dtype=float),
+            'v': np.asarray(v, dtype=float)}
+    for k, a in arrs.items():
+        if a.shape != t.shape:
+            raise DataError(f'{name}: `{k}` has shape {a.shape}, `t` has {t.shape}')
+    n = t.size
+    if n < MIN_SAMPLES:
+        raise DataError(f'{name}: too little data: {n} samples (need at least {MIN_SAMPLES}, '
+                        f'e.g. {MIN_SAMPLES / 1000:g} s at 1 kHz)')
+    dts = np.diff(t)
+    dt = float(np.median(dts))
+    if not dt > 0 or np.max(np.abs(dts - dt)) > 0.25 * dt:
+        k = int(np.argmax(np.abs(dts - dt)))
+        raise DataError(f'{name}: samples are not on a uniform grid (period {dt:g} s, but '
+                        f'{dts[k]:g} s between t = {t[k]:g} and {t[k + 1]:g} s)')
+    for k, a in arrs.items():
+        if not np.all(np.isfinite(a)):
+            j = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise DataError(f'{name}: `{k}` is not finite at t = {t[j]:g} s')
+    if np.ptp(arrs['i']) < 1e-5 or np.ptp(arrs['z']) < 1e-4:
+        raise NoExcitation(
+            f'{name}: no excitation: the current spans {np.ptp(arrs["i"]):.3g} A and the '
+            f'piston {np.ptp(arrs["z"]):.3g} m (need a moving piston, e.g. a 1 Hz sine of a '
+            'few cm)')
+    pa = None if p_a is None else np.asarray(p_a, dtype=float)
+    pb = None if p_b is None else np.asarray(p_b, dtype=float)
+    return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], pa, pb)
+
+
+def on_grid(ts: np.ndarray) -> np.ndarray:
+    """
+    Return the mask of the states on the record's sample grid (sorted, distinct stamps [ns]).
+
+    A state closer than 0.45 of the median period to the one kept before it is a stranger (a
+    stray publisher, another clock, a replay into a live bench) and is dropped.
+    """
+    keep = np.ones(ts.size, dtype=bool)
+    d = np.diff(ts)
+    if d.size == 0:
+        return keep
+    close = 0.45 * np.median(d)
+    if not np.any(d < close):
+        return keep
+    last = ts[0]
+    for j in range(1, ts.size):
+        if ts[j] - last < close:
+            keep[j] = False
+        else:
+            last = ts[j]
+    return keep
+
+
+def sorted_by_time(t: np.ndarray, *vals: np.ndarray):
+    o = np.argsort(t, kind='stable')
+    return (t[o],) + tuple(v[o] for v in vals)
+
+
+@dataclass
+class Series:
+    """Time series of one source (a bag, the live loop) on the state's clock [ns]."""
+
+    name: str
+    ts: np.ndarray
+    z: np.ndarray
+    v: np.ndarray
+    applied: np.ndarray
+    tc: np.ndarray
+    vc: np.ndarray
+    pressures: list        # [(t [ns], Pa)] per chamber, one (load), or none
+    load: bool
+    delay: float
+
+
+def _savgol_width(dt: float) -> int:
+    n = max(3, int(round(DERIVATIVE_WIDTH / dt)))
+    return n + 1 - n % 2
+
+
+def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
+    """Build the experiment of samples ``a:b`` (one contiguous run)."""
+    ts = rec.ts[a:b]
+    span = (ts - ts[0]) * 1e-9
+    dts = np.diff(span)
+    dt = float(span[-1] / (span.size - 1)) if span.size > 1 else 1e-3
+    z, v, applied = rec.z[a:b], rec.v[a:b], rec.applied[a:b]
+    exact = dts.size == 0 or float(np.max(np.abs(dts - np.median(dts)))) <= 1e-6 * dt
+    # each measured signal's noise, on its raw samples, before the grid averages neighbours
+    noise = {'z': noise_sigma(z, span)}
+    if np.all(np.isfinite(v)):
+        noise['z_dot'] = noise_sigma(v, span)
+    for key, (tp, pv) in zip(('p_CP', 'p_CT') if not rec.load else ('p_L',), rec.pressures):
+        m = (tp >= ts[0]) & (tp <= ts[-1])
+        if m.sum() >= 8:
+            noise[key] = noise_sigma(pv[m], (tp[m] - ts[0]) * 1e-9)
+    if exact:
+        t = span
+    else:        # a driver's jittered stamps: onto a uniform grid at the mean period
+        t = np.arange(span.size) * dt
+        z = np.interp(t, span, z)
+        v = np.interp(t, span, v) if np.all(np.isfinite(v)) else np.full(t.shape, np.nan)
+        applied = np.full(t.shape, np.nan)
+    t0_ns = int(ts[0])
+    commands = None
+    if applied.size > 1 and np.all(np.isfinite(applied)):
+        # state k reports the current of the period that ended at it: shift by one
+        c = np.append(applied[1:], applied[-1])
+    else:
+        tc = (rec.tc - t0_ns) * 1e-9
+        commands = (tc, rec.vc)
+        first = tc[0] + rec.delay        # no command in force before this
+        k0 = int(np.searchsorted(t, first - 1e-12))
+        if k0 and t.size - k0 < MIN_SAMPLES:     # (nearly) all before the first command
+            raise NoExcitation(f'{name}: {k0} of its {t.size} samples come before the first '
+                               'command; too few are left')
+        if k0:
+            t, z, v = t[k0:] - t[k0], z[k0:], v[k0:]
+            t0_ns += int(round(span[k0] * 1e9)) if exact else int(round(k0 * dt * 1e9))
+            commands = (tc - (t0_ns - int(ts[0])) * 1e-9, rec.vc)
+        c = _held_average(commands[0], commands[1], t, rec.delay)
+    derived = ()
+    if not np.all(np.isfinite(v)) and np.all(np.isfinite(z)) and t.size >= 5:
+        from scipy.signal import savgol_coeffs, savgol_filter
+        w = min(_savgol_width(dt), t.size - (1 - t.size % 2))
+        v = savgol_filter(z, w, 2, deriv=1, delta=dt, mode='interp')
+        gain = float(np.sqrt(np.sum(savgol_coeffs(w, 2, deriv=1) ** 2))) / dt
+        noise['z_dot'], derived = noise['z'] * gain, ('z_dot',)
+    pa = pb = pl = None
+    tt = t0_ns + np.round(t * 1e9).astype(np.int64)
+    if rec.pressures:
+        vals = [np.interp(tt, tp, pv) for tp, pv in rec.pressures]
+        if rec.load:
+            pl = vals[0]
+        else:
+            pa, pb = vals
+    e = experiment_from_arrays(name, t, c, z, v, pa, pb)
+    return replace(e, noise=noise, derived=derived, commands=commands, delay=rec.delay,
+                   p_load=pl, t0_ns=t0_ns, after_gap=a > 0)
+
+
+def run_bounds(ts: np.ndarray) -> tuple[list[tuple[int, int]], list[int]]:
+    """Return the (start, end) index pairs of the gapless runs of stamps ``ts``, and the cuts."""
+    d = np.diff(ts)
+    cuts = np.flatnonzero(d > 1.5 * np.median(d)) + 1 if d.size else np.array([], int)
+    edges = [0, *cuts.tolist(), ts.size]
+    return list(zip(edges[:-1], edges[1:])), cuts.tolist()
+
+
+def experiments_from_series(name: str, ts, z, v, applied=None, commands=None,
+                            pressures=(), load: bool = False,
+                            delay: float = 0.0) -> list[Experiment]:
+    """
+    Cut the contiguous runs of series held in memory, as :func:`load_experiments` cuts a bag's.
+
+    What a live refit fits: ``ts`` [ns] are the states' stamps (sorted or not) with position
+    ``z`` [m], velocity ``v`` [m/s] (NaN: derived from the position) and ``applied`` current
+    [A] (NaN or None: unknown, then ``commands`` = (stamps [ns, the state's clock], currents
+    [A]) held ``delay`` [s] later are used); ``pressures``: (stamps [ns], values [Pa]) per
+    chamber, or one load pressure with ``load``. Raises :class:`DataError` as the bag path
+    does (too little data, no excitation).
+    """
+    ts = np.asarray(ts, dtype=np.int64)
+    z = np.asarray(z, dtype=float)
+    v = np.asarray(v, dtype=float)
+    applied = np.full(z.shape, np.nan) if applied is None else np.asarray(applied, float)
+    order = np.argsort(ts, kind='stable')
+    ts, z, v, applied = ts[order], z[order], v[order], applied[order]
+    keep = np.concatenate([[True], np.diff(ts) > 0]) if ts.size else np.zeros(0, bool)
+    ts, z, v, applied = ts[keep], z[keep], v[keep], applied[keep]
+    tc, vc = (np.zeros(0, np.int64), np.zeros(0)) if commands is None else (
+        np.asarray(commands[0], dtype=np.int64), np.asarray(commands[1], dtype=float))
+    if ts.size < 2 or (tc.size == 0 and not np.all(np.isfinite(applied))):
+        raise DataError(f'{name}: too little data: {ts.size} states and {tc.size} commands')
+    tc, vc = sorted_by_time(tc, vc)
+    press = [sorted_by_time(np.asarray(t, dtype=np.int64), np.asarray(p, dtype=float))
+             for t, p in pressures]
+    return split_runs(Series(name, ts, z, v, applied, tc, vc, press, load, float(delay)))
+
+
+def split_runs(rec: Series) -> list[Experiment]:
+    """Return the experiments of a record's contiguous runs (see :func:`load_experiments`)."""
+    runs, cuts = run_bounds(rec.ts)
+    long_ = [(a, b) for a, b in runs if b - a >= MIN_SAMPLES]
+    if not long_:
+        longest = max(b - a for a, b in runs)
+        raise DataError(f'{rec.name}: too little data: the longest run without missing '
+                        f'samples has {longest} samples (need at least {MIN_SAMPLES}); '
+                        f'{len(cuts)} gaps')
+    if len(long_) == 1:
+        return [cut_experiment(rec, *long_[0], rec.name)]
+    out, still = [], []
+    for k, (a, b) in enumerate(long_):
+        try:
+            out.append(cut_experiment(rec, a, b, f'{rec.name} [{k + 1}/{len(long_)}]'))
+        except NoExcitation as err:      # e.g. the hold before the reference started
+            still.append(str(err))
+    if not out:
+        raise DataError(f'{rec.name}: no run moves the piston: ' + '; '.join(still))
+    return out

@@ -1,0 +1,260 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The residual a fit minimises, and its Jacobian.
+
+:class:`Problem` replays each experiment's recorded current into the model segment by
+segment (each from the measured state; unmeasured states carry over), and returns the
+normalised residuals of the fitted signals (each divided by its noise, position up to a
+constant per segment) as a function of the scaled free parameters: the unchecked fast path
+of :func:`ros_ehs.core.identify.estimator.identify` (each signal's noise from
+:func:`ros_ehs.core.noise.noise_sigma`); :func:`_fd_jacobian` differentiates the residual by
+forward differences, its columns on threads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Sequence
+
+import numpy as np
+from ros_ehs.core.identify.experiment import Experiment
+from ros_ehs.core.model import kernels as K
+from ros_ehs.core.model.kernels import coefficients
+from ros_ehs.core.model.plant import DEFAULT_H, DEFAULT_JAC_EVERY, MODELS, Plant
+from ros_ehs.core.noise import noise_sigma
+from ros_ehs.core.params import Params, spec
+
+__all__ = ['FIT_H', 'LOAD', 'Problem', 'SIGNALS']
+
+
+SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT', 'p_L')
+
+
+#: the load pressure p_CP - p_CT: fitted where a rig records only that (not a state)
+LOAD = 'p_L'
+
+
+_FD_STEP = 1e-3
+
+
+#: Integration step of the replay [s], per model. The full model's is seven substeps of a
+#: 1 ms sample (143 us, 2.9x its plant's 50 us): on the identify bench's full-model rig the
+#: cold fit took 3.0 s against 3.5 s at eight (125 us), every value within 0.55 % of the
+#: truth at either (the closed-loop error at 125 us stays <= 1.6e-5 m, docs/model.md).
+FIT_H = {'full': 1e-3 / 7, 'reduced': DEFAULT_H['reduced'],
+         'simplified': DEFAULT_H['simplified']}
+
+
+@dataclass
+class _Exp:
+    """An experiment prepared for the fast path."""
+
+    name: str
+    u: np.ndarray                # (N, 2) held inputs
+    y: np.ndarray                # (N+1, n_state) measurements placed at state indices
+    measured: np.ndarray         # state indices measured and fitted
+    sigma: np.ndarray            # per measured index
+    edges: list[int]             # segment k covers samples edges[k] .. edges[k+1] - 1
+    dt: float
+    x0: np.ndarray               # full initial state (unmeasured from equilibrium)
+    load: np.ndarray | None = None    # measured load pressure p_CP - p_CT (chambers not)
+    load_sigma: float = 1.0
+
+    def segments(self):
+        """Yield (first, end) sample indices of each replay segment; the last ends at N+1."""
+        return zip(self.edges[:-1], self.edges[1:])
+
+    def offset_free(self, e: np.ndarray) -> np.ndarray:
+        """Remove the mean of ``e`` (a position error) per segment, in place."""
+        for a, b in self.segments():
+            e[a:b] -= e[a:b].mean()
+        return e
+
+
+#: the piston has moved once it is this many position-noise sigmas from where it started
+MOVED = 10.0
+#: a run's breakaway starts a replay segment only on a grid this fine or finer [s]
+BREAKAWAY_DT = 1.0e-3
+
+
+def _with_breakaway(edges: list, z: np.ndarray) -> list:
+    """Add a segment edge where a run that starts at rest first moves (its breakaway)."""
+    sz = noise_sigma(z)
+    moved = np.flatnonzero(np.abs(z - z[0]) > MOVED * sz)
+    if not moved.size:
+        return edges
+    k = int(moved[0])
+    if k <= 1 or k >= edges[-1] - 2 or k in edges:
+        return edges
+    return sorted(edges + [k])
+
+
+class Problem:
+    """
+    The residual of a set of experiments as a function of the scaled free parameters.
+
+    The fast path (no checks): ``residual(theta)`` with ``theta = value / scale``.
+    """
+
+    def __init__(self, experiments: Sequence[Experiment], base: Params, free: Sequence[str],
+                 model: str, signals: Sequence[str], segment: float, h: float | None) -> None:
+        self.base = dict(base)
+        self.free = tuple(free)
+        self.scale = np.array([spec(n).scale or abs(base[n]) or 1.0 for n in self.free])
+        self.model = model
+        plant = Plant(base, model, h=h)
+        self.plant = plant
+        self.mid = MODELS[model][0]
+        self.names = plant.state_names
+        self.xscale = plant._xscale
+        self.jac_every = DEFAULT_JAC_EVERY[model]
+        self.exps: list[_Exp] = []
+        names: list[str] = []
+        for e in experiments:
+            # results are keyed by name: two bags called alike get '#2', '#3'
+            name = e.name if e.name not in names else f'{e.name} #{names.count(e.name) + 1}'
+            names.append(e.name)
+            sig = e.signals()
+            use = [s for s in signals if s in sig]
+            measured = np.array([self.names.index(s) for s in use])
+            y = np.zeros((e.t.size, plant.n))
+            for s in use:
+                y[:, self.names.index(s)] = sig[s]
+            # a derived signal's noise is known from what it was derived from (the
+            # experiment's ``noise``); a measured one's is estimated from the signal
+            known = getattr(e, 'noise', None) or {}
+            sigma = np.array([known[s] if s in known else noise_sigma(sig[s]) for s in use])
+            x0 = plant.equilibrium(z=float(e.z[0]), i=float(e.i[0]))
+            x0[measured] = y[0, measured]
+            load = getattr(e, 'p_load', None)
+            if load is not None and (LOAD not in signals or 'p_CP' in use):
+                load = None
+            if load is not None:      # only the difference is measured: split it evenly
+                self._split(x0, float(load[0]))
+            if getattr(e, 'after_gap', False):      # it starts mid-motion
+                x0 = plant.settle_valve(x0, float(e.i[0]))
+            seg = max(1, int(round(segment / e.dt))) if segment else e.t.size
+            edges = list(range(0, e.t.size - 1, seg)) + [e.t.size]
+            if not getattr(e, 'after_gap', False) and e.dt <= 1.01 * BREAKAWAY_DT:
+                edges = _with_breakaway(edges, e.z)
+            self.exps.append(_Exp(name, np.column_stack([e.i[:-1], np.zeros(e.t.size - 1)]),
+                                  y, measured, sigma, edges, e.dt, x0, load,
+                                  known.get(LOAD) or (noise_sigma(load) if load is not None
+                                                      else 1.0)))
+        self.ipa, self.ipb = self.names.index('p_CP'), self.names.index('p_CT')
+        self.nsub = [max(1, int(math.ceil(ex.dt / plant.h - 1e-9))) for ex in self.exps]
+        self.nfev = 0
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _split(self, x: np.ndarray, p_load: float) -> None:
+        """Set the chamber pressures to a measured load pressure, keeping their sum."""
+        a, b = self.names.index('p_CP'), self.names.index('p_CT')
+        total = x[a] + x[b]
+        x[a], x[b] = 0.5 * (total + p_load), 0.5 * (total - p_load)
+
+    def values(self, theta: np.ndarray) -> dict[str, float]:
+        """Scaled vector -> parameter values."""
+        return {n: float(v) for n, v in zip(self.free, np.asarray(theta) * self.scale)}
+
+    def simulate(self, theta: np.ndarray) -> list[np.ndarray]:
+        """Segment-wise replay of every experiment; list of (N+1, n_state) trajectories."""
+        d = dict(self.base)
+        d.update(self.values(theta))
+        c = coefficients(d)
+        outs = []
+        for ex, nsub in zip(self.exps, self.nsub):
+            n = ex.u.shape[0]
+            o = np.empty((n + 1, len(self.names)))
+            x = ex.x0.copy()
+            for k0, end in ex.segments():
+                k1 = min(n, end)
+                x[ex.measured] = ex.y[k0, ex.measured]
+                if ex.load is not None:
+                    self._split(x, float(ex.load[k0]))
+                buf = o[k0:k1 + 1]
+                ok = K.simulate(self.mid, x.copy(), ex.u[k0:k1], c, ex.dt, nsub, self.xscale,
+                                self.jac_every, buf)
+                if ok <= k1 - k0:
+                    buf[ok:] = np.nan
+                x = buf[-1].copy()
+                if not np.all(np.isfinite(x)):
+                    x = ex.x0.copy()
+            outs.append(o)
+        return outs
+
+    def residual_parts(self, theta: np.ndarray) -> list[np.ndarray]:
+        """Normalised residuals per experiment, shape (N+1, n_measured)."""
+        parts = []
+        iz = self.names.index('z')
+        for ex, o in zip(self.exps, self.simulate(theta)):
+            r = (o[:, ex.measured] - ex.y[:, ex.measured]) / ex.sigma
+            cols = list(ex.measured)
+            if iz in cols:
+                j = cols.index(iz)
+                r[:, j] = ex.offset_free(r[:, j])
+            if ex.load is not None:
+                r = np.column_stack([r, (o[:, self.ipa] - o[:, self.ipb] - ex.load) /
+                                     ex.load_sigma])
+            bad = ~np.isfinite(r)
+            if bad.any():
+                r[bad] = 1e3     # diverged: a large, finite penalty keeps TRF going
+            parts.append(r)
+        return parts
+
+    def blocks(self, seconds: float) -> np.ndarray:
+        """Label of each entry of :meth:`residual`: its experiment's ``seconds``-long block."""
+        out, first = [], 0
+        for ex in self.exps:
+            n = ex.y.shape[0]
+            per = max(1, int(round(seconds / ex.dt)))
+            b = np.arange(n) // per
+            out.append(np.repeat(first + b, len(ex.measured) + (ex.load is not None)))
+            first += int(b[-1]) + 1
+        return np.concatenate(out)
+
+    def residual(self, theta: np.ndarray) -> np.ndarray:
+        """All normalised residuals as one vector (the fast, unchecked path)."""
+        if self._last is not None and np.array_equal(self._last[0], theta):
+            return self._last[1]          # the Jacobian reuses the step's simulation
+        self.nfev += 1
+        r = self.evaluate(theta)
+        self._last = (np.array(theta, dtype=float), r)
+        return r
+
+    def evaluate(self, theta: np.ndarray) -> np.ndarray:
+        """:meth:`residual` without its cache or count: safe from several threads at once."""
+        return np.concatenate([p.ravel() for p in self.residual_parts(theta)])
+
+
+# -- parallel Jacobian ---------------------------------------------------------------------
+def _fd_jacobian(problem: Problem, theta: np.ndarray, hi: np.ndarray, pool) -> np.ndarray:
+    """
+    Forward-difference Jacobian in scaled units (steps turn back at an upper bound).
+
+    ``pool``: a thread pool, or None for serial columns. The kernels release the GIL
+    (``nogil``), so the columns' replays run on as many cores as the pool has threads.
+    """
+    r0 = problem.residual(theta)
+    steps = [_FD_STEP * max(1.0, abs(t)) for t in theta]
+    steps = [-h if t + h > b else h for t, h, b in zip(theta, steps, hi)]
+
+    def column(k: int) -> np.ndarray:
+        t = theta.copy()
+        t[k] += steps[k]
+        return (problem.evaluate(t) - r0) / steps[k]
+
+    run = pool.map if pool is not None else map
+    return np.column_stack(list(run(column, range(len(steps)))))

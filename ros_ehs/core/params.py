@@ -1,0 +1,489 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Every parameter of ros_ehs, declared once.
+
+Each :class:`ParamSpec` gives name, SI unit, default, valid range and meaning. Everything else
+is derived from this table: validation (:func:`validate`), the presets, the ROS 2 parameter
+declarations of the nodes, the estimator's bounds and scales (paper Table 1), the YAML files
+and the parameter reference in ``docs/parameters.md``.
+
+Provenance tags in ``source``: ``P`` the Li & Zhang paper, ``K`` textbook / catalogue
+knowledge (Merritt 1967, Moog G761 catalogue), ``D`` derived for a consistent G761-class
+baseline (catalogue values made consistent with each other), ``I`` an assumption for the
+test rig.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from pathlib import Path
+from typing import Iterable, Mapping
+
+from ros_ehs.core.errors import ParameterError
+
+__all__ = [
+    'ACTIONS',
+    'ALL_SPECS',
+    'CONTROL_SPECS',
+    'ESTIMATED',
+    'PLANT_SPECS',
+    'ParamSpec',
+    'Params',
+    'PRESETS',
+    'SAFETY_SPECS',
+    'load_yaml',
+    'preset',
+    'save_yaml',
+    'spec',
+    'validate',
+]
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """
+    Declaration of one parameter.
+
+    ``lo``/``hi`` is the physically valid range (inclusive). For the seven parameters the
+    paper estimates, ``est_lo``/``est_hi`` are Table 1's bounds, ``scale`` its scale gain and
+    ``initial``/``estimated`` its two columns.
+    """
+
+    name: str
+    unit: str
+    default: float | str
+    lo: float = -math.inf
+    hi: float = math.inf
+    meaning: str = ''
+    group: str = ''
+    source: str = ''
+    choices: tuple[str, ...] = ()
+    est_lo: float | None = None
+    est_hi: float | None = None
+    scale: float | None = None
+    initial: float | None = None
+    estimated: float | None = None
+
+    @property
+    def is_choice(self) -> bool:
+        """Return True for a string parameter with a fixed set of choices."""
+        return bool(self.choices)
+
+    def check(self, value: object) -> float | str:
+        """Return ``value`` converted and checked, or raise :class:`ParameterError`."""
+        if self.is_choice:
+            if not isinstance(value, str) or value not in self.choices:
+                raise ParameterError(
+                    f'parameter `{self.name}` = {value!r} is not one of {list(self.choices)}')
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParameterError(
+                f'parameter `{self.name}` = {value!r} must be a number [{self.unit}]')
+        v = float(value)
+        if not math.isfinite(v):
+            raise ParameterError(f'parameter `{self.name}` = {v!r} is not finite')
+        if not (self.lo <= v <= self.hi):
+            raise ParameterError(
+                f'parameter `{self.name}` = {v!r} {self.unit} is outside its valid range '
+                f'[{self.lo!r}, {self.hi!r}] ({self.meaning})')
+        return v
+
+
+def _p(name, unit, default, lo, hi, meaning, group, source, **kw) -> ParamSpec:
+    return ParamSpec(name, unit, default, lo, hi, meaning, group, source, **kw)
+
+
+# --- plant: the G761-class valve, symmetric cylinder and oil -------------------------------
+PLANT_SPECS: tuple[ParamSpec, ...] = (
+    # supply and oil
+    _p('p_s', 'Pa', 21.0e6, 1.0e6, 35.0e6, 'supply pressure', 'supply', 'K'),
+    _p('p_t', 'Pa', 0.0, 0.0, 2.0e6, 'return (tank) pressure', 'supply', 'K'),
+    _p('rho', 'kg/m^3', 860.0, 700.0, 1100.0, 'oil density', 'oil', 'K'),
+    _p('beta_e', 'Pa', 1.2e9, 1.0e8, 2.5e9, 'effective bulk modulus, cylinder side', 'oil', 'K'),
+    _p('beta_p', 'Pa', 1.4e9, 1.0e8, 2.5e9, 'bulk modulus, pilot chambers', 'oil', 'K'),
+    _p('p_cr', 'Pa', 1.0e5, 1.0e2, 1.0e6,
+       'laminar/turbulent transition pressure of the smoothed orifice root', 'numerics', 'D'),
+    # torque motor and armature-flapper
+    _p('i_rated', 'A', 0.015, 1.0e-3, 0.1, 'rated servo current (coil option)', 'torque_motor',
+       'K'),
+    _p('K_t', 'N*m/A', 0.84, 0.01, 10.0, 'torque-motor current gain (flow-force calibrated)',
+       'torque_motor', 'D'),
+    _p('K_a', 'N*m/rad', 6.0, 0.1, 100.0, 'flexure-tube stiffness', 'torque_motor', 'K'),
+    _p('K_m', 'N*m/rad', 4.5, 0.0, 100.0, 'magnetic spring (destabilising)', 'torque_motor', 'K'),
+    _p('J_a', 'kg*m^2', 1.0e-7, 1.0e-9, 1.0e-5, 'armature + flapper inertia', 'torque_motor', 'K'),
+    _p('B_a', 'N*m*s/rad', 4.0e-4, 1.0e-6, 1.0e-1, 'armature damping', 'torque_motor', 'K'),
+    # flapper-nozzle pilot
+    _p('D_N', 'm', 0.40e-3, 0.1e-3, 1.0e-3, 'nozzle diameter', 'pilot', 'K'),
+    _p('x_f0', 'm', 40.0e-6, 5.0e-6, 200.0e-6, 'flapper-nozzle gap at null', 'pilot', 'K'),
+    _p('D_0', 'm', 0.219e-3, 0.05e-3, 1.0e-3, 'fixed inlet orifice diameter', 'pilot', 'D'),
+    _p('C_d0', '1', 0.80, 0.3, 1.0, 'discharge coefficient, inlet orifice', 'pilot', 'K'),
+    _p('C_df', '1', 0.60, 0.3, 1.0, 'discharge coefficient, nozzle curtain', 'pilot', 'K'),
+    _p('r_f', 'm', 9.0e-3, 1.0e-3, 30.0e-3, 'armature pivot to nozzle axis', 'pilot', 'K'),
+    _p('l_fb', 'm', 21.0e-3, 1.0e-3, 60.0e-3, 'pivot to feedback-wire ball', 'pilot', 'K'),
+    _p('V_c', 'm^3', 2.0e-7, 1.0e-8, 1.0e-5, 'spool-end (pilot) chamber volume at null',
+       'pilot', 'K'),
+    _p('k_nozzle', 'N/m', 1.0e6, 1.0e3, 1.0e8, 'flapper-nozzle contact stiffness',
+       'pilot', 'I'),
+    # main stage spool
+    _p('d_s', 'm', 7.94e-3, 2.0e-3, 30.0e-3, 'spool diameter', 'spool', 'K'),
+    _p('m_s', 'kg', 8.0e-3, 1.0e-3, 0.2, 'spool mass', 'spool', 'K'),
+    _p('B_s', 'N*s/m', 12.0, 0.0, 1.0e3, 'spool viscous + transient flow-force damping',
+       'spool', 'D'),
+    _p('K_w', 'N/m', 1000.0, 10.0, 1.0e5, 'feedback-wire stiffness', 'spool', 'D'),
+    _p('k_ff', '1', 0.43, 0.0, 1.0, 'steady flow-force coefficient 2*C_d*C_v*cos(69 deg)',
+       'spool', 'K'),
+    _p('x_v_max', 'm', 0.55e-3, 0.05e-3, 5.0e-3, 'spool travel to its end stop', 'spool', 'D'),
+    _p('k_stop_s', 'N/m', 1.0e6, 1.0e3, 1.0e8, 'spool end-stop stiffness', 'spool', 'I'),
+    _p('C_d', '1', 0.61, 0.3, 1.0, 'discharge coefficient, spool metering edges', 'spool', 'K'),
+    _p('K_x', 'm/A', 0.0307, 1.0e-4, 1.0, 'static spool gain x/i (simplified model)', 'spool',
+       'D'),
+    # valve opening law: the three hard-to-measure valve parameters of Table 1
+    _p('d_c', 'm', 8.4918e-6, 0.0, 100.0e-6,
+       'spool-sleeve diametral clearance (radial gap c = d_c/2)', 'opening', 'P',
+       est_lo=1.0e-6, est_hi=math.inf, scale=5.0e-7, initial=1.0e-6, estimated=8.4918e-6),
+    _p('r_c', 'm', 1.5238e-6, 0.0, 100.0e-6, 'spool metering-edge rounding radius', 'opening',
+       'P', est_lo=1.0e-7, est_hi=math.inf, scale=2.0e-7, initial=1.0e-6,
+       estimated=1.5238e-6),
+    _p('x_bias', 'm', -3.6659e-8, -50.0e-6, 50.0e-6,
+       'null offset of the metering edges (x_e = x_v + x_bias)', 'opening', 'P',
+       est_lo=-6.0e-6, est_hi=6.0e-6, scale=1.0e-6, initial=1.0e-6, estimated=-3.6659e-8),
+    # cylinder
+    _p('A_p', 'm^2', 1.527e-3, 1.0e-5, 0.1, 'piston annulus area (both sides)', 'cylinder', 'D'),
+    _p('l_iac', 'm', 0.14417, 0.0, 5.0,
+       'inactive length: dead volume per side over A_p, lines included', 'cylinder', 'P',
+       est_lo=0.105, est_hi=math.inf, scale=0.005, initial=0.15, estimated=0.14417),
+    _p('stroke', 'm', 0.10, 1.0e-3, 2.0, 'half stroke: end stops at +/- stroke', 'cylinder', 'I'),
+    _p('k_stop', 'N/m', 1.0e8, 1.0e4, 1.0e10, 'cylinder end-stop stiffness', 'cylinder', 'I'),
+    _p('K_C', 'm^3/(s*Pa)', 2.0e-13, 0.0, 1.0e-10, 'internal leakage across the piston',
+       'cylinder', 'K'),
+    _p('m_p', 'kg', 200.0, 1.0, 1.0e5, 'moving mass (piston, rod, fixture)', 'cylinder', 'I'),
+    _p('k_L', 'N/m', 0.0, 0.0, 1.0e9, 'load (specimen) stiffness', 'cylinder', 'I'),
+    # friction and damping: the four actuator parameters of Table 1
+    _p('F_cc', 'N', 1046.9, 0.0, 1.0e5, 'Coulomb friction force', 'friction', 'P',
+       est_lo=50.0, est_hi=math.inf, scale=100.0, initial=200.0, estimated=1046.9),
+    _p('F_sc', 'N', 2201.9, 0.0, 1.0e5, 'static (breakaway) friction force', 'friction', 'P',
+       est_lo=100.0, est_hi=math.inf, scale=100.0, initial=300.0, estimated=2201.9),
+    _p('c_c', 'N*s/m', 1.610e4, 0.0, 1.0e7, 'viscous damping of the actuator', 'friction', 'P',
+       est_lo=2000.0, est_hi=math.inf, scale=1000.0, initial=8000.0, estimated=1.610e4),
+    _p('v_c', 'm/s', 0.01, 1.0e-4, 1.0, 'Stribeck velocity of eq. (15)', 'friction', 'K'),
+    _p('eps_v', 'm/s', 1.0e-3, 1.0e-6, 0.1, 'smoothing velocity of sign(z_dot) -> tanh',
+       'numerics', 'D'),
+    _p('tau_st', 's', 1.0e-3, 1.0e-5, 1.0, 'time constant with which sticking friction stops '
+       'residual creep', 'friction', 'D'),
+    # model choices
+    ParamSpec('friction_law', '', 'renormalised', meaning='Stribeck law: renormalised xi '
+              '(sticks below F_sc) or paper eq. (15) as printed (creeps at rest)',
+              group='friction', source='D', choices=('renormalised', 'paper')),
+    ParamSpec('flow_law', '', 'orifice', meaning='simplified model main-stage flow: orifice '
+              '(opening law with d_c, r_c, x_bias) or linear eq. (7)', group='opening',
+              source='D', choices=('orifice', 'linear')),
+)
+
+# --- controller: PID eq. (19) and feedforward eqs. (9)-(20) ---------------------------------
+CONTROL_SPECS: tuple[ParamSpec, ...] = (
+    _p('kp', 'A/m', 0.75, 0.0, 100.0, 'PID proportional gain, eq. (19)', 'pid', 'P'),
+    _p('ki', 'A/(m*s)', 0.051, 0.0, 1.0e4, 'PID integral gain, eq. (19)', 'pid', 'P'),
+    _p('kd', 'A*s/m', 0.00049, 0.0, 10.0, 'PID derivative gain, eq. (19)', 'pid', 'P'),
+    _p('d_filter_tau', 's', 2.0e-3, 0.0, 1.0, 'time constant of the derivative low-pass',
+       'pid', 'D'),
+    _p('u_max', 'A', 0.015, 1.0e-4, 0.1, 'output limit |i| (the valve rated current)', 'pid',
+       'K'),
+    _p('tracking_tau', 's', 0.0, 0.0, 100.0, 'time constant of antiwindup = '
+       'back_calculation (0: sqrt(kd/ki), or kp/ki when kd = 0)', 'pid', 'D'),
+    ParamSpec('antiwindup', '', 'conditional_integration', meaning='anti-windup strategy '
+              '(control_toolbox names): conditional_integration stops integrating while the '
+              'output is limited and the error pushes further into the limit; '
+              'back_calculation bleeds the excess (u_sat - u)/tracking_tau into the '
+              'integrator; none', group='pid', source='D',
+              choices=('conditional_integration', 'back_calculation', 'none')),
+    _p('ff_enable', '1', 1.0, 0.0, 1.0, 'feedforward on (1) or off (0)', 'feedforward', 'D'),
+    _p('tau_delay', 's', 0.0, 0.0, 0.5, 'signal-to-response delay tau of eq. (17): the '
+       'measured loop delay (paper: 0.016 s under PID; ~0 with velocity feedforward)',
+       'feedforward', 'D'),
+    _p('ff_leak_tau', 's', 0.5, 1.0e-3, 100.0, 'leak of the pressure-force estimate of '
+       'eq. (11)', 'feedforward', 'D'),
+    _p('ff_velocity', '1', 1.1, 0.0, 1.5, 'weight of the velocity (flow-inversion) '
+       'feedforward A v_ref / (K_q K_x); 0 = the law of the paper as printed', 'feedforward', 'D'),
+    _p('ff_max', 'A', 0.015, 0.0, 0.1, 'limit of the feedforward current alone',
+       'feedforward', 'D'),
+    _p('dp_gain', 'A/N', 0.0, 0.0, 1.0e-4, 'delta-P stabilisation: current per newton of '
+       'the high-passed hydraulic force A_p (p_P - p_T) taken off the command, damping the oil '
+       "column; 0: off (the paper's controller). Needs the force in the state", 'stabilisation',
+       'D'),
+    _p('dp_tau', 's', 0.05, 1.0e-4, 10.0, 'time constant of the delta-P high-pass: force '
+       'held longer than this (the static load) is not opposed', 'stabilisation', 'D'),
+    _p('stale_timeout', 's', 0.005, 1.0e-4, 10.0, 'state older than this is stale: hold, '
+       'then zero the command', 'safety', 'D'),
+)
+
+#: What a detector does when it trips (``off``: the detector is disabled), least severe first.
+ACTIONS: tuple[str, ...] = ('off', 'indicate', 'hold', 'stop', 'power_off')
+_ACTION_MEANING = ('off: disabled; indicate: diagnostics WARN and an event; hold: the '
+                   'reference freezes at the measured position; stop: the reference ramps to '
+                   'safe_position at safe_velocity, then holds; power_off: valve current 0 A')
+
+
+def _action(detector: str, default: str, what: str) -> ParamSpec:
+    return ParamSpec(f'{detector}_action', '', default, meaning=f'action of the {what} '
+                     f'detector ({_ACTION_MEANING}); latched until ~/reset', group='safety',
+                     source='D', choices=ACTIONS)
+
+
+# --- safety: limit and error detectors, their actions, ramp-on (ros_ehs.core.control.safety) -----
+SAFETY_SPECS: tuple[ParamSpec, ...] = (
+    _p('limit_position_max', 'm', 0.095, -2.0, 2.0, 'upper position limit: trips above it',
+       'safety', 'I'),
+    _action('limit_position_max', 'off', 'upper position limit'),
+    _p('limit_position_min', 'm', -0.095, -2.0, 2.0, 'lower position limit: trips below it',
+       'safety', 'I'),
+    _action('limit_position_min', 'off', 'lower position limit'),
+    _p('limit_velocity', 'm/s', 1.0, 1.0e-4, 10.0, 'speed limit: trips when |z_dot| is above '
+       'it (z_dot measured, or differenced from the position)', 'safety', 'I'),
+    _action('limit_velocity', 'off', 'speed limit'),
+    _p('limit_force', 'N', 3.0e4, 1.0, 1.0e7, 'load force limit: trips when |(p_CP - p_CT) '
+       'A_p| is above it (when the state carries the force)', 'safety', 'I'),
+    _action('limit_force', 'off', 'load force limit'),
+    _p('limit_error', 'm', 5.0e-3, 1.0e-6, 1.0, 'tracking error limit: trips when |z_ref - z| '
+       'is above it for longer than limit_error_time', 'safety', 'I'),
+    _p('limit_error_time', 's', 0.05, 0.0, 60.0, 'how long the tracking error must stay '
+       'above limit_error', 'safety', 'I'),
+    _action('limit_error', 'off', 'tracking error'),
+    _p('feedback_timeout', 's', 1.0, 1.0e-3, 60.0, 'real time: no state for this long '
+       'latches the feedback detector (the controller sends 0 A, unlatched, after 10 '
+       'stale_timeout already)', 'safety', 'D'),
+    _p('frozen_periods', '1', 100.0, 2.0, 1.0e6, 'feedback frozen: the same position for '
+       'this many periods with |i| >= frozen_current (periods with less neither count nor '
+       'clear)', 'safety', 'D'),
+    _p('frozen_current', 'A', 3.0e-4, 0.0, 0.1, 'the command above which a frozen position '
+       'counts (a command this large moves a free piston)', 'safety', 'D'),
+    _action('feedback', 'power_off', 'feedback validity (non-finite, lost, frozen)'),
+    _p('limit_saturation_time', 's', 0.5, 0.0, 60.0, 'saturation: the command at its limit '
+       'u_max for longer than this (control lost)', 'safety', 'I'),
+    _action('saturation', 'off', 'command saturation'),
+    _p('limit_hysteresis', '1', 0.05, 0.0, 0.5, 'a tripped limit clears (reset allowed) only '
+       'this fraction of the limit inside it (of the position span for position limits)',
+       'safety', 'D'),
+    _p('safe_position', 'm', 0.0, -2.0, 2.0, 'where the stop action takes the piston',
+       'safety', 'I'),
+    _p('safe_velocity', 'm/s', 0.01, 1.0e-4, 1.0, 'speed of the stop action', 'safety', 'I'),
+    _p('ramp_time', 's', 1.0, 0.0, 600.0, 'ramp-on: on start, enable and reset the reference '
+       'blends from the measured position to the trajectory over this time (0: no ramp)',
+       'safety', 'D'),
+)
+
+ALL_SPECS: tuple[ParamSpec, ...] = PLANT_SPECS + CONTROL_SPECS + SAFETY_SPECS
+_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in ALL_SPECS}
+assert len(_BY_NAME) == len(ALL_SPECS), 'duplicate parameter name'
+
+#: The seven hard-to-measure parameters of the paper's Table 1, in its order.
+ESTIMATED: tuple[str, ...] = ('d_c', 'r_c', 'x_bias', 'F_cc', 'F_sc', 'l_iac', 'c_c')
+
+
+def spec(name: str) -> ParamSpec:
+    """Return the declaration of parameter ``name``."""
+    try:
+        return _BY_NAME[name]
+    except KeyError:
+        raise ParameterError(f'unknown parameter `{name}`') from None
+
+
+def validate(values: Mapping[str, object]) -> dict[str, float | str]:
+    """Check every entry of ``values`` against its declaration; return converted values."""
+    out: dict[str, float | str] = {}
+    for name, value in values.items():
+        out[name] = spec(name).check(value)
+    _check_cross(out)
+    return out
+
+
+def _check_cross(v: Mapping[str, float | str]) -> None:
+    """Relations between parameters that single ranges cannot express."""
+    if 'p_s' in v and 'p_t' in v and not v['p_t'] < v['p_s']:
+        raise ParameterError(f"parameter `p_t` = {v['p_t']!r} Pa must be below `p_s` = "
+                             f"{v['p_s']!r} Pa")
+    if 'F_cc' in v and 'F_sc' in v and v['F_cc'] > v['F_sc']:
+        raise ParameterError(f"parameter `F_cc` = {v['F_cc']!r} N must not exceed `F_sc` = "
+                             f"{v['F_sc']!r} N (Coulomb friction above breakaway)")
+    if 'K_a' in v and 'K_m' in v and not v['K_m'] < v['K_a']:
+        raise ParameterError(f"parameter `K_m` = {v['K_m']!r} must be below `K_a` = "
+                             f"{v['K_a']!r} (net armature stiffness must be positive)")
+    if 'limit_position_min' in v and 'limit_position_max' in v and \
+            not v['limit_position_min'] < v['limit_position_max']:
+        raise ParameterError(f"parameter `limit_position_min` = {v['limit_position_min']!r} m "
+                             'must be below `limit_position_max` = '
+                             f"{v['limit_position_max']!r} m")
+    if 'l_iac' in v and 'stroke' in v and not v['stroke'] < v['l_iac']:
+        raise ParameterError(f"parameter `stroke` = {v['stroke']!r} m must be below `l_iac` = "
+                             f"{v['l_iac']!r} m (a chamber volume would vanish)")
+
+
+class Params(Mapping[str, float | str]):
+    """
+    An immutable, validated set of all parameters (plant and controller).
+
+    Behaves as a read-only mapping. Build with :func:`preset` or :meth:`replace`.
+    """
+
+    __slots__ = ('_v',)
+
+    def __init__(self, values: Mapping[str, object] | None = None) -> None:
+        merged: dict[str, object] = {s.name: s.default for s in ALL_SPECS}
+        if values:
+            merged.update(values)
+        self._v = validate(merged)
+
+    def __getitem__(self, name: str) -> float | str:
+        """Return the value of ``name``."""
+        try:
+            return self._v[name]
+        except KeyError:
+            raise ParameterError(f'unknown parameter `{name}`') from None
+
+    def __getattr__(self, name: str) -> float | str:
+        """Return the value of ``name`` as an attribute."""
+        if name.startswith('_'):
+            raise AttributeError(name)
+        try:
+            return self._v[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def __iter__(self):
+        """Iterate over parameter names in declaration order."""
+        return iter(self._v)
+
+    def __len__(self) -> int:
+        """Return the number of parameters."""
+        return len(self._v)
+
+    def __repr__(self) -> str:
+        """Show only values that differ from the defaults."""
+        diff = {k: v for k, v in self._v.items() if v != _BY_NAME[k].default}
+        return f'Params({diff!r})'
+
+    def __eq__(self, other: object) -> bool:
+        """Compare all values."""
+        return isinstance(other, Params) and self._v == other._v
+
+    def __hash__(self) -> int:
+        """Hash all values."""
+        return hash(tuple(self._v.items()))
+
+    def replace(self, **changes: object) -> 'Params':
+        """Return a copy with ``changes`` applied (validated)."""
+        return Params({**self._v, **changes})
+
+    def subset(self, names: Iterable[str]) -> dict[str, float | str]:
+        """Return ``{name: value}`` for ``names``."""
+        return {n: self[n] for n in names}
+
+
+def _table1(column: str) -> dict[str, float]:
+    return {n: getattr(spec(n), column) for n in ESTIMATED}
+
+
+#: Named presets. ``g761_baseline`` is the default table (paper estimates in it);
+#: ``table1_initial`` and ``table1_estimated`` set the seven parameters of Table 1.
+PRESETS: dict[str, dict[str, float]] = {
+    'g761_baseline': {},
+    'table1_initial': _table1('initial'),
+    'table1_estimated': _table1('estimated'),
+}
+
+
+def preset(name: str = 'g761_baseline', **changes: object) -> Params:
+    """Return preset ``name`` with ``changes`` applied."""
+    if name not in PRESETS:
+        raise ParameterError(f'unknown preset `{name}`; choose one of {sorted(PRESETS)}')
+    return Params({**PRESETS[name], **changes})
+
+
+def markdown_table() -> str:
+    """Return the parameter reference (docs/parameters.md), derived from the table."""
+    lines = ['# Parameters', '',
+             'Generated from `ros_ehs/core/params.py` by `ehs_sim params-doc`; do not edit by '
+             'hand.',
+             'Source tags: P paper, K textbook/catalogue, D derived (research notes), '
+             'I rig assumption.', '']
+    for title, specs in (('Plant', PLANT_SPECS), ('Controller', CONTROL_SPECS),
+                         ('Safety', SAFETY_SPECS)):
+        lines += [f'## {title}', '', '| name | unit | default | range | meaning | source | '
+                  'Table 1 initial / bounds / estimate / scale |', '|---|---|---|---|---|---|---|']
+        for s in specs:
+            rng = ', '.join(s.choices) if s.is_choice else f'[{s.lo:g}, {s.hi:g}]'
+            t1 = ''
+            if s.scale is not None:
+                t1 = (f'{s.initial:g} / [{s.est_lo:g}, {s.est_hi:g}] / {s.estimated:g} / '
+                      f'{s.scale:g}')
+            default = s.default if s.is_choice else f'{s.default:g}'
+            lines.append(f'| `{s.name}` | {s.unit} | {default} | {rng} | {s.meaning} | '
+                         f'{s.source} | {t1} |')
+        lines.append('')
+    return '\n'.join(lines)
+
+
+def save_yaml(path: str | Path, params: Mapping[str, object], node_name: str = '/**',
+              names: Iterable[str] | None = None) -> Path:
+    """
+    Write ``params`` as a ROS 2 parameters file (``node: ros__parameters: ...``).
+
+    Numbers are written as doubles (``1.0``, never ``1``), as rclpy's double parameters
+    reject integers. ``node_name='/**'`` applies the file to every node.
+    """
+    import yaml
+
+    keys = list(names) if names is not None else list(params)
+    body: dict[str, object] = {}
+    for k in keys:
+        s = spec(k)
+        v = s.check(params[k])
+        body[k] = v if s.is_choice else float(v)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = yaml.safe_dump({node_name: {'ros__parameters': body}}, sort_keys=False)
+    path.write_text(text)
+    return path
+
+
+def load_yaml(path: str | Path, base: Params | None = None) -> Params:
+    """
+    Read a ROS 2 parameters file and return ``base`` updated with the known parameters.
+
+    Every node section is merged in file order; keys that are not ros_ehs parameters
+    (``use_sim_time``, ``rate_hz``, ...) are ignored. Unknown values raise
+    :class:`ParameterError` naming the file.
+    """
+    import yaml
+
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise ParameterError(f'cannot read parameters file {path}: {err}') from err
+    if not isinstance(doc, dict):
+        raise ParameterError(f'{path}: not a ROS 2 parameters file (expected a mapping)')
+    values: dict[str, object] = {}
+    for node, section in doc.items():
+        if not isinstance(section, dict) or 'ros__parameters' not in section:
+            raise ParameterError(f'{path}: node `{node}` has no `ros__parameters` section')
+        for k, v in (section['ros__parameters'] or {}).items():
+            if k in _BY_NAME:
+                values[k] = v
+    base = base if base is not None else Params()
+    try:
+        return base.replace(**values)
+    except ParameterError as err:
+        raise ParameterError(f'{path}: {err}') from None

@@ -1,0 +1,444 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Start ros_ehs nodes as processes and stop them cleanly (not ROS 2 ``launch``).
+
+:class:`NodeProcesses` is what ``launch_scripts/``, the benchmarks and the integration tests use:
+each node runs as ``python -m ros_ehs.nodes.<node> --ros-args ...`` (the same code
+``ros2 run ros_ehs <node>`` runs), with its own log file, on one ``ROS_DOMAIN_ID``. Stopping
+sends SIGINT in the given order, waits, and only then escalates to SIGTERM and SIGKILL, so a
+recorder closes its bag.
+
+:meth:`NodeProcesses.start_loop` learns what each node is ready for from its status in
+``diagnostics`` (:meth:`NodeProcesses.status`, :meth:`NodeProcesses.wait_status`: a
+:class:`ros_ehs.nodes.status_watch.StatusWatch` that joins the domain just before the first
+node starts), never from its log; the logs are for people.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any, Callable, Iterable
+
+from ros_ehs.core.errors import EhsError
+from ros_ehs.nodes.fastdds_shm import clean_zombies, SHM_DIR
+import ros_ehs_msgs_py as contract
+
+__all__ = ['NodeProcesses', 'StartupError', 'launch_script', 'loop_closed', 'loop_placement',
+           'NodeProcess', 'node_command', 'NODES', 'recording', 'reference_started']
+
+
+def launch_script(name: str) -> Path:
+    """
+    Return the path of ``launch_scripts/<name>``: in this source tree, or installed.
+
+    A colcon install puts them in the package's share directory
+    (``share/ros_ehs/launch_scripts``, found through the ament index), not beside the code.
+    """
+    here = Path(__file__).resolve().parents[2] / 'launch_scripts' / name
+    if here.exists():
+        return here
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        installed = Path(get_package_share_directory('ros_ehs')) / 'launch_scripts' / name
+    except (ImportError, LookupError, ValueError):
+        installed = None
+    if installed is None or not installed.exists():
+        raise FileNotFoundError(f'launch_scripts/{name} is neither beside the code ({here}) '
+                                'nor installed in the ros_ehs share directory')
+    return installed
+
+
+#: The node executables of the package (``ros2 run ros_ehs <name>``).
+NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify')
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return 'true' if v else 'false'
+    if isinstance(v, float):
+        return repr(v)      # always a double to rclpy: '1.0', '1e-05'
+    if isinstance(v, (list, tuple)):
+        return '[' + ','.join(_value(x) for x in v) + ']'
+    if isinstance(v, str):      # quoted: '-p' values are YAML, where off or 1e3 is no string
+        return "'" + v.replace("'", "''") + "'"
+    return str(v)
+
+
+def loop_placement(pin: bool | None = None) -> tuple[int, int] | None:
+    """
+    Return the CPUs of a pinned loop, (plant and controller, reference), or None: unpinned.
+
+    The first two CPUs this process may use. ``pin`` None: only if it may use two or more
+    (on one CPU there is nothing to place); True: always (one CPU: all on it); False: never.
+    """
+    allowed = sorted(os.sched_getaffinity(0))
+    if pin is False or (pin is None and len(allowed) < 2):
+        return None
+    return allowed[0], allowed[1 % len(allowed)]
+
+
+def node_command(node: str, params: dict[str, Any] | None = None,
+                 params_file: str | os.PathLike | None = None,
+                 extra: Iterable[str] = ()) -> list[str]:
+    """Return the command line that runs ``node`` with ``params`` (``-p name:=value``)."""
+    if node not in NODES:
+        raise ValueError(f'unknown node {node!r}; nodes: {list(NODES)}')
+    cmd = [sys.executable, '-m', f'ros_ehs.nodes.{node}', '--ros-args']
+    if params_file:
+        cmd += ['--params-file', str(params_file)]
+    for k, v in (params or {}).items():
+        cmd += ['-p', f'{k}:={_value(v)}']
+    return cmd + list(extra)
+
+
+@dataclass
+class NodeProcess:
+    """One running node: its name, Popen, log file and (a plant) its figures file."""
+
+    name: str
+    popen: subprocess.Popen
+    log: Path
+    cmd: list[str] = field(default_factory=list)
+    figures_file: Path | None = None
+
+    @property
+    def pid(self) -> int:
+        """Process id."""
+        return self.popen.pid
+
+    def alive(self) -> bool:
+        """Return True while the process runs."""
+        return self.popen.poll() is None
+
+    def output(self) -> str:
+        """Return what the node has logged so far."""
+        try:
+            return self.log.read_text(errors='replace')
+        except OSError:
+            return ''
+
+    def figures(self) -> dict:
+        """Return the figures a plant wrote to its ``figures_file`` at exit."""
+        try:
+            return json.loads(self.figures_file.read_text())
+        except (AttributeError, OSError, ValueError) as e:
+            raise RuntimeError(f'no figures from {self.name} ({e}); its log:\n' +
+                               self.output()[-3000:]) from None
+
+
+#: each node's status name in ``diagnostics`` (the contract's)
+STATUS_OF = {'plant': contract.PLANT_STATUS, 'controller': contract.CONTROLLER_STATUS,
+             'reference': contract.REFERENCE_STATUS, 'recorder': contract.RECORDER_STATUS}
+
+
+def loop_closed(st: contract.NodeStatus) -> bool:
+    """Whether the plant's status says its loop is closed (level OK)."""
+    return st.level == 0
+
+
+def reference_started(st: contract.NodeStatus) -> bool:
+    """Whether the reference's status says its trajectory has started (time zero)."""
+    return st.values.get('started') == 'True'
+
+
+def recording(*topics: contract.Topic | str) -> Callable[[contract.NodeStatus], bool]:
+    """Return whether the recorder's status lists every one of ``topics`` as recorded."""
+    names = {'/' + getattr(t, 'name', t).lstrip('/') for t in topics}
+    return lambda st: names <= st.listed('recording')
+
+
+class StartupError(EhsError, RuntimeError):
+    """A node did not start or did not reach the state start_loop waits for (its log attached)."""
+
+
+class NodeProcesses:
+    """
+    A set of node processes on one ROS domain; a context manager that stops them all.
+
+    ``domain_id`` defaults to the environment's ``ROS_DOMAIN_ID``; ``log_dir`` to a new
+    temporary directory. Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE``
+    LOCALHOST unless set). ``clean_shm``: first remove the shared-memory ports and segments
+    that processes which did not exit cleanly left in ``/dev/shm``
+    (:func:`ros_ehs.nodes.fastdds_shm.clean_zombies`; what was done is in ``self.shm_cleanup``).
+    """
+
+    def __init__(self, domain_id: int | None = None, log_dir: str | os.PathLike | None = None,
+                 env: dict[str, str] | None = None, clean_shm: bool = True) -> None:
+        self.env = dict(os.environ)
+        self.env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        self.env['PYTHONUNBUFFERED'] = '1'
+        self.env['RCUTILS_LOGGING_BUFFERED_STREAM'] = '0'
+        if domain_id is not None:
+            self.env['ROS_DOMAIN_ID'] = str(int(domain_id))
+        self.env.update(env or {})
+        self.log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix='ehs_logs_'))
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.procs: dict[str, NodeProcess] = {}
+        self.watch = None     # a StatusWatch, from the first node started
+        self.shm_cleanup = clean_zombies() if clean_shm and SHM_DIR.is_dir() else None
+        self.placement: tuple[int, int] | None = None     # set by start_loop
+
+    def start(self, node: str, params: dict[str, Any] | None = None, *,
+              name: str | None = None, params_file: str | os.PathLike | None = None,
+              extra: Iterable[str] = (), cmd: list[str] | None = None) -> NodeProcess:
+        """
+        Start ``node`` (or an explicit ``cmd``) as process ``name`` (default the node).
+
+        A plant writes its figures at exit to ``<log_dir>/<name>.figures.json`` (its
+        ``figures_file``, unless given): :meth:`NodeProcess.figures` reads them.
+        """
+        name = name or node
+        if name in self.procs and self.procs[name].alive():
+            raise ValueError(f'process {name!r} is already running')
+        figures = None
+        if node == 'plant' and cmd is None:
+            figures = Path((params or {}).get('figures_file') or
+                           self.log_dir / f'{name}.figures.json')
+            figures.unlink(missing_ok=True)
+            params = {**(params or {}), 'figures_file': str(figures)}
+        if self.watch is None and node in NODES:
+            # on the domain before the first node: it joins no running loop, misses no status
+            from ros_ehs.nodes.status_watch import StatusWatch
+            dom = self.env.get('ROS_DOMAIN_ID')
+            self.watch = StatusWatch(int(dom) if dom else None, self.env)
+        if self.watch is not None and node in STATUS_OF:   # a restarted node's old word is void
+            self.watch.forget(STATUS_OF[node])
+        cmd = cmd or node_command(node, params, params_file, extra)
+        log = self.log_dir / f'{name}.log'
+        fh = open(log, 'wb')
+        p = subprocess.Popen(cmd, env=self.env, stdout=fh, stderr=subprocess.STDOUT,
+                             stdin=subprocess.DEVNULL)
+        fh.close()
+        self.procs[name] = NodeProcess(name, p, log, cmd, figures)
+        return self.procs[name]
+
+    def __getitem__(self, name: str) -> NodeProcess:
+        """Return process ``name``."""
+        return self.procs[name]
+
+    def kill(self, name: str) -> None:
+        """SIGKILL process ``name`` (a crash, for the robustness tests)."""
+        p = self.procs[name].popen
+        if p.poll() is None:
+            p.send_signal(signal.SIGKILL)
+            p.wait()
+
+    def stop(self, names: Iterable[str] | None = None, timeout: float = 10.0) -> dict[str, int]:
+        """
+        Stop processes in the order given (default: reverse start order) with SIGINT.
+
+        Each gets ``timeout`` seconds to exit, then SIGTERM, then SIGKILL. Returns the exit
+        codes (negative: killed by that signal).
+        """
+        order = list(names) if names is not None else list(reversed(list(self.procs)))
+        codes = {}
+        for n in order:
+            p = self.procs[n].popen
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                try:
+                    p.wait(timeout)
+                except subprocess.TimeoutExpired:
+                    p.terminate()
+                    try:
+                        p.wait(3.0)
+                    except subprocess.TimeoutExpired:
+                        p.kill()
+                        p.wait()
+            codes[n] = p.returncode
+        return codes
+
+    def wait_for_log(self, name: str, text: str, timeout: float = 30.0) -> bool:
+        """Wait until process ``name`` has logged ``text``; False on timeout or exit."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if text in self.procs[name].output():
+                return True
+            if not self.procs[name].alive():
+                return text in self.procs[name].output()
+            time.sleep(0.05)
+        return False
+
+    def wait_for_logs(self, name: str, texts: Iterable[str], timeout: float = 30.0) -> bool:
+        """Wait until process ``name`` has logged every one of ``texts``."""
+        end = time.monotonic() + timeout
+        for text in texts:
+            if not self.wait_for_log(name, text, max(0.0, end - time.monotonic())):
+                return False
+        return True
+
+    def start_loop(self, mode: str = 'realtime', *, bag: str | os.PathLike | None = None,
+                   plant: dict[str, Any] | None = None,
+                   controller: dict[str, Any] | None = None,
+                   reference: dict[str, Any] | bool = True,
+                   recorder: dict[str, Any] | None = None,
+                   params_file: str | os.PathLike | None = None,
+                   pin: bool | None = None,
+                   timeout: float = 60.0) -> None:
+        """
+        Start the bench loop (recorder if ``bag``, controller, reference, plant) in order.
+
+        The order makes sure a recorder loses nothing to discovery, which takes seconds
+        between processes started together, and that the trajectory starts on a closed loop:
+
+        * lock-step: the recorder, then the controller and the reference (under sim time it
+          waits for ``/clock``); once the recorder records their topics, the plant, which
+          starts stepping only when the controller (and the recorder) listen to ``state``;
+        * real time: the recorder, the controller and the reference; once the recorder
+          records the reference, the plant. Every participant is then discovered before
+          the loop closes: one joining a running loop held its CPU at times (a watchdog trip
+          in the loop's first 4-5 s in 3 of 10 runs; started first, 0 of 12).
+          The reference's time zero waits for its subscribers (the controller and the
+          recorder) and for the plant's diagnostics to report the loop closed, with the
+          recorder listening to ``state`` (``wait_loop``, the plant's ``wait_subscribers``):
+          the controller holds the first measured position until then, and the bag holds
+          the states from time zero on.
+
+        Returns when everything runs. ``plant``, ``controller``, ``reference``, ``recorder``:
+        extra parameters (``reference=False``: no reference node). Raises :class:`StartupError`
+        naming the step that did not happen, with that node's log.
+
+        ``pin`` (default: when this process may use two CPUs or more) sets the nodes'
+        ``cpu_affinity`` as :func:`loop_placement` says, unless given in ``plant``,
+        ``controller`` or ``reference``: the loop is a ping-pong, and one between two
+        processes on one CPU skips the cross-CPU wake-up of a halted vCPU: lock-step runs
+        1.5-2.3x faster, and a real-time bench has no watchdog trip in a window the machine
+        does not stall (docs/nodes.md, "CPU placement").
+        """
+        if mode not in ('realtime', 'lockstep'):
+            raise ValueError(f"mode: expected 'realtime' or 'lockstep', got {mode!r}")
+        lock = mode == 'lockstep'
+        cpus = loop_placement(pin)
+        if cpus is not None:
+            loop_cpu, ref_cpu = cpus
+            plant = {'cpu_affinity': loop_cpu, **(plant or {})}
+            controller = {'cpu_affinity': loop_cpu, **(controller or {})}
+            if reference is not False:
+                reference = {'cpu_affinity': ref_cpu,
+                             **({} if reference is True else reference)}
+        self.placement = cpus
+        pf = params_file
+        rec = bag is not None
+
+        def start_reference(**extra):
+            ref = {'use_sim_time': lock, **extra, **({} if reference is True else reference)}
+            self.start('reference', ref, params_file=pf)
+
+        if rec:
+            self.start('recorder', {'out': str(bag), 'use_sim_time': lock, **(recorder or {})},
+                       params_file=pf)
+            self._expect('recorder', contract.RECORDER_STATUS, lambda st: True,
+                         timeout, 'the recorder did not start')
+        self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
+        if lock:
+            first = [contract.COMMAND]
+            if reference is not False:
+                start_reference()
+                first.append(contract.REFERENCE)
+            if rec:
+                self._expect('recorder', contract.RECORDER_STATUS, recording(*first), timeout,
+                             'the recorder did not discover the controller and reference')
+        if not lock and reference is not False:
+            start_reference(wait_subscribers=2 if rec else 1, wait_loop=True)
+            if rec:
+                self._expect('recorder', contract.RECORDER_STATUS, recording(contract.REFERENCE),
+                             timeout, 'the recorder did not discover the reference')
+        if rec and not lock:
+            # the controller's commands reach the bag from the loop's first period: matching
+            # took 2 s after discovery at times (a bag began 1.2 s after the sine's start)
+            command = '/' + contract.COMMAND.name.lstrip('/')
+            self._expect('recorder', contract.RECORDER_STATUS,
+                         lambda st: command in st.listed('matched'),
+                         timeout, "the recorder did not match the controller's commands")
+        # lock-step: the plant starts stepping when they listen; real time: it reports the
+        # loop running only then, and the reference's time zero waits for that report
+        # the controller, the recorder and a reference that corrects from the state
+        corrects = isinstance(reference, dict) and any(
+            reference.get(k) for k in ('amplitude_phase_control', 'peak_valley_control'))
+        pl = {'mode': mode, 'wait_subscribers': 1 + rec + corrects, **(plant or {})}
+        self.start('plant', pl, params_file=pf)
+        self._expect('plant', contract.PLANT_STATUS, loop_closed, timeout,
+                     'the loop did not close')
+        if rec:
+            loop = (contract.STATE, contract.PRESSURE_P, contract.PRESSURE_T)
+            loop += (contract.CLOCK,) if lock else (contract.COMMAND,)
+            self._expect('recorder', contract.RECORDER_STATUS, recording(*loop), timeout,
+                         "the recorder did not discover the loop's topics")
+        if not lock and reference is not False:
+            self._expect('reference', contract.REFERENCE_STATUS, reference_started, timeout,
+                         'the reference did not start: no controller (and recorder) to start '
+                         'for, or no diagnostics from the plant saying its loop is closed')
+
+    def status(self, status_name: str) -> contract.NodeStatus | None:
+        """Return the latest status ``status_name`` on the domain (None: none seen yet)."""
+        return None if self.watch is None else self.watch.status(status_name)
+
+    def wait_status(self, status_name: str, ready: Callable[[contract.NodeStatus], bool],
+                    timeout: float = 30.0) -> bool:
+        """Wait until the latest status ``status_name`` satisfies ``ready``; False on timeout."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            st = self.status(status_name)
+            if st is not None and ready(st):
+                return True
+            time.sleep(0.05)
+        return False
+
+    def _expect(self, name: str, status_name: str,
+                ready: Callable[[contract.NodeStatus], bool], timeout: float,
+                what: str) -> None:
+        """Wait until ``ready(status)``; any child that exits meanwhile fails it at once."""
+        end = time.monotonic() + timeout
+        while True:
+            st = self.status(status_name)
+            if st is not None and ready(st):
+                return
+            dead = [n for n, p in self.procs.items() if not p.alive()]
+            if dead:
+                n = dead[0]
+                code = self.procs[n].popen.returncode
+                raise StartupError(f'{n} exited with code {code} while the bench was starting '
+                                   f'(waiting: {what}); {n} log:\n' +
+                                   self.procs[n].output()[-3000:])
+            if time.monotonic() >= end:
+                seen = ('no status from it' if st is None else
+                        f'its status: {st.message!r} {st.values}')
+                raise StartupError(f'{what} ({status_name} in diagnostics, {timeout:g} s; '
+                                   f'{seen}); {name} log:\n' +
+                                   self.procs[name].output()[-3000:])
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        """Stop everything still running; leave the domain."""
+        self.stop()
+        if self.watch is not None:
+            self.watch.close()
+            self.watch = None
+
+    def __enter__(self) -> 'NodeProcesses':
+        """Return self."""
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """Stop everything still running; leave the domain."""
+        self.close()
