@@ -57,6 +57,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # a source checko
 
 from ros_ehs.benchmarks.sleeper import coincident, HICCUP_MS, hiccups, STALL_MS  # noqa: E402
 from ros_ehs.benchmarks.sleeper import command as probe_command  # noqa: E402
+from ros_ehs.core.errors import EhsError  # noqa: E402
+from ros_ehs.core.options import NODE_OPTIONS, NODE_PARAMS  # noqa: E402
+from ros_ehs.core.settings import parse_assignment  # noqa: E402
 from ros_ehs.data.synthetic_bag import SensorNoise  # noqa: E402
 from ros_ehs.nodes.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
@@ -107,16 +110,16 @@ def _probe_lines(procs: NodeProcesses, probes: list[str], trip_log: list) -> Non
           f'hiccup (a probe the machine woke {HICCUP_MS - 1:.1f} ms late or more)')
 
 
-def _node_param(text: str) -> tuple[str, object]:
-    """Parse ``NAME=VALUE`` (VALUE as YAML: 0.03, true, hold) for --*-param."""
-    import yaml
-    name, sep, value = text.partition('=')
-    if not sep or not name.strip():
-        raise argparse.ArgumentTypeError(f'{text!r} is not NAME=VALUE')
-    try:
-        return name.strip(), yaml.safe_load(value)
-    except yaml.YAMLError as err:
-        raise argparse.ArgumentTypeError(f'{text!r}: {err}') from None
+def _node_param(node: str):
+    """Return the argparse type of ``--<node>-param NAME=VALUE``: checked against the node."""
+    settings = NODE_OPTIONS[node] + NODE_PARAMS[node]
+
+    def parse(text: str) -> tuple[str, object]:
+        try:
+            return parse_assignment(text, settings)
+        except EhsError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+    return parse
 
 
 def _bag_lines(bag: Path, live: bool, error: str = '') -> None:
@@ -186,10 +189,11 @@ def main(argv=None) -> int:
                     help='real time: also a 1 kHz sleep loop without ROS on each CPU beside the '
                     "nodes, to tell the machine's stalls from the loop's (a diagnostic for a "
                     'machine you do not trust; off by default)')
-    ap.add_argument('--controller-param', type=_node_param, action='append', default=[],
+    ap.add_argument('--controller-param', type=_node_param('controller'), action='append',
+                    default=[],
                     metavar='NAME=VALUE', help='a controller parameter (repeatable), e.g. '
                     'limit_position_max=0.03')
-    ap.add_argument('--plant-param', type=_node_param, action='append', default=[],
+    ap.add_argument('--plant-param', type=_node_param('plant'), action='append', default=[],
                     metavar='NAME=VALUE', help='a plant parameter (repeatable), e.g. '
                     'fault=frozen_sensor')
     ap.add_argument('--live-identify', action='store_true',

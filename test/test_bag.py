@@ -132,9 +132,44 @@ def test_reads_real_rosbag2_fixtures(name):
     assert not bag.truncated and bag.topics
     for info in bag.topics.values():
         assert info.encoding == 'cdr' and '/msg/' in info.msg_type or '/srv/' in info.msg_type
-    topics = [t for t, i in bag.topics.items() if '/msg/' in i.msg_type and i.count]
+    topics = [t for t, i in bag.topics.items() if i.count]      # service events too
     decoded = list(bag.decoded(topics))
     assert len(decoded) == sum(bag.topics[t].count for t in topics) > 0
+
+
+def test_service_events_stored_with_their_services_definition_read_and_decode():
+    # rosbag2 (Jazzy) stores a service's events under the service's text (request --- response)
+    bag = open_bag(FIXTURES / 'bag_with_topics_and_service_events.mcap')
+    ev = [t for t, i in bag.topics.items() if i.msg_type == 'test_msgs/srv/BasicTypes_Event']
+    assert len(ev) == 2
+    got = list(bag.decoded(ev))
+    assert len(got) == 8
+    for m, d in got:
+        # ServiceEventInfo leads the CDR: event_type at byte 4, and one request (sent) or
+        # one response (received) each, as the raw bytes say
+        assert d.info.event_type == m.data[4] and d.info.event_type in (0, 3)
+        assert (len(d.request), len(d.response)) == ((1, 0) if d.info.event_type == 0 else (0, 1))
+    seqs = sorted(d.info.sequence_number for m, d in got if m.topic == ev[0])
+    assert seqs == [1, 1, 2, 2]
+
+
+def test_a_service_event_definition_is_built_from_the_services_text():
+    from ros_ehs.data.bag.definitions import service_event_definition
+    srv = ('=' * 80 + '\nSRV: my_pkg/srv/Move_Axis\ngeometry_msgs/Point target\n'
+           'float64 speed\n---\nbool ok\n' + '=' * 80 +
+           '\nMSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n')
+    name, text = service_event_definition('my_pkg/srv/Move_Axis_Event', srv)
+    assert name == 'my_pkg/srv/MoveAxisEvent'
+    assert text.startswith('service_msgs/ServiceEventInfo info\nmy_pkg/MoveAxisRequest[<=1] '
+                           'request\nmy_pkg/MoveAxisResponse[<=1] response\n')
+    assert '\nMSG: my_pkg/srv/MoveAxisRequest\ngeometry_msgs/Point target\nfloat64 speed\n' in text
+    assert '\nMSG: my_pkg/srv/MoveAxisResponse\nbool ok\n' in text
+    assert text.endswith('MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n')
+    from mcap_ros2._dynamic import generate_dynamic
+    assert name in generate_dynamic(name, text)          # the parser takes it
+    # no service event, or no service text: nothing to build
+    assert service_event_definition('my_pkg/msg/Move', srv) is None
+    assert service_event_definition('my_pkg/srv/Move_Event', 'float64 x\n') is None
 
 
 def test_fixture_without_our_topics_says_which_it_has():

@@ -25,7 +25,7 @@ from ros_ehs.core.params import CONTROL_SPECS, Params
 def test_live_changes_are_validated_as_a_whole_with_a_reason():
     from rclpy.parameter import Parameter
     from ros_ehs.nodes.controller import SPECS
-    from ros_ehs.nodes.options import validate_changes
+    from ros_ehs.nodes.parameters import validate_changes
     cur = Params()
     res, new = validate_changes(cur, [Parameter('kp', value=1.5)], SPECS)
     assert res.successful and new['kp'] == 1.5
@@ -35,7 +35,7 @@ def test_live_changes_are_validated_as_a_whole_with_a_reason():
     assert not res.successful and 'u_max' in res.reason and 'outside' in res.reason
     res, new = validate_changes(cur, [Parameter('use_sim_time', value=True)], SPECS)
     assert res.successful and new is None          # not ours: nothing to rebuild
-    from ros_ehs.nodes.options import rejected_names
+    from ros_ehs.nodes.parameters import rejected_names
     declared = {'kp', 'use_sim_time'}.__contains__
     assert rejected_names([Parameter('kp', value=1.5)], declared) is None
     assert rejected_names([Parameter('', value=1.0)], declared) == \
@@ -67,18 +67,22 @@ def test_controller_declares_every_value_its_feedforward_reads():
     assert math.isfinite(ctrl.step(0.01, 0.0, 0.0))
 
 
-def test_nodes_doc_is_generated_from_the_options():
-    from ros_ehs.nodes.docs import DOC, render
-    text = DOC.read_text()
-    assert render(text) == text, 'docs/nodes.md is stale: run python -m ros_ehs.nodes.docs'
+def test_the_docs_tables_are_generated_from_the_settings():
+    from ros_ehs.core.params import markdown_table
+    from ros_ehs.tools.docs import cli_markdown, DOCS, render
+    text = (DOCS / 'nodes.md').read_text()
+    assert render(text) == text, 'docs/nodes.md is stale: run python -m ros_ehs.tools.docs'
+    assert (DOCS / 'cli.md').read_text() == cli_markdown() + '\n', \
+        'docs/cli.md is stale: run python -m ros_ehs.tools.docs'
+    assert (DOCS / 'parameters.md').read_text() == markdown_table() + '\n'
 
 
 @pytest.mark.ros
 def test_live_options_follow_accepted_changes_read_only_ones_do_not():
     from rclpy.parameter import Parameter
     from ros_ehs.nodes.plant import OPTIONS
-    from ros_ehs.nodes.options import update_options
+    from ros_ehs.nodes.parameters import update_settings
     opt = {o.name: o.default for o in OPTIONS}
-    update_options(opt, [Parameter('watchdog_periods', value=5),
-                         Parameter('rate_hz', value=500.0)], OPTIONS)
+    update_settings(opt, [Parameter('watchdog_periods', value=5),
+                          Parameter('rate_hz', value=500.0)], OPTIONS)
     assert opt['watchdog_periods'] == 5 and opt['rate_hz'] == 1000.0

@@ -17,8 +17,8 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.core.control.waveforms import (Chirp, first_order_hold, make, REFERENCE_SPECS, Sine,
-                                            Step)
+from ros_ehs.core.control.waveforms import (Chirp, first_order_hold, make, Sine, Step,
+                                            WAVEFORM)
 from ros_ehs.core.errors import ParameterError
 
 
@@ -33,7 +33,7 @@ def test_reference_specs_build_each_kind_and_reject_bad_values(tmp_path):
         make({'kind': 'csv'})
     with pytest.raises(ParameterError, match='frequency'):
         make({'frequency': -1.0})
-    assert {s.name for s in REFERENCE_SPECS} >= {'kind', 'amplitude', 'frequency'}
+    assert {s.name for s in WAVEFORM} >= {'kind', 'amplitude', 'frequency'}
 
 
 @pytest.mark.parametrize('offset_ms', [-0.9, -0.3, 0.0, 0.4, 2.5, 3.9])

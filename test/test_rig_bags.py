@@ -373,4 +373,5 @@ def test_the_cli_refuses_a_bad_input_delay_by_name(tmp_path):
     p = subprocess.run([sys.executable, '-m', 'ros_ehs.tools.cli',
                         'identify', str(tmp_path / 'x'),
                         '--input-delay', 'soon'], capture_output=True, text=True, timeout=120)
-    assert p.returncode == 2 and "--input-delay 'soon': give seconds or auto" in p.stderr
+    assert p.returncode == 2 and ("argument --input-delay: parameter `input_delay` = 'soon' "
+                                  'must be a number [s] or auto') in p.stderr, p.stderr

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Iterable, Mapping
 
 from ros_ehs.core.errors import ParameterError
+from ros_ehs.core.settings import Setting
 
 __all__ = [
     'ACTIONS',
@@ -53,57 +54,28 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class ParamSpec:
+class ParamSpec(Setting):
     """
-    Declaration of one parameter.
+    Declaration of one model or controller parameter: a live :class:`Setting`.
 
-    ``lo``/``hi`` is the physically valid range (inclusive). For the seven parameters the
-    paper estimates, ``est_lo``/``est_hi`` are Table 1's bounds, ``scale`` its scale gain and
-    ``initial``/``estimated`` its two columns.
+    ``group`` and ``source`` say where it belongs and where its value comes from.
+
+    For the seven parameters the paper estimates, ``est_lo``/``est_hi`` are Table 1's bounds,
+    ``scale`` its scale gain and ``initial``/``estimated`` its two columns.
     """
 
-    name: str
-    unit: str
-    default: float | str
-    lo: float = -math.inf
-    hi: float = math.inf
-    meaning: str = ''
+    live: bool = True
     group: str = ''
     source: str = ''
-    choices: tuple[str, ...] = ()
     est_lo: float | None = None
     est_hi: float | None = None
     scale: float | None = None
     initial: float | None = None
     estimated: float | None = None
 
-    @property
-    def is_choice(self) -> bool:
-        """Return True for a string parameter with a fixed set of choices."""
-        return bool(self.choices)
-
-    def check(self, value: object) -> float | str:
-        """Return ``value`` converted and checked, or raise :class:`ParameterError`."""
-        if self.is_choice:
-            if not isinstance(value, str) or value not in self.choices:
-                raise ParameterError(
-                    f'parameter `{self.name}` = {value!r} is not one of {list(self.choices)}')
-            return value
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ParameterError(
-                f'parameter `{self.name}` = {value!r} must be a number [{self.unit}]')
-        v = float(value)
-        if not math.isfinite(v):
-            raise ParameterError(f'parameter `{self.name}` = {v!r} is not finite')
-        if not (self.lo <= v <= self.hi):
-            raise ParameterError(
-                f'parameter `{self.name}` = {v!r} {self.unit} is outside its valid range '
-                f'[{self.lo!r}, {self.hi!r}] ({self.meaning})')
-        return v
-
 
 def _p(name, unit, default, lo, hi, meaning, group, source, **kw) -> ParamSpec:
-    return ParamSpec(name, unit, default, lo, hi, meaning, group, source, **kw)
+    return ParamSpec(name, unit, default, lo, hi, meaning, group=group, source=source, **kw)
 
 
 # --- plant: the G761-class valve, symmetric cylinder and oil -------------------------------

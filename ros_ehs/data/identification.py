@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 import warnings
 
 from ros_ehs.core.errors import IdentificationWarning, InputError
@@ -27,7 +27,7 @@ from ros_ehs.core.identify.estimator import IdentificationResult, identify, mult
 from ros_ehs.core.identify.problem import SIGNALS
 from ros_ehs.core.params import ESTIMATED, load_yaml, preset
 from ros_ehs.data.experiments import load_experiments
-from ros_ehs.data.mapping import TopicMap
+from ros_ehs.data.mapping import topic_map_of, TopicMap
 from ros_ehs.data.report import write_report
 import ros_ehs_msgs_py as contract
 
@@ -131,3 +131,22 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
         result.metrics.update({f'held-out {k}': v for k, v in held_metrics.items()})
     files = write_report(result, exps, out, figures=figures)
     return result, files, held_metrics
+
+
+def run_options(options: Mapping[str, Any], where: str = 'the options',
+                progress: Callable[[dict], None] | None = None
+                ) -> tuple[IdentificationResult, dict[str, Path], dict]:
+    """
+    Run :func:`run_identification` as the identify options say.
+
+    ``options``: the values of :data:`ros_ehs.core.options.IDENTIFY` (the identify node's and
+    ``ehs_sim identify``'s); ``where`` names them in errors.
+    """
+    o = options
+    return run_identification(
+        o['bags'], o['out'], free=o['free'], model=o['model'], cost=o['cost'],
+        holdout=o['holdout'], initial=o['initial'] or None, topics=topic_map_of(o, where),
+        workers=o['workers'] or None, max_nfev=int(o['max_nfev']), figures=bool(o['figures']),
+        start=float(o['start']) or None, end=float(o['end']) or None,
+        starts=int(o['starts']), seed=int(o['seed']), advise=bool(o['advise']),
+        progress=progress)

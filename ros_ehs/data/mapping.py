@@ -47,7 +47,7 @@ from ros_ehs.core.errors import InputError
 import ros_ehs_msgs_py as contract
 
 __all__ = ['COMMAND_TYPES', 'PRESSURE_TYPES', 'ROLES', 'STATE_TYPES', 'TopicDecoder',
-           'TopicMap', 'decoder', 'load_topic_map', 'topic_map']
+           'TopicMap', 'decoder', 'load_topic_map', 'topic_map', 'topic_map_of']
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 FLOAT64 = 'std_msgs/msg/Float64'
@@ -175,6 +175,25 @@ def load_topic_map(path: str | os.PathLike, **overrides: Any) -> TopicMap:
     doc = {**doc, **{k: v for k, v in overrides.items() if v is not None}} \
         if isinstance(doc, dict) else doc
     return TopicMap.from_dict(doc, where=f'topic map {str(p)!r}')
+
+
+def topic_map_of(options: Mapping[str, Any], where: str = 'the options') -> TopicMap:
+    """
+    Return the map that the identify options say (the node's and ``ehs_sim identify``'s).
+
+    ``topic_map`` (a file, or the contract), then the topic options that are set over it
+    (``state_topic``, ``joint``, ``command_topic``, ``command_index`` >= 0,
+    ``pressure_p_topic``, ``pressure_t_topic``, ``input_delay`` >= 0), without pressures when
+    ``use_pressures`` is false.
+    """
+    o = options
+    tmap = topic_map(o['topic_map'] or None, where, state=o['state_topic'] or None,
+                     joint=o['joint'] or None, command=o['command_topic'] or None,
+                     command_index=None if o['command_index'] < 0 else o['command_index'],
+                     pressure_p=o['pressure_p_topic'] or None,
+                     pressure_t=o['pressure_t_topic'] or None,
+                     input_delay=None if o['input_delay'] < 0 else o['input_delay'])
+    return tmap if o['use_pressures'] else tmap.without_pressures()
 
 
 def topic_map(path: str | os.PathLike | None = None, where: str = 'the options',

@@ -15,7 +15,7 @@
 Thin rclpy wrappers over the core: plant, controller, reference, recorder, player, identify.
 
 Each module has a ``main(args=None)`` that ``ros2 run ros_ehs <node>`` calls. What they
-share: :mod:`ros_ehs.nodes.options` (options and parameters declared from the one table, live
+share: :mod:`ros_ehs.nodes.parameters` (options and parameters declared from the settings, live
 changes validated), :mod:`ros_ehs.nodes.scheduling` (SCHED_FIFO, CPU placement) and
 :mod:`ros_ehs.nodes.ros_common` (QoS, messages, diagnostics, the run loop with a clean
 SIGINT/SIGTERM shutdown); loop timing statistics, which need no ROS, are in

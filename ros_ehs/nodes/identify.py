@@ -53,64 +53,19 @@ from rclpy.task import Future
 from ros_ehs.core.control.feedforward import MODEL_PARAMS
 from ros_ehs.core.errors import DataError, EhsError
 from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
-from ros_ehs.core.params import CONTROL_SPECS, ESTIMATED, load_yaml, preset
-from ros_ehs.data.identification import run_identification
+from ros_ehs.core.options import IDENTIFY
+from ros_ehs.core.params import CONTROL_SPECS, load_yaml, preset
+from ros_ehs.data.identification import run_options
 from ros_ehs.data.mapping import (FLOAT64, FLOAT64_ARRAY, FLUID_PRESSURE, JOINT_STATE,
-                                  PRESSURE_UNITS, topic_map, TopicMap)
-from ros_ehs.nodes.options import declare_options, Option
+                                  PRESSURE_UNITS, topic_map_of, TopicMap)
+from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import msg_class, qos_profile, read_msg, run, steady_clock
-from ros_ehs.nodes.scheduling import CPU_AFFINITY
 import ros_ehs_msgs_py as contract
 
 __all__ = ['OPTIONS', 'IdentifyNode', 'main', 'pushable']
 
-OPTIONS = (
-    Option('bags', [], 'bags to fit jointly (directories, split or not, or .mcap/.db3 files)'),
-    Option('holdout', [], 'bags scored with the fitted values, not fitted'),
-    Option('out', 'out/identification', 'report folder'),
-    Option('free', list(ESTIMATED), 'parameters to fit (default the seven of Table 1)'),
-    Option('model', 'simplified', 'model to fit: simplified (the paper), reduced (with the '
-           "full model's valve dynamics: for a real rig) or full",
-           choices=('simplified', 'reduced', 'full')),
-    Option('cost', 'sae', 'sae (the paper) or sse', choices=('sae', 'sse')),
-    Option('initial', '', 'parameters YAML for the start (default Table 1 initial values)'),
-    Option('state_topic', contract.STATE.name, 'state topic in the bags'),
-    Option('command_topic', contract.COMMAND.name, 'command topic in the bags'),
-    Option('pressure_p_topic', contract.PRESSURE_P.name, 'chamber P pressure topic'),
-    Option('pressure_t_topic', contract.PRESSURE_T.name, 'chamber T pressure topic'),
-    Option('use_pressures', True, 'fit the chamber pressures when the bags have them'),
-    Option('topic_map', '', "a rig's topic map (YAML: docs/identification.md); when given, "
-           'the four topic options above are not used'),
-    Option('joint', '', "the axis's joint in the state (default: the map's, or piston)"),
-    Option('input_delay', -1.0, 'from a command to the valve acting on it [s]; -1: the map '
-           'says, or estimated where the bags record commands (auto)', -1.0, 0.5),
-    Option('max_nfev', 100, 'most model evaluations', 1, 100000),
-    Option('starts', 0, 'also refit from this many seeded random starts and report how many '
-           'reach the same optimum', 0, 1000),
-    Option('seed', 0, 'seed of the random starts', 0, 2**31 - 1),
-    Option('advise', True, 'name the parameters the bags do not pin down and the reference '
-           'trajectory that would'),
-    Option('start', 0.0, "fit from this time on [s from each bag's first message]", 0.0, 1e9),
-    Option('end', 0.0, 'fit up to this time (0: to the end) [s from the first message '
-           'of each bag]', 0.0, 1e9),
-    Option('figures', True, 'write the PNG figures'),
-    Option('push', False, 'set the fitted values on the running controller'),
-    Option('controller', 'controller', 'name of the controller node to push to'),
-    Option('push_timeout', 10.0, 'wait this long for the controller [s]', 0.1, 600.0),
-    Option('live', False, 'refit the running loop continuously instead of bags'),
-    Option('window', 10.0, 'live: the last seconds refitted [s]', 1.0, 600.0),
-    Option('period', 5.0, 'live: a refit every this many seconds of the state clock [s]',
-           0.5, 3600.0),
-    Option('push_period', 30.0, 'live: at most one push per this many seconds [s]', 0.0,
-           1e6),
-    Option('sigmas', 3.0, 'live: push only a change beyond this many standard errors', 0.0,
-           100.0),
-    Option('rel_change', 0.02, "live: and beyond this fraction of the controller's value",
-           0.0, 10.0),
-    Option('max_rate', 4000.0, 'live: the fastest state rate to buffer for [Hz]', 10.0,
-           100000.0),
-    CPU_AFFINITY,
-)
+#: the node's options (declared in :mod:`ros_ehs.core.options`)
+OPTIONS = IDENTIFY
 
 #: Live mode: how often to look for the mapped topics' types [s].
 DISCOVERY_PERIOD = 0.5
@@ -129,7 +84,7 @@ class IdentifyNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('identify', **kwargs)
-        self.opt = declare_options(self, OPTIONS)
+        self.opt = declare_settings(self, OPTIONS)
         self.cpu_affinity = int(self.opt['cpu_affinity'])
         self.result = None
         if self.opt['live']:
@@ -143,29 +98,16 @@ class IdentifyNode(Node):
         threading.Thread(target=self._job, daemon=True).start()
 
     def bag_topics(self) -> TopicMap:
-        """Return where the signals are in the bags, from the options."""
-        o = self.opt
-        topics = {} if o['topic_map'] else {      # a map file replaces the topic options
-            'state': o['state_topic'], 'command': o['command_topic'],
-            'pressure_p': o['pressure_p_topic'], 'pressure_t': o['pressure_t_topic']}
-        tmap = topic_map(o['topic_map'] or None, 'the options', joint=o['joint'] or None,
-                         input_delay=o['input_delay'] if o['input_delay'] >= 0 else None,
-                         **topics)
-        return tmap if o['use_pressures'] else tmap.without_pressures()
+        """Return where the signals are in the bags (or on the live topics), from the options."""
+        return topic_map_of(self.opt)
 
     def _job(self) -> None:
         log = self.get_logger()
         o = self.opt
         try:
-            result, files, _ = run_identification(
-                o['bags'], o['out'], free=o['free'], model=o['model'], cost=o['cost'],
-                holdout=o['holdout'], initial=o['initial'] or None,
-                topics=self.bag_topics(),
-                max_nfev=int(o['max_nfev']), figures=bool(o['figures']),
-                start=float(o['start']) or None, end=float(o['end']) or None,
-                starts=int(o['starts']), seed=int(o['seed']), advise=bool(o['advise']),
-                progress=lambda e: log.info(f'iteration {e["iteration"]:3d}  '
-                                            f'cost {e["cost"]:.6g}'))
+            result, files, _ = run_options(
+                self.opt, progress=lambda e: log.info(f'iteration {e["iteration"]:3d}  '
+                                                      f'cost {e["cost"]:.6g}'))
         except EhsError as err:
             log.error(str(err))
             self.done.set_result(2)

@@ -71,64 +71,22 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from ros_ehs.core.options import PLANT
 from ros_ehs.core.params import Params, PLANT_SPECS
-from ros_ehs.core.sim.axis import FAULTS, SimulatedAxis
+from ros_ehs.core.sim.axis import SimulatedAxis
 from ros_ehs.nodes.loop_stats import LoopStats
-from ros_ehs.nodes.options import (declare_options, declare_specs, node_params, Option,
-                                   update_options, validate_changes)
+from ros_ehs.nodes.parameters import (declare_settings, node_params, update_settings,
+                                      validate_changes)
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, PLANT_STATUS, qos_profile, read_msg,
                                       run, steady_clock, WARN)
-from ros_ehs.nodes.scheduling import CPU_AFFINITY, RT_PRIORITY
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 
 __all__ = ['OPTIONS', 'PlantNode', 'main']
 
-OPTIONS = (
-    Option('model', 'simplified', 'plant model: full (10 states), reduced (6: the simplified '
-           "with the full model's valve dynamics) or simplified (4 states)",
-           choices=('full', 'reduced', 'simplified')),
-    Option('mode', 'realtime', 'realtime: step on a timer; lockstep: one step per command, '
-           'publish /clock', choices=('realtime', 'lockstep')),
-    Option('rate_hz', 1000.0, 'control period rate [Hz]', 10.0, 5000.0),
-    Option('timing', 'timer', 'real time: an executor timer (one thread: no GIL handover; '
-           'less CPU and a shorter round trip, measured) or a thread sleeping to each period',
-           choices=('timer', 'thread')),
-    Option('watchdog_periods', 3, 'a command is never applied over a period ending more '
-           'than this many periods after it arrived: then the valve current is zero', 1, 10000,
-           read_only=False),
-    Option('initial_z', 0.0, 'initial piston position [m]', -2.0, 2.0),
-    Option('start_time', 0.0, 'lock-step: sim time of the first state [s]', 0.0, 1.0e9),
-    Option('duration', 0.0, 'lock-step: stop advancing at this sim time after start [s] '
-           '(0: never)', 0.0, 1.0e9),
-    Option('wait_subscribers', 1, 'start when `state` has this many subscribers (the '
-           'controller; one more for a recorder, one more for a reference running APC or '
-           'PVC): lock-step, the first step; real time, the first state (time restarts '
-           'there), so a recorder has the loop from its first period and the middleware opens '
-           'its ports to every subscriber before a watchdog guards the loop', 0, 100),
-    Option('start_delay', 0.5, 'lock-step: then wait this long, so every node has matched '
-           'every other before the first step [s]', 0.0, 60.0),
-    Option('clock_period', 0.01, 'lock-step: publish /clock every this much sim time (0: '
-           "every period); keep it below the reference's preview [s]", 0.0, 10.0),
-    Option('resend_period', 0.05, 'lock-step: republish the state after this much silence '
-           '[s]', 1.0e-3, 10.0),
-    Option('noise_z', 0.0, 'white noise (1 sigma) on the published position [m]; the bench '
-           'sets 5e-6', 0.0, 0.01),
-    Option('noise_v', 0.0, 'white noise on the published velocity [m/s]', 0.0, 1.0),
-    Option('noise_p', 0.0, 'white noise on the published chamber pressures [Pa]', 0.0, 1.0e6),
-    Option('seed', 0, 'seed of the sensor noise', 0, 2**31 - 1),
-    Option('fault', 'none', 'inject a fault from fault_time on (tests, demonstrations): '
-           'frozen_sensor, nan_sensor, stuck_valve (the current at the start stays applied), '
-           'lost_pressure (supply to 1 MPa)', choices=FAULTS, read_only=False),
-    Option('fault_time', 0.0, 'sim time after the start at which `fault` begins [s]', 0.0,
-           1.0e9, read_only=False),
-    Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
-    Option('figures_file', '', 'at exit, write the figures (loop timing, watchdog trips) '
-           'there as JSON (empty: not written)'),
-    RT_PRIORITY,
-    CPU_AFFINITY,
-)
+#: the node's options (declared in :mod:`ros_ehs.core.options`)
+OPTIONS = PLANT
 
 #: periods the diagnostics rank for their percentiles (2 s at 1 kHz): ranking all 20000
 #: took 0.45 ms of the executor and made the next tick late (Window.p50_p99_max)
@@ -141,10 +99,10 @@ class PlantNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('plant', **kwargs)
-        self.opt = declare_options(self, OPTIONS)
+        self.opt = declare_settings(self, OPTIONS)
         self.rt_priority = int(self.opt['rt_priority'])     # applied by run()
         self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
-        declare_specs(self, PLANT_SPECS, Params())
+        declare_settings(self, PLANT_SPECS, Params())
         self.params = node_params(self, Params(), PLANT_SPECS)
         self.lockstep = self.opt['mode'] == 'lockstep'
         o = self.opt
@@ -352,7 +310,7 @@ class PlantNode(Node):
             self.params = new
             self.axis.set_params(new)
             self.get_logger().info('plant parameters changed; model rebuilt, state kept')
-        update_options(self.opt, changes, OPTIONS)
+        update_settings(self.opt, changes, OPTIONS)
         self.axis.configure(watchdog_periods=int(self.opt['watchdog_periods']),
                             fault=self.opt['fault'], fault_time=float(self.opt['fault_time']))
 

@@ -45,35 +45,19 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.task import Future
 from ros_ehs.core.errors import BagError
+from ros_ehs.core.options import PLAYER
 from ros_ehs.data.bag.reader import BagMessage, open_bag
 from ros_ehs.data.experiments import load_experiments
 from ros_ehs.data.mapping import load_topic_map
-from ros_ehs.nodes.options import declare_options, Option
+from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import msg_class, qos_profile, run
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 
 __all__ = ['OPTIONS', 'PlayerNode', 'main']
 
-OPTIONS = (
-    Option('bag', '', 'bag directory or .mcap file to replay'),
-    Option('rate', 1.0, 'playback speed factor', 0.01, 1000.0),
-    Option('topics', [], 'topics to replay (default: all)'),
-    Option('loop', False, 'start over at the end'),
-    Option('clock', True, 'publish /clock with the bag time'),
-    Option('clock_hz', 100.0, '/clock rate in bag time, besides one before each message [Hz]',
-           1.0, 10000.0),
-    Option('wait_subscribers', 0, 'before the first message, wait until every replayed '
-           'topic has this many subscribers', 0, 1000),
-    Option('start_delay', 0.5, 'then wait this long, so the subscribers have matched too [s]',
-           0.0, 60.0),
-    Option('start', 0.0, 'replay from this time on [s from the first message of the bag]',
-           0.0, 1e9),
-    Option('end', 0.0, 'replay up to this time (0: to the end) [s from the first message]',
-           0.0, 1e9),
-    Option('topic_map', '', "a rig's topic map (YAML): replay its signals as the contract's "
-           'topics (see the module docstring)'),
-)
+#: the node's options (declared in :mod:`ros_ehs.core.options`)
+OPTIONS = PLAYER
 
 
 def contract_messages(experiments) -> list[BagMessage]:
@@ -101,7 +85,7 @@ class PlayerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('player', **kwargs)
-        self.opt = declare_options(self, OPTIONS)
+        self.opt = declare_settings(self, OPTIONS)
         if not self.opt['bag']:
             raise BagError('parameter `bag` is empty: give the bag to replay '
                            '(-p bag:=bags/sample_sine_1hz)')

@@ -55,35 +55,17 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.task import Future
 from ros_ehs.core.errors import BagError
-from ros_ehs.data.bag.writer import BagWriter, COMPRESSION, free_bytes
-from ros_ehs.nodes.options import declare_options, Option
+from ros_ehs.core.options import RECORDER
+from ros_ehs.data.bag.writer import BagWriter, free_bytes
+from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, msg_class, OK, qos_profile, qos_spec,
                                       run, steady_clock)
 import ros_ehs_msgs_py as contract
 
 __all__ = ['OPTIONS', 'RecorderNode', 'main', 'default_bag_path']
 
-OPTIONS = (
-    Option('out', '', 'bag directory to create (default bags/ehs_<UTC time>)'),
-    Option('topics', [], 'topics to record (default: every contract topic)'),
-    Option('flush_period', 0.05, 'close the open chunk and flush at least this often [s]: '
-           'the most a crash can lose', 0.005, 10.0),
-    Option('fsync', False, 'also fsync on every flush (survives power loss)'),
-    Option('depth', 10000, 'subscription queue depth: what a stalled recorder can catch up '
-           "on (as the lock-step writers' LOCKSTEP_QOS keeps)", 1, 100000),
-    Option('discovery_period', 0.2, 'how often to look for listed topics not yet seen [s]',
-           0.05, 60.0),
-    Option('max_bag_size', 0, 'split to a new file once the open one holds this many bytes '
-           '(0: no split by size) [bytes]', 0, 2 ** 62),
-    Option('max_bag_duration', 600.0, 'split to a new file once the open one spans this '
-           'long (0: no split by duration) [s]', 0.0, 1e9),
-    Option('compression', 'zstd', 'MCAP chunk compression', choices=tuple(COMPRESSION)),
-    Option('min_free_space', 100_000_000, 'refuse to start, and stop recording cleanly, with '
-           'less free space than this on the filesystem of the bag [bytes]', 0, 2 ** 62),
-    Option('warn_free_space', 1_000_000_000, 'warn (once a minute) with less free space than '
-           'this [bytes]', 0, 2 ** 62),
-    Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
-)
+#: the node's options (declared in :mod:`ros_ehs.core.options`)
+OPTIONS = RECORDER
 
 
 def default_bag_path() -> Path:
@@ -103,7 +85,7 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('recorder', **kwargs)
-        self.opt = declare_options(self, OPTIONS)
+        self.opt = declare_settings(self, OPTIONS)
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
         self._clock = self.get_clock()
         if self._sim_time:

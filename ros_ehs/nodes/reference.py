@@ -70,15 +70,15 @@ from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from ros_ehs.core.control.apc import AmplitudePhaseControl, MAX_HARMONICS
+from ros_ehs.core.control.apc import AmplitudePhaseControl
 from ros_ehs.core.control.cycles import CycleCorrection
 from ros_ehs.core.control.pvc import PeakValleyControl
-from ros_ehs.core.control.waveforms import cyclic_blocks, make, REFERENCE_SPECS
+from ros_ehs.core.control.waveforms import cyclic_blocks, make, WAVEFORM
 from ros_ehs.core.errors import ParameterError
-from ros_ehs.nodes.options import declare_options, declare_specs, Option
+from ros_ehs.core.options import REFERENCE
+from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import (diagnostics, EPOCH_PERIODS, OK, PLANT_STATUS, qos_profile,
                                       read_msg, run, steady_clock)
-from ros_ehs.nodes.scheduling import CPU_AFFINITY
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -86,35 +86,8 @@ from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['OPTIONS', 'ReferenceNode', 'main']
 
-OPTIONS = (
-    Option('rate_hz', 1000.0, 'publication rate in real time; under use_sim_time the '
-           'sample rate of reference_trajectory (the loop rate) [Hz]', 1.0, 5000.0),
-    Option('preview', 0.02, 'use_sim_time: each /clock t is answered with the samples up to '
-           "t + preview; must exceed the plant's clock_period [s]", 0.0, 1.0),
-    Option('duration', 0.0, 'hold the last position after this time [s] (0: never)', 0.0,
-           1.0e9),
-    Option('csv_path', '', 'trajectory file for kind = csv (columns t [s], z [m])'),
-    Option('diagnostics_period', 1.0, 'period of the diagnostics message [s]', 0.05, 60.0),
-    Option('wait_loop', False, 'real time: start the trajectory (time zero) only once the '
-           "plant's diagnostics report its loop closed (status ros_ehs/plant at level OK)"),
-    Option('wait_subscribers', 0, 'real time: start the trajectory (time zero) only once '
-           '`reference` has this many subscribers; publish nothing until then', 0, 1000),
-    Option('blocks', '', 'kind triangle or haversine: a block-loading sequence, `peak valley '
-           "cycles` per block [m, m, -], blocks apart by ';' (empty: offset -+ amplitude)"),
-    Option('amplitude_phase_control', False, "kind sine or chirp: correct the command's "
-           'amplitude, phase and mean each cycle from the measured position (APC); frozen while a '
-           'safety trip acts or states are lost'),
-    Option('peak_valley_control', False, "kind triangle or haversine: correct each block's "
-           'command each cycle so that its peaks and valleys reach their targets (PVC); frozen '
-           'as APC is'),
-    Option('ramp_time', 1.0, "APC, PVC: the controller's ramp_time: no cycle that overlaps a "
-           'ramp-on (the first one, and the one after a reset) is learnt from [s]', 0.0, 60.0),
-    Option('apc_harmonics', 5, 'APC of a sine: the harmonics corrected, the fundamental '
-           'included (1: amplitude and phase only; 2 and up also cancel the distortion at 2 f, '
-           '3 f, ...); a chirp corrects the fundamental only',
-           1, MAX_HARMONICS),
-    CPU_AFFINITY,
-)
+#: the node's options (declared in :mod:`ros_ehs.core.options`)
+OPTIONS = REFERENCE
 
 #: APC: no state for this long freezes the corrections [s] (real time).
 APC_LOST = 0.2
@@ -127,10 +100,9 @@ class ReferenceNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('reference', **kwargs)
-        self.opt = declare_options(self, OPTIONS)
+        self.opt = declare_settings(self, OPTIONS)
         self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
-        declare_specs(self, REFERENCE_SPECS, {s.name: s.default for s in REFERENCE_SPECS})
-        values = {s.name: self.get_parameter(s.name).value for s in REFERENCE_SPECS}
+        values = declare_settings(self, WAVEFORM)
         self.traj = make(values, self.opt['csv_path'], self.opt['blocks'])
         self.values = values
         self.correction = self._make_correction(values)

@@ -22,7 +22,7 @@ The rclpy plumbing every ros_ehs node shares: QoS, messages, diagnostics, the ru
   SIGINT/SIGTERM (the node's ``close()`` runs, so a bag is closed properly);
 * :func:`diagnostics` builds the ``diagnostics`` message.
 
-Parameters and options: :mod:`ros_ehs.nodes.options`.
+Parameters: :mod:`ros_ehs.nodes.parameters`.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from ros_ehs.core.errors import EhsError
-from ros_ehs.nodes.options import check_names
+from ros_ehs.nodes.parameters import check_names
 from ros_ehs.nodes.scheduling import set_cpu_affinity, set_realtime
 import ros_ehs_msgs_py as contract
 

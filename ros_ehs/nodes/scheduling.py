@@ -23,9 +23,7 @@ from __future__ import annotations
 
 import os
 
-from ros_ehs.nodes.options import Option
-
-__all__ = ['CPU_AFFINITY', 'RT_PRIORITY', 'SIDE_THREADS', 'set_cpu_affinity', 'set_realtime']
+__all__ = ['SIDE_THREADS', 'set_cpu_affinity', 'set_realtime']
 
 
 def _thread_ids() -> list[int]:
@@ -90,24 +88,3 @@ def set_cpu_affinity(cpu: int) -> str:
         return (f'cpu_affinity {cpu} not applied ({getattr(err, "strerror", err)}): this '
                 f'machine has CPUs {sorted(os.sched_getaffinity(0))}')
     return f'threads on CPU {cpu} (discovery and timed events on CPUs {sorted(others)})'
-
-
-#: The ``cpu_affinity`` option of the loop nodes; ``NodeProcesses.start_loop`` sets it by default
-#: (``ros_ehs.nodes.processes.loop_placement``). Measured on the 2-core VM, plant and controller on
-#: one
-#: CPU and the reference on the other: 12400-14450 lock-step steps/s against 6280-8060
-#: unpinned (a ping-pong between two processes on one core skips the cross-core wake-up; the
-#: bare rclpy ping-pong gains 1.2-1.5x), and in real time no watchdog trip in 30 of 30 10 s
-#: windows the machine did not stall (docs/nodes.md, "CPU placement").
-CPU_AFFINITY = Option('cpu_affinity', -1, 'keep the threads of the node that carry the loop '
-                      "on this CPU, the middleware's discovery and timed events on the "
-                      'others (-1: anywhere); a bench: plant and controller on one, the '
-                      'reference on another', -1, 1023)
-
-
-#: The ``rt_priority`` option of the loop nodes (plant and controller), as ros2_control's
-#: controller manager has ``thread_priority``.
-RT_PRIORITY = Option('rt_priority', 0, 'real time: SCHED_FIFO priority of all the threads of '
-                     'the node (1-99), so that other work on the machine cannot delay a '
-                     'period; 0: the default scheduler. Needs CAP_SYS_NICE or ulimit -r',
-                     0, 99)

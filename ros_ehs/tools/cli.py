@@ -20,11 +20,12 @@ Table 1 estimated parameters and prints a summary.
 
 import argparse
 import sys
+from typing import Sequence
 
 import numpy as np
-
-from ros_ehs.core.errors import EhsError
-from ros_ehs.core.params import ESTIMATED
+from ros_ehs.core.errors import EhsError, InputError
+from ros_ehs.core.options import CLI_OPTIONS, CLI_POSITIONAL, CONTROLLER_SPECS
+from ros_ehs.core.settings import parse_assignment, parse_value, Setting
 
 
 def _cmd_main(args) -> int:
@@ -101,37 +102,14 @@ def _print_identification(result, files, held) -> None:
         print(f'wrote {p}')
 
 
-def _topic_map(args):
-    """Return the bags' topic map: --topics FILE (or the contract), then the options."""
-    from ros_ehs.data.mapping import topic_map
-    from ros_ehs.core.errors import InputError
-    delay = args.input_delay
-    if delay is not None and delay.strip().lower() != 'auto':
-        try:
-            delay = float(delay)
-        except ValueError:
-            raise InputError(f'--input-delay {args.input_delay!r}: give seconds or auto') \
-                from None
-    tmap = topic_map(args.topics, 'the command line', state=args.state_topic,
-                     joint=args.joint, command=args.command_topic,
-                     command_index=args.command_index, pressure_p=args.pressure_p,
-                     pressure_t=args.pressure_t, input_delay=delay)
-    return tmap.without_pressures() if args.no_pressures else tmap
-
-
 def _cmd_identify(args) -> int:
-    from ros_ehs.data.identification import run_identification
+    from ros_ehs.data.identification import run_options
 
     def progress(e):
         print(f'  iteration {e["iteration"]:3d}  cost {e["cost"]:.6g}', flush=True)
 
-    result, files, held = run_identification(
-        args.bags, args.out, free=[f for f in args.free.split(',') if f], model=args.model,
-        cost=args.cost, holdout=args.holdout or (), initial=args.initial,
-        topics=_topic_map(args), workers=args.workers, figures=not args.no_figures,
-        start=args.start, end=args.end,
-        starts=args.starts, seed=args.seed, advise=not args.no_advice,
-        progress=None if args.quiet else progress)
+    result, files, held = run_options(vars(args), 'the command line',
+                                      progress=None if args.quiet else progress)
     _print_identification(result, files, held)
     return 0 if result.success and result.adequate else 1
 
@@ -141,10 +119,13 @@ def _cmd_drive(args) -> int:
     from ros_ehs.nodes.drive_bench import BenchPlayer
     from ros_ehs.core.params import PLANT_SPECS, preset
     t, z = load_drive(args.target)
-    rig, ctrl = preset(args.plant), preset(args.controller).replace(**dict(args.set))
-    if args.bench:
+    rig = preset(args.plant)
+    ctrl = preset(args.controller).replace(**dict(parse_assignment(a, CONTROLLER_SPECS)
+                                                  for a in args.set))
+    if args.bench != 'none':
         rt = {'rt_priority': args.rt_priority} if args.rt_priority else {}
-        play = BenchPlayer(args.out, mode=args.bench, domain_id=args.domain_id,
+        play = BenchPlayer(args.out, mode=args.bench,
+                           domain_id=None if args.domain_id < 0 else args.domain_id,
                            max_trips=args.max_trips,
                            plant={'model': args.model, **rt,
                                   **{s.name: rig[s.name] for s in PLANT_SPECS}},
@@ -157,8 +138,8 @@ def _cmd_drive(args) -> int:
               f'  {k} played again: {e}', flush=True)
 
     res = iterate(play, t, z, args.out, iterations=args.iterations, rms_target_pct=args.rms,
-                  frf_bag=args.frf_bag, progress=progress)
-    if args.bench:
+                  frf_bag=args.frf_bag or None, progress=progress)
+    if args.bench != 'none':
         print('watchdog trips per run: ' + ', '.join(f'{k} {v}' for k, v in play.trips.items()))
     print(f"first pass {res['rms_err_pct'][0]:.3f} %, best {res['best_pct']:.3f} %; last "
           f"response/target within {res['band_db_max']:.3f} dB, {res['band_deg_max']:.2f} "
@@ -178,6 +159,8 @@ def _cmd_trend(args) -> int:
 
 
 def _cmd_record(args) -> int:
+    if not args.out:
+        raise InputError('ehs_sim record needs --out: the bag directory to create')
     from ros_ehs.core.params import preset
     from ros_ehs.core.control.waveforms import Sine
     from ros_ehs.data.synthetic_bag import record_synthetic_bag, SensorNoise
@@ -193,122 +176,94 @@ def _cmd_record(args) -> int:
     return 0
 
 
-def _name_value(text: str) -> tuple[str, float | str]:
-    name, eq, value = text.partition('=')
-    if not (eq and name):
-        raise argparse.ArgumentTypeError(f'{text!r} is not NAME=VALUE')
-    try:
-        return name, float(value)
-    except ValueError:
-        return name, value
+def _cli_type(s: Setting, item: bool = False):
+    """Return the argparse ``type`` of setting ``s`` (one item of a list when ``item``)."""
+    def convert(text: str):
+        try:
+            if item or s.kind in ('str', 'choice'):
+                return text if item else s.check(text)
+            return s.check(parse_value(text))
+        except EhsError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+    convert.__name__ = s.name
+    return convert
+
+
+def add_settings(parser: argparse.ArgumentParser, settings: Sequence[Setting],
+                 positional: Sequence[str] = ()) -> None:
+    """
+    Add an option for each setting, derived from it: ``--name-with-dashes``, its type checked.
+
+    A flag takes ``--name`` / ``--no-name``; a list takes several values or one
+    comma-separated one (``--free d_c,F_cc``); ``positional`` settings take no flag.
+    """
+    for s in settings:
+        helptext = s.describe().replace('%', '%%').replace('; *live*', '')
+        if s.name in positional:
+            if s.kind == 'list':
+                parser.add_argument(s.name, nargs='+', type=_cli_type(s, True), help=helptext)
+            else:
+                parser.add_argument(s.name, type=_cli_type(s), help=helptext)
+            continue
+        flag = '--' + s.name.replace('_', '-')
+        same = [f for f in s.flags if not f.startswith('--no-')]
+        if s.kind == 'bool':
+            parser.add_argument(flag, *same, dest=s.name, default=s.default, help=helptext,
+                                action=argparse.BooleanOptionalAction)
+            for f in s.flags:
+                if f.startswith('--no-'):
+                    parser.add_argument(f, dest=s.name, action='store_false',
+                                        help=f'the same as --no-{s.name.replace("_", "-")}')
+        elif s.kind == 'list':
+            parser.add_argument(flag, *same, dest=s.name, nargs='+', action='extend',
+                                type=_cli_type(s, True), default=None, metavar=s.name.upper(),
+                                help=helptext)
+        else:
+            parser.add_argument(flag, *same, dest=s.name, type=_cli_type(s), default=s.default,
+                                metavar=s.name.upper(), help=helptext)
+
+
+def _lists(args: argparse.Namespace, settings: Sequence[Setting]) -> None:
+    """Give every list option its default when absent, and split comma-separated values."""
+    for s in settings:
+        if s.kind == 'list' and s.name != 'set':
+            v = getattr(args, s.name)
+            v = list(s.default) if v is None else [x for a in v for x in a.split(',') if x]
+            setattr(args, s.name, v)
+        elif s.kind == 'list':
+            setattr(args, s.name, getattr(args, s.name) or [])
+
+
+#: each command: its handler and its help
+COMMANDS = {
+    'main': (_cmd_main, 'the paper test in closed loop, summarised'),
+    'figures': (_cmd_figures, "the paper's Figs. 5-7 as PNG, from simulation"),
+    'params-doc': (_cmd_params_doc, 'write docs/parameters.md from the parameter table'),
+    'record': (_cmd_record, 'in-process bench run (plant + controller + sensor noise) '
+               'recorded to a rosbag2 MCAP bag: a synthetic experiment'),
+    'drive': (_cmd_drive, 'drive-file iteration, in process or on the bench: a drive that '
+              'makes the axis reproduce a target time history (each run a bag)'),
+    'identify': (_cmd_identify, "refit Table 1's parameters from bags (report folder)"),
+    'trend': (_cmd_trend, 'the live estimates of a long run over time, from its bag (topic '
+              'parameter_estimates)'),
+}
+
+
+def parser() -> argparse.ArgumentParser:
+    """Return the ``ehs_sim`` parser, its options derived from the settings."""
+    ap = argparse.ArgumentParser(prog='ehs_sim', description=__doc__.strip().splitlines()[0])
+    sub = ap.add_subparsers(dest='cmd', required=True)
+    for name, (func, helptext) in COMMANDS.items():
+        p = sub.add_parser(name, help=helptext, description=helptext)
+        add_settings(p, CLI_OPTIONS[name], CLI_POSITIONAL.get(name, ()))
+        p.set_defaults(func=func)
+    return ap
 
 
 def main(argv=None) -> int:
     """Parse arguments and run; core errors become one clear line and exit code 2."""
-    ap = argparse.ArgumentParser(prog='ehs_sim', description=__doc__.strip().splitlines()[0])
-    sub = ap.add_subparsers(dest='cmd', required=True)
-    m = sub.add_parser('main', help='the paper test in closed loop, summarised')
-    m.add_argument('--model', choices=['full', 'reduced', 'simplified'], default='full')
-    m.add_argument('--preset', default='table1_estimated')
-    m.add_argument('--duration', type=float, default=3.0)
-    m.add_argument('--amplitude', type=float, default=0.04)
-    m.add_argument('--frequency', type=float, default=1.0)
-    m.set_defaults(func=_cmd_main)
-    f = sub.add_parser('figures', help="the paper's Figs. 5-7 as PNG, from simulation")
-    f.add_argument('--out', default='out/figures')
-    f.add_argument('--model', choices=['full', 'reduced', 'simplified'], default='simplified')
-    f.add_argument('--duration', type=float, default=3.0)
-    f.set_defaults(func=_cmd_figures)
-    d = sub.add_parser('params-doc', help='write docs/parameters.md from the parameter table')
-    d.add_argument('--out', default='docs/parameters.md')
-    d.set_defaults(func=_cmd_params_doc)
-    r = sub.add_parser('record', help='in-process bench run (plant + controller + sensor '
-                       'noise) recorded to a rosbag2 MCAP bag: a synthetic experiment')
-    r.add_argument('--out', required=True, help='bag directory to create')
-    r.add_argument('--plant', default='table1_estimated', help='plant parameter preset')
-    r.add_argument('--controller', default='table1_initial', help='controller preset')
-    r.add_argument('--model', choices=['full', 'reduced', 'simplified'], default='simplified')
-    r.add_argument('--duration', type=float, default=10.0)
-    r.add_argument('--amplitude', type=float, default=0.04)
-    r.add_argument('--frequency', type=float, default=1.0)
-    r.add_argument('--seed', type=int, default=0)
-    r.add_argument('--no-noise', dest='noise', action='store_false')
-    r.set_defaults(func=_cmd_record)
-    dv = sub.add_parser('drive', help='drive-file iteration, in process or on the bench: a drive '
-                        'that makes the axis reproduce a target time history (each run a bag)')
-    dv.add_argument('target', help='target CSV (header t,z; seconds, metres)')
-    dv.add_argument('--out', default='out/drive', help='folder for the bags and drive files')
-    dv.add_argument('--frf-bag', default=None, help='a recorded broadband run (reference and '
-                    'state) to take the FRF from (default: play and record one)')
-    dv.add_argument('--iterations', type=int, default=6)
-    dv.add_argument('--rms', type=float, default=1.0, help='stop at this RMS error [%%]')
-    dv.add_argument('--plant', default='table1_estimated', help='the rig: a parameter preset')
-    dv.add_argument('--controller', default='table1_estimated', help='controller preset')
-    dv.add_argument('--set', action='append', type=_name_value, default=[],
-                    metavar='NAME=VALUE', help='a controller value over its preset, e.g. '
-                    'dp_gain=1.5e-7 (delta-P stabilisation); repeat for more')
-    dv.add_argument('--model', choices=['full', 'reduced', 'simplified'], default='full')
-    dv.add_argument('--bench', choices=['lockstep', 'realtime'], default=None,
-                    help="play each run on the bench's nodes over DDS (default: in process)")
-    dv.add_argument('--rt-priority', type=int, default=0, help='--bench realtime: the plant '
-                    "and controller's SCHED_FIFO priority (0: none; needs CAP_SYS_NICE)")
-    dv.add_argument('--max-trips', type=int, default=2, help='--bench: a run whose plant '
-                    'watchdog zeroed the valve more often is played again (twice at most)')
-    dv.add_argument('--domain-id', type=int, default=None,
-                    help="ROS_DOMAIN_ID of the bench runs (default: the environment's)")
-    dv.set_defaults(func=_cmd_drive)
-    i = sub.add_parser('identify', help="refit Table 1's parameters from bags (report folder)")
-    i.add_argument('bags', nargs='+', help='bag directories (split or not, mcap or sqlite3) '
-                   'or .mcap/.db3 files, fitted jointly')
-    i.add_argument('--out', default='out/identification', help='report folder')
-    i.add_argument('--free', default=','.join(ESTIMATED),
-                   help='comma-separated free parameters')
-    i.add_argument('--model', choices=['full', 'reduced', 'simplified'], default='simplified')
-    i.add_argument('--cost', choices=['sae', 'sse'], default='sae')
-    i.add_argument('--holdout', nargs='*', help='bags scored with the fitted parameters')
-    i.add_argument('--initial', help='parameters YAML to start from (default Table 1 initial)')
-    i.add_argument('--topics', metavar='RIG.yaml', help='where the signals are in the bags: '
-                   "a rig's topic map (docs/identification.md, section: your rig's bag); the "
-                   'options below override its entries')
-    i.add_argument('--state-topic', default=None, help='sensor_msgs/JointState (default state)')
-    i.add_argument('--joint', default=None, help="the axis's joint in the state (default "
-                   'piston)')
-    i.add_argument('--command-topic', default=None, help='JointState, Float64 or '
-                   'Float64MultiArray (default servo_current)')
-    i.add_argument('--command-index', type=int, default=None,
-                   help="Float64MultiArray commands: this axis's element (default 0)")
-    i.add_argument('--pressure-p', default=None, help='chamber P pressure topic (default '
-                   'pressure/chamber_p)')
-    i.add_argument('--pressure-t', default=None, help='chamber T pressure topic (default '
-                   'pressure/chamber_t)')
-    i.add_argument('--no-pressures', action='store_true', help='fit without pressures')
-    i.add_argument('--input-delay', default=None, metavar='SECONDS|auto',
-                   help='from a command to the valve acting on it; auto (the default) '
-                   'estimates it where the bags record commands, not the applied current')
-    i.add_argument('--start', type=float, default=None,
-                   help="fit from this time on [s from each bag's first message]")
-    i.add_argument('--end', type=float, default=None,
-                   help="fit up to this time [s from each bag's first message]")
-    i.add_argument('--starts', type=int, default=0,
-                   help='also refit from this many seeded random starts and report how many '
-                   'reach the same optimum')
-    i.add_argument('--seed', type=int, default=0, help='seed of the random starts')
-    i.add_argument('--no-advice', action='store_true',
-                   help='skip the excitation advice (which parameters the bags do not pin '
-                   'down, and the reference trajectory that would)')
-    i.add_argument('--workers', type=int, default=None,
-                   help='threads for the Jacobian columns (default: 2 on a machine with 2 '
-                   'or more CPUs)')
-    i.add_argument('--no-figures', action='store_true')
-    i.add_argument('--quiet', action='store_true')
-    i.set_defaults(func=_cmd_identify)
-    tr = sub.add_parser('trend', help='the live estimates of a long run over time, from its bag '
-                        '(topic parameter_estimates)')
-    tr.add_argument('bag', help='the bag (directory, .mcap or .db3)')
-    tr.add_argument('--out', default='', help='PNG of each parameter against time, with its band')
-    tr.add_argument('--sigmas', type=float, default=3.0, help='band width in standard errors')
-    tr.set_defaults(func=_cmd_trend)
-    args = ap.parse_args(argv)
+    args = parser().parse_args(argv)
+    _lists(args, CLI_OPTIONS[args.cmd])
     try:
         return args.func(args)
     except EhsError as err:

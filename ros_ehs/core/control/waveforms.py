@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from ros_ehs.core.errors import DataError, InputError, ParameterError
-from ros_ehs.core.params import ParamSpec
+from ros_ehs.core.settings import Setting
 
 __all__ = ['Chirp', 'CsvTrajectory', 'cyclic_blocks', 'first_order_hold', 'KINDS',
-           'REFERENCE_SPECS', 'Samples', 'Sine', 'Step', 'make', 'sweep_phase']
+           'WAVEFORM', 'Samples', 'Sine', 'Step', 'make', 'sweep_phase']
 
 
 def _finite(name: str, value: float) -> float:
@@ -189,22 +189,21 @@ class CsvTrajectory(Samples):
 
 KINDS = ('sine', 'step', 'chirp', 'triangle', 'haversine', 'csv')
 
-#: The reference generator's parameters, declared once (the reference node declares these).
-REFERENCE_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec('kind', '', 'sine', meaning='trajectory: sine, step, chirp, triangle, haversine '
-              '(cyclic between offset -+ amplitude, or through `blocks`) or csv (file)',
-              group='reference', choices=KINDS),
-    ParamSpec('amplitude', 'm', 0.04, -2.0, 2.0, 'amplitude (sine, chirp) or height (step)',
-              'reference'),
-    ParamSpec('frequency', 'Hz', 1.0, 1.0e-3, 500.0, 'sine, triangle or haversine frequency',
-              'reference'),
-    ParamSpec('offset', 'm', 0.0, -2.0, 2.0, 'sine, triangle or haversine mean', 'reference'),
-    ParamSpec('step_time', 's', 0.1, 0.0, 1.0e6, 'time of the step', 'reference'),
-    ParamSpec('rise', 's', 0.0, 0.0, 100.0, 'step rise time (cosine ramp; 0: sharp)',
-              'reference'),
-    ParamSpec('f0', 'Hz', 0.5, 1.0e-3, 500.0, 'chirp start frequency', 'reference'),
-    ParamSpec('f1', 'Hz', 20.0, 1.0e-3, 500.0, 'chirp end frequency', 'reference'),
-    ParamSpec('chirp_duration', 's', 10.0, 1.0e-3, 1.0e6, 'chirp sweep time', 'reference'),
+#: The waveform's settings (the reference node declares them, live), declared once.
+WAVEFORM: tuple[Setting, ...] = (
+    Setting('kind', '', 'sine', meaning='trajectory: sine, step, chirp, triangle, haversine '
+            '(cyclic between offset -+ amplitude, or through `blocks`) or csv (file)',
+            choices=KINDS, live=True),
+    Setting('amplitude', 'm', 0.04, -2.0, 2.0, 'amplitude (sine, chirp) or height (step)',
+            live=True),
+    Setting('frequency', 'Hz', 1.0, 1.0e-3, 500.0, 'sine, triangle or haversine frequency',
+            live=True),
+    Setting('offset', 'm', 0.0, -2.0, 2.0, 'sine, triangle or haversine mean', live=True),
+    Setting('step_time', 's', 0.1, 0.0, 1.0e6, 'time of the step', live=True),
+    Setting('rise', 's', 0.0, 0.0, 100.0, 'step rise time (cosine ramp; 0: sharp)', live=True),
+    Setting('f0', 'Hz', 0.5, 1.0e-3, 500.0, 'chirp start frequency', live=True),
+    Setting('f1', 'Hz', 20.0, 1.0e-3, 500.0, 'chirp end frequency', live=True),
+    Setting('chirp_duration', 's', 10.0, 1.0e-3, 1.0e6, 'chirp sweep time', live=True),
 )
 
 
@@ -226,8 +225,8 @@ def cyclic_blocks(values: dict, blocks: str = '') -> list:
 
 
 def make(values: dict, csv_path: str = '', blocks: str = ''):
-    """Return the trajectory that ``values`` (REFERENCE_SPECS names) describe, checked."""
-    v = {s.name: s.check(values.get(s.name, s.default)) for s in REFERENCE_SPECS}
+    """Return the trajectory that ``values`` (WAVEFORM names) describe, checked."""
+    v = {s.name: s.check(values.get(s.name, s.default)) for s in WAVEFORM}
     kind = v['kind']
     if kind in ('triangle', 'haversine'):
         from ros_ehs.core.control.pvc import Cyclic

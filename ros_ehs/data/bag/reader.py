@@ -418,8 +418,10 @@ class Bag:
                 raise BagError(f'type {msg_type!r} in {str(self.file)!r} has schema encoding '
                                f'{enc or "none"!r}; only ros2msg can be decoded')
             from mcap_ros2._dynamic import generate_dynamic
+            from ros_ehs.data.bag.definitions import service_event_definition
+            name, text = service_event_definition(msg_type, text) or (msg_type, text)
             try:
-                dec = generate_dynamic(msg_type, text)[msg_type]
+                dec = generate_dynamic(name, text)[name]
             except Exception as e:  # noqa: B902 - parser errors are not typed
                 raise BagError(f'cannot parse the definition of {msg_type!r}: {e}') from None
             self._decoders[msg_type] = dec

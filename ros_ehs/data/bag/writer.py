@@ -71,6 +71,7 @@ RESERVE = 64 * 1024
 _RESERVE_NAME = '.ehs_space_reserve'
 
 #: chunk compressions the writer offers (MCAP chunk compression)
+#: the chunk compressions (the recorder's ``compression`` choices, ros_ehs.core.options)
 COMPRESSION = {'none': CompressionType.NONE, 'zstd': CompressionType.ZSTD,
                'lz4': CompressionType.LZ4}
 

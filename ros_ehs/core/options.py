@@ -1,0 +1,340 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the 'License');
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an 'AS IS' BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Every node's options and every ``ehs_sim`` option, declared once as :class:`Setting` s.
+
+The model and controller parameters are :mod:`ros_ehs.core.params`; the reference's waveform
+settings :data:`ros_ehs.core.control.waveforms.WAVEFORM`. :data:`NODE_OPTIONS` names each
+node's table (what ``ros2 run ros_ehs <node>`` declares), :data:`CLI_OPTIONS` each
+``ehs_sim`` command's; an option shared by several (``rate_hz``, ``diagnostics_period``,
+``cpu_affinity``, ...) is one object in each table. The identify node and ``ehs_sim
+identify`` take the same options.
+"""
+
+from __future__ import annotations
+
+from ros_ehs.core.control.apc import MAX_HARMONICS
+from ros_ehs.core.control.feedforward import MODEL_PARAMS
+from ros_ehs.core.params import CONTROL_SPECS, ESTIMATED, PLANT_SPECS, SAFETY_SPECS, spec
+from ros_ehs.core.settings import Setting
+from ros_ehs.core.sim.axis import FAULTS
+import ros_ehs_msgs_py as contract
+
+__all__ = ['CLI_OPTIONS', 'CLI_POSITIONAL', 'COMPRESSIONS', 'CONTROLLER', 'CONTROLLER_SPECS',
+           'CPU_AFFINITY', 'DIAGNOSTICS_PERIOD', 'IDENTIFY', 'MODEL', 'NODE_OPTIONS',
+           'NODE_PARAMS', 'PLANT', 'PLAYER', 'RATE_HZ', 'RECORDER', 'REFERENCE', 'RT_PRIORITY']
+
+#: MCAP chunk compressions a recorder can write.
+COMPRESSIONS = ('zstd', 'lz4', 'none')
+_MODELS = ('full', 'reduced', 'simplified')
+
+# -- shared by several nodes ----------------------------------------------------------------
+RATE_HZ = Setting('rate_hz', 'Hz', 1000.0, 1.0, 5000.0, "the loop's period rate: the plant "
+                  'steps, the controller answers and a lock-step reference samples at it; a '
+                  'real-time reference publishes at it (the controller carries each sample '
+                  "to its states' instants)")
+DIAGNOSTICS_PERIOD = Setting('diagnostics_period', 's', 1.0, 0.05, 60.0,
+                             'period of the diagnostics message')
+CPU_AFFINITY = Setting('cpu_affinity', '', -1, -1, 1023, 'keep the threads of the node that '
+                       "carry the loop on this CPU, the middleware's discovery and timed "
+                       'events on the others (-1: anywhere); a bench: plant and controller on '
+                       'one, the reference on another')
+RT_PRIORITY = Setting('rt_priority', '', 0, 0, 99, 'real time: SCHED_FIFO priority of all the '
+                      'threads of the node (1-99), so that other work on the machine cannot '
+                      'delay a period; 0: the default scheduler. Needs CAP_SYS_NICE or '
+                      'ulimit -r')
+MODEL = Setting('model', '', 'simplified', meaning='model: full (10 states), reduced (6: the '
+                "simplified with the full model's valve dynamics: for a real rig) or "
+                'simplified (4 states, the paper)', choices=_MODELS)
+_WAIT_SUBSCRIBERS = ('wait_subscribers', '', 0, 0, 1000)
+
+# -- nodes ------------------------------------------------------------------------------------
+PLANT = (
+    MODEL,
+    Setting('mode', '', 'realtime', meaning='realtime: step on a timer; lockstep: one step per '
+            'command, publish /clock', choices=('realtime', 'lockstep')),
+    RATE_HZ,
+    Setting('timing', '', 'timer', meaning='real time: an executor timer (one thread: no GIL '
+            'handover; less CPU and a shorter round trip, measured) or a thread sleeping to '
+            'each period', choices=('timer', 'thread')),
+    Setting('watchdog_periods', '', 3, 1, 10000, 'a command is never applied over a period '
+            'ending more than this many periods after it arrived: then the valve current is '
+            'zero', live=True),
+    Setting('initial_z', 'm', 0.0, -2.0, 2.0, 'initial piston position'),
+    Setting('start_time', 's', 0.0, 0.0, 1.0e9, 'lock-step: sim time of the first state'),
+    Setting('duration', 's', 0.0, 0.0, 1.0e9, 'lock-step: stop advancing at this sim time after '
+            'start (0: never)'),
+    Setting('wait_subscribers', '', 1, 0, 100, 'start when `state` has this many subscribers '
+            '(the controller; one more for a recorder, one more for a reference running APC '
+            'or PVC): lock-step, the first step; real time, the first state (time restarts '
+            'there), so a recorder has the loop from its first period and the middleware '
+            'opens its ports to every subscriber before a watchdog guards the loop'),
+    Setting('start_delay', 's', 0.5, 0.0, 60.0, 'lock-step: then wait this long, so every node '
+            'has matched every other before the first step'),
+    Setting('clock_period', 's', 0.01, 0.0, 10.0, 'lock-step: publish /clock every this much '
+            "sim time (0: every period); keep it below the reference's preview"),
+    Setting('resend_period', 's', 0.05, 1.0e-3, 10.0, 'lock-step: republish the state after '
+            'this much silence'),
+    Setting('noise_z', 'm', 0.0, 0.0, 0.01, 'white noise (1 sigma) on the published position; '
+            'the bench sets 5e-6'),
+    Setting('noise_v', 'm/s', 0.0, 0.0, 1.0, 'white noise on the published velocity'),
+    Setting('noise_p', 'Pa', 0.0, 0.0, 1.0e6, 'white noise on the published chamber '
+            'pressures'),
+    Setting('seed', '', 0, 0, 2**31 - 1, 'seed of the sensor noise'),
+    Setting('fault', '', 'none', meaning='inject a fault from fault_time on (tests, '
+            'demonstrations): frozen_sensor, nan_sensor, stuck_valve (the current at the start '
+            'stays applied), lost_pressure (supply to 1 MPa)', choices=FAULTS, live=True),
+    Setting('fault_time', 's', 0.0, 0.0, 1.0e9, 'sim time after the start at which `fault` '
+            'begins', live=True),
+    DIAGNOSTICS_PERIOD,
+    Setting('figures_file', '', '', meaning='at exit, write the figures (loop timing, watchdog '
+            'trips) there as JSON (empty: not written)'),
+    RT_PRIORITY,
+    CPU_AFFINITY,
+)
+
+CONTROLLER = (
+    RATE_HZ,
+    Setting('lockstep', '', False, meaning='lock-step bench: answer a state only with the '
+            'reference of the same stamp; commands over reliable QoS'),
+    Setting('reference_timeout', 's', 0.1, 1.0e-3, 100.0, 'a reference older than this is held '
+            'at zero velocity; when references come back the axis ramps onto them over '
+            'ramp_time', live=True),
+    DIAGNOSTICS_PERIOD,
+    Setting('future_tolerance', 's', 0.05, 1.0e-4, 3600.0, 'real time: a state stamped further '
+            "ahead of this node's clock is dropped and counted", live=True),
+    Setting('start_enabled', '', True, meaning='hydraulics on at start (ramp-on from the first '
+            'measured position); false: 0 A until ~/enable'),
+    Setting('state_topic', '', contract.STATE.name, meaning='sensor_msgs/JointState with the '
+            "axis's joint: the contract's `state`, or a rig driver's /joint_states"),
+    Setting('joint', '', contract.JOINT_PISTON, meaning="the axis's joint in the state (a rig's "
+            'own name; position required, velocity optional)'),
+    Setting('command_interface', '', 'joint_state', meaning="joint_state: the contract's "
+            'servo_current (JointState, stamped with the state it answers); forward_command: '
+            "a ros2_control forward command controller's Float64MultiArray (no header)",
+            choices=('joint_state', 'forward_command')),
+    Setting('command_topic', '', '', meaning='where commands go (default: servo_current, or '
+            'servo_valve_controller/commands for forward_command)'),
+    Setting('command_index', '', 0, 0, 255, "forward_command: this axis's element of the "
+            'array'),
+    Setting('command_size', '', 1, 1, 256, 'forward_command: length of the array (the '
+            "controller's joints; the others get 0 A)"),
+    Setting('command_scale', '', 1.0, 1.0e-6, 1.0e6, 'forward_command: units per A the driver '
+            'takes (1000: mA)'),
+    RT_PRIORITY,
+    CPU_AFFINITY,
+)
+
+REFERENCE = (
+    RATE_HZ,
+    Setting('preview', 's', 0.02, 0.0, 1.0, 'use_sim_time: each /clock t is answered with the '
+            "samples up to t + preview; must exceed the plant's clock_period"),
+    Setting('duration', 's', 0.0, 0.0, 1.0e9, 'hold the last position after this time (0: '
+            'never)'),
+    Setting('csv_path', '', '', meaning='trajectory file for kind = csv (columns t [s], z [m])'),
+    DIAGNOSTICS_PERIOD,
+    Setting('wait_loop', '', False, meaning='real time: start the trajectory (time zero) only '
+            "once the plant's diagnostics report its loop closed (status ros_ehs/plant at "
+            'level OK)'),
+    Setting(*_WAIT_SUBSCRIBERS, 'real time: start the trajectory (time zero) only once '
+            '`reference` has this many subscribers; publish nothing until then'),
+    Setting('blocks', '', '', meaning='kind triangle or haversine: a block-loading sequence, '
+            "`peak valley cycles` per block [m, m, -], blocks apart by ';' (empty: offset -+ "
+            'amplitude)'),
+    Setting('amplitude_phase_control', '', False, meaning='kind sine or chirp: correct the '
+            "command's amplitude, phase and mean each cycle from the measured position (APC); "
+            'frozen while a safety trip acts or states are lost'),
+    Setting('peak_valley_control', '', False, meaning='kind triangle or haversine: correct '
+            "each block's command each cycle so that its peaks and valleys reach their "
+            'targets (PVC); frozen as APC is'),
+    Setting('ramp_time', 's', 1.0, 0.0, 60.0, "APC, PVC: the controller's ramp_time: no cycle "
+            'that overlaps a ramp-on (the first one, and the one after a reset) is learnt '
+            'from'),
+    Setting('apc_harmonics', '', 5, 1, MAX_HARMONICS, 'APC of a sine: the harmonics corrected, '
+            'the fundamental included (1: amplitude and phase only; 2 and up also cancel the '
+            'distortion at 2 f, 3 f, ...); a chirp corrects the fundamental only'),
+    CPU_AFFINITY,
+)
+
+RECORDER = (
+    Setting('out', '', '', meaning='bag directory to create (default bags/ehs_<UTC time>)'),
+    Setting('topics', '', [], meaning='topics to record (default: every contract topic)'),
+    Setting('flush_period', 's', 0.05, 0.005, 10.0, 'close the open chunk and flush at least '
+            'this often: the most a crash can lose'),
+    Setting('fsync', '', False, meaning='also fsync on every flush (survives power loss)'),
+    Setting('depth', '', 10000, 1, 100000, 'subscription queue depth: what a stalled recorder '
+            "can catch up on (as the lock-step writers' LOCKSTEP_QOS keeps)"),
+    Setting('discovery_period', 's', 0.2, 0.05, 60.0, 'how often to look for listed topics not '
+            'yet seen'),
+    Setting('max_bag_size', 'bytes', 0, 0, 2**62, 'split to a new file once the open one holds '
+            'this many bytes (0: no split by size)'),
+    Setting('max_bag_duration', 's', 600.0, 0.0, 1.0e9, 'split to a new file once the open one '
+            'spans this long (0: no split by duration)'),
+    Setting('compression', '', 'zstd', meaning='MCAP chunk compression', choices=COMPRESSIONS),
+    Setting('min_free_space', 'bytes', 100_000_000, 0, 2**62, 'refuse to start, and stop '
+            'recording cleanly, with less free space than this on the filesystem of the bag'),
+    Setting('warn_free_space', 'bytes', 1_000_000_000, 0, 2**62, 'warn (once a minute) with '
+            'less free space than this'),
+    DIAGNOSTICS_PERIOD,
+)
+
+_START = Setting('start', 's', 0.0, 0.0, 1.0e9, "from this time on [s from each bag's first "
+                 'message]')
+_END = Setting('end', 's', 0.0, 0.0, 1.0e9, 'up to this time (0: to the end) [s from each '
+               "bag's first message]")
+_TOPIC_MAP = Setting('topic_map', '', '', meaning="a rig's topic map (YAML: "
+                     'docs/identification.md); the topic options override its entries',
+                     flags=('--topics',))
+
+PLAYER = (
+    Setting('bag', '', '', meaning='bag directory or .mcap file to replay'),
+    Setting('rate', '', 1.0, 0.01, 1000.0, 'playback speed factor'),
+    Setting('topics', '', [], meaning='topics to replay (default: all)'),
+    Setting('loop', '', False, meaning='start over at the end'),
+    Setting('clock', '', True, meaning='publish /clock with the bag time'),
+    Setting('clock_hz', 'Hz', 100.0, 1.0, 10000.0, '/clock rate in bag time, besides one before '
+            'each message'),
+    Setting(*_WAIT_SUBSCRIBERS, 'before the first message, wait until every replayed topic has '
+            'this many subscribers'),
+    Setting('start_delay', 's', 0.5, 0.0, 60.0, 'then wait this long, so the subscribers have '
+            'matched too'),
+    _START,
+    _END,
+    Setting('topic_map', '', '', meaning="a rig's topic map (YAML): replay its signals as the "
+            "contract's topics (see the node's docstring)"),
+)
+
+#: the identify node's options, and ``ehs_sim identify``'s
+IDENTIFY = (
+    Setting('bags', '', [], meaning='bags to fit jointly (directories, split or not, or '
+            '.mcap/.db3 files)'),
+    Setting('holdout', '', [], meaning='bags scored with the fitted values, not fitted'),
+    Setting('out', '', 'out/identification', meaning='report folder'),
+    Setting('free', '', list(ESTIMATED), meaning='parameters to fit (default the seven of '
+            'Table 1)'),
+    MODEL,
+    Setting('cost', '', 'sae', meaning='sae (the paper) or sse', choices=('sae', 'sse')),
+    Setting('initial', '', '', meaning='parameters YAML to start from (default Table 1 initial '
+            'values)'),
+    _TOPIC_MAP,
+    Setting('state_topic', '', '', meaning="sensor_msgs/JointState (default: the map's, or "
+            'state)'),
+    Setting('joint', '', '', meaning="the axis's joint in the state (default: the map's, or "
+            'piston)'),
+    Setting('command_topic', '', '', meaning='JointState, Float64 or Float64MultiArray (default: '
+            "the map's, or servo_current)"),
+    Setting('command_index', '', -1, -1, 255, "Float64MultiArray commands: this axis's element "
+            "(-1: the map's, or 0)"),
+    Setting('pressure_p_topic', '', '', meaning="chamber P pressure topic (default: the map's, "
+            'or pressure/chamber_p)', flags=('--pressure-p',)),
+    Setting('pressure_t_topic', '', '', meaning="chamber T pressure topic (default: the map's, "
+            'or pressure/chamber_t)', flags=('--pressure-t',)),
+    Setting('use_pressures', '', True, meaning='fit the chamber pressures when the bags have '
+            'them', flags=('--no-pressures',)),
+    Setting('input_delay', 's', -1.0, -1.0, 0.5, 'from a command to the valve acting on it; '
+            '-1 (auto): the map says, or estimated where the bags record commands',
+            words=(('auto', -1.0),)),
+    Setting('max_nfev', '', 100, 1, 100000, 'most model evaluations'),
+    Setting('starts', '', 0, 0, 1000, 'also refit from this many seeded random starts and '
+            'report how many reach the same optimum'),
+    Setting('seed', '', 0, 0, 2**31 - 1, 'seed of the random starts'),
+    Setting('advise', '', True, meaning='name the parameters the bags do not pin down and the '
+            'reference trajectory that would', flags=('--no-advice',)),
+    _START,
+    _END,
+    Setting('workers', '', 0, 0, 64, 'threads for the Jacobian columns (0: 2 on a machine with '
+            '2 or more CPUs)'),
+    Setting('figures', '', True, meaning='write the PNG figures'),
+    Setting('push', '', False, meaning='set the fitted values on the running controller'),
+    Setting('controller', '', 'controller', meaning='name of the controller node to push to'),
+    Setting('push_timeout', 's', 10.0, 0.1, 600.0, 'wait this long for the controller'),
+    Setting('live', '', False, meaning='refit the running loop continuously instead of bags'),
+    Setting('window', 's', 10.0, 1.0, 600.0, 'live: the last seconds refitted'),
+    Setting('period', 's', 5.0, 0.5, 3600.0, 'live: a refit every this many seconds of the '
+            'state clock'),
+    Setting('push_period', 's', 30.0, 0.0, 1.0e6, 'live: at most one push per this many '
+            'seconds'),
+    Setting('sigmas', '', 3.0, 0.0, 100.0, 'live: push only a change beyond this many standard '
+            'errors'),
+    Setting('rel_change', '', 0.02, 0.0, 10.0, 'live: and beyond this fraction of the '
+            "controller's value"),
+    Setting('max_rate', 'Hz', 4000.0, 10.0, 100000.0, 'live: the fastest state rate to buffer '
+            'for'),
+    CPU_AFFINITY,
+)
+
+#: each node's options: what ``ros2 run ros_ehs <node>`` declares (besides its parameters)
+NODE_OPTIONS = {'plant': PLANT, 'controller': CONTROLLER, 'reference': REFERENCE,
+                'recorder': RECORDER, 'player': PLAYER, 'identify': IDENTIFY}
+
+#: the parameters the controller declares: its own, the safety layer's and the plant values
+#: its feedforward uses
+CONTROLLER_SPECS = CONTROL_SPECS + SAFETY_SPECS + tuple(spec(n) for n in MODEL_PARAMS)
+#: each node's parameters (model, controller, safety), declared with its options
+NODE_PARAMS = {'plant': PLANT_SPECS, 'controller': CONTROLLER_SPECS}
+
+# -- ehs_sim ----------------------------------------------------------------------------------
+#: what only the identify node does: push to a running controller, refit live, placement
+_NODE_ONLY = ('push', 'controller', 'push_timeout', 'live', 'window', 'period', 'push_period',
+              'sigmas', 'rel_change', 'max_rate', 'cpu_affinity')
+_OUT = ('out', '')
+_PRESET = ('preset', '', 'table1_estimated')
+_DURATION = Setting('duration', 's', 3.0, 1.0e-3, 1.0e6, 'simulated time')
+_AMPLITUDE = Setting('amplitude', 'm', 0.04, -2.0, 2.0, 'sine amplitude')
+_FREQUENCY = Setting('frequency', 'Hz', 1.0, 1.0e-3, 500.0, 'sine frequency')
+_FULL_MODEL = Setting('model', '', 'full', meaning='plant model', choices=_MODELS)
+_SIMPLE_MODEL = Setting('model', '', 'simplified', meaning='plant model', choices=_MODELS)
+
+#: each ``ehs_sim`` command's options (positional: :data:`CLI_POSITIONAL`)
+CLI_OPTIONS = {
+    'main': (_FULL_MODEL, Setting(*_PRESET, meaning='parameter preset of plant and controller'),
+             _DURATION, _AMPLITUDE, _FREQUENCY),
+    'figures': (Setting(*_OUT, 'out/figures', meaning='folder of the PNG figures'),
+                _SIMPLE_MODEL, _DURATION),
+    'params-doc': (Setting(*_OUT, 'docs/parameters.md', meaning='the file to write'),),
+    'record': (Setting(*_OUT, '', meaning='bag directory to create (required)'),
+               Setting('plant', '', 'table1_estimated', meaning='plant parameter preset'),
+               Setting('controller', '', 'table1_initial', meaning='controller preset'),
+               _SIMPLE_MODEL,
+               Setting('duration', 's', 10.0, 1.0e-3, 1.0e6, 'simulated time'),
+               _AMPLITUDE, _FREQUENCY,
+               Setting('seed', '', 0, 0, 2**31 - 1, 'seed of the sensor noise'),
+               Setting('noise', '', True, meaning='add the bench sensor noise')),
+    'drive': (Setting('target', '', '', meaning='target CSV (header t,z; seconds, metres)'),
+              Setting(*_OUT, 'out/drive', meaning='folder for the bags and drive files'),
+              Setting('frf_bag', '', '', meaning='a recorded broadband run (reference and '
+                      'state) to take the FRF from (default: play and record one)'),
+              Setting('iterations', '', 6, 1, 1000, 'most iterations'),
+              Setting('rms', '%', 1.0, 1.0e-3, 100.0, 'stop at this RMS error'),
+              Setting('plant', '', 'table1_estimated', meaning='the rig: a parameter preset'),
+              Setting('controller', '', 'table1_estimated', meaning='controller preset'),
+              Setting('set', '', [], meaning='controller values over its preset, NAME=VALUE '
+                      'each, e.g. dp_gain=1.5e-7 (delta-P stabilisation); repeat for more'),
+              _FULL_MODEL,
+              Setting('bench', '', 'none', meaning="play each run on the bench's nodes over "
+                      'DDS (none: in process)', choices=('none', 'lockstep', 'realtime')),
+              RT_PRIORITY,
+              Setting('max_trips', '', 2, 0, 1000, '--bench: a run whose plant watchdog zeroed '
+                      'the valve more often is played again (twice at most)'),
+              Setting('domain_id', '', -1, -1, 232, 'ROS_DOMAIN_ID of the bench runs (-1: the '
+                      "environment's)")),
+    'identify': tuple(s for s in IDENTIFY if s.name not in _NODE_ONLY) + (
+        Setting('quiet', '', False, meaning='do not print each iteration'),),
+    'trend': (Setting('bag', '', '', meaning='the bag (directory, .mcap or .db3)'),
+              Setting(*_OUT, '', meaning='PNG of each parameter against time, with its band'),
+              Setting('sigmas', '', 3.0, 0.0, 100.0, 'band width in standard errors')),
+}
+
+#: the options of each ``ehs_sim`` command given without a flag, in order
+CLI_POSITIONAL = {'drive': ('target',), 'identify': ('bags',), 'trend': ('bag',)}

@@ -1,0 +1,267 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The controller node's rules without DDS (ros_ehs.core.control.loop): stamps, references,
+lost states, the operator's requests, notes and diagnosis, each at its exact period.
+
+The clocks are passed in: ``now`` the monotonic arrival [s], ``clock`` the node's clock [ns]
+(in real time the states are stamped on it, so a state's age is ``clock - stamp``).
+"""
+
+import math
+
+import pytest
+from ros_ehs.core.control.loop import (ControlLoop, EPOCH_PERIODS, LOST_FACTOR, NOTE_PERIOD,
+                                       REF_BUFFER)
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.params import Params
+from ros_ehs_msgs_py import AxisState, Reference
+
+MS = 1_000_000
+T0 = 10**18          # a stamp on the system clock [ns]
+
+
+def _st(k: int, z: float = 0.0, v: float = 0.0, f: float = 0.0) -> AxisState:
+    """State of period ``k`` (1 kHz) stamped on the node's clock."""
+    return AxisState(T0 + k * MS, z, v, f)
+
+
+def _loop(**kw) -> ControlLoop:
+    kw.setdefault('params', Params())
+    return ControlLoop(kw.pop('params'), **kw)
+
+
+def _answer(loop, k, z=0.0, now=None, clock=None, **st):
+    """Give state ``k`` arriving on time (1 ms periods); return the reply."""
+    now = k * 1e-3 if now is None else now
+    clock = T0 + k * MS if clock is None else clock
+    return loop.state(_st(k, z, **st), now, clock)
+
+
+def test_every_state_is_answered_once_with_its_own_stamp():
+    loop = _loop()
+    for k in range(5):
+        r = _answer(loop, k)
+        assert r.stamp_ns == T0 + k * MS and math.isfinite(r.current)
+    assert loop.counts['answered'] == 5
+
+
+def test_a_state_stamped_ahead_of_the_clock_is_dropped_counted_and_noted_once_a_second():
+    loop = _loop(future_tolerance=0.05)
+    assert _answer(loop, 0) is not None
+    # 60 ms ahead of the node's clock: dropped, never adopted as the newest stamp
+    assert loop.state(_st(60), 0.001, T0) is None
+    assert loop.state(_st(61), 0.002, T0) is None
+    assert loop.counts['future'] == 2 and loop.last_stamp == T0
+    assert [n for n in loop.notes if 'ahead of this clock' in n[1]] == [
+        ('warning', 'dropped a state stamped 0.06 s ahead of this clock')]
+    loop.notes.clear()
+    loop.state(_st(200), 0.002 + NOTE_PERIOD, T0)    # a second later: noted again
+    assert len(loop.notes) == 1
+    # exactly at the tolerance: taken
+    assert loop.state(_st(50), 0.003, T0) is not None
+    assert loop.diagnosis() == (1, 'dropped states stamped ahead of this clock')
+    assert loop.diagnosis()[1] != 'dropped states stamped ahead of this clock'  # none since
+
+
+def test_a_repeated_stamp_gets_the_same_command_without_a_pid_update():
+    loop = _loop()
+    loop.reference(Reference(T0, 0.01, 0.0), 0.0)
+    r1 = _answer(loop, 0)
+    before = loop.axis.ctrl.pid.i_term
+    r2 = _answer(loop, 0, now=0.0005)
+    assert r2 == (r1.stamp_ns, r1.current, ()) and loop.axis.ctrl.pid.i_term == before
+    assert loop.counts['repeated'] == 1 and loop.counts['answered'] == 1
+
+
+def test_an_older_stamp_is_reordering_up_to_epoch_periods_and_a_new_run_beyond():
+    loop = _loop()
+    for k in range(20):
+        _answer(loop, k)
+    assert _answer(loop, 19 - EPOCH_PERIODS, now=0.0201, clock=T0 + 20 * MS) is None
+    assert loop.counts['out_of_order'] == 1
+    # further back: a new run, answered at once; the ramp-on starts again
+    r = _answer(loop, 19 - EPOCH_PERIODS - 1, now=0.0202, clock=T0 + 20 * MS)
+    assert r is not None and loop.counts['epochs'] == 1
+    assert loop.axis.demand.mode == 'ramp'
+    assert any('new run: the state stamp jumped back' in t for _, t in loop.notes)
+
+
+def test_a_state_older_than_stale_timeout_repeats_the_held_command():
+    loop = _loop(params=Params().replace(stale_timeout=0.005))
+    r0 = _answer(loop, 0)
+    # arrives 6 ms after its stamp: not used, the held command again
+    r = loop.state(_st(1, z=0.002), 0.007, T0 + 7 * MS)
+    assert r == (T0 + MS, r0.current, ()) and loop.counts['stale'] == 1
+    assert loop.last_stamp == T0 + MS and loop.counts['answered'] == 1
+    # exactly at the timeout: used
+    assert loop.state(_st(2), 0.007, T0 + 7 * MS) is not None
+    assert loop.counts['answered'] == 2
+
+
+def test_before_the_first_reference_the_first_measured_position_is_held():
+    loop = _loop(params=Params().replace(ramp_time=0.0))
+    _answer(loop, 0, z=0.003)
+    _answer(loop, 1, z=0.004)
+    assert loop.axis.demand.z_ref == 0.003 and loop.axis.demand.v_ref == 0.0
+
+
+def test_a_reference_is_carried_to_the_states_instant_forward_and_back():
+    loop = _loop(params=Params().replace(ramp_time=0.0), reference_timeout=0.1)
+    loop.reference(Reference(T0, 0.01, 0.5), 0.0)
+    _answer(loop, 4)                        # 4 ms after the reference: forward
+    assert loop.axis.demand.z_ref == pytest.approx(0.01 + 0.5 * 0.004)
+    loop.reference(Reference(T0 + 7 * MS, 0.02, 0.5), 0.005)
+    _answer(loop, 5, now=0.0055)            # a reference stamped after the state: back
+    assert loop.axis.demand.z_ref == pytest.approx(0.02 - 0.5 * 0.002)
+    assert loop.axis.demand.v_ref == 0.5
+
+
+def test_a_stale_reference_is_held_still_and_the_axis_ramps_back_onto_it():
+    p = Params().replace(ramp_time=0.05)
+    loop = _loop(params=p, reference_timeout=0.1)
+    loop.reference(Reference(T0, 0.01, 0.2), 0.0)
+    _answer(loop, 0)
+    assert loop.axis.demand.mode == 'ramp'     # the start's ramp-on, over by 50 ms
+    _answer(loop, 99, now=0.0999)
+    assert loop.axis.demand.mode == 'run' and loop.counts['reference_stale'] == 0
+    # 0.1 s after it came, no new reference: held at its position, no velocity; once
+    _answer(loop, 100, now=0.1001)
+    assert loop.axis.demand.v_ref == 0.0 and loop.counts['reference_stale'] == 1
+    _answer(loop, 101, now=0.1011)
+    assert loop.counts['reference_stale'] == 1
+    assert any('no reference for 0.1 s' in t for _, t in loop.notes)
+    # back 60 mm on: the demand ramps from where it was held, no jump
+    held = loop.axis.demand.z_ref
+    loop.reference(Reference(T0 + 102 * MS, 0.07, 0.0), 0.102)
+    _answer(loop, 102, now=0.102)
+    assert loop.axis.demand.mode == 'ramp' and abs(loop.axis.demand.z_ref - held) < 1e-6
+    assert any('ramping onto it' in t for _, t in loop.notes)
+
+
+def test_lockstep_answers_a_state_only_with_the_reference_of_its_stamp():
+    loop = _loop(lockstep=True)
+    assert not loop.wall
+    assert _answer(loop, 0) is None            # no reference yet: parked
+    r = loop.trajectory([Reference(T0 + MS, 0.0, 0.0)])
+    assert r is None                           # not its stamp
+    r = loop.trajectory([Reference(T0, 0.0, 0.0), Reference(T0 + 2 * MS, 0.0, 0.0)])
+    assert r is not None and r.stamp_ns == T0  # the parked state, answered now
+    assert _answer(loop, 1) is not None        # its reference came before it
+    assert T0 + MS not in loop._refs           # a used reference is dropped at once
+
+
+def test_lockstep_keeps_at_most_ref_buffer_references_oldest_dropped_first():
+    loop = _loop(lockstep=True)
+    loop.trajectory([Reference(T0 + k * MS, 0.0, 0.0) for k in range(REF_BUFFER + 10)])
+    assert len(loop._refs) == REF_BUFFER and T0 + 9 * MS not in loop._refs
+    assert _answer(loop, 10) is not None
+
+
+def test_lost_states_send_zero_once_and_the_pid_restarts_when_they_return():
+    p = Params().replace(stale_timeout=0.005, ramp_time=0.0)
+    loop = _loop(params=p)
+    loop.reference(Reference(T0, 0.01, 0.0), 0.0)
+    _answer(loop, 0)
+    assert loop.axis.output > 0.0
+    limit = LOST_FACTOR * 0.005
+    assert loop.tick(limit - 1e-4, T0 + 49 * MS) == (None, ())
+    reply, events = loop.tick(limit, T0 + 50 * MS)
+    assert reply == (T0 + 50 * MS, 0.0, ()) and events == ()
+    assert loop.lost and loop.counts['state_lost_events'] == 1 and loop.axis.output == 0.0
+    assert loop.tick(limit + 0.01, T0 + 60 * MS) == (None, ())      # once
+    assert loop.diagnosis() == (1, 'no state: command 0 A')
+    r = _answer(loop, 70, now=0.07)
+    assert not loop.lost and r is not None
+    assert ('info', 'states are back; PID restarted from rest') in loop.notes
+
+
+def test_no_state_for_feedback_timeout_trips_the_feedback_detector_and_powers_off():
+    p = Params().replace(feedback_timeout=0.2, stale_timeout=0.1)
+    loop = _loop(params=p)
+    _answer(loop, 0)
+    reply, events = loop.tick(0.2, T0 + 200 * MS)      # exactly at the timeout: not yet
+    assert events == ()
+    reply, events = loop.tick(0.2001, T0 + 200 * MS)
+    assert [e.detector for e in events] == ['feedback'] and events[0].action == 'power_off'
+    assert reply == (T0 + 200 * MS, 0.0, ())
+    assert loop.diagnosis()[0] == 2 and 'interlock power_off' in loop.diagnosis()[1]
+    # reset is refused while the feedback is still lost
+    ok, why, ev = loop.reset(0.3)
+    assert not ok and 'no feedback for' in why and ev.kind == 'reset_refused'
+
+
+def test_without_the_wall_clock_nothing_is_future_stale_or_lost():
+    loop = _loop(wall=False, params=Params().replace(stale_timeout=0.005))
+    assert loop.state(_st(0), 0.0, T0 - 10**12) is not None       # an hour "ahead"
+    assert loop.state(_st(1), 100.0, T0 + 10**12) is not None     # "old"
+    assert loop.tick(1000.0, T0) == (None, ())
+    assert loop.counts['future'] == loop.counts['stale'] == 0
+
+
+def test_non_finite_input_is_zero_current_counted_and_noted():
+    loop = _loop()
+    loop.reference(Reference(T0, math.nan, 0.0), 0.0)
+    r = _answer(loop, 0, z=0.0)
+    assert r.current == 0.0 and loop.counts['nonfinite'] == 1
+    assert ('warning', 'non-finite state or reference: command 0 A') in loop.notes
+    assert loop.diagnosis() == (2, 'non-finite input: command 0 A')
+
+
+def test_delta_p_without_the_force_in_the_state_is_one_error_until_it_returns():
+    loop = _loop(params=Params().replace(dp_gain=1e-7))
+    r = _answer(loop, 0, f=math.nan)
+    assert r.current == 0.0 and loop.no_force
+    _answer(loop, 1, f=math.nan)
+    errors = [t for lv, t in loop.notes if lv == 'error']
+    assert len(errors) == 1 and 'dp_gain > 0 needs the hydraulic force' in errors[0]
+    assert loop.diagnosis() == (2, 'no hydraulic force in the state for dp_gain: command 0 A')
+    _answer(loop, 2, f=100.0)
+    assert not loop.no_force and ('info', 'the hydraulic force is back in the state: delta-P '
+                                  'on') in loop.notes
+
+
+def test_a_trip_comes_back_in_the_reply_and_reset_and_enable_are_the_supervisors():
+    p = Params().replace(limit_position_max=0.01, limit_position_max_action='hold')
+    loop = _loop(params=p)
+    r = _answer(loop, 0, z=0.02)
+    assert [e.detector for e in r.events] == ['limit_position_max']
+    assert loop.counts['events'] == 1 and loop.diagnosis()[0] == 2
+    ok, why, ev = loop.reset(0.01)            # still beyond the limit
+    assert not ok and 'limit_position_max' in why
+    _answer(loop, 1, z=0.0)
+    ok, why, ev = loop.reset(0.01)
+    assert ok and why == 'cleared limit_position_max' and loop.counts['events'] == 3
+    ok, why, ev = loop.enable(False)
+    assert ok and loop.diagnosis() == (1, 'hydraulics off: 0 A (~/enable)')
+    assert _answer(loop, 2).current == 0.0
+
+
+def test_the_figures_report_tracking_and_the_safety_state():
+    loop = _loop(params=Params().replace(ramp_time=0.0))
+    loop.reference(Reference(T0, 0.001, 0.0), 0.0)
+    _answer(loop, 0, z=0.0)
+    f = loop.figures()
+    assert f['tracking_rms_m'] == pytest.approx(0.001) and f['answered'] == 1
+    assert f['mode'] == 'run' and f['interlock'] == 'off' and 'trips_feedback' in f
+
+
+@pytest.mark.parametrize('kw, match', [
+    ({'rate_hz': 0.0}, '`rate_hz` = 0.0 must be a positive number'),
+    ({'rate_hz': math.nan}, '`rate_hz` = nan'),
+    ({'reference_timeout': 0.0}, '`reference_timeout` = 0.0 s must be a positive number'),
+    ({'future_tolerance': math.inf}, '`future_tolerance` = inf s')])
+def test_bad_options_are_named(kw, match):
+    with pytest.raises(InputError, match=match):
+        _loop(**kw)
