@@ -12,8 +12,9 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The controller node's rules without DDS (ros_ehs.core.control.loop): stamps, references,
-lost states, the operator's requests, notes and diagnosis, each at its exact period.
+The controller node's rules without DDS (ros_ehs.core.control.loop), each at its period.
+
+Stamps, references, lost states, the operator's requests, notes and diagnosis.
 
 The clocks are passed in: ``now`` the monotonic arrival [s], ``clock`` the node's clock [ns]
 (in real time the states are stamped on it, so a state's age is ``clock - stamp``).

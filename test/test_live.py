@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 from ros_ehs.benchmarks.drift import run
 from ros_ehs.core.errors import DataError, InputError, ParameterError
-from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
+from ros_ehs.core.identify.live import (LiveIdentifier, ReceiveClock, RefitSchedule,
+                                        SampleWindow)
 from ros_ehs.core.model import Plant
 from ros_ehs.core.model.drift import Drift, DriftStage, smoothstep
 from ros_ehs.core.params import ESTIMATED, preset
@@ -86,6 +87,35 @@ def _identifier(**kw):
             'rel_change': 0.02, 'push_period': 10.0}
     args.update(kw)
     return LiveIdentifier(preset('table1_initial'), **args)
+
+
+def test_a_refit_is_due_after_the_first_window_then_every_period_one_at_a_time():
+    s = RefitSchedule(10.0, 5.0)
+    sec = 10**9
+    assert not s.state(100 * sec)                 # the window starts filling
+    assert not s.state(110 * sec - 1)
+    assert s.state(110 * sec) and s.busy          # one window of the state clock later
+    assert not s.state(116 * sec)                 # busy: no second refit queued
+    s.done()
+    assert s.state(116 * sec)                     # due since 115 s: now
+    s.done()
+    assert not s.state(120 * sec) and s.state(121 * sec)
+    s.done()
+    # a new run (the window started again): a whole window first
+    assert not s.state(5 * sec, new_run=True) and s.state(15 * sec)
+    with pytest.raises(InputError, match='`period_s` = 0.0 must be a positive number'):
+        RefitSchedule(10.0, 0.0)
+
+
+def test_a_message_without_a_header_goes_on_the_states_clock_by_the_median_offset():
+    rc = ReceiveClock(keep=5)
+    assert rc.stamp(1000) == 1000                 # no state yet: its receive time
+    for stamp, recv in ((100, 150), (200, 240), (300, 345), (400, 900), (500, 548)):
+        rc.state(stamp, recv)                     # offsets -50 -40 -45 -500 -48
+    assert rc.stamp(1000) == 1000 - 48            # the median: one outlier does not move it
+    for k in range(5):
+        rc.state(k, k + 10)                       # only the newest 5 count
+    assert rc.stamp(1000) == 990
 
 
 def test_an_adequate_significant_fit_is_pushed_then_held_by_the_push_period(exps):

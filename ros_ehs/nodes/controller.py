@@ -33,13 +33,16 @@ with their ranges; a live change is validated as a whole and rejected with the r
   coming periods in one message per ``/clock``); commands go out over the contract's
   ``LOCKSTEP_QOS`` (reliable) so a recorder gets every one;
 * ``command_interface: forward_command``: commands go to a ros2_control forward command
-  controller as Float64MultiArray (no header); on the way out the node sends 0 A once, as such
-  a controller holds the last command it got.
+  controller as Float64MultiArray (no header);
+* on SIGINT or SIGTERM the node sends 0 A once and no command after it (a forward command
+  controller holds the last command it got), then exits within a bounded time, whatever its
+  executor does (:func:`ros_ehs.nodes.ros_common.run`).
 """
 
 from __future__ import annotations
 
 import functools
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -92,6 +95,8 @@ class ControllerNode(Node):
                                 future_tolerance=float(o['future_tolerance']))
         self._pending: Params | None = None
         self.compute = Window(2000)
+        self._stopped = False               # stop(): no command after the safe one
+        self._cmd_lock = threading.Lock()
         self.forward = o['command_interface'] == 'forward_command'
         if self.forward:      # ros2_control's ~/commands: reliable (SystemDefaultsQoS), so
             # a forward command controller's reliable subscription matches
@@ -177,12 +182,16 @@ class ControllerNode(Node):
         elif self.loop.notes:
             self._report(())
 
-    def _publish(self, stamp_ns: int, i: float) -> None:
-        if self.forward:      # no header: the driver applies the newest at its next write
-            self._cmd[self.opt['command_index']] = i * self.opt['command_scale']
-            self.pub_cmd.publish(contract.float64_array_to_cdr(self._cmd))
-            return
-        self.pub_cmd.publish(contract.command_to_cdr(contract.Command(stamp_ns, i)))
+    def _publish(self, stamp_ns: int, i: float, last: bool = False) -> None:
+        with self._cmd_lock:
+            if self._stopped:
+                return
+            self._stopped = last
+            if self.forward:   # no header: the driver applies the newest at its next write
+                self._cmd[self.opt['command_index']] = i * self.opt['command_scale']
+                self.pub_cmd.publish(contract.float64_array_to_cdr(self._cmd))
+                return
+            self.pub_cmd.publish(contract.command_to_cdr(contract.Command(stamp_ns, i)))
 
     def _report(self, events) -> None:
         """Publish each event on ``events`` and log it once; log the loop's notes."""
@@ -213,10 +222,16 @@ class ControllerNode(Node):
         response.success, response.message = ok, why
         return response
 
-    def close(self) -> None:
-        """Send 0 A once on the way out: a forward command controller holds the last one."""
-        if self.forward:
-            self._publish(0, 0.0)
+    def stop(self) -> None:
+        """
+        On the way out, first: send 0 A once, and no command after it.
+
+        A forward command controller holds the last command it got; a driver of the
+        contract's commands takes it as the answer to the newest state (our plant's watchdog
+        zeroes the valve anyway).
+        """
+        self._publish(max(self.loop.last_stamp, 0), 0.0, last=True)
+        self.get_logger().info('stopping: 0 A sent')
 
     # -- parameters and diagnostics ----------------------------------------------------------
     def _check_params(self, changes):

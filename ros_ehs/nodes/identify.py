@@ -39,7 +39,6 @@ than ``sigmas`` standard errors and ``rel_change`` is set on the controller, at 
 
 from __future__ import annotations
 
-from collections import deque
 import functools
 import math
 import os
@@ -52,12 +51,12 @@ from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
 from ros_ehs.core.control.feedforward import MODEL_PARAMS
 from ros_ehs.core.errors import DataError, EhsError
-from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
+from ros_ehs.core.identify.live import (LiveIdentifier, ReceiveClock, RefitSchedule,
+                                        SampleWindow)
 from ros_ehs.core.options import IDENTIFY
 from ros_ehs.core.params import CONTROL_SPECS, load_yaml, preset
 from ros_ehs.data.identification import run_options
-from ros_ehs.data.mapping import (FLOAT64, FLOAT64_ARRAY, FLUID_PRESSURE, JOINT_STATE,
-                                  PRESSURE_UNITS, topic_map_of, TopicMap)
+from ros_ehs.data.mapping import decoder, topic_map_of, TopicDecoder, TopicMap
 from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import msg_class, qos_profile, read_msg, run, steady_clock
 import ros_ehs_msgs_py as contract
@@ -142,25 +141,26 @@ class IdentifyNode(Node):
         if not names:
             log.warning('nothing to push: the controller declares none of the fitted values')
             return 0
-        params = [Parameter(n, Parameter.Type.DOUBLE, float(result.params[n])) for n in names]
         client = AsyncParameterClient(self, self.opt['controller'])
         if not client.wait_for_services(timeout_sec=float(self.opt['push_timeout'])):
             log.error(f'push: no parameter services of `{self.opt["controller"]}` within '
                       f'{self.opt["push_timeout"]:g} s')
             return 1
-        fut = client.set_parameters_atomically(params)
-        ev = threading.Event()
-        fut.add_done_callback(lambda f: ev.set())
-        if not ev.wait(float(self.opt['push_timeout'])) or fut.result() is None:
-            log.error('push: the controller did not answer')
-            return 1
-        res = fut.result().result
-        if not res.successful:
-            log.error(f'push refused by `{self.opt["controller"]}`: {res.reason}')
-            return 1
-        log.info(f'pushed to `{self.opt["controller"]}`: ' + ', '.join(
-            f'{p.name}={p.value:.6g}' for p in params))
-        return 0
+        ok, why = self._set_on_controller(client, {n: result.params[n] for n in names})
+        (log.info if ok else log.error)(f'push: {why}')
+        return 0 if ok else 1
+
+    def _set_on_controller(self, client, values: dict) -> tuple[bool, str]:
+        """Set ``values`` on the controller at once (its cross-checks see the whole set)."""
+        params = [Parameter(n, Parameter.Type.DOUBLE, float(v)) for n, v in values.items()]
+        res = self._wait(client.set_parameters_atomically(params),
+                         float(self.opt['push_timeout']))
+        who = f'`{self.opt["controller"]}`'
+        if res is None:
+            return False, f'{who} did not answer'
+        if not res.result.successful:
+            return False, f'refused by {who}: {res.result.reason}'
+        return True, f'pushed to {who}: ' + ', '.join(f'{p.name}={p.value:.6g}' for p in params)
 
     # -- live mode ---------------------------------------------------------------------------
     def _start_live(self) -> None:
@@ -174,22 +174,19 @@ class IdentifyNode(Node):
                                    max_nfev=int(o['max_nfev']))
         cap = int(math.ceil(float(o['window']) * float(o['max_rate']) * 1.5))
         self.window = SampleWindow(float(o['window']), max(cap, 16))
+        self.schedule = RefitSchedule(float(o['window']), float(o['period']))
+        self.receive = ReceiveClock()
         self._lock = threading.Lock()        # the window: filled here, read by the refit
-        self._offsets: deque = deque(maxlen=101)     # state stamp - receive time [ns]
-        self._next_refit = None
-        self._busy = False
         # refits and pushes: the identifier counts them (self.live)
         self.counts = {'states': 0, 'bad': 0, 'refused': 0}
         self.pub_est = self.create_publisher(DiagnosticArray, contract.ESTIMATES.name,
                                              qos_profile(contract.ESTIMATES.qos))
-        self._read_state = functools.partial(contract.state_from_cdr, joint=self.tmap.joint)
         self._subscribed: dict[str, str] = {}
-        self._wanted = {self.tmap.state: 'state', self.tmap.command: 'command'}
-        if self.tmap.pressure_p:
-            self._wanted.update({self.tmap.pressure_p: 'p0', self.tmap.pressure_t: 'p1'})
+        roles = ('state', 'command') + (('pressure_p', 'pressure_t') if self.tmap.pressure_p
+                                        else ())
+        self._wanted = {getattr(self.tmap, r): r for r in roles}
         self.create_timer(DISCOVERY_PERIOD, self._discover, clock=steady_clock())
         self._client = AsyncParameterClient(self, o['controller']) if o['push'] else None
-        self._refit_done = threading.Event()
         self._worker = threading.Thread(target=self._refits, daemon=True, name='ehs-refit')
         self._todo = threading.Event()
         self._worker.start()
@@ -210,100 +207,45 @@ class IdentifyNode(Node):
             if full in self._subscribed or full not in types:
                 continue
             msg_type = types[full][0]
+            self._subscribed[full] = msg_type
             try:
-                cb = self._callback(role, msg_type)
+                dec = decoder(self.tmap, role, msg_type)
             except EhsError as err:
-                self.get_logger().error(f'live: {err}')
-                self._subscribed[full] = msg_type        # said once
+                self.get_logger().error(f'live: {err} ({full})')        # said once
                 continue
             qos = contract.STATE.qos if role == 'state' else contract.PRESSURE_P.qos
             # a deep queue: the refit thread holds the interpreter for a while at times, and
             # a depth of 1 then dropped states (a 10 s window fell into 9 runs)
-            self.create_subscription(msg_class(msg_type), name, cb,
+            self.create_subscription(msg_class(msg_type), name,
+                                     functools.partial(self._on_message, dec),
                                      qos_profile(qos, depth=LIVE_QUEUE), raw=True)
-            self._subscribed[full] = msg_type
             self.get_logger().info(f'live: {role} from {full} ({msg_type})')
 
-    def _callback(self, role: str, msg_type: str):
-        if role == 'state':
-            if msg_type != JOINT_STATE:
-                raise EhsError(f'state topic {self.tmap.state!r} has type {msg_type}, '
-                               f'expected {JOINT_STATE}')
-            return self._on_state
-        if role == 'command':
-            if msg_type == JOINT_STATE:
-                k = self.tmap.command_joint
-
-                def dec(data):
-                    d = contract.decode_joint_state(data)
-                    return d.stamp_ns, d.effort[d.name.index(k)]
-                return functools.partial(self._on_command, dec, True)
-            if msg_type == FLOAT64:
-                return functools.partial(self._on_command,
-                                         lambda d: (0, contract.float64_from_cdr(d)), False)
-            if msg_type == FLOAT64_ARRAY:
-                k = self.tmap.command_index
-                return functools.partial(
-                    self._on_command, lambda d: (0, contract.float64_array_from_cdr(d)[k]),
-                    False)
-            raise EhsError(f'command topic {self.tmap.command!r} has type {msg_type}')
-        chamber = int(role[1])
-        if msg_type == FLUID_PRESSURE:
-            return functools.partial(self._on_pressure, chamber, contract.fluid_pressure_from_cdr,
-                                     True)
-        if msg_type == FLOAT64:
-            scale = PRESSURE_UNITS[self.tmap.pressure_unit]
-            return functools.partial(self._on_pressure, chamber,
-                                     lambda d: (0, contract.float64_from_cdr(d) * scale), False)
-        raise EhsError(f'pressure topic has type {msg_type}, expected {FLUID_PRESSURE} or '
-                       f'{FLOAT64}')
-
-    def _receive_stamp(self) -> int:
-        """Return a headerless message's time on the state's clock (receive time + offset)."""
-        now = self.get_clock().now().nanoseconds
-        return now + (int(sorted(self._offsets)[len(self._offsets) // 2])
-                      if self._offsets else 0)
-
-    def _on_state(self, data: bytes) -> None:
-        s = read_msg(self, self._read_state, data, 'state')
-        if s is None:
+    def _on_message(self, dec: TopicDecoder, data: bytes) -> None:
+        got = read_msg(self, dec, data, dec.role)
+        if got is None:
             self.counts['bad'] += 1
             return
-        self.counts['states'] += 1
-        self._offsets.append(s.stamp_ns - self.get_clock().now().nanoseconds)
+        received = self.get_clock().now().nanoseconds
+        stamp = got[0] if got[0] is not None else self.receive.stamp(received)
         with self._lock:
-            runs = self.window.runs
-            self.window.add_state(s.stamp_ns, s.z, s.z_dot, s.i)
-            if self.window.runs != runs:
-                self._next_refit = None
-                self.get_logger().info('live: the state stamp jumped back: a new run, the '
-                                       'window starts again')
-        if self._next_refit is None:
-            self._next_refit = s.stamp_ns + int(float(self.opt['window']) * 1e9)
-        if s.stamp_ns >= self._next_refit and not self._busy:
-            self._next_refit = s.stamp_ns + int(float(self.opt['period']) * 1e9)
-            self._busy = True
+            if dec.role == 'state':
+                self.counts['states'] += 1
+                self.receive.state(stamp, received)
+                runs = self.window.runs
+                self.window.add_state(stamp, got[1], got[2], got[3])
+                new_run = self.window.runs != runs
+            elif dec.role == 'command':
+                self.window.add_command(stamp, got[1])
+            else:
+                self.window.add_pressure(int(dec.role == 'pressure_t'), stamp, got[1])
+        if dec.role != 'state':
+            return
+        if new_run:
+            self.get_logger().info('live: the state stamp jumped back: a new run, the window '
+                                   'starts again')
+        if self.schedule.state(stamp, new_run):
             self._todo.set()
-
-    def _on_command(self, decode, stamped: bool, data: bytes) -> None:
-        got = read_msg(self, decode, data, 'command')
-        if got is None:
-            self.counts['bad'] += 1
-            return
-        stamp, i = got
-        stamp = stamp if stamped else self._receive_stamp()
-        with self._lock:
-            self.window.add_command(stamp, i * float(self.tmap.command_scale))
-
-    def _on_pressure(self, chamber: int, decode, stamped: bool, data: bytes) -> None:
-        got = read_msg(self, decode, data, 'pressure')
-        if got is None:
-            self.counts['bad'] += 1
-            return
-        stamp, p = got
-        stamp = stamp if stamped else self._receive_stamp()
-        with self._lock:
-            self.window.add_pressure(chamber, stamp, p)
 
     def _refits(self) -> None:
         """Run the refits: idle priority, so they take only CPU time nobody else wants."""
@@ -319,7 +261,7 @@ class IdentifyNode(Node):
             except Exception as err:      # a refit must never end the live node
                 self.get_logger().error(f'live: refit failed: {type(err).__name__}: {err}')
             finally:
-                self._busy = False
+                self.schedule.done()
 
     def _refit_once(self) -> None:
         log = self.get_logger()
@@ -380,21 +322,14 @@ class IdentifyNode(Node):
             f'{n}={v:.6g}' for n, v in self.live.controller.items()))
 
     def _push_live(self, est) -> bool:
-        log = self.get_logger()
         values = {n: est.values[n] for n in self.live.pushable}
-        params = [Parameter(n, Parameter.Type.DOUBLE, float(v)) for n, v in values.items()]
-        res = self._wait(self._client.set_parameters_atomically(params),
-                         float(self.opt['push_timeout']))
-        if res is None:
+        ok, why = self._set_on_controller(self._client, values)
+        if not ok:
             self.counts['refused'] += 1
-            log.error(f'live push: `{self.opt["controller"]}` did not answer')
-            return False
-        if not res.result.successful:
-            self.counts['refused'] += 1
-            log.error(f'live push refused by `{self.opt["controller"]}`: {res.result.reason}')
+            self.get_logger().error(f'live push: {why}')
             return False
         self.live.pushed(values, est.stamp_ns)
-        log.info(f'live push to `{self.opt["controller"]}`: {est.reason}')
+        self.get_logger().info(f'live push to `{self.opt["controller"]}`: {est.reason}')
         return True
 
 

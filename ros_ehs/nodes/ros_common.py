@@ -29,8 +29,10 @@ from __future__ import annotations
 
 import gc
 import importlib
+import os
 import signal
 import sys
+import threading
 from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -47,16 +49,15 @@ from ros_ehs.nodes.parameters import check_names
 from ros_ehs.nodes.scheduling import set_cpu_affinity, set_realtime
 import ros_ehs_msgs_py as contract
 
-__all__ = ['EPOCH_PERIODS', 'ERROR', 'OK', 'PLANT_STATUS', 'WARN', 'diagnostics', 'msg_class',
-           'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock']
+__all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'WARN', 'diagnostics', 'msg_class',
+           'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock', 'STOP_GRACE']
 
 OK, WARN, ERROR = 0, 1, 2
 #: The plant's status in ``diagnostics`` (level OK once its loop is closed; see the contract)
 PLANT_STATUS = contract.PLANT_STATUS
 
-#: A stamp (or ``/clock``) further back than this many periods than the last one starts a
-#: new run: a restarted plant, a replayed bag (the controller's and reference's policies).
-EPOCH_PERIODS = 5
+#: After a stop, the executor has this long to return before the node closes without it [s].
+STOP_GRACE = 2.0
 
 
 def qos_profile(spec: Any, depth: int | None = None) -> QoSProfile:
@@ -157,21 +158,31 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     """
     Create the node from ``factory`` and spin it until SIGINT/SIGTERM or until it is done.
 
-    A node may define ``done`` (an rclpy Future: spin until it completes), ``drain_period``
+    A node may define ``done`` (an rclpy Future: spin until it completes), ``stop()`` (called
+    first when a signal comes: the controller sends its safe command there), ``drain_period``
     (seconds to keep spinning after a signal, to take in what is queued) and ``close()``
     (called once, after spinning, even after a signal). A configuration error (bad parameter,
     missing bag) is printed as one line and gives exit code 2, never a traceback.
+
+    **A bounded stop**: the executor spins on a thread of its own, and this (the main) thread
+    only waits for a signal or ``done``; then it calls ``stop()``, lets the executor drain,
+    asks it to return and waits at most ``STOP_GRACE`` seconds for it. An executor that does
+    not return does not keep the node alive: ``close()`` runs anyway and the process exits
+    with its code (and a line saying so), so every node exits within a bounded time of its
+    signal, whatever the middleware does.
     """
     argv = ros_args(sys.argv if args is None else args)
     # Our own SIGINT/SIGTERM handling: leave the spin loop first, then close the node (a bag
     # gets its summary), then shut rclpy down. With rclpy's handler the context dies while
     # callbacks still publish.
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = []
-    previous = {sig: signal.signal(sig, lambda signum, frame: stop.append(signum))
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda signum, frame: stop.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}
     node = None
     rc = 0
+    stuck = False
+    name = getattr(factory, '__name__', 'node')
     try:
         node = factory()
         check_names(node)
@@ -181,10 +192,10 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
                 (node.get_logger().info if said.startswith('threads') else
                  node.get_logger().warning)(said)
         # Real time: a full garbage collection walks every object of rclpy, numpy, numba and
-        # scipy (about 85000, 46 ms on the project's VM: a dozen missed periods at 1 kHz).
-        # What exists after start-up lives as long as the node: move it out of the
-        # collector's sight (no collection first: that alone delayed the first tick by
-        # ~100 ms); what the loop allocates later is still collected.
+        # scipy (about 85000, 46 ms: a dozen missed periods at 1 kHz). What exists after
+        # start-up lives as long as the node: move it out of the collector's sight (no
+        # collection first: that alone delayed the first tick by ~100 ms); what the loop
+        # allocates later is still collected.
         gc.freeze()
         if executor == 'events':
             from rclpy.experimental import EventsExecutor
@@ -193,31 +204,54 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
             exe = SingleThreadedExecutor()
         exe.add_node(node)
         done = getattr(node, 'done', None) or Future()
-        # Spin in slices of 0.1 s so our signal flag is seen; the wheel's
-        # EventsExecutor.spin() busy-loops after a shutdown, and spin_once per event costs
-        # more CPU at 1 kHz.
-        while not stop and rclpy.ok() and not done.done():
-            exe.spin_until_future_complete(done, timeout_sec=0.1)
+        spinning = threading.Event()       # cleared: the spin thread is to return
+        spinning.set()
+
+        def spin() -> None:
+            # in slices of 0.1 s, so the flag is seen; the wheel's EventsExecutor.spin()
+            # busy-loops after a shutdown, and spin_once per event costs more CPU at 1 kHz
+            try:
+                while spinning.is_set() and rclpy.ok() and not done.done():
+                    exe.spin_until_future_complete(done, timeout_sec=0.1)
+            except (KeyboardInterrupt, ExternalShutdownException):
+                pass
+            finally:
+                stop.set()
+
+        thread = threading.Thread(target=spin, name='ehs-executor', daemon=True)
+        thread.start()
+        while not stop.wait(0.1):
+            pass
+        if not done.done() and hasattr(node, 'stop'):
+            node.stop()
         drain = float(getattr(node, 'drain_period', 0.0))
-        if stop and drain > 0 and rclpy.ok():      # take in what is already queued
-            exe.spin_until_future_complete(Future(), timeout_sec=drain)
-        if done.done():
+        if not done.done() and drain > 0:      # take in what is already queued
+            thread.join(drain)
+        spinning.clear()
+        thread.join(STOP_GRACE)
+        if thread.is_alive():
+            stuck = True
+            print(f'[{name}] the executor did not return within {STOP_GRACE:g} s of the stop: '
+                  'closing without it', file=sys.stderr, flush=True)
+        elif done.done():
             rc = int(done.result() or 0)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (EhsError, KeyError, ValueError, OSError) as err:
-        name = getattr(factory, '__name__', 'node')
         print(f'[{name}] error: {err}', file=sys.stderr)
         rc = 2
     except ParameterException as err:
-        print(f'[{getattr(factory, "__name__", "node")}] parameter error: {err}',
-              file=sys.stderr)
+        print(f'[{name}] parameter error: {err}', file=sys.stderr)
         rc = 2
     finally:
         if node is not None:
             close = getattr(node, 'close', None)
             if close is not None:
                 close()
+            if stuck:        # the executor's thread holds the middleware: leave it there
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(rc)
             node.destroy_node()
         rclpy.try_shutdown()
         for sig, handler in previous.items():

@@ -20,6 +20,12 @@ The ROS-free core of the identify node's live mode (docs/identification.md, "Liv
   buffers (a week-long test holds one window, never the week); a state stamped more than a
   second before the last one starts a new run (a restarted plant, a replayed bag) and clears
   it; a non-finite state is dropped and counted.
+* :class:`RefitSchedule` says when a refit is due: once the first ``window`` of the state
+  clock has come, then every ``period`` of it; one refit at a time (a state that finds one
+  running does not queue another); a new run starts the wait over.
+* :class:`ReceiveClock` puts a message without a header (a ros2_control driver's
+  ``Float64MultiArray`` commands, ``Float64`` pressures) on the states' clock: its receive
+  time plus the median of the newest states' stamp minus receive time.
 * :class:`LiveIdentifier` refits a window, warm-started from its last *adequate* estimate
   (cold from the base set until there is one), and decides whether to push the result to
   the controller: only an adequate fit, every value strictly inside its bounds, a change
@@ -45,7 +51,7 @@ from ros_ehs.core.identify.verdict import worst_noise_ratio
 from ros_ehs.core.params import Params, spec
 from ros_ehs_msgs_py import ParameterEstimate
 
-__all__ = ['LiveIdentifier', 'SampleWindow']
+__all__ = ['LiveIdentifier', 'ReceiveClock', 'RefitSchedule', 'SampleWindow']
 
 #: A state this much older than the last one starts a new run [ns].
 NEW_RUN_NS = 1_000_000_000
@@ -130,6 +136,56 @@ class SampleWindow:
         press = ([_columns(q) for q in self._pressures]
                  if self._pressures[0] and self._pressures[1] else [])
         return experiments_from_series(name, ts[m], z[m], v[m], i[m], cmd, press)
+
+
+class RefitSchedule:
+    """
+    When the live identifier refits (see the module docstring).
+
+    ``window_s`` [s] of states first, then every ``period_s`` [s] of the state clock.
+    """
+
+    def __init__(self, window_s: float, period_s: float) -> None:
+        for name, v in (('window_s', window_s), ('period_s', period_s)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f'`{name}` = {v!r} must be a positive number of seconds')
+        self.window_ns = int(window_s * 1e9)
+        self.period_ns = int(period_s * 1e9)
+        self.busy = False           #: a refit runs
+        self._next: int | None = None
+
+    def state(self, stamp_ns: int, new_run: bool = False) -> bool:
+        """Take a state's stamp [ns]; return True when a refit is due now (it is then busy)."""
+        if new_run:
+            self._next = None
+        if self._next is None:
+            self._next = stamp_ns + self.window_ns
+        if stamp_ns >= self._next and not self.busy:
+            self._next = stamp_ns + self.period_ns
+            self.busy = True
+            return True
+        return False
+
+    def done(self) -> None:
+        """Say that the running refit has ended."""
+        self.busy = False
+
+
+class ReceiveClock:
+    """Receive times onto the states' clock (see the module docstring); ``keep`` states."""
+
+    def __init__(self, keep: int = 101) -> None:
+        self._offsets: deque[int] = deque(maxlen=keep)
+
+    def state(self, stamp_ns: int, received_ns: int) -> None:
+        """Take a state stamped ``stamp_ns`` that arrived at ``received_ns`` [ns]."""
+        self._offsets.append(stamp_ns - received_ns)
+
+    def stamp(self, received_ns: int) -> int:
+        """Return the states' clock at ``received_ns`` [ns] (no state yet: unchanged)."""
+        if not self._offsets:
+            return received_ns
+        return received_ns + int(sorted(self._offsets)[len(self._offsets) // 2])
 
 
 class LiveIdentifier:
