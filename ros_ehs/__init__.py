@@ -22,7 +22,7 @@ walks every module and checks it):
 * ``ros_ehs.nodes``: the rclpy nodes and the processes that run them;
 * ``ros_ehs.tools`` and ``ros_ehs.benchmarks``: the ``ehs_sim`` command line, the benchmarks.
 
-Below them all, the topic contract ``ros_ehs_msgs_py`` (plain records, no ROS import).
+Below them all, the topic contract ``ros_ehs_msgs_py`` (plain values, no ROS import).
 
 Importing the package sets ``OPENBLAS_NUM_THREADS=1`` unless it is set already (so before
 numpy loads OpenBLAS, when ``ros_ehs`` is imported first, as every entry point does): the

@@ -18,9 +18,9 @@ Pure Python, no ROS import, so the numerical core and the bag reader use it as f
 nodes. Names are relative, so a namespace (``__ns:=/axis1``) runs several axes.
 
 Five small modules, re-exported here: :mod:`~ros_ehs_msgs_py.topics` (names, types, units,
-which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain records),
-:mod:`~ros_ehs_msgs_py.records` (:class:`AxisState`, :class:`Reference`, :class:`Command`,
-:class:`Pressure`, ...), :mod:`~ros_ehs_msgs_py.conversions` (records to and from messages) and
+which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain values),
+:mod:`~ros_ehs_msgs_py.values` (:class:`AxisState`, :class:`Reference`, :class:`Command`,
+:class:`Pressure`, ...), :mod:`~ros_ehs_msgs_py.conversions` (values to and from messages) and
 :mod:`~ros_ehs_msgs_py.wire` (the loop's JointStates to and from CDR bytes, the fast path).
 """
 
@@ -33,13 +33,14 @@ from ros_ehs_msgs_py.conversions import (command_from_msg, empty_msg, estimate_f
                                          state_from_msg, statuses_from_msg)
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
-from ros_ehs_msgs_py.records import (AxisState, Command, NodeStatus, ParameterEstimate,
-                                     Pressure, Reference, SafetyEvent)
 from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, CONTROLLER_STATUS, DIAGNOSTICS,
-                                    ESTIMATES, EVENTS, JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE,
-                                    LOCKSTEP_NODE_TOPICS, NODE_TOPICS, NodeTopics, PLANT_STATUS,
-                                    PRESSURE_P, PRESSURE_T, RECORDER_STATUS, REFERENCE,
-                                    REFERENCE_STATUS, REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
+                                    ESTIMATES, EVENTS, IDENTIFY_STATUS, JOINT_PISTON, JOINT_SPOOL,
+                                    JOINT_VALVE, LOCKSTEP_NODE_TOPICS, NODE_TOPICS, NodeTopics,
+                                    PLANT_STATUS, PRESSURE_P, PRESSURE_T, RECORDER_STATUS,
+                                    REFERENCE, REFERENCE_STATUS, REFERENCE_TRAJECTORY, STATE,
+                                    Topic, TOPICS)
+from ros_ehs_msgs_py.values import (AxisState, Command, NodeStatus, ParameterEstimate, Pressure,
+                                    Reference, SafetyEvent)
 from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr,
                                   command_to_cdr, decode_joint_state,
                                   float64_array_from_cdr, float64_array_to_cdr,
@@ -51,7 +52,8 @@ from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr
                                   reference_trajectory_to_cdr, state_from_cdr, state_to_cdr)
 
 __all__ = [
-    'NodeStatus', 'statuses_from_msg', 'CONTROLLER_STATUS', 'PLANT_STATUS', 'RECORDER_STATUS',
+    'NodeStatus', 'statuses_from_msg', 'CONTROLLER_STATUS', 'IDENTIFY_STATUS', 'PLANT_STATUS',
+    'RECORDER_STATUS',
     'REFERENCE_STATUS',
     'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'ESTIMATES',
     'EVENTS', 'ParameterEstimate', 'estimate_from_msg', 'fill_estimate',

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Conversions between the plain records and messages.
+Conversions between the plain values and messages.
 
 ``*_from_msg`` read any object with the message's attributes (an rclpy message or a decoded
 bag message) and raise ValueError naming what is missing; ``fill_*`` write into one (an rclpy
@@ -24,9 +24,9 @@ from __future__ import annotations
 import math
 from typing import Any, Callable, Sequence
 
-from ros_ehs_msgs_py.records import (AxisState, Command, NodeStatus, ParameterEstimate,
-                                     Pressure, Reference, SafetyEvent)
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
+from ros_ehs_msgs_py.values import (AxisState, Command, NodeStatus, ParameterEstimate, Pressure,
+                                    Reference, SafetyEvent)
 
 __all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'estimate_from_msg',
            'event_from_msg', 'fill_estimate',

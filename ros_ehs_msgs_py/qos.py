@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""QoS profiles of the contract as plain records (rclpy conversion lives in the nodes)."""
+"""QoS profiles of the contract as plain values (rclpy conversion lives in the nodes)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ __all__ = ['CLOCK_QOS', 'EVENTS_QOS', 'LOCKSTEP_QOS', 'LOOP_QOS', 'QosSpec', 'RE
 
 
 class QosSpec(NamedTuple):
-    """A QoS profile as a plain record (rclpy conversion lives in the nodes)."""
+    """A QoS profile as a plain value (rclpy conversion lives in the nodes)."""
 
     reliability: str = 'reliable'       # 'reliable' | 'best_effort'
     depth: int = 10

@@ -24,7 +24,8 @@ __all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'ESTIMATES', 'EVENTS', 'JOINT_PIST
            'JOINT_SPOOL', 'JOINT_VALVE',
            'LOCKSTEP_NODE_TOPICS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T',
            'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name',
-           'CONTROLLER_STATUS', 'PLANT_STATUS', 'RECORDER_STATUS', 'REFERENCE_STATUS']
+           'CONTROLLER_STATUS', 'IDENTIFY_STATUS', 'PLANT_STATUS', 'RECORDER_STATUS',
+           'REFERENCE_STATUS']
 
 JOINT_PISTON = 'piston'
 JOINT_SPOOL = 'spool'
@@ -44,6 +45,9 @@ RECORDER_STATUS = 'ros_ehs/recorder'
 REFERENCE_STATUS = 'ros_ehs/reference'
 #: the loop's tracking and the safety layer's state.
 CONTROLLER_STATUS = 'ros_ehs/controller'
+#: the live identify node: values ``subscribed`` (the topics it takes, comma-separated),
+#: ``states``, ``refits``, ``pushes``, ``refused``, ``busy`` (a refit runs).
+IDENTIFY_STATUS = 'ros_ehs/identify'
 
 
 class Topic(NamedTuple):

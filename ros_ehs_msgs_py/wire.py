@@ -16,8 +16,8 @@ The loop's JointStates as CDR bytes, without rclpy: the fast path of plant and c
 
 rclpy publishes ``bytes`` as they are and hands a ``raw=True`` subscription the bytes that
 came, so a node can skip building Python message objects and converting them to and from C.
-Measured on the project's VM, the bare ping-pong makes 11000-12000 round trips/s this way
-against 8200-9200 with message objects (``bench lockstep`` prints both).
+The bare rclpy ping-pong makes about 1.3 times the round trips a second this way than with
+message objects (``python -m ros_ehs.benchmarks lockstep`` prints both).
 
 * :class:`JointStateEncoder`: one fixed layout (joint names, array lengths), built once; each
   message is the template with the stamp and the values packed in (:func:`state_to_cdr`,
@@ -26,7 +26,7 @@ against 8200-9200 with message objects (``bench lockstep`` prints both).
   either byte order; each layout seen is cached (by payload length), so a steady publisher
   costs one ``unpack``. A truncated or foreign payload raises ValueError naming what is wrong.
 * :func:`state_from_cdr`, :func:`command_from_cdr`, :func:`reference_from_cdr`: the
-  records, by the same rules as :func:`~ros_ehs_msgs_py.conversions.state_from_msg` and the
+  values, by the same rules as :func:`~ros_ehs_msgs_py.conversions.state_from_msg` and the
   other ``*_from_msg``.
 * :func:`clock_to_cdr`, :func:`clock_from_cdr`: the lock-step plant's ``/clock``
   (rosgraph_msgs/Clock), which the reference reads raw too.
@@ -35,7 +35,7 @@ against 8200-9200 with message objects (``bench lockstep`` prints both).
   sensor_msgs/FluidPressure), for reading its bags fast.
 * :func:`pressure_to_cdr`: the chamber pressures
   (sensor_msgs/FluidPressure, empty frame_id, variance 0): half the publish cost of a message
-  object (8 against 16 us on the project's VM).
+  object.
 * :func:`reference_trajectory_to_cdr`, :func:`reference_trajectory_from_cdr`: the lock-step
   ``reference_trajectory`` (trajectory_msgs/JointTrajectory), the same way: a template per
   point count, and a reader for any JointTrajectory with the last layout cached.
@@ -51,8 +51,8 @@ from typing import NamedTuple, Sequence
 
 from ros_ehs_msgs_py.conversions import (command_from_arrays, joint_index,
                                          reference_from_arrays, state_from_arrays)
-from ros_ehs_msgs_py.records import AxisState, Command, Pressure, Reference
 from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
+from ros_ehs_msgs_py.values import AxisState, Command, Pressure, Reference
 
 __all__ = ['JointStateData', 'JointStateEncoder', 'clock_from_cdr', 'clock_to_cdr',
            'command_from_cdr', 'command_to_cdr',

@@ -12,17 +12,17 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The identify node's live mode over DDS.
+The identify node's live mode over DDS, on lock-step loops.
 
 Pushes reach a running controller, and a rig that is not the fitted model is never pushed.
+The tests wait for the estimates the node publishes, never for a time.
 """
-
-import time
 
 import pytest
 from ros_ehs.core.params import preset
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
+from waits import BOUND
 
 pytestmark = pytest.mark.ros
 
@@ -53,17 +53,28 @@ def _controller_values(ros, names):
     return dict(zip(names, (v.double_value for v in fut.result().values)))
 
 
-def _run(procs, bag, plant, seconds, ros):
-    procs.start_loop('realtime', bag=bag, plant={**NOISE, **plant}, controller=WRONG,
-                     reference={'cpu_affinity': -1})
-    procs.start('identify', LIVE)
-    assert procs.wait_for_log('identify', 'live: state from /state', 30)
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        ros.spin(0.5)
-    # the refits run at idle priority: on a loaded machine (a fresh clone's test run) the
-    # first one was not done 16 s in; wait for it rather than judge a run that has none
-    procs.wait_for_log('identify', 'live refit at', 60)
+def _listen(ros):
+    """Return the list the estimates the identify node publishes go into, as they come."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from ros_ehs.nodes.ros_common import qos_profile
+    got = []
+    ros.create_subscription(DiagnosticArray, c.ESTIMATES.name,
+                            lambda m: got.append(c.estimate_from_msg(m)),
+                            qos_profile(c.ESTIMATES.qos))
+    return got
+
+
+def _run(procs, bag, plant, ros, done):
+    """
+    Run a lock-step loop with the live identify node until ``done(estimates)`` says so.
+
+    Returns the controller's values then, and the identify node's log.
+    """
+    got = _listen(ros)
+    procs.start_loop('lockstep', bag=bag, plant={**NOISE, 'duration': 600.0, **plant},
+                     controller=WRONG, reference={'cpu_affinity': -1})
+    procs.start('identify', {**LIVE, 'use_sim_time': True})
+    assert ros.spin(until=lambda: done(got), timeout=BOUND), (got, procs['identify'].output())
     values = _controller_values(ros, list(WRONG))
     procs.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
     return values, procs['identify'].output()
@@ -72,7 +83,8 @@ def _run(procs, bag, plant, seconds, ros):
 def test_live_fits_are_pushed_to_the_running_controller(dom, tmp_path, ros):
     bag = tmp_path / 'bag'
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
-        values, out = _run(procs, bag, {}, 20.0, ros)
+        # a push, and a refit after it (of a loop that has the pushed values: no change)
+        values, out = _run(procs, bag, {}, ros, lambda est: any(e.pushed for e in est[:-1]))
     true = preset('table1_estimated')
     assert 'live push to `controller`' in out, out[-3000:]
     for n in WRONG:       # the controller now has the plant's values, not its wrong ones
@@ -90,7 +102,8 @@ def test_a_rig_that_is_not_the_fitted_model_is_never_pushed(dom, tmp_path, ros):
     """The full 10-state plant, fitted with the simplified model: inadequate, never pushed."""
     bag = tmp_path / 'bag'
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
-        values, out = _run(procs, bag, {'model': 'full'}, 16.0, ros)
+        values, out = _run(procs, bag, {'model': 'full'}, ros,
+                           lambda est: sum(bool(e.values) for e in est) >= 2)
     assert values == pytest.approx(WRONG)       # untouched
     est = [e for e in _estimates(bag) if e.values]
     assert est, out[-3000:]
@@ -99,15 +112,19 @@ def test_a_rig_that_is_not_the_fitted_model_is_never_pushed(dom, tmp_path, ros):
     assert 'live push to' not in out
 
 
-def test_a_push_target_that_does_not_take_the_values_is_named_and_never_pushed(dom, tmp_path):
+def test_a_push_target_that_does_not_take_the_values_is_named_and_never_pushed(
+        dom, tmp_path, ros):
     """The live node pointed at a node that does not declare the feedforward's values."""
+    got = _listen(ros)
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
-        procs.start_loop('realtime', bag=tmp_path / 'bag', plant=NOISE,
+        procs.start_loop('lockstep', bag=tmp_path / 'bag', plant={**NOISE, 'duration': 600.0},
                          reference={'cpu_affinity': -1})
-        procs.start('identify', {**LIVE, 'controller': 'recorder'})
-        for said in ('does not declare', 'live refit at'):     # named, then it refits on
-            assert procs.wait_for_log('identify', said, 40), procs['identify'].output()[-3000:]
+        procs.start('identify', {**LIVE, 'controller': 'recorder', 'use_sim_time': True})
+        # named once, and it refits on: two estimates, never pushed
+        assert ros.spin(until=lambda: len(got) >= 2, timeout=BOUND), \
+            procs['identify'].output()[-3000:]
         procs.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
+    assert not any(e.pushed for e in got)
     out = procs['identify'].output()
     assert "`recorder` does not declare ['d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c']" in out, out
     assert out.count('does not declare') == 1 and 'live push to' not in out

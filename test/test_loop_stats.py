@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.nodes.loop_stats import LoopStats, Window
+from ros_ehs.nodes.loop_stats import LoopStats, Ring
 
 
 def test_loop_stats_count_fresh_cycles_and_percentiles():
@@ -26,16 +26,16 @@ def test_loop_stats_count_fresh_cycles_and_percentiles():
         s.tick(k * 1e-3, fresh=k % 5 != 0)
     assert s.cycles == 10 and s.fresh == 8 and s.fresh_fraction == pytest.approx(0.8)
     assert s.period.pct(50) == pytest.approx(1e-3)
-    w = Window(3)
+    w = Ring(3)
     for v in (1.0, 2.0, 3.0, 4.0):
         w.add(v)
     assert sorted(w.values()) == [2.0, 3.0, 4.0] and w.peak() == 4.0 and w.total == 4
-    assert math.isnan(Window(3).pct(50))
+    assert math.isnan(Ring(3).pct(50))
 
 
 @pytest.mark.parametrize('n', [0, 1, 2, 5, 101, 25000])
 def test_window_median_p99_and_max_in_one_pass_are_numpys(n):
-    w = Window(20000)
+    w = Ring(20000)
     for v in np.random.default_rng(n).exponential(1e-3, n):
         w.add(v)
     got = w.p50_p99_max()
@@ -50,7 +50,7 @@ def test_window_median_p99_and_max_in_one_pass_are_numpys(n):
 @pytest.mark.parametrize('n', [1, 2, 7, 2000, 2500])
 @pytest.mark.parametrize('q', [0, 1, 50, 99, 99.9, 100])
 def test_window_percentile_is_numpys(n, q):
-    w = Window(2000)
+    w = Ring(2000)
     for v in np.random.default_rng(n).exponential(1e-3, n):
         w.add(v)
     assert w.pct(q) == pytest.approx(np.percentile(w.values(), q), rel=1e-12)
@@ -61,7 +61,7 @@ def test_window_percentile_is_numpys(n, q):
                                      (25000, 5001), (25000, 30000)])
 def test_window_newest_samples_are_the_ones_ranked(n, last):
     # the diagnostics rank only the newest samples of the ring, across its wrap
-    w = Window(20000)
+    w = Ring(20000)
     seen = np.random.default_rng(n + last).exponential(1e-3, n)
     for v in seen:
         w.add(v)

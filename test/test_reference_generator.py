@@ -14,7 +14,7 @@
 """
 The reference node's rules without DDS (ros_ehs.core.control.reference), each at its period.
 
-Time zero, the duration hold, lock-step windows and new runs, the corrections' readiness,
+Time zero, the duration hold, lock-step previews and new runs, the corrections' readiness,
 early states, freezing and resuming, live waveform changes and the corrections' refusals.
 """
 
@@ -69,13 +69,13 @@ def test_after_duration_the_last_position_is_held_still():
     assert r.z_ref == pytest.approx(0.04) and r.v_ref == 0.0
 
 
-def test_sim_time_answers_each_clock_with_its_preview_window():
+def test_sim_time_answers_each_clock_with_its_preview():
     g = ReferenceGenerator(_values(), _options(preview=0.02), sim_time=True)
     w = g.clock(T0)
     assert [r.stamp_ns for r in w] == [T0 + k * MS for k in range(21)]
     z, v = Sine()(np.arange(21) * 1e-3)
     np.testing.assert_allclose([r.z_ref for r in w], z, atol=1e-15)
-    assert g.clock(T0) == w                    # a resend: the same window again
+    assert g.clock(T0) == w                    # a resend: the same preview again
     assert g.clock(T0 + 10 * MS)[0].stamp_ns == T0 + 10 * MS
 
 
@@ -101,13 +101,13 @@ def test_a_malformed_clock_is_counted():
     assert g.figures()['bad_clocks'] == 1
 
 
-def test_a_corrected_window_waits_for_the_state_that_ends_the_cycle_it_learns_from():
+def test_a_corrected_preview_waits_for_the_state_that_ends_the_cycle_it_learns_from():
     opt = _options(amplitude_phase_control=True, preview=0.02, ramp_time=0.0)
     g = ReferenceGenerator(_values(frequency=10.0, amplitude=0.002), opt, sim_time=True)
     assert g.clock(T0) is not None              # the first cycle needs no measurement
     for k in range(0, 100):                     # the first cycle's states, but its last
         assert g.state(T0 + k * MS, 0.0, 0.0) == []
-    # the window at 100 ms holds the second cycle's correction: it waits for state 100
+    # the preview at 100 ms holds the second cycle's correction: it waits for state 100
     assert g.clock(T0 + 100 * MS) is None
     got = g.state(T0 + 100 * MS, 0.0, 0.0)
     assert len(got) == 1 and got[0][0].stamp_ns == T0 + 100 * MS
@@ -124,7 +124,7 @@ def test_states_before_time_zero_are_kept_and_taken_when_it_comes():
 
 
 def test_the_generator_in_lock_step_is_the_in_process_loop():
-    # the windows the controller reads, fed the loop's measured positions in the order the
+    # the previews the controller reads, fed the loop's measured positions in the order the
     # plant sends them, equal the in-process loop's references (what the DDS test checks
     # end to end, to 1e-9 m)
     opt = _options(amplitude_phase_control=True)

@@ -44,21 +44,31 @@ def test_coincident_needs_the_spans_to_overlap_by_a_quarter_of_the_shorter():
     assert coincident(spans, []) == [False] * 4 and coincident([], gaps) == []
 
 
+def _progress(p, ticks=0, gaps=0):
+    """Read the probe's progress lines until it has ``ticks`` ticks and ``gaps`` gaps."""
+    for line in p.stdout:
+        if line.startswith('progress '):
+            t, g = map(int, line.split()[1:])
+            if t >= ticks and g >= gaps:
+                return t, g
+    raise AssertionError(f'the probe ended before {ticks} ticks and {gaps} gaps')
+
+
 def test_the_machine_probe_runs_until_sigint_and_lists_its_long_gaps():
     import signal
     import subprocess
     import sys
     import time
     p = subprocess.Popen([sys.executable, '-m', 'ros_ehs.benchmarks.sleeper', '--seconds', '0',
-                          '--gaps-over', '0.5', '--cpu', '4095'],
+                          '--gaps-over', '0.5', '--cpu', '4095', '--progress', '100'],
                          stdout=subprocess.PIPE, text=True)
-    time.sleep(1.0)
+    t, _ = _progress(p, 1000)
     p.send_signal(signal.SIGSTOP)        # held 50 ms, as a stalled machine would hold it
     time.sleep(0.05)
     p.send_signal(signal.SIGCONT)
-    time.sleep(0.3)
+    _progress(p, t + 300)             # on: the stall is among the newest gaps listed
     p.send_signal(signal.SIGINT)
-    out, _ = p.communicate(timeout=10)
+    out, _ = p.communicate(timeout=60)
     f = json.loads(out.strip().splitlines()[-1])
     assert p.returncode == 0 and f['ticks'] > 500
     # every gap is over 0.5 ms here, so the list is full: the newest MAX_GAPS, bounded
@@ -75,7 +85,6 @@ def test_a_probe_held_by_busy_threads_on_its_cpu_is_no_machine_hiccup():
     import signal
     import subprocess
     import sys
-    import time
     from ros_ehs.benchmarks.sleeper import hiccups
     cpu = max(os.sched_getaffinity(0))
     hog = subprocess.Popen([sys.executable, '-c', f'import os\nos.sched_setaffinity(0, {{{cpu}}})'
@@ -83,11 +92,11 @@ def test_a_probe_held_by_busy_threads_on_its_cpu_is_no_machine_hiccup():
     try:        # the probe at nice 19 beside a busy loop at nice 0: it waits for the CPU
         p = subprocess.Popen(['nice', '-n', '19', sys.executable, '-m',
                               'ros_ehs.benchmarks.sleeper', '--seconds', '0', '--gaps-over', '1.3',
-                              '--cpu', str(cpu)],
+                              '--cpu', str(cpu), '--progress', '10'],
                              stdout=subprocess.PIPE, text=True)
-        time.sleep(2.0)
+        _progress(p, gaps=101)           # held, again and again
         p.send_signal(signal.SIGINT)
-        out, _ = p.communicate(timeout=10)
+        out, _ = p.communicate(timeout=60)
     finally:
         hog.kill()
     gaps = json.loads(out.strip().splitlines()[-1])['gaps']
@@ -102,4 +111,4 @@ def test_the_machine_probe_refuses_negative_times_by_name(args):
     import sys
     r = subprocess.run([sys.executable, '-m', 'ros_ehs.benchmarks.sleeper', *args],
                        capture_output=True, text=True, timeout=30)
-    assert r.returncode == 2 and '--seconds and --gaps-over must be >= 0' in r.stderr
+    assert r.returncode == 2 and '--seconds, --gaps-over and --progress must be >= 0' in r.stderr

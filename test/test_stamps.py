@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 from ros_ehs.nodes.processes import loop_closed, NodeProcesses
 import ros_ehs_msgs_py as c
+from waits import BOUND, lockstep_complete
 
 pytestmark = pytest.mark.ros
 
@@ -59,18 +60,21 @@ class Diagnostics:
         return default if v is None else float(v)
 
 
-def _answer_rate(ros, diag, seconds=1.0):
-    """Commands per second the controller sends (answered, stale or repeated states)."""
+def _answers_go_on(ros, diag, n=500):
+    """
+    Wait until the controller has answered ``n`` more states than it says now (a count).
+
+    Answered, stale or repeated: each is a command sent. (How many a second is a real-time
+    figure: the ``loop`` benchmark's.)
+    """
     def total():
         return sum(diag.value('ros_ehs/controller', k, 0.0)
                    for k in ('answered', 'stale', 'repeated'))
     n0 = diag.count.get('ros_ehs/controller', 0)
-    assert ros.spin(until=lambda: diag.count.get('ros_ehs/controller', 0) > n0, timeout=10)
-    a, t0 = total(), time.monotonic()
-    n1 = diag.count['ros_ehs/controller']
-    ros.spin(seconds)
-    assert ros.spin(until=lambda: diag.count.get('ros_ehs/controller', 0) > n1, timeout=10)
-    return (total() - a) / (time.monotonic() - t0)
+    assert ros.spin(until=lambda: diag.count.get('ros_ehs/controller', 0) > n0, timeout=BOUND)
+    a = total()
+    assert ros.spin(until=lambda: total() >= a + n, timeout=BOUND), (a, total())
+    return total() - a
 
 
 def _resent_until(send, heard, period=0.5):
@@ -107,19 +111,21 @@ def test_a_state_and_a_command_stamped_an_hour_ahead_are_dropped(dom, tmp_path, 
         pub_cmd = ros.create_publisher(JointState, 'servo_current', qos_profile(c.LOOP_QOS))
         assert ros.spin(until=lambda: pub_state.get_subscription_count() >= 1
                         and pub_cmd.get_subscription_count() >= 1, timeout=30)
-        before = _answer_rate(ros, diag)
+        _answers_go_on(ros, diag)
         hour = time.time_ns() + 3600 * 10**9
         for k in range(3):
             pub_state.publish(_jmsg(['piston', 'spool'], [0.01, 0.0], [0.0, 0.0], [0.0, 0.0],
                                     hour + k))
             pub_cmd.publish(_jmsg(['servo_valve'], eff=[0.004], stamp_ns=hour + k))
             ros.spin(0.05)
-        after = _answer_rate(ros, diag)
+        _answers_go_on(ros, diag)           # the loop answers on, undisturbed
         assert diag.value('ros_ehs/controller', 'future') >= 1
         assert diag.value('ros_ehs/plant', 'future_commands') >= 1
-        assert diag.latest['ros_ehs/plant'][0]['watchdog'] == 'ok'
+        # and the plant applies the true commands on (the stray one armed nothing)
+        fresh = diag.value('ros_ehs/plant', 'fresh_cycles')
+        assert ros.spin(until=lambda: diag.value('ros_ehs/plant', 'fresh_cycles') > fresh + 500,
+                        timeout=BOUND)
         procs.stop(['controller', 'plant'])
-    assert before > 500 and after > 0.7 * before, (before, after)
     assert 'ahead of this clock' in procs['controller'].output()
     assert 'after the latest state' in procs['plant'].output()
     f = procs['plant'].figures()
@@ -140,8 +146,7 @@ def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, r
     pub = ros.create_publisher(JointState, 'state', qos_profile(c.LOOP_QOS))
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         procs.start('controller', {'use_sim_time': True})
-        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
-        ros.spin(0.5)
+        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=BOUND)
 
         def send(stamp_ns, z):
             pub.publish(_jmsg(['piston', 'spool'], [z, 0.0], [0.0, 0.0], [0.0, 0.0], stamp_ns))
@@ -154,16 +159,18 @@ def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, r
             send(t100 + k * 10**6, 0.01 + k * 1e-9)     # a live sensor: never frozen
             ros.spin(0.002)
         assert ros.spin(until=lambda: t100 + 199 * 10**6 in got, timeout=10)
-        sent = send(10**9, 0.0)             # 99 s back: a new run
+        send(10**9, 0.0)                    # 99 s back: a new run
         assert ros.spin(until=lambda: 10**9 in got, timeout=5)
         send(10**9 + 10**6, 0.0)
         assert ros.spin(until=lambda: 10**9 + 10**6 in got, timeout=5)
         send(10**9 - 10**6, 0.0)            # 2 periods back: out of order, dropped
-        ros.spin(0.5)
+        send(10**9 + 2 * 10**6, 0.0)        # then the next: answered, after what came before
+        assert ros.spin(until=lambda: 10**9 + 2 * 10**6 in got, timeout=BOUND)
         procs.stop(['controller'])
     log = procs['controller'].output()
     assert log.count('new run: the state stamp jumped back 99') == 1, log[-2000:]
-    assert got[10**9][0] - sent <= 0.1                      # answered within 100 ms
+    # (answered at once: the loop returns the command for the state that starts a run, in
+    # test_control_loop.py; here it came, before the next)
     assert got[t100][1] == 0.0 and got[t100 + 199 * 10**6][1] != 0.0   # wound up
     assert got[10**9][1] == got[t100][1]                    # the new run: PID from rest
     assert 10**9 - 10**6 not in got
@@ -173,13 +180,11 @@ def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, r
 def test_a_restarted_lockstep_plant_closes_the_loop_again(dom, tmp_path):
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         procs.start_loop('lockstep', plant={'duration': 0.3})
-        assert procs.wait_for_log('plant', 'lock-step run complete', 60), \
-            procs['plant'].output()[-2000:]
+        lockstep_complete(procs)
         procs.stop(['plant'])
         second = procs.start('plant', {'mode': 'lockstep', 'duration': 0.3,
                                        'wait_subscribers': 1}, name='plant_again')
-        assert procs.wait_for_log('plant_again', 'lock-step run complete', 60), \
-            second.output()[-2000:] + procs['controller'].output()[-2000:]
+        lockstep_complete(procs, 'plant_again')
         assert procs['controller'].alive() and procs['reference'].alive()
         codes = procs.stop(['reference', 'controller', 'plant_again'])
     assert set(codes.values()) == {0}
@@ -200,8 +205,7 @@ def test_a_malformed_clock_from_another_client_is_counted_and_the_reference_answ
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         procs.start_loop('lockstep', plant={'duration': 0.2},
                          reference={'diagnostics_period': 0.1})
-        assert procs.wait_for_log('plant', 'lock-step run complete', 60), \
-            procs['plant'].output()[-2000:]
+        lockstep_complete(procs)
         pub = ros.create_publisher(Clock, '/clock', qos_profile(c.CLOCK_QOS))
         assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
 
@@ -240,8 +244,7 @@ def test_a_clock_slower_than_the_preview_still_closes_the_lock_step_loop(dom, tm
         procs.start_loop('lockstep', plant={'duration': 0.1, 'clock_period': 0.03,
                                             'resend_period': 0.005},
                          reference={'preview': 0.005})
-        assert procs.wait_for_log('plant', 'lock-step run complete', 60), \
-            procs['plant'].output()[-2000:]
+        lockstep_complete(procs)
         codes = procs.stop(['reference', 'controller', 'plant'])
     assert set(codes.values()) == {0}
     f = procs['plant'].figures()
@@ -308,7 +311,7 @@ def _fuzz_params(rng, names):
 
 
 def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, tmp_path, ros):
-    """3000 malformed JointStates and 60 parameter sets, seeded, within about 10 s."""
+    """3000 malformed JointStates and 60 parameter sets, seeded: the loop answers on."""
     from rclpy.parameter_client import AsyncParameterClient
     from sensor_msgs.msg import JointState
     from ros_ehs.nodes.ros_common import qos_profile
@@ -323,14 +326,13 @@ def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, t
                 for t in ('state', 'servo_current', 'reference')]
         assert ros.spin(until=lambda: all(p.get_subscription_count() >= 1 for p in pubs),
                         timeout=30)
-        before = _answer_rate(ros, diag)
+        _answers_go_on(ros, diag)
         clients = {n: AsyncParameterClient(ros, n) for n in ('plant', 'controller')}
         for cl in clients.values():
             assert cl.wait_for_services(timeout_sec=30)
         names = ['kp', 'ki', 'kd', 'u_max', 'F_cc', 'F_sc', 'c_c', 'stale_timeout',
                  'watchdog_periods', 'reference_timeout', 'future_tolerance', 'model',
                  'rate_hz', 'noise_z', 'antiwindup', 'use_sim_time']
-        t_end = time.monotonic() + 20.0
         futs = []
         for k in range(3000):
             pubs[k % 3].publish(_fuzz_msg(rng))
@@ -338,15 +340,14 @@ def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, t
                 cl = clients['plant' if k % 100 else 'controller']
                 futs.append(cl.set_parameters(_fuzz_params(rng, names)))
             if k % 20 == 0:
-                ros.spin(0.01)
-            if time.monotonic() > t_end:
-                break
-        assert k == 2999 and len(futs) == 60
-        assert ros.spin(until=lambda: all(f.done() for f in futs), timeout=30)
-        ros.spin(1.0)
+                ros.spin(0.01)          # paced: a stall made on purpose
+        assert len(futs) == 60
+        assert ros.spin(until=lambda: all(f.done() for f in futs), timeout=BOUND)
         states.clear()
-        after = _answer_rate(ros, diag)
-        ours = [c.state_from_msg(m) for m in states if 'spool' in m.name]
+        _answers_go_on(ros, diag)           # and the loop answers on
+        # the plant's (a fuzzed state still on its way may come after the clear)
+        ours = [c.state_from_msg(m) for m in states
+                if list(m.name) == ['piston', 'spool', 'servo_valve']]
         alive = {n: procs[n].alive() for n in ('plant', 'controller')}
         procs.stop(['controller', 'plant'])
     logs = procs['plant'].output() + procs['controller'].output()
@@ -354,4 +355,3 @@ def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, t
     assert 'Traceback' not in logs
     assert len(ours) > 100 and all(math.isfinite(s.z) and math.isfinite(s.z_dot)
                                    for s in ours)
-    assert after > 0.7 * before, (before, after)

@@ -18,7 +18,7 @@ import sys
 
 #: the benchmarks, each a module of this package with a ``main(argv)``
 BENCHMARKS = ('model', 'paper', 'identify', 'loop', 'lockstep', 'record', 'soak', 'window',
-              'tracking', 'drift', 'live')
+              'tracking', 'drift', 'live', 'realtime')
 
 
 def main(argv=None) -> int:

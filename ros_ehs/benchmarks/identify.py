@@ -33,7 +33,7 @@ import tempfile
 import time
 import warnings
 
-from ros_ehs.benchmarks import report
+from ros_ehs.benchmarks import positive, report
 from ros_ehs.core.errors import IdentificationWarning
 from ros_ehs.core.identify import identify
 from ros_ehs.core.identify.verdict import worst_noise_ratio
@@ -46,11 +46,12 @@ from ros_ehs.data.synthetic_bag import record_synthetic_bag
 MISMATCH = {'d_c': 1.3, 'F_cc': 0.8, 'F_sc': 1.2, 'l_iac': 1.1, 'c_c': 0.85}
 
 
-def _mismatch() -> dict:
+def _mismatch(seconds: float = 10.0) -> dict:
     base = preset('table1_estimated')
     truth = base.replace(**{n: base[n] * f for n, f in MISMATCH.items()})
     with tempfile.TemporaryDirectory() as d:
-        record_synthetic_bag(f'{d}/rig', plant_params=truth, model='full', seed=11)
+        record_synthetic_bag(f'{d}/rig', plant_params=truth, model='full', seed=11,
+                             duration=seconds)
         exp = load_experiment(f'{d}/rig')
     out = {}
     for model in ('simplified', 'reduced', 'full'):
@@ -70,13 +71,13 @@ def _mismatch() -> dict:
     return out
 
 
-def _read_costs(d: str) -> dict:
+def _read_costs(d: str, seconds: float = 10.0) -> dict:
     """Read cost per message [us]: our 1 kHz bag, and a rig's (ros2_control layout, rosbags)."""
     from ros_ehs.data.bag import open_bag
     from ros_ehs.data.experiments import load_experiments
     from ros_ehs.data.rig_bag import record_rig_bag, RigLayout
     lay = RigLayout()
-    record_rig_bag(f'{d}/rig', lay, duration=10.0)
+    record_rig_bag(f'{d}/rig', lay, duration=seconds)
     out = {}
     for name, path, topics in (('ours', f'{d}/bench', None),
                                ('rig_2kHz', f'{d}/rig', lay.topic_map(0.0))):
@@ -90,18 +91,23 @@ def _read_costs(d: str) -> dict:
 
 def main(argv=None) -> int:
     """Run the benchmark and print its figures."""
+    import argparse
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks identify')
+    ap.add_argument('--seconds', type=positive, default=10.0,
+                    help='each recorded bag, and the rigs of the mismatch case [s]')
+    a = ap.parse_args(argv)
     true = preset('table1_estimated')
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
-        record_synthetic_bag(f'{d}/bench', seed=7)
+        record_synthetic_bag(f'{d}/bench', seed=7, duration=a.seconds)
         t_rec = time.perf_counter() - t0
         t0 = time.perf_counter()
         exp = load_experiment(f'{d}/bench')
         t_load = time.perf_counter() - t0
         # the next 10 s of the same rig (other noise, a later start): a live refit's window
-        record_synthetic_bag(f'{d}/next', seed=8)
+        record_synthetic_bag(f'{d}/next', seed=8, duration=a.seconds)
         nxt = load_experiment(f'{d}/next')
-        read = _read_costs(d)
+        read = _read_costs(d, a.seconds)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', IdentificationWarning)
         identify(exp, max_nfev=1)      # compiles (or loads) the kernels: not part of a fit
@@ -136,5 +142,5 @@ def main(argv=None) -> int:
     for n in ESTIMATED:
         figures[f'rel_err_{n}'] = round((r.x[n] - true[n]) / true[n], 5)
         figures[f'z_{n}'] = round((r.x[n] - true[n]) / r.stderr[n], 2)
-    figures['mismatch'] = _mismatch()
+    figures['mismatch'] = _mismatch(a.seconds)
     return report(figures)

@@ -35,6 +35,7 @@ from domain_coordinator import domain_id
 import psutil
 from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
+import ros_ehs_msgs_py as contract
 
 LIVE = {'live': True, 'push': True, 'window': 10.0, 'period': 5.0}
 
@@ -51,20 +52,25 @@ def _round(dom: int, seconds: float, with_live: bool) -> dict:
         if with_live:
             ref_cpu = (loop_placement(True) or (-1, -1))[1]
             procs.start('identify', {**LIVE, 'cpu_affinity': ref_cpu})
-            procs.wait_for_log('identify', 'live: state from', 30)
+            state = '/' + contract.STATE.name
+            if not procs.wait_status(contract.IDENTIFY_STATUS,
+                                     lambda st: state in st.listed('subscribed'), 60):
+                raise RuntimeError('the identify node did not subscribe to the state:\n'
+                                   + procs['identify'].output()[-3000:])
             c0 = _cpu(procs['identify'].pid)
         t0 = time.monotonic()
         time.sleep(seconds)
         if with_live:
             live_cpu = (_cpu(procs['identify'].pid) - c0) / (time.monotonic() - t0)
+        st = procs.status(contract.IDENTIFY_STATUS) if with_live else None
         procs.stop(['identify'] if with_live else [])
         procs.stop(['plant', 'controller', 'reference'])     # the plant first: no stale tail
         f = procs['plant'].figures()
-        out = procs['identify'].output() if with_live else ''
     return {'with_live': with_live, 'cycles': f['cycles'],
             'fresh_cycle_fraction': f['fresh_cycle_fraction'],
             'watchdog_trips': f['watchdog_trips'], 'live_cpu_frac': round(live_cpu, 3),
-            'refits': out.count('live refit at'), 'pushes': out.count('live push to')}
+            'refits': int(st.values['refits']) if st else 0,
+            'pushes': int(st.values['pushes']) if st else 0}
 
 
 def main(argv=None) -> int:

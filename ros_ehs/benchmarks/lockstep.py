@@ -48,6 +48,7 @@ from ros_ehs.core.control.waveforms import Sine
 from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
+import ros_ehs_msgs_py as contract
 
 
 def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> dict:
@@ -74,7 +75,8 @@ def _ours(dom: int, seconds: float, model: str, pin: bool) -> dict:
     with NodeProcesses(dom) as procs:
         procs.start_loop('lockstep', plant={'duration': seconds, 'model': model,
                                             'start_delay': 1.0}, pin=pin)
-        if not procs.wait_for_log('plant', 'lock-step run complete', 600):
+        if not procs.wait_status(contract.PLANT_STATUS,
+                                 lambda st: st.message == 'lock-step run complete', 600):
             raise RuntimeError('lock-step did not finish:\n' + procs['plant'].output())
         procs.stop(['reference', 'controller', 'plant'])
         return procs['plant'].figures()

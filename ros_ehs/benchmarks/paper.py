@@ -22,7 +22,7 @@ printed (tau 0.016 s), ``*_ffpid_paper_tau_*`` with tau = the measured PID loop 
 
 import time
 
-from ros_ehs.benchmarks import report
+from ros_ehs.benchmarks import positive, report
 from ros_ehs.core.control import Controller
 from ros_ehs.core.params import preset
 from ros_ehs.core.sim.paper_runs import paper_runs
@@ -58,4 +58,7 @@ def run(duration: float = 4.0) -> dict:
 
 def main(argv=None) -> int:
     """Print the figures; the last line is one JSON object."""
-    return report(run())
+    import argparse
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks paper')
+    ap.add_argument('--duration', type=positive, default=4.0, help='each run [s]')
+    return report(run(ap.parse_args(argv).duration))

@@ -20,7 +20,10 @@ then counts what the bag holds and which numbers are missing. Rates are tried fr
 ``--rates`` in order, for each chunk compression of ``--compressions``; ``msgs_per_s`` is
 the highest rate recorded without loss (per compression in ``by_compression``, with the
 recorder's CPU share at that rate). In the same run, the raw write speed of
-:class:`ros_ehs.data.bag.BagWriter` (no DDS) is the yardstick. Last line: one JSON object.
+:class:`ros_ehs.data.bag.BagWriter` (no DDS) is the yardstick. Then ``--kills`` real-time
+benches whose recorder is SIGKILLed mid-run: what each kill lost, ``sigkill_lost_ms`` (the
+kill's time against the bag's last message; the recorder flushes every 50 ms). Last line:
+one JSON object.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from domain_coordinator import domain_id
 import numpy as np
 import psutil
 from ros_ehs.benchmarks import positive, positives, report
+from ros_ehs.core.errors import EhsError
 from ros_ehs.data.bag import BagWriter, open_bag
 from ros_ehs.nodes.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as contract
@@ -115,6 +119,8 @@ def main(argv=None) -> int:
     ap.add_argument('--rates', type=positives, default=[20000.0, 25000.0, 30000.0],
                     help='message rates, comma-separated [1/s]')
     ap.add_argument('--compressions', default='none,zstd')
+    ap.add_argument('--kills', type=int, default=3, help='benches whose recorder is SIGKILLed '
+                    'mid-run, to measure what a kill loses (0: none)')
     a = ap.parse_args(argv)
     comps = a.compressions.split(',')
     if not set(comps) <= {'none', 'zstd', 'lz4'}:
@@ -136,7 +142,37 @@ def main(argv=None) -> int:
     fig = {'msgs_per_s': by[comps[0]]['msgs_per_s'], 'seconds_per_rate': a.seconds,
            'by_compression': by, 'runs': runs,
            'raw_writer_msgs_per_s': by[comps[0]]['raw_writer_msgs_per_s']}
+    if a.kills > 0:
+        lost = _kills(a.kills)
+        fig.update(sigkill_lost_ms=lost, sigkill_lost_ms_max=max(lost))
     return report(fig)
+
+
+def _kills(n: int) -> list[float]:
+    """
+    Measure what a SIGKILL of the recorder loses [ms]: the kill against the bag's last message.
+
+    A real-time bench each time, the recorder killed 1.5 s into the recording; the recorder
+    flushes every 50 ms (its ``flush_period``), the bound of what a crash can lose.
+    """
+    out = []
+    with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
+        for k in range(n):
+            bag = f'{tmp}/killed_{k}'
+            with NodeProcesses(dom, f'{tmp}/logs_{k}') as procs:
+                procs.start_loop('realtime', bag=bag)
+                end = time.monotonic() + 120.0
+                while time.monotonic() < end:
+                    try:
+                        if open_bag(bag).topics['/state'].count >= 1500:
+                            break
+                    except (KeyError, EhsError):       # not written yet
+                        pass
+                    time.sleep(0.1)
+                kill_ns = time.time_ns()
+                procs.kill('recorder')
+            out.append(round((kill_ns - open_bag(bag).end_ns) / 1e6, 1))
+    return out
 
 
 if __name__ == '__main__':

@@ -64,7 +64,7 @@ def hiccups(gaps: list, over: float = HICCUP_MS) -> list[tuple[float, float]]:
     Gaps without ``waited`` (a kernel without schedstat) count whole. That holds for a probe
     on SCHED_FIFO, as ``launch_scripts/bench.py`` runs them with ``--rt-priority``: only
     threads at its priority or above can keep it waiting. On the default scheduler the
-    machine's own tasks can too (this VM's init and ``kdamond``, docs/nodes.md), and their
+    machine's own tasks can too (a guest's init, the kernel's ``kdamond``), and their
     part of the wait is left out here.
     """
     return [(g[0], g[1]) for g in gaps
@@ -108,9 +108,11 @@ def main(argv=None) -> int:
     ap.add_argument('--cpu', type=int, default=-1, help='run on this CPU only')
     ap.add_argument('--gaps-over', type=float, default=0.0,
                     help='list the gaps longer than this [ms] (0: none)')
+    ap.add_argument('--progress', type=int, default=0, help='every this many ticks, print a '
+                    'line `progress TICKS GAPS` (0: none), for whoever waits on it')
     a = ap.parse_args(argv)
-    if a.seconds < 0 or a.gaps_over < 0:
-        ap.error('--seconds and --gaps-over must be >= 0')
+    if a.seconds < 0 or a.gaps_over < 0 or a.progress < 0:
+        ap.error('--seconds, --gaps-over and --progress must be >= 0')
     said = []      # unprivileged, or no such CPU: run on, and say so
     if a.rt_priority:
         try:
@@ -155,6 +157,8 @@ def main(argv=None) -> int:
             w, waited = waited, _rq_wait(fd)
             if gap > over:
                 gaps.append((now * 1e-9, gap * 1e-6, (waited - w) * 1e-6))
+        if a.progress and ticks % a.progress == 0:
+            print(f'progress {ticks} {len(gaps)}', flush=True)
     f = {'ticks': ticks, 'stalls_2ms': stalls, 'max_gap_ms': top * 1e-6}
     if over is not None:
         f['gaps'] = [[round(e, 6), round(g, 4), round(w, 4) if fd is not None else None]

@@ -45,6 +45,7 @@ import psutil
 from ros_ehs.benchmarks import positive, report
 from ros_ehs.data.bag import BagWriter, open_bag
 from ros_ehs.nodes.processes import launch_script, NodeProcesses
+import ros_ehs_msgs_py as contract
 import yaml
 
 NODES = ('plant', 'controller', 'reference', 'recorder')
@@ -93,14 +94,15 @@ def main(argv=None) -> int:
                              reference={'kind': 'sine', 'rate_hz': 1000.0 if lock else 250.0},
                              recorder={'max_bag_duration': a.max_bag_duration,
                                        'compression': a.compression})
-            procs = {n: psutil.Process(procs[n].pid) for n in NODES}
-            cpu0 = {n: sum(p.cpu_times()[:2]) for n, p in procs.items()}
+            ps = {n: psutil.Process(procs[n].pid) for n in NODES}
+            cpu0 = {n: sum(p.cpu_times()[:2]) for n, p in ps.items()}
             t0 = time.monotonic()
             samples = []                              # (wall s, {node: rss})
             while True:
                 samples.append((time.monotonic() - t0,
-                                {n: p.memory_info().rss for n, p in procs.items()}))
-                if lock and 'lock-step run complete' in procs['plant'].output():
+                                {n: p.memory_info().rss for n, p in ps.items()}))
+                done = procs.status(contract.PLANT_STATUS)
+                if lock and done is not None and done.message == 'lock-step run complete':
                     break
                 if not lock and time.monotonic() - t0 >= a.seconds:
                     break
@@ -110,7 +112,7 @@ def main(argv=None) -> int:
                         if not procs[n].alive()))
                 time.sleep(a.sample)
             wall = time.monotonic() - t0
-            cpu = {n: (sum(p.cpu_times()[:2]) - cpu0[n]) / wall for n, p in procs.items()}
+            cpu = {n: (sum(p.cpu_times()[:2]) - cpu0[n]) / wall for n, p in ps.items()}
             # the plant before its controller, as bench.py stops them: a plant outliving its
             # controller counts every period until its exit as stale (and a watchdog trip)
             codes = procs.stop(['recorder', 'reference', 'plant', 'controller'])

@@ -45,7 +45,7 @@ import argparse
 import math
 
 import numpy as np
-from ros_ehs.benchmarks import report
+from ros_ehs.benchmarks import count, positive, positives, report
 from ros_ehs.core.control.apc import AmplitudePhaseControl
 from ros_ehs.core.control.drive import band_error, DriveIteration, frf, multisine, rms_error_pct
 from ros_ehs.core.control.waveforms import Chirp, Sine
@@ -75,11 +75,11 @@ def sine_figures(t, z, desired, f: float, amplitude: float) -> dict:
             'rms_err_pct': round(float(np.sqrt(np.mean((z - zd) ** 2)) / amplitude * 100), 3)}
 
 
-def _sines(rig, ctrl) -> dict:
+def _sines(rig, ctrl, frequencies=FREQUENCIES, cycles: int = 40) -> dict:
     out = {}
-    for f in FREQUENCIES:
+    for f in frequencies:
         a = PEAK_VELOCITY / (2 * np.pi * f)
-        duration = max(40.0 / f, 3.0)
+        duration = max(cycles / f, 3.0)
         sine = Sine(a, float(f))
         plain = run_closed_loop(rig, sine, duration, model='full', controller_params=ctrl)
         apc = AmplitudePhaseControl(a, float(f), latency=LATENCY)
@@ -126,8 +126,8 @@ def sweep_figures(t, z, apc: AmplitudePhaseControl, start: float = SWEEP_FROM,
                                        / apc.amplitude * 100), 3)}
 
 
-def _sweep(rig, ctrl) -> dict:
-    a, f0, f1, dur = SWEEP
+def _sweep(rig, ctrl, dur: float = SWEEP[3]) -> dict:
+    a, f0, f1, _ = SWEEP
     apc = AmplitudePhaseControl(a, f0, sweep_to=f1, sweep_time=dur, latency=LATENCY,
                                 learn_from=1.0)
     plain = run_closed_loop(rig, Chirp(a, f0, f1, dur), dur, model='full',
@@ -145,9 +145,9 @@ def _inband(r, y, fs: float, lo: float, hi: float) -> float:
         np.asarray(r) ** 2)) * 100)
 
 
-def _drive(rig, ctrl, iterations: int = 6, fs: float = 1000.0) -> dict:
-    t, r = multisine(20.0, fs, 0.5, 20.0, 0.08, seed=1)
-    _, d = multisine(20.0, fs, 0.2, 40.0, 0.08, seed=2)
+def _drive(rig, ctrl, iterations: int = 6, fs: float = 1000.0, seconds: float = 20.0) -> dict:
+    t, r = multisine(seconds, fs, 0.5, 20.0, 0.08, seed=1)
+    _, d = multisine(seconds, fs, 0.2, 40.0, 0.08, seed=2)
 
     def play(x):
         return run_closed_loop(rig, Samples(t, x), t.size / fs, model='full',
@@ -185,22 +185,35 @@ def _table(title: str, sines: dict) -> None:
 
 def main(argv=None) -> int:
     """Run the benchmark and print its figures."""
-    argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks tracking',
-                            description=__doc__.strip().splitlines()[0]).parse_args(argv)
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks tracking',
+                                 description=__doc__.strip().splitlines()[0])
+    ap.add_argument('--frequencies', type=positives, default=list(FREQUENCIES),
+                    help='the sines, comma-separated [Hz]')
+    ap.add_argument('--cycles', type=count, default=40, help="each sine's cycles")
+    ap.add_argument('--sweep-seconds', type=positive, default=SWEEP[3],
+                    help='the sweep over 1-20 Hz [s] (judged from 2 s on)')
+    ap.add_argument('--drive-seconds', type=positive, default=20.0,
+                    help="the drive-file target's length [s]")
+    ap.add_argument('--iterations', type=count, default=6, help='drive-file iterations')
+    a = ap.parse_args(argv)
+    fq = [int(f) if f == int(f) else f for f in a.frequencies]
     est = preset('table1_estimated')
     dp = est.replace(**DELTA_P)
-    sine = _sines(est, est)
+    sine = _sines(est, est, fq, a.cycles)
     rig = est.replace(**{n: est[n] * k for n, k in MISMATCH.items()})
-    mismatch = _sines(rig, est)
-    dp_sine = _sines(rig, dp)
-    sweep, sweep_mismatch = _sweep(est, est), _sweep(rig, est)
-    drive, drive_mismatch = _drive(est, dp), _drive(rig, dp)
-    plain, plain_mismatch = _drive(est, est), _drive(rig, est)
+    mismatch = _sines(rig, est, fq, a.cycles)
+    dp_sine = _sines(rig, dp, fq, a.cycles)
+    sweep = _sweep(est, est, a.sweep_seconds)
+    sweep_mismatch = _sweep(rig, est, a.sweep_seconds)
+    drive = _drive(est, dp, a.iterations, seconds=a.drive_seconds)
+    drive_mismatch = _drive(rig, dp, a.iterations, seconds=a.drive_seconds)
+    plain = _drive(est, est, a.iterations, seconds=a.drive_seconds)
+    plain_mismatch = _drive(rig, est, a.iterations, seconds=a.drive_seconds)
     _table('full-model rig, controller at its values:', sine)
     _table('rig 20 % away from the controller:', mismatch)
     _table(f'the same with delta-P stabilisation ({_dp_text()}):', dp_sine)
-    print('sine sweep 2 mm, 1-20 Hz in 20 s, 1 s windows from 2 s: worst amplitude ratio, '
-          'worst phase [deg], RMS error [%]')
+    print(f'sine sweep 2 mm, 1-20 Hz in {a.sweep_seconds:g} s, 1 s windows from 2 s: worst '
+          'amplitude ratio, worst phase [deg], RMS error [%]')
     for title, sw in (('rig at the controller', sweep), ('rig 20 % away', sweep_mismatch)):
         print(f'  {title}: ' + '; '.join(
             f"{k} {v['amp_ratio']:.4f} {v['phase_deg']:+.2f} {v['rms_err_pct']:.2f}"

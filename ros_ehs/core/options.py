@@ -271,6 +271,7 @@ IDENTIFY = (
             "controller's value"),
     Setting('max_rate', 'Hz', 4000.0, 10.0, 100000.0, 'live: the fastest state rate to buffer '
             'for'),
+    DIAGNOSTICS_PERIOD,
     CPU_AFFINITY,
 )
 
@@ -287,7 +288,7 @@ NODE_PARAMS = {'plant': PLANT_SPECS, 'controller': CONTROLLER_SPECS}
 # -- ehs_sim ----------------------------------------------------------------------------------
 #: what only the identify node does: push to a running controller, refit live, placement
 _NODE_ONLY = ('push', 'controller', 'push_timeout', 'live', 'window', 'period', 'push_period',
-              'sigmas', 'rel_change', 'max_rate', 'cpu_affinity')
+              'sigmas', 'rel_change', 'max_rate', 'diagnostics_period', 'cpu_affinity')
 _OUT = ('out', '')
 _PRESET = ('preset', '', 'table1_estimated')
 _DURATION = Setting('duration', 's', 3.0, 1.0e-3, 1.0e6, 'simulated time')

@@ -388,7 +388,8 @@ def markdown_table() -> str:
     lines = ['# Parameters', '',
              'Generated from `ros_ehs/core/params.py` by `ehs_sim params-doc`; do not edit by '
              'hand.',
-             'Source tags: P paper, K textbook/catalogue, D derived (research notes), '
+             'Source tags: P paper, K textbook/catalogue, D derived (for a consistent G761-class '
+             'baseline, docs/model.md), '
              'I rig assumption.', '']
     for title, specs in (('Plant', PLANT_SPECS), ('Controller', CONTROL_SPECS),
                          ('Safety', SAFETY_SPECS)):

@@ -27,7 +27,7 @@ Time policy:
   kept once, and a state closer than 0.45 of the median period to the one before it (a stray
   publisher, another clock) is dropped, the experiment's name says how many (a driver's
   jitter of a quarter period either way brings two states within 0.5 of it: kept);
-* a gap (a missed sample: more than 1.5 periods) splits the record into runs
+* a gap (a missed sample: more than 1.5 periods) splits the recording into runs
   (:func:`load_experiments`), and runs too short to fit are dropped;
 * a run whose stamps jitter (a driver's timestamps: up to a quarter of the period) is
   resampled onto a uniform grid at its mean period, the position (and velocity) linearly;
@@ -208,13 +208,13 @@ def load_experiment(path: str | os.PathLike, *, topics: TopicMap | None = None,
                     bag: Bag | None = None, start: float | None = None,
                     end: float | None = None) -> Experiment:
     """
-    Read one experiment from the bag at ``path`` (the whole record, which must have no gap).
+    Read one experiment from the bag at ``path`` (the whole recording, which must have no gap).
 
     ``topics`` says where the signals are (default: the contract; ``state``, ``command``,
     ``pressure_p``, ``pressure_t`` are shorthands for a contract-like map). Pressures are
     optional (pass None to ignore them); a bag without the contract's pressure topics gives
     an experiment without pressures. ``start``/``end`` [s from the bag's first message] take
-    a window of the record (a split bag reads only the files it needs). Raises
+    a window of the recording (a split bag reads only the files it needs). Raises
     :class:`BagError` / :class:`DataError` naming the problem (missing topics with the topics
     the bag has, wrong types, missing joints with the joints the topic has, too little data,
     no excitation, samples missing from the grid: see :func:`load_experiments` for those).
@@ -232,7 +232,7 @@ def load_experiment(path: str | os.PathLike, *, topics: TopicMap | None = None,
                         f'{np.median(d) * 1e-9:g} s, but {d[k] * 1e-9:g} s between t = '
                         f'{(rec.ts[k] - rec.ts[0]) * 1e-9:g} and '
                         f'{(rec.ts[k + 1] - rec.ts[0]) * 1e-9:g} s); load_experiments splits '
-                        'such a record into its runs')
+                        'such a recording into its runs')
     return cut_experiment(rec, 0, rec.ts.size, rec.name)
 
 
@@ -247,7 +247,7 @@ def load_experiments(path: str | os.PathLike, *, topics: TopicMap | None = None,
     Read the contiguous runs of the bag at ``path``: one experiment per run.
 
     A best-effort recorder can miss states (a busy machine, a full queue), which leaves a gap
-    in the sample grid; each gap splits the record, and runs shorter than
+    in the sample grid; each gap splits the recording, and runs shorter than
     :data:`MIN_SAMPLES` are dropped, as are runs in which the piston does not move (a hold
     before the trajectory started) when another run does. Names get ``[k/n]`` when there is
     more than one run. ``topics``, ``start``/``end``: as in :func:`load_experiment`.

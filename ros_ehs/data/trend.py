@@ -53,7 +53,7 @@ def trend_table(estimates: Sequence[contract.ParameterEstimate]) -> str:
     """Return one line per refit: time from the first, each value +- its stderr, verdict."""
     fits = [e for e in estimates if e.values]
     if not fits:
-        return 'no fit in the record'
+        return 'no fit in the recording'
     names = list(fits[0].values)
     t0 = estimates[0].stamp_ns
     lines = ['  t [s]  ' + '  '.join(f'{n:>22}' for n in names) + '  adequate  pushed']

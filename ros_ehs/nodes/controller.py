@@ -51,7 +51,7 @@ from ros_ehs.core.control.loop import ControlLoop, Reply
 from ros_ehs.core.errors import ParameterError
 from ros_ehs.core.options import CONTROLLER, CONTROLLER_SPECS
 from ros_ehs.core.params import Params
-from ros_ehs.nodes.loop_stats import Window
+from ros_ehs.nodes.loop_stats import Ring
 from ros_ehs.nodes.parameters import (declare_settings, node_params, update_settings,
                                       validate_changes)
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, qos_profile, read_msg,
@@ -94,7 +94,7 @@ class ControllerNode(Node):
                                 reference_timeout=float(o['reference_timeout']),
                                 future_tolerance=float(o['future_tolerance']))
         self._pending: Params | None = None
-        self.compute = Window(2000)
+        self.compute = Ring(2000)
         self._stopped = False               # stop(): no command after the safe one
         self._cmd_lock = threading.Lock()
         self.forward = o['command_interface'] == 'forward_command'

@@ -24,12 +24,11 @@ found too, left by earlier runs (how they lost it was not traced).
 
 Why it matters to a real-time bench: a participant that later takes the same port number
 reuses such a port, with the timeouts its first creator stored in it. Fast DDS waits on a
-port for a third of its ``healthy_check_timeout_ms`` (1000 ms by default): 333 ms. Measured on
-this project's VM, with stale ports from earlier runs in ``/dev/shm``, the
-reference joining a running loop (all nodes with ``launch_scripts/fastdds_rt.xml``, whose
-30 ms applies only to ports created under it) reused a port created without that profile,
-and the plant's publish blocked 333 ms: a watchdog trip in 5 of 8 demo-run benches. With
-those files removed: none in 17 (docs/nodes.md has the side-by-side figures).
+port for a third of its ``healthy_check_timeout_ms`` (1000 ms by default): 333 ms. With
+stale ports from earlier runs in ``/dev/shm``, a node joining a running loop (all nodes with
+``launch_scripts/fastdds_rt.xml``, whose 30 ms applies only to ports created under it) can
+reuse a port created without that profile, and block the plant's publish for 333 ms: a
+watchdog trip. Removing those files first avoids it (docs/nodes.md).
 
 :func:`clean_zombies` removes every port and segment that no live process holds, as
 ``fastdds shm clean`` does, and also the ports left without a lock file, which that tool

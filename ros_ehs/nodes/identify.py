@@ -58,7 +58,8 @@ from ros_ehs.core.params import CONTROL_SPECS, load_yaml, preset
 from ros_ehs.data.identification import run_options
 from ros_ehs.data.mapping import decoder, topic_map_of, TopicDecoder, TopicMap
 from ros_ehs.nodes.parameters import declare_settings
-from ros_ehs.nodes.ros_common import msg_class, qos_profile, read_msg, run, steady_clock
+from ros_ehs.nodes.ros_common import (diagnostics, msg_class, OK, qos_profile, read_msg, run,
+                                      steady_clock, WARN)
 import ros_ehs_msgs_py as contract
 
 __all__ = ['OPTIONS', 'IdentifyNode', 'main', 'pushable']
@@ -186,6 +187,9 @@ class IdentifyNode(Node):
                                         else ())
         self._wanted = {getattr(self.tmap, r): r for r in roles}
         self.create_timer(DISCOVERY_PERIOD, self._discover, clock=steady_clock())
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              qos_profile(contract.DIAGNOSTICS.qos))
+        self.create_timer(float(o['diagnostics_period']), self._diagnose, clock=steady_clock())
         self._client = AsyncParameterClient(self, o['controller']) if o['push'] else None
         self._worker = threading.Thread(target=self._refits, daemon=True, name='ehs-refit')
         self._todo = threading.Event()
@@ -220,6 +224,16 @@ class IdentifyNode(Node):
                                      functools.partial(self._on_message, dec),
                                      qos_profile(qos, depth=LIVE_QUEUE), raw=True)
             self.get_logger().info(f'live: {role} from {full} ({msg_type})')
+
+    def _diagnose(self) -> None:
+        """Publish the live identifier's status: what it takes, how many refits and pushes."""
+        values = {'subscribed': ','.join(sorted(self._subscribed)), **self.counts,
+                  'refits': self.live.refits, 'pushes': self.live.pushes,
+                  'busy': self.schedule.busy}
+        level, msg = OK, 'refitting' if self.live.refits else 'filling the window'
+        if len(self._subscribed) < len(self._wanted):
+            level, msg = WARN, 'waiting for the mapped topics'
+        self.pub_diag.publish(diagnostics(self, contract.IDENTIFY_STATUS, level, msg, values))
 
     def _on_message(self, dec: TopicDecoder, data: bytes) -> None:
         got = read_msg(self, dec, data, dec.role)

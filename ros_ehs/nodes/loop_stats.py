@@ -14,7 +14,7 @@
 """
 Loop timing statistics for the nodes' diagnostics and the benchmarks (no ROS import).
 
-:class:`Window` keeps the last ``n`` samples in a ring and answers percentiles;
+:class:`Ring` keeps the last ``n`` samples in a ring and answers percentiles;
 :class:`LoopStats` counts periods, fresh cycles and round-trip times of a control loop.
 """
 
@@ -24,11 +24,11 @@ import math
 
 import numpy as np
 
-__all__ = ['LoopStats', 'Window']
+__all__ = ['LoopStats', 'Ring']
 
 
-class Window:
-    """The last ``n`` float samples (a ring buffer) with percentiles."""
+class Ring:
+    """The last ``n`` float samples, a ring buffer, with their percentiles."""
 
     def __init__(self, n: int = 10000) -> None:
         self._a = np.zeros(int(n))
@@ -46,7 +46,7 @@ class Window:
         Return the samples held, or the ``last`` newest of them (in no guaranteed order).
 
         ``last`` is what the once-a-second diagnostics use: the newest 2000 of a 20000-sample
-        window cost a tenth to rank (see :meth:`p50_p99_max`).
+        ring cost a tenth to rank (see :meth:`p50_p99_max`).
         """
         a, k = self._a, self._k
         n = min(self.total, a.size)
@@ -80,7 +80,7 @@ class Window:
         Return the median, the 99th percentile and the largest sample (NaN when empty).
 
         Over the ``last`` newest samples if given. One partial sort for all three; still,
-        ranking a 20000-sample window costs ~0.2 ms, and the diagnostics take two of them
+        ranking a 20000-sample ring costs ~0.2 ms, and the diagnostics take two of them
         once a second from the executor thread of a 1 kHz loop: that delayed the plant's tick
         by 0.7-0.9 ms, enough for the next tick to come before the command (measured under
         SCHED_FIFO). They now rank the newest 2000.
@@ -108,8 +108,8 @@ class LoopStats:
     """Periods [s], round-trip times [s] and the fraction of cycles with a fresh command."""
 
     def __init__(self, n: int = 20000) -> None:
-        self.period = Window(n)
-        self.rtt = Window(n)
+        self.period = Ring(n)
+        self.rtt = Ring(n)
         self.cycles = 0
         self.fresh = 0
         self._last: float | None = None
@@ -131,7 +131,7 @@ class LoopStats:
         """
         Return the figures in milliseconds, for diagnostics and benchmarks.
 
-        Counts are over the whole run; percentiles and maxima over the window, or over its
+        Counts are over the whole run; percentiles and maxima over the ring, or over its
         ``last`` newest samples.
         """
         ms = 1e3

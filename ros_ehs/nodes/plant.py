@@ -89,7 +89,7 @@ __all__ = ['OPTIONS', 'PlantNode', 'main']
 OPTIONS = PLANT
 
 #: periods the diagnostics rank for their percentiles (2 s at 1 kHz): ranking all 20000
-#: took 0.45 ms of the executor and made the next tick late (Window.p50_p99_max)
+#: took 0.45 ms of the executor and made the next tick late (Ring.p50_p99_max)
 DIAGNOSTICS_WINDOW = 2000
 _RING = 1024           # send times kept for round-trip measurement
 

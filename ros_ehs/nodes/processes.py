@@ -148,7 +148,8 @@ class NodeProcess:
 
 #: each node's status name in ``diagnostics`` (the contract's)
 STATUS_OF = {'plant': contract.PLANT_STATUS, 'controller': contract.CONTROLLER_STATUS,
-             'reference': contract.REFERENCE_STATUS, 'recorder': contract.RECORDER_STATUS}
+             'reference': contract.REFERENCE_STATUS, 'recorder': contract.RECORDER_STATUS,
+             'identify': contract.IDENTIFY_STATUS}
 
 
 def loop_closed(st: contract.NodeStatus) -> bool:
@@ -267,25 +268,6 @@ class NodeProcesses:
                         p.wait()
             codes[n] = p.returncode
         return codes
-
-    def wait_for_log(self, name: str, text: str, timeout: float = 30.0) -> bool:
-        """Wait until process ``name`` has logged ``text``; False on timeout or exit."""
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if text in self.procs[name].output():
-                return True
-            if not self.procs[name].alive():
-                return text in self.procs[name].output()
-            time.sleep(0.05)
-        return False
-
-    def wait_for_logs(self, name: str, texts: Iterable[str], timeout: float = 30.0) -> bool:
-        """Wait until process ``name`` has logged every one of ``texts``."""
-        end = time.monotonic() + timeout
-        for text in texts:
-            if not self.wait_for_log(name, text, max(0.0, end - time.monotonic())):
-                return False
-        return True
 
     def start_loop(self, mode: str = 'realtime', *, bag: str | os.PathLike | None = None,
                    plant: dict[str, Any] | None = None,

@@ -34,8 +34,8 @@ and the next; the node converts messages, calls it and publishes. The clocks are
 * **Corrections** (APC, PVC) learn from the measured position of each state
   (:meth:`~ReferenceGenerator.state`), once per stamp, in order. A correction starts
   ``preview`` after the end of the cycle it was learnt from, so no sample already sent
-  changes; under sim time a clock whose window holds a correction is answered only once the
-  state that ends its cycle has been measured (the window waits: the loop is then the
+  changes; under sim time a clock whose preview holds a correction is answered only once the
+  state that ends its cycle has been measured (the preview waits: the loop is then the
   in-process loop's to 1e-9 m). States before time zero are kept (``EARLY_STATES``) and taken
   when it comes. The corrections freeze, keeping the command's last amplitude and phase,
   while a safety trip that acts is latched (:meth:`~ReferenceGenerator.event`: hold, stop,
@@ -99,7 +99,7 @@ def correction_for(values: Mapping[str, Any], options: Mapping[str, Any]
         raise ParameterError(f'{name}: `preview` = {preview:g} s must be under '
                              f'{"the" if apc else "half the"} period ({1 / f:g} s)')
     # a correction starts `preview` after the cycle it was learnt from: every sample already
-    # sent stays as it was sent, and under sim time each window can wait for the states it
+    # sent stays as it was sent, and under sim time each preview can wait for the states it
     # depends on (in process: the same latency gives the same numbers)
     ramp = float(options['ramp_time'])
     if apc:
@@ -122,7 +122,7 @@ class ReferenceGenerator:
 
     ``values``: the waveform's settings; ``options``: the reference node's (``rate_hz``,
     ``preview``, ``duration``, ``csv_path``, ``blocks``, ``wait_subscribers``, ``wait_loop``
-    and the corrections'); ``sim_time``: answer ``/clock`` with windows (lock-step) instead of
+    and the corrections'); ``sim_time``: answer ``/clock`` with previews (lock-step) instead of
     ticking in real time.
     """
 
@@ -141,7 +141,7 @@ class ReferenceGenerator:
         self.frozen_by: set[str] = set()
         self.t_first: int | None = None    # time zero [ns]
         self.last_ns = -1                  # the newest sample's (or clock's) stamp
-        self.count = 0                     # samples (real time) or windows (sim time) sent
+        self.count = 0                     # samples (real time) or previews (sim time) sent
         self.bad = 0                       # malformed clocks
         self.runs = 1
         self.closed = not (self.options['wait_loop'] and not self.sim_time)
@@ -149,7 +149,7 @@ class ReferenceGenerator:
         self._last_state = math.nan        # when the newest state arrived [s]
         self._measured_ns = -1             # the newest state stamp a correction has taken
         self._early: list[tuple[int, float]] = []
-        self._waiting: list[int] = []      # clock stamps whose window waits for states
+        self._waiting: list[int] = []      # clock stamps whose preview waits for states
         self._noted = -math.inf
 
     # -- the waveform ------------------------------------------------------------------------
@@ -218,9 +218,9 @@ class ReferenceGenerator:
 
     def clock(self, t_ns: int, now: float = math.nan) -> list[Reference] | None:
         """
-        Sim time: return the window that answers ``/clock`` ``t_ns``, or None: it waits.
+        Sim time: return the preview that answers ``/clock`` ``t_ns``, or None: it waits.
 
-        A waiting window is returned by :meth:`state` once the states it depends on came.
+        A waiting preview is returned by :meth:`state` once the states it depends on came.
         """
         if t_ns < self.last_ns - EPOCH_PERIODS * self.dt_ns:     # /clock went back
             self.runs += 1
@@ -244,9 +244,9 @@ class ReferenceGenerator:
             if t_ns not in self._waiting:
                 self._waiting.append(t_ns)
             return None
-        return self.window(t_ns)
+        return self.preview(t_ns)
 
-    def window(self, t_ns: int) -> list[Reference]:
+    def preview(self, t_ns: int) -> list[Reference]:
         """Return the samples from ``t_ns`` to ``t_ns`` + ``preview`` (one period at least)."""
         n = max(1, int(float(self.options['preview']) * 1e9 // self.dt_ns))
         stamps = np.arange(n + 1, dtype=np.int64) * self.dt_ns + t_ns
@@ -255,7 +255,7 @@ class ReferenceGenerator:
         return [Reference(int(st), float(zz), float(vv)) for st, zz, vv in zip(stamps, z, v)]
 
     def _ready(self, t_ns: int) -> bool:
-        """Whether a correction has measured every state the window of ``t_ns`` depends on."""
+        """Whether a correction has measured every state the preview of ``t_ns`` depends on."""
         if self.correction is None:
             return True
         # the samples up to t + preview use corrections from the cycles that ended by
@@ -270,7 +270,7 @@ class ReferenceGenerator:
         """
         Take a measured position [m] stamped ``stamp_ns`` that arrived at ``now`` [s].
 
-        Returns the windows that waited for it (sim time), in order.
+        Returns the previews that waited for it (sim time), in order.
         """
         if self.correction is None:
             return []
@@ -283,7 +283,7 @@ class ReferenceGenerator:
         self._measure(stamp_ns, z)
         out = []
         while self._waiting and self._ready(self._waiting[0]):
-            out.append(self.window(self._waiting.pop(0)))
+            out.append(self.preview(self._waiting.pop(0)))
         return out
 
     def _measure(self, stamp_ns: int, z: float) -> None:

@@ -72,7 +72,7 @@ from typing import Mapping, NamedTuple
 
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.params import ACTIONS, spec
-from ros_ehs_msgs_py.records import SafetyEvent as Event
+from ros_ehs_msgs_py.values import SafetyEvent as Event
 
 __all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'SafetyConfig', 'Supervisor',
            'braking_distance', 'ramp_weight']

@@ -77,7 +77,7 @@ class Experiment:
     delay: float = 0.0
     p_load: np.ndarray | None = None
     t0_ns: int = 0      #: the state clock's stamp of ``t = 0`` [ns]
-    #: the run starts after a gap in the record, mid-motion: the fit settles the valve's
+    #: the run starts after a gap in the recording, mid-motion: the fit settles the valve's
     #: states for the first sample instead of starting them at rest
     after_gap: bool = False
 

@@ -219,7 +219,7 @@ class LiveIdentifier:
 
     def refit(self, experiments, stamp_ns: int, window_s: float
               ) -> tuple[ParameterEstimate, IdentificationResult | None]:
-        """Refit ``experiments`` (warm when there is an estimate); return the estimate record."""
+        """Refit ``experiments`` (warm when there is an estimate); return the estimate."""
         self.refits += 1
         warm = self.estimate is not None
         t0 = time.perf_counter()

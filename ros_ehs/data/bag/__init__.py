@@ -16,7 +16,7 @@ rosbag2-compatible MCAP bags: the only reader and writer in ros_ehs (no rclpy).
 
 ``BagWriter`` writes a bag directory; ``open_bag`` reads ours, rosbag2's and truncated ones;
 ``load_experiment`` extracts the arrays identification needs from the contract topics;
-``load_experiments`` splits a record with missing samples into its contiguous runs.
+``load_experiments`` splits a recording with missing samples into its contiguous runs.
 """
 
 from ros_ehs.data.bag.definitions import full_definition, type_hash

@@ -14,9 +14,10 @@
 r"""
 Message definitions as rosbag2 stores them: the ``ros2msg`` text and the RIHS01 type hash.
 
-The text is built exactly as rosbag2's ``LocalMessageDefinitionSource`` does (research notes
-section 1.5): the type's ``.msg`` file verbatim, then each dependency, visited depth first in
-sorted order, once each, as ``"\n" + "=" * 80 + "\nMSG: pkg/Type\n" + text``. Files come from
+The text is built exactly as rosbag2's ``LocalMessageDefinitionSource`` does
+(``rosbag2_cpp/src/rosbag2_cpp/local_message_definition_source.cpp``): the type's ``.msg``
+file verbatim, then each dependency, visited depth first in sorted order, once each, as
+``"\n" + "=" * 80 + "\nMSG: pkg/Type\n" + text``. Files come from
 the ROS prefix on ``AMENT_PREFIX_PATH`` (``share/<pkg>/msg``); no rclpy needed.
 
 A service's events (``<pkg>/srv/<Name>_Event``, what rosbag2 records of a service since Jazzy)

@@ -14,7 +14,8 @@
 """
 Write rosbag2-compatible MCAP bags: ``<dir>/<dir>_<n>.mcap`` plus ``<dir>/metadata.yaml``.
 
-What rosbag2 (Jazzy) writes and reads (research notes section 1): profile ``ros2``; one schema
+What rosbag2 (Jazzy) writes and reads (``rosbag2_storage_mcap``, and its test bags in
+``test/fixtures/rosbag2``): profile ``ros2``; one schema
 per type, encoding ``ros2msg`` with the full definition text; channels with encoding ``cdr``
 and metadata ``offered_qos_profiles`` (v9 YAML) and ``topic_type_hash`` (RIHS01); a
 ``rosbag2`` metadata record and ``metadata.yaml`` with the same v9 ``BagMetadata``.

@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The contract's plain records: what a message means, in SI units, without ROS."""
+"""The contract's plain values: what a message means, in SI units, without ROS."""
 
 from __future__ import annotations
 

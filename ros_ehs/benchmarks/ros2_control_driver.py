@@ -1,5 +1,18 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """
-A rig driver written to ros2_control's conventions, for the tests (not our plant node).
+A rig driver written to ros2_control's conventions, for tests and benchmarks (not our plant).
 
 One process: a hardware interface whose "hardware" is the model (``Plant``), a
 joint_state_broadcaster and a forward command controller, in ros2_control's cycle at
@@ -11,6 +24,13 @@ watchdog: the last command holds, as a forward command controller holds it. At S
 prints one JSON line: cycles, commands taken, cycles whose command was not new (the
 controller's answer came after the cycle: the command is two periods late or more), and the
 state it ended in.
+
+``--lockstep``: the same cycle on a simulated clock, for tests that must not depend on the
+machine's timing: each cycle's states are stamped on that clock, ``/clock`` goes out every 10
+cycles (with the first), and the next cycle starts only once the controller has answered
+(a command counted for every state; the answer to cycle k is written at cycle k + 1, as in
+real time when the controller answers within the period). ``--seconds`` is then simulated
+time; it exits when done (its JSON line first).
 """
 
 import argparse
@@ -35,6 +55,10 @@ def main() -> int:
     ap.add_argument('--seconds', type=float, default=0.0)
     ap.add_argument('--effort', action='store_true', help="export the piston's effort state "
                     'interface: the hydraulic force from the chamber pressures [N]')
+    ap.add_argument('--lockstep', action='store_true', help='cycle on a simulated clock, each '
+                    "cycle once the controller's answer to the last has come (see above)")
+    ap.add_argument('--wait-subscribers', type=int, default=1, help='lock-step: start once '
+                    '/joint_states has this many subscribers')
     a = ap.parse_args()
     from ros_ehs.core.model.plant import Plant
     from ros_ehs.core.params import Params
@@ -95,10 +119,14 @@ def main() -> int:
         cycles[0] += 1
 
     plant.step(x, u, dt)          # compile (or load) the model's kernels before the loop runs
-    node.create_timer(dt, cycle)
-    t_end = time.monotonic() + a.seconds if a.seconds > 0 else float('inf')
-    while not stop and time.monotonic() < t_end:
-        rclpy.spin_once(node, timeout_sec=0.05)
+    if a.lockstep:
+        lockstep(node, a, plant, pub, latest, stop)
+        x = plant.x_final
+    else:
+        node.create_timer(dt, cycle)
+        t_end = time.monotonic() + a.seconds if a.seconds > 0 else float('inf')
+        while not stop and time.monotonic() < t_end:
+            rclpy.spin_once(node, timeout_sec=0.05)
     print(json.dumps({'cycles': cycles[0], 'commands': latest['n'], 'z': float(x[iz]),
                       'last_command_a': latest['cmd'], 'max_command_a': latest['max'],
                       'stale_cycles': fresh['stale'], 'unread_periods': clock['unread']}),
@@ -106,6 +134,51 @@ def main() -> int:
     node.destroy_node()
     rclpy.shutdown()
     return 0
+
+
+def lockstep(node, a, plant, pub, latest, stop) -> None:
+    """Cycle on a simulated clock, one cycle per answer (see the module docstring)."""
+    from rosgraph_msgs.msg import Clock
+    from ros_ehs.core.params import Params
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    clock_pub = node.create_publisher(Clock, '/clock', qos)
+    x = plant.equilibrium()
+    iz = plant.state_names.index('z')
+    ipa, ipb = plant.state_names.index('p_CP'), plant.state_names.index('p_CT')
+    a_p = Params()['A_p']
+    dt_ns = int(round(1e9 / a.rate))
+    t0 = 10**9
+    u = np.zeros(2)
+    answer = 0.0                  # the answer to the last cycle: written at this one
+    while not stop and pub.get_subscription_count() < a.wait_subscribers:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    for _ in range(20):           # and let every endpoint match before the first cycle
+        rclpy.spin_once(node, timeout_sec=0.05)
+    steps = int(round(a.seconds * a.rate)) if a.seconds > 0 else 10**12
+    for k in range(steps + 1):
+        if stop:
+            break
+        stamp = t0 + k * dt_ns
+        if k % 10 == 0:
+            c = Clock()
+            c.clock.sec, c.clock.nanosec = divmod(stamp, 10**9)
+            clock_pub.publish(c)
+        msg = JointState()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
+        msg.name = ['table_pitch', a.joint, 'table_roll']
+        msg.position = [0.0, float(x[iz]), 0.0]
+        if a.effort:
+            msg.effort = [0.0, float(a_p * (x[ipa] - x[ipb])), 0.0]
+        pub.publish(msg)
+        if k == steps:
+            break
+        want = k + 1                       # a command for every state so far
+        while not stop and latest['n'] < want:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        u[0] = answer                      # write: the answer to the last cycle's state
+        answer = latest['cmd']
+        x = plant.step(x, u, dt_ns * 1e-9)
+    plant.x_final = x
 
 
 if __name__ == '__main__':

@@ -1,0 +1,111 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+A bounded stop: every node exits soon after SIGINT or SIGTERM, at any moment.
+
+The test picks the moments: a node just up, a loop mid-run, a refit under way, a replay under
+way, a controller whose axis a trip has powered off on a ros2_control driver. Each node must
+exit with code 0 within ``STOP_BOUND`` of its signal, many times in a row, whatever its
+executor does (``ros_ehs.nodes.ros_common.run`` does not wait on it for more than its
+``STOP_GRACE``), and the controller's last command is 0 A, sent once.
+"""
+
+from pathlib import Path
+import signal
+import sys
+
+import numpy as np
+import pytest
+from ros_ehs.nodes.processes import NodeProcesses
+from ros_ehs.nodes.ros_common import STOP_GRACE
+import ros_ehs_msgs_py as c
+from waits import BOUND, wait_value
+
+pytestmark = pytest.mark.ros
+ROOT = Path(__file__).resolve().parents[1]
+#: a rig driver to ros2_control's conventions, as a process (not our plant)
+DRIVER = ['-m', 'ros_ehs.benchmarks.ros2_control_driver']
+#: a node has this long from its signal to its exit: its grace, its close (a bag's summary)
+STOP_BOUND = STOP_GRACE + 20.0
+
+
+def _stopped(procs, name, signum):
+    """Signal node ``name``; assert it exits with 0 within the bound."""
+    p = procs[name].popen
+    p.send_signal(signum)
+    try:
+        code = p.wait(STOP_BOUND)
+    except Exception:  # noqa: B902 - a TimeoutExpired: say what it was doing
+        raise AssertionError(f'{name} did not exit within {STOP_BOUND:g} s of signal '
+                             f'{signum}:\n' + procs[name].output()[-3000:]) from None
+    assert code == 0, (name, code, procs[name].output()[-3000:])
+
+
+@pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM], ids=['INT', 'TERM'])
+def test_every_loop_node_stops_at_any_moment_of_a_lockstep_run(dom, tmp_path, signum):
+    rng = np.random.default_rng(7 + signum)
+    nodes = ['recorder', 'reference', 'controller', 'plant']
+    for k in range(3):
+        with NodeProcesses(dom, tmp_path / f'logs{k}') as procs:
+            procs.start_loop('lockstep', bag=tmp_path / f'bag{k}',
+                             plant={'duration': 600.0, 'diagnostics_period': 0.05})
+            # a moment of the test's choosing: at once, or some hundreds of periods on
+            wait_value(procs, c.PLANT_STATUS, 'steps', int(rng.integers(1, 3)) * 200 * k + 1)
+            for name in rng.permutation(nodes):      # each in its turn, in any order
+                _stopped(procs, str(name), signum)
+
+
+def test_the_player_and_a_refitting_identify_node_stop_at_once(dom, tmp_path):
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        for k in range(3):
+            procs.start('player', {'bag': str(ROOT / 'bags' / 'sample_sine_1hz'),
+                                   'rate': 0.5, 'loop': True}, name=f'player{k}')
+            procs.start('identify', {'live': True, 'window': 2.0, 'period': 1.0,
+                                     'use_sim_time': True, 'diagnostics_period': 0.05},
+                        name=f'identify{k}')
+            # mid-replay, and (after the first round) with a refit under way or done
+            assert procs.wait_status(c.IDENTIFY_STATUS, lambda st: int(st.values['states'])
+                                     > 500 * (k + 1) and (k == 0 or int(st.values['refits'])
+                                                          + (st.values['busy'] == 'True')),
+                                     BOUND), procs[f'identify{k}'].output()[-3000:]
+            _stopped(procs, f'identify{k}', signal.SIGTERM)
+            _stopped(procs, f'player{k}', signal.SIGINT)
+
+
+def test_a_powered_off_controller_on_a_ros2_control_driver_stops_with_zero_once(
+        dom, tmp_path, ros):
+    """The case that once hung: SIGTERM after a power_off trip; the driver holds the last."""
+    from std_msgs.msg import Float64MultiArray
+    from ros_ehs.nodes.ros_common import qos_profile
+    got = []
+    ros.create_subscription(Float64MultiArray, '/servo_valve_controller/commands',
+                            lambda m: got.append(m.data[0]), qos_profile(c.RECORD_QOS, 1000))
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        for k in range(3):
+            procs.start('controller', {
+                'rate_hz': 500.0, 'state_topic': '/joint_states', 'joint': 'actuator_z',
+                'command_interface': 'forward_command', 'diagnostics_period': 0.05,
+                'command_topic': '/servo_valve_controller/commands',
+                'limit_position_max': -0.001, 'limit_position_max_action': 'power_off'},
+                name=f'controller{k}')
+            procs.start(f'driver{k}', cmd=[sys.executable, *DRIVER, '--rate', '500'])
+            assert procs.wait_status(c.CONTROLLER_STATUS, lambda st: 'power_off' in
+                                     st.values.get('interlock', ''), BOUND), \
+                procs[f'controller{k}'].output()[-3000:]
+            n = len(got)
+            _stopped(procs, f'controller{k}', signal.SIGTERM)
+            assert ros.spin(until=lambda: len(got) > n and got[-1] == 0.0, timeout=BOUND)
+            _stopped(procs, f'driver{k}', signal.SIGINT)
+            out = procs[f'controller{k}'].output()
+            assert out.count('stopping: 0 A sent') == 1 and 'did not return' not in out

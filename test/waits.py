@@ -1,0 +1,74 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+What the DDS tests wait for: a message, a status, a count on disk; never the clock.
+
+Each wait has a bound (generous: a test waits for what it needs, so a loaded machine only
+makes it slower), and says on timeout what it saw.
+"""
+
+import time
+
+from ros_ehs.core.errors import BagError
+from ros_ehs.data.bag import open_bag
+import ros_ehs_msgs_py as c
+
+#: the bound of a wait for a lock-step run or a bag [s]: a run of seconds takes a few on a
+#: quiet machine, and several times that with both cores busy
+BOUND = 180.0
+
+
+def lockstep_complete(procs, name: str = 'plant', timeout: float = BOUND) -> None:
+    """Wait until the lock-step plant says its run is complete (its status, not its log)."""
+    assert procs.wait_status(c.PLANT_STATUS, lambda st: st.message == 'lock-step run complete',
+                             timeout), procs[name].output()[-3000:]
+
+
+def bag_counts(bag) -> dict:
+    """Return ``{topic: count}`` of what the bag (being recorded) holds on disk now."""
+    try:
+        return {k: v.count for k, v in open_bag(bag).topics.items()}
+    except BagError:      # not created yet, or caught before its first topic
+        return {}
+
+
+def wait_for_bag(bag, least: dict, timeout: float = BOUND) -> dict:
+    """
+    Wait until the bag being recorded holds ``least`` = {topic: count} messages on disk.
+
+    The recorder flushes every 50 ms, so the live file shows its progress.
+    """
+    end = time.monotonic() + timeout
+    counts = {}
+    while time.monotonic() < end:
+        counts = bag_counts(bag)
+        if all(counts.get(k, 0) >= n for k, n in least.items()):
+            return counts
+        time.sleep(0.05)
+    raise AssertionError(f'after {timeout:g} s the bag holds {counts}, wanted {least}')
+
+
+def status_value(procs, status: str, key: str, default: float = 0.0) -> float:
+    """Return a number from a node's newest status (``default`` before any)."""
+    st = procs.status(status)
+    try:
+        return float(st.values[key]) if st is not None else default
+    except (KeyError, ValueError):
+        return default
+
+
+def wait_value(procs, status: str, key: str, least: float, timeout: float = BOUND) -> None:
+    """Wait until a node's status says ``key`` >= ``least``."""
+    assert procs.wait_status(status, lambda st: float(st.values.get(key, 'nan')) >= least,
+                             timeout), (status, key, least, procs.status(status))
