@@ -25,33 +25,33 @@ which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain
 """
 
 from ros_ehs_msgs_py.conversions import (command_from_msg, empty_msg, estimate_from_msg,
-                                         event_from_msg, event_level, fill_command,
-                                         fill_estimate, fill_event, fill_pressure,
-                                         fill_reference, fill_reference_trajectory, fill_state,
+                                         event_from_msg, event_level, fill_command, fill_estimate,
+                                         fill_event, fill_load, fill_pressure, fill_reference,
+                                         fill_reference_trajectory, fill_state, load_from_msg,
                                          pressure_from_msg, reference_from_msg,
-                                         reference_trajectory_from_msg, stamp_ns,
-                                         state_from_msg, statuses_from_msg)
+                                         reference_trajectory_from_msg, stamp_ns, state_from_msg,
+                                         statuses_from_msg, WRENCH_AXES)
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
 from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, CONTROLLER_STATUS, DIAGNOSTICS,
-                                    ESTIMATES, EVENTS, IDENTIFY_STATUS, JOINT_PISTON, JOINT_SPOOL,
-                                    JOINT_VALVE, LOCKSTEP_NODE_TOPICS, NODE_TOPICS, NodeTopics,
-                                    PLANT_STATUS, PRESSURE_P, PRESSURE_T, RECORDER_STATUS,
-                                    REFERENCE, REFERENCE_STATUS, REFERENCE_TRAJECTORY, STATE,
-                                    Topic, TOPICS)
-from ros_ehs_msgs_py.values import (AxisState, Command, NodeStatus, ParameterEstimate, Pressure,
-                                    Reference, SafetyEvent)
-from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr,
-                                  command_to_cdr, decode_joint_state,
-                                  float64_array_from_cdr, float64_array_to_cdr,
-                                  float64_from_cdr,
-                                  fluid_pressure_from_cdr, JointStateData,
-                                  JointStateEncoder, pressure_to_cdr,
-                                  reference_from_cdr,
-                                  reference_to_cdr, reference_trajectory_from_cdr,
-                                  reference_trajectory_to_cdr, state_from_cdr, state_to_cdr)
+                                    ESTIMATES, EVENTS, IDENTIFY_STATUS, JOINT_LOAD, JOINT_PISTON,
+                                    JOINT_SPOOL, JOINT_VALVE, LOAD_CELL, LOCKSTEP_NODE_TOPICS,
+                                    NODE_TOPICS, NodeTopics, PLANT_STATUS, PRESSURE_P, PRESSURE_T,
+                                    RECORDER_STATUS, REFERENCE, REFERENCE_STATUS,
+                                    REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
+from ros_ehs_msgs_py.values import (AxisState, Command, Load, NodeStatus, ParameterEstimate,
+                                    Pressure, Reference, SafetyEvent)
+from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr, command_to_cdr,
+                                  decode_joint_state, float64_array_from_cdr, float64_array_to_cdr,
+                                  float64_from_cdr, fluid_pressure_from_cdr, JointStateData,
+                                  JointStateEncoder, load_from_cdr, load_to_cdr, pressure_to_cdr,
+                                  reference_from_cdr, reference_to_cdr,
+                                  reference_trajectory_from_cdr, reference_trajectory_to_cdr,
+                                  state_from_cdr, state_to_cdr, wrench_from_cdr)
 
 __all__ = [
+    'JOINT_LOAD', 'LOAD_CELL', 'Load', 'WRENCH_AXES', 'fill_load', 'load_from_cdr',
+    'load_from_msg', 'load_to_cdr', 'wrench_from_cdr',
     'NodeStatus', 'statuses_from_msg', 'CONTROLLER_STATUS', 'IDENTIFY_STATUS', 'PLANT_STATUS',
     'RECORDER_STATUS',
     'REFERENCE_STATUS',

@@ -24,14 +24,13 @@ from __future__ import annotations
 import math
 from typing import Any, Callable, Sequence
 
-from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
-from ros_ehs_msgs_py.values import (AxisState, Command, NodeStatus, ParameterEstimate, Pressure,
-                                    Reference, SafetyEvent)
+from ros_ehs_msgs_py.topics import JOINT_LOAD, JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
+from ros_ehs_msgs_py.values import (AxisState, Command, Load, NodeStatus, ParameterEstimate,
+                                    Pressure, Reference, SafetyEvent)
 
-__all__ = ['command_from_arrays', 'command_from_msg', 'empty_msg', 'estimate_from_msg',
-           'event_from_msg', 'fill_estimate',
-           'event_level', 'fill_command', 'fill_event',
-           'joint_index',
+__all__ = ['WRENCH_AXES', 'command_from_arrays', 'command_from_msg', 'empty_msg',
+           'estimate_from_msg', 'event_from_msg', 'fill_estimate', 'event_level',
+           'fill_command', 'fill_event', 'fill_load', 'joint_index', 'load_from_msg',
            'fill_pressure', 'fill_reference',
            'fill_reference_trajectory', 'fill_state', 'pressure_from_msg',
            'reference_from_arrays', 'reference_from_msg',
@@ -80,6 +79,9 @@ def empty_msg(msg_type: str) -> dict[str, Any]:
                 'time_from_start': {'sec': 0, 'nanosec': 0}}
     if msg_type == 'diagnostic_msgs/msg/DiagnosticArray':
         return {'header': header, 'status': []}
+    if msg_type == 'geometry_msgs/msg/WrenchStamped':
+        vec = {'x': 0.0, 'y': 0.0, 'z': 0.0}
+        return {'header': header, 'wrench': {'force': dict(vec), 'torque': dict(vec)}}
     raise KeyError(f'no empty message for {msg_type!r}')
 
 
@@ -104,18 +106,25 @@ def _field(msg: Any, field: str, k: int, topic: str) -> float:
 
 
 def fill_state(msg: Any, s: AxisState) -> Any:
-    """Write ``s`` into a JointState (``piston``, ``spool``, and ``servo_valve`` if ``s.i``)."""
+    """
+    Write ``s`` into a JointState.
+
+    Joints ``piston`` and ``spool``; ``servo_valve`` (effort: the applied current) if ``s.i``
+    is known, and ``load_cell`` (effort: the specimen force) if ``s.load`` is.
+    """
     _set_header(msg, s.stamp_ns)
-    if math.isnan(s.i):
-        _set(msg, 'name', [JOINT_PISTON, JOINT_SPOOL])
-        _set(msg, 'position', [float(s.z), float(s.x_spool)])
-        _set(msg, 'velocity', [float(s.z_dot), math.nan])
-        _set(msg, 'effort', [float(s.force), math.nan])
-        return msg
-    _set(msg, 'name', [JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE])
-    _set(msg, 'position', [float(s.z), float(s.x_spool), math.nan])
-    _set(msg, 'velocity', [float(s.z_dot), math.nan, math.nan])
-    _set(msg, 'effort', [float(s.force), math.nan, float(s.i)])
+    names, pos, vel, eff = [JOINT_PISTON, JOINT_SPOOL], [float(s.z), float(s.x_spool)], \
+        [float(s.z_dot), math.nan], [float(s.force), math.nan]
+    for joint, value in ((JOINT_VALVE, s.i), (JOINT_LOAD, s.load)):
+        if not math.isnan(value):
+            names.append(joint)
+            pos.append(math.nan)
+            vel.append(math.nan)
+            eff.append(float(value))
+    _set(msg, 'name', names)
+    _set(msg, 'position', pos)
+    _set(msg, 'velocity', vel)
+    _set(msg, 'effort', eff)
     return msg
 
 
@@ -132,20 +141,23 @@ def state_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float
     names = list(names)
     k = joint_index(names, joint, 'state')
     force = float(effort[k]) if len(effort) > k else math.nan
-    x = i = math.nan
+    x = i = load = math.nan
     if JOINT_SPOOL in names:
         j = names.index(JOINT_SPOOL)
         x = float(position[j]) if len(position) > j else math.nan
     if JOINT_VALVE in names:
         j = names.index(JOINT_VALVE)
         i = float(effort[j]) if len(effort) > j else math.nan
+    if JOINT_LOAD in names:
+        j = names.index(JOINT_LOAD)
+        load = float(effort[j]) if len(effort) > j else math.nan
     required = (('position', position), ('velocity', velocity)) if joint == JOINT_PISTON \
         else (('position', position),)
     for field, arr in required:
         if len(arr) <= k:
             raise ValueError(f'`state` message has no {field}[{k}] (length {len(arr)})')
     v = float(velocity[k]) if len(velocity) > k else math.nan
-    return AxisState(stamp, float(position[k]), v, force, x, i)
+    return AxisState(stamp, float(position[k]), v, force, x, i, load)
 
 
 def state_from_msg(msg: Any) -> AxisState:
@@ -156,28 +168,30 @@ def state_from_msg(msg: Any) -> AxisState:
 
 
 def fill_reference(msg: Any, r: Reference) -> Any:
-    """Write ``r`` into a JointState (joint ``piston``)."""
+    """Write ``r`` into a JointState (joint ``piston``; effort F_ref when there is one)."""
     _set_header(msg, r.stamp_ns)
     _set(msg, 'name', [JOINT_PISTON])
     _set(msg, 'position', [float(r.z_ref)])
     _set(msg, 'velocity', [float(r.v_ref)])
-    _set(msg, 'effort', [])
+    _set(msg, 'effort', [] if math.isnan(r.f_ref) else [float(r.f_ref)])
     return msg
 
 
 def reference_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float],
-                          velocity: Sequence[float]) -> Reference:
+                          velocity: Sequence[float], effort: Sequence[float] = ()) -> Reference:
     """Read a :class:`Reference` from a ``reference`` JointState's fields."""
     k = joint_index(names, JOINT_PISTON, 'reference')
     if len(position) <= k:
         raise ValueError(f'`reference` message has no position[{k}] (length {len(position)})')
-    return Reference(stamp, float(position[k]), float(velocity[k]) if len(velocity) > k else 0.0)
+    return Reference(stamp, float(position[k]), float(velocity[k]) if len(velocity) > k else 0.0,
+                     float(effort[k]) if len(effort) > k else math.nan)
 
 
 def reference_from_msg(msg: Any) -> Reference:
     """Read a :class:`Reference` from a ``reference`` JointState."""
     return reference_from_arrays(stamp_ns(_get(msg, 'header')), _get(msg, 'name'),
-                                 _get(msg, 'position'), _get(msg, 'velocity'))
+                                 _get(msg, 'position'), _get(msg, 'velocity'),
+                                 _get(msg, 'effort'))
 
 
 def fill_reference_trajectory(msg: Any, refs: Sequence[Reference],
@@ -199,6 +213,8 @@ def fill_reference_trajectory(msg: Any, refs: Sequence[Reference],
         p = new_point()
         _set(p, 'positions', [float(r.z_ref)])
         _set(p, 'velocities', [float(r.v_ref)])
+        if not math.isnan(r.f_ref):
+            _set(p, 'effort', [float(r.f_ref)])
         d = _get(p, 'time_from_start')
         _set(d, 'sec', int((r.stamp_ns - t0) // 1_000_000_000))
         _set(d, 'nanosec', int((r.stamp_ns - t0) % 1_000_000_000))
@@ -219,13 +235,14 @@ def reference_trajectory_from_msg(msg: Any) -> list[Reference]:
     t0 = stamp_ns(_get(msg, 'header'))
     out = []
     for n, p in enumerate(_get(msg, 'points')):
-        pos, vel = _get(p, 'positions'), _get(p, 'velocities')
+        pos, vel, eff = _get(p, 'positions'), _get(p, 'velocities'), _get(p, 'effort')
         if len(pos) <= k:
             raise ValueError(f'`reference_trajectory` point {n} has no positions[{k}] '
                              f'(length {len(pos)})')
         d = _get(p, 'time_from_start')
         out.append(Reference(t0 + int(_get(d, 'sec')) * 1_000_000_000 + int(_get(d, 'nanosec')),
-                             float(pos[k]), float(vel[k]) if len(vel) > k else 0.0))
+                             float(pos[k]), float(vel[k]) if len(vel) > k else 0.0,
+                             float(eff[k]) if len(eff) > k else math.nan))
     return out
 
 
@@ -264,6 +281,35 @@ def fill_pressure(msg: Any, p: Pressure) -> Any:
 def pressure_from_msg(msg: Any) -> Pressure:
     """Read a :class:`Pressure` from a FluidPressure."""
     return Pressure(stamp_ns(_get(msg, 'header')), float(_get(msg, 'fluid_pressure')))
+
+
+#: the axes of a WrenchStamped a load cell's force can be on
+WRENCH_AXES = ('force.x', 'force.y', 'force.z', 'torque.x', 'torque.y', 'torque.z')
+
+
+def _axis(axis: str) -> tuple[str, str]:
+    if axis not in WRENCH_AXES:
+        raise ValueError(f'load cell axis {axis!r} is not one of {list(WRENCH_AXES)}')
+    part, _, comp = axis.partition('.')
+    return part, comp
+
+
+def fill_load(msg: Any, ld: Load, axis: str = 'force.z', frame: str = JOINT_LOAD) -> Any:
+    """Write ``ld`` into a WrenchStamped: its force on ``axis``, every other component 0."""
+    part, comp = _axis(axis)
+    _set_header(msg, ld.stamp_ns, frame)
+    w = _get(msg, 'wrench')
+    for p in ('force', 'torque'):
+        v = _get(w, p)
+        for c in 'xyz':
+            _set(v, c, float(ld.force) if (p, c) == (part, comp) else 0.0)
+    return msg
+
+
+def load_from_msg(msg: Any, axis: str = 'force.z') -> Load:
+    """Read a :class:`Load` from a WrenchStamped: the component on ``axis`` [N]."""
+    part, comp = _axis(axis)
+    return Load(stamp_ns(_get(msg, 'header')), float(_get(_get(_get(msg, 'wrench'), part), comp)))
 
 
 #: DiagnosticStatus levels (OK, WARN, ERROR) of the events, by kind and action.

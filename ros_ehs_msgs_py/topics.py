@@ -20,8 +20,8 @@ from typing import NamedTuple
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
 
-__all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'ESTIMATES', 'EVENTS', 'JOINT_PISTON',
-           'JOINT_SPOOL', 'JOINT_VALVE',
+__all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'ESTIMATES', 'EVENTS', 'JOINT_LOAD',
+           'JOINT_PISTON', 'JOINT_SPOOL', 'JOINT_VALVE', 'LOAD_CELL',
            'LOCKSTEP_NODE_TOPICS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T',
            'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name',
            'CONTROLLER_STATUS', 'IDENTIFY_STATUS', 'PLANT_STATUS', 'RECORDER_STATUS',
@@ -30,6 +30,7 @@ __all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'ESTIMATES', 'EVENTS', 'JOINT_PIST
 JOINT_PISTON = 'piston'
 JOINT_SPOOL = 'spool'
 JOINT_VALVE = 'servo_valve'
+JOINT_LOAD = 'load_cell'
 
 # The nodes' status names in ``diagnostics`` and the readiness each reports there (what a
 # supervisor, a reference with ``wait_loop`` or an operator's tool waits on; never log text):
@@ -66,10 +67,15 @@ class Topic(NamedTuple):
 
 
 REFERENCE = Topic('reference', 'sensor_msgs/msg/JointState',
-                  'joint `piston`: position z_ref [m], velocity [m/s]')
+                  'joint `piston`: position z_ref [m], velocity [m/s]; effort = the force '
+                  'reference F_ref [N] when there is one (force control)')
 STATE = Topic('state', 'sensor_msgs/msg/JointState',
               '`piston`: z [m], z_dot [m/s], effort = hydraulic force [N]; `spool`: x [m]; '
-              '`servo_valve` (plant node): effort = current applied over the period [A]')
+              '`servo_valve` (plant node): effort = current applied over the period [A]; '
+              '`load_cell` (plant node): effort = the specimen force the load cell reads [N]')
+LOAD_CELL = Topic('load_cell', 'geometry_msgs/msg/WrenchStamped',
+                  "the specimen force [N] on wrench.force.z, tension positive (as ros2_control's "
+                  'force_torque_sensor_broadcaster publishes a sensor), stamped as the state')
 PRESSURE_P = Topic('pressure/chamber_p', 'sensor_msgs/msg/FluidPressure',
                    'chamber P pressure [Pa]')
 PRESSURE_T = Topic('pressure/chamber_t', 'sensor_msgs/msg/FluidPressure',
@@ -93,11 +99,11 @@ CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock',
 REFERENCE_TRAJECTORY = Topic(
     'reference_trajectory', 'trajectory_msgs/msg/JointTrajectory',
     'lock-step (reference under use_sim_time): the coming periods in one message, joint '
-    '`piston`: positions z_ref [m], velocities v_ref [m/s], each at header.stamp + '
-    'time_from_start', LOCKSTEP_QOS)
+    '`piston`: positions z_ref [m], velocities v_ref [m/s], effort F_ref [N] when there is '
+    'one, each at header.stamp + time_from_start', LOCKSTEP_QOS)
 
-TOPICS = (REFERENCE, STATE, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, EVENTS, ESTIMATES,
-          CLOCK, REFERENCE_TRAJECTORY)
+TOPICS = (REFERENCE, STATE, LOAD_CELL, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, EVENTS,
+          ESTIMATES, CLOCK, REFERENCE_TRAJECTORY)
 
 
 class NodeTopics(NamedTuple):
@@ -109,7 +115,7 @@ class NodeTopics(NamedTuple):
 
 #: What each loop node creates in its default (real-time) mode.
 NODE_TOPICS = {
-    'plant': NodeTopics((STATE, PRESSURE_P, PRESSURE_T, DIAGNOSTICS), (COMMAND,)),
+    'plant': NodeTopics((STATE, LOAD_CELL, PRESSURE_P, PRESSURE_T, DIAGNOSTICS), (COMMAND,)),
     'controller': NodeTopics((COMMAND, DIAGNOSTICS, EVENTS), (STATE, REFERENCE)),
     'reference': NodeTopics((REFERENCE, DIAGNOSTICS), ()),
 }
@@ -118,7 +124,8 @@ NODE_TOPICS = {
 #: under ``use_sim_time``): the plant publishes CLOCK, the reference follows it and sends the
 #: coming periods as one REFERENCE_TRAJECTORY, which is what the controller reads.
 LOCKSTEP_NODE_TOPICS = {
-    'plant': NodeTopics((STATE, PRESSURE_P, PRESSURE_T, DIAGNOSTICS, CLOCK), (COMMAND,)),
+    'plant': NodeTopics((STATE, LOAD_CELL, PRESSURE_P, PRESSURE_T, DIAGNOSTICS, CLOCK),
+                        (COMMAND,)),
     'controller': NodeTopics((COMMAND, DIAGNOSTICS, EVENTS), (STATE, REFERENCE_TRAJECTORY)),
     'reference': NodeTopics((REFERENCE, REFERENCE_TRAJECTORY, DIAGNOSTICS), (CLOCK,)),
 }

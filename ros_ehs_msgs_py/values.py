@@ -18,8 +18,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-__all__ = ['AxisState', 'Command', 'NodeStatus', 'ParameterEstimate', 'Pressure', 'Reference',
-           'SafetyEvent']
+__all__ = ['AxisState', 'Command', 'Load', 'NodeStatus', 'ParameterEstimate', 'Pressure',
+           'Reference', 'SafetyEvent']
 
 
 class AxisState(NamedTuple):
@@ -31,14 +31,23 @@ class AxisState(NamedTuple):
     force: float = math.nan
     x_spool: float = math.nan
     i: float = math.nan     #: current [A] applied over the period that ended here (if known)
+    load: float = math.nan  #: the specimen's force, the load cell's reading [N] (if known)
 
 
 class Reference(NamedTuple):
-    """Position reference [m] and its velocity [m/s]."""
+    """Position reference [m] and its velocity [m/s]; a force reference [N] (NaN: none)."""
 
     stamp_ns: int
     z_ref: float
     v_ref: float
+    f_ref: float = math.nan
+
+
+class Load(NamedTuple):
+    """A load cell's reading: the force the specimen carries [N] (tension positive)."""
+
+    stamp_ns: int
+    force: float
 
 
 class Command(NamedTuple):

@@ -51,11 +51,12 @@ from typing import NamedTuple, Sequence
 
 from ros_ehs_msgs_py.conversions import (command_from_arrays, joint_index,
                                          reference_from_arrays, state_from_arrays)
-from ros_ehs_msgs_py.topics import JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
-from ros_ehs_msgs_py.values import AxisState, Command, Pressure, Reference
+from ros_ehs_msgs_py.topics import JOINT_LOAD, JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
+from ros_ehs_msgs_py.values import AxisState, Command, Load, Pressure, Reference
 
 __all__ = ['JointStateData', 'JointStateEncoder', 'clock_from_cdr', 'clock_to_cdr',
-           'command_from_cdr', 'command_to_cdr',
+           'command_from_cdr', 'command_to_cdr', 'load_from_cdr', 'load_to_cdr',
+           'wrench_from_cdr',
            'decode_joint_state', 'float64_array_from_cdr', 'float64_array_to_cdr',
            'float64_from_cdr',
            'fluid_pressure_from_cdr', 'pressure_to_cdr', 'reference_from_cdr', 'reference_to_cdr',
@@ -125,19 +126,30 @@ class JointStateEncoder:
 
 
 _STATE = JointStateEncoder((JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE), 3, 3, 3)
+_STATE_LOAD = JointStateEncoder((JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE, JOINT_LOAD), 4, 4, 4)
 _COMMAND = JointStateEncoder((JOINT_VALVE,), 0, 0, 1)
 _REFERENCE = JointStateEncoder((JOINT_PISTON,), 1, 1, 0)
+_REFERENCE_FORCE = JointStateEncoder((JOINT_PISTON,), 1, 1, 1)
 _NAN = math.nan
 
 
 def state_to_cdr(s: AxisState) -> bytes:
-    """Return ``s`` as a serialized ``state`` JointState (piston, spool, servo_valve)."""
+    """
+    Return ``s`` as a serialized ``state`` JointState (piston, spool, servo_valve).
+
+    With ``s.load`` known, joint ``load_cell`` too (effort: the specimen force).
+    """
+    if s.load == s.load:        # not NaN
+        return _STATE_LOAD.encode(s.stamp_ns, (s.z, s.x_spool, _NAN, _NAN, s.z_dot, _NAN,
+                                               _NAN, _NAN, s.force, _NAN, s.i, s.load))
     return _STATE.encode(s.stamp_ns, (s.z, s.x_spool, _NAN, s.z_dot, _NAN, _NAN,
                                       s.force, _NAN, s.i))
 
 
 def reference_to_cdr(r: Reference) -> bytes:
-    """Return ``r`` as a serialized ``reference`` JointState (``piston`` position, velocity)."""
+    """Return ``r`` as a serialized ``reference`` JointState (``piston``; effort: F_ref)."""
+    if r.f_ref == r.f_ref:      # not NaN
+        return _REFERENCE_FORCE.encode(r.stamp_ns, (r.z_ref, r.v_ref, r.f_ref))
     return _REFERENCE.encode(r.stamp_ns, (r.z_ref, r.v_ref))
 
 
@@ -249,7 +261,7 @@ def state_from_cdr(data: bytes, joint: str = JOINT_PISTON) -> AxisState:
 def reference_from_cdr(data: bytes) -> Reference:
     """Read a :class:`Reference` from a serialized ``reference`` JointState."""
     m = decode_joint_state(data)
-    return reference_from_arrays(m.stamp_ns, m.name, m.position, m.velocity)
+    return reference_from_arrays(m.stamp_ns, m.name, m.position, m.velocity, m.effort)
 
 
 def command_from_cdr(data: bytes) -> Command:
@@ -318,27 +330,62 @@ def pressure_to_cdr(p: Pressure) -> bytes:
     return _PRESSURE.pack(b'\x00\x01\x00\x00', *divmod(int(p.stamp_ns), _NS), 1, p.p, 0.0)
 
 
+# -- geometry_msgs/WrenchStamped (a load cell: the plant's, a force/torque sensor broadcaster's) -
+#: encapsulation, stamp, frame_id 'load_cell' (length 10, its NUL, padding to 8), 6 doubles
+_WRENCH = struct.Struct('<4siII10s2x6d')
+_WRENCH_AXIS = {'force.x': 0, 'force.y': 1, 'force.z': 2, 'torque.x': 3, 'torque.y': 4,
+                'torque.z': 5}
+
+
+def load_to_cdr(ld: Load) -> bytes:
+    """Return ``ld`` as a serialized WrenchStamped: frame ``load_cell``, the force on z."""
+    return _WRENCH.pack(b'\x00\x01\x00\x00', *divmod(int(ld.stamp_ns), _NS), 10,
+                        b'load_cell\0', 0.0, 0.0, ld.force, 0.0, 0.0, 0.0)
+
+
+def wrench_from_cdr(data: bytes) -> tuple[int, tuple[float, ...]]:
+    """Return (stamp [ns], (fx, fy, fz, tx, ty, tz)) of a serialized WrenchStamped."""
+    r = _Reader(data)
+    sec, nsec = r._take('iI', 8, 4, 'header.stamp')
+    r.string('header.frame_id')
+    return sec * _NS + nsec, r._take('6d', 48, r.align8, 'wrench')
+
+
+def load_from_cdr(data: bytes, axis: str = 'force.z') -> Load:
+    """Read a :class:`Load` from a serialized WrenchStamped: the component on ``axis`` [N]."""
+    k = _WRENCH_AXIS.get(axis)
+    if k is None:
+        raise ValueError(f'load cell axis {axis!r} is not one of {list(_WRENCH_AXIS)}')
+    stamp, w = wrench_from_cdr(data)
+    return Load(stamp, w[k])
+
+
 # -- trajectory_msgs/JointTrajectory (the lock-step reference_trajectory) -----------------------
-def _trajectory_template(n: int) -> tuple[bytearray, list[int]]:
-    """Return the CDR of an ``n``-point trajectory of joint ``piston`` and its value offsets."""
+def _trajectory_template(n: int, force: bool) -> tuple[bytearray, list[int]]:
+    """
+    Return the CDR of an ``n``-point trajectory of joint ``piston`` and its value offsets.
+
+    Each point: position, velocity and, with ``force``, effort (F_ref); no accelerations.
+    """
     body = bytearray(struct.pack('<iII', 0, 0, 1)) + b'\0\0\0\0'     # stamp, frame_id ''
     name = JOINT_PISTON.encode() + b'\0'
     body += struct.pack('<II', 1, len(name)) + name
     body += b'\0' * _pad(len(body), 4) + struct.pack('<I', n)
-    offsets = []      # per point: position, velocity (8-byte aligned), time_from_start
+    offsets = []      # per point: position, velocity, effort (8-byte aligned), time_from_start
     for _ in range(n):
-        for _field in range(2):
-            body += b'\0' * _pad(len(body), 4) + struct.pack('<I', 1)
-            body += b'\0' * _pad(len(body), 8)
-            offsets.append(len(body))
-            body += b'\0' * 8
-        body += struct.pack('<II', 0, 0)          # no accelerations, no effort
+        for count in (1, 1, 0, int(force)):      # positions, velocities, accelerations, effort
+            body += b'\0' * _pad(len(body), 4) + struct.pack('<I', count)
+            if count:
+                body += b'\0' * _pad(len(body), 8)
+                offsets.append(len(body))
+                body += b'\0' * 8
+        body += b'\0' * _pad(len(body), 4)
         offsets.append(len(body))
         body += b'\0' * 8
     return bytearray(b'\x00\x01\x00\x00') + body, [4 + o for o in offsets]
 
 
-_TRAJ: dict[int, tuple[bytearray, list[int]]] = {}
+_TRAJ: dict[tuple[int, bool], tuple[bytearray, list[int]]] = {}
 
 
 def reference_trajectory_to_cdr(refs: Sequence[Reference]) -> bytes:
@@ -346,19 +393,24 @@ def reference_trajectory_to_cdr(refs: Sequence[Reference]) -> bytes:
     if not refs:
         raise ValueError('a reference trajectory needs at least one point')
     n = len(refs)
-    if n not in _TRAJ:
+    force = refs[0].f_ref == refs[0].f_ref       # not NaN: the points carry F_ref
+    key = (n, force)
+    if key not in _TRAJ:
         if len(_TRAJ) > 16:
             _TRAJ.clear()
-        _TRAJ[n] = _trajectory_template(n)
-    buf, off = _TRAJ[n]
+        _TRAJ[key] = _trajectory_template(n, force)
+    buf, off = _TRAJ[key]
     t0 = refs[0].stamp_ns
     struct.pack_into('<iI', buf, 4, *divmod(int(t0), _NS))
     pack = struct.pack_into
+    w = 3 + force
     for k, r in enumerate(refs):
-        o = off[3 * k:3 * k + 3]
+        o = off[w * k:w * k + w]
         pack('<d', buf, o[0], r.z_ref)
         pack('<d', buf, o[1], r.v_ref)
-        pack('<iI', buf, o[2], *divmod(int(r.stamp_ns - t0), _NS))
+        if force:
+            pack('<d', buf, o[2], r.f_ref)
+        pack('<iI', buf, o[-1], *divmod(int(r.stamp_ns - t0), _NS))
     return bytes(buf)
 
 
@@ -380,8 +432,9 @@ def reference_trajectory_from_cdr(data: bytes) -> list[Reference]:
         if v[0] == c[5] and all(v[i] == w for i, w in c[6]):
             sec, nsec = struct.unpack_from(_ENCAPSULATION[bytes(data[:2])][0] + 'iI', data, 4)
             t0 = sec * _NS + nsec
-            return [Reference(t0 + v[ts] * _NS + v[ts + 1], v[zp], v[vp] if vp else 0.0)
-                    for zp, vp, ts in c[4]]
+            return [Reference(t0 + v[ts] * _NS + v[ts + 1], v[zp], v[vp] if vp else 0.0,
+                              v[ep] if ep else _NAN)
+                    for zp, vp, ep, ts in c[4]]
     return _trajectory_slow(data)
 
 
@@ -401,11 +454,12 @@ def _trajectory_slow(data: bytes) -> list[Reference]:
         for field in ('positions', 'velocities', 'accelerations', 'effort'):
             arrays.append(r.doubles(f'points[{k}].{field}'))
         ts, tn = r._take('iI', 8, 4, f'points[{k}].time_from_start')
-        pos, vel = arrays[0], arrays[1]
+        pos, vel, eff = arrays[0], arrays[1], arrays[3]
         if len(pos) <= j:
             raise ValueError(f'`reference_trajectory` point {k} has no positions[{j}] '
                              f'(length {len(pos)})')
-        out.append(Reference(t0 + ts * _NS + tn, pos[j], vel[j] if len(vel) > j else 0.0))
+        out.append(Reference(t0 + ts * _NS + tn, pos[j], vel[j] if len(vel) > j else 0.0,
+                             eff[j] if len(eff) > j else _NAN))
         # the same walk as a format, for the cache
         where = []
         for arr in arrays:
@@ -426,7 +480,8 @@ def _trajectory_slow(data: bytes) -> list[Reference]:
         fmt += (f'{p}x' if p else '') + 'iI'
         zp = where[0] + j
         vp = where[1] + j if where[1] is not None and len(vel) > j else None
-        layout.append((zp, vp, idx))
+        ep = where[3] + j if where[3] is not None and len(eff) > j else None
+        layout.append((zp, vp, ep, idx))
         idx += 2
         off += p + 8
     if r.off == len(data) and off == len(data):

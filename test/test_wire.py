@@ -143,3 +143,58 @@ def test_wire_pressure_is_read_by_rclpy_as_written():
         m = deserialize_message(data, FluidPressure)
         assert (c.stamp_ns(m.header), m.fluid_pressure, m.variance, m.header.frame_id) == \
             (ns, p, 0.0, '')
+
+
+def test_the_state_carries_the_load_cell_and_references_a_force_both_ways():
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import JointState
+    from trajectory_msgs.msg import JointTrajectory
+    s = c.AxisState(1_234_567_890_123, 0.01, 0.02, 3.0, 1e-5, 0.004, -9876.5)
+    m = deserialize_message(c.state_to_cdr(s), JointState)
+    assert list(m.name) == ['piston', 'spool', 'servo_valve', 'load_cell']
+    assert c.state_from_msg(m) == s == c.state_from_cdr(serialize_message(m))
+    d = c.fill_state(c.empty_msg(c.STATE.msg_type), s)
+    assert d['name'] == list(m.name) and c.state_from_msg(d) == s
+    r = c.Reference(7, 0.02, -0.3, 1.0e4)
+    m = deserialize_message(c.reference_to_cdr(r), JointState)
+    assert list(m.effort) == [1.0e4]
+    assert c.reference_from_msg(m) == r == c.reference_from_cdr(serialize_message(m))
+    assert math.isnan(c.reference_from_cdr(c.reference_to_cdr(c.Reference(7, 0.0, 0.0))).f_ref)
+    refs = [c.Reference(5 * 10**9 + k * 10**6, 0.01 * k, -0.5 * k, 100.0 * k) for k in range(21)]
+    data = c.reference_trajectory_to_cdr(refs)
+    obj = deserialize_message(data, JointTrajectory)
+    assert list(obj.points[3].effort) == [300.0]
+    assert c.reference_trajectory_from_msg(obj) == refs
+    for _ in range(2):       # the second read through the cached layout
+        assert c.reference_trajectory_from_cdr(data) == refs
+    # a displacement trajectory after a force one: NaN F_ref again, not a stale cache
+    plain = [c.Reference(k, 0.0, 0.0) for k in range(3)]
+    got = c.reference_trajectory_from_cdr(c.reference_trajectory_to_cdr(plain))
+    assert [x[:3] for x in got] == [x[:3] for x in plain]
+    assert all(math.isnan(x.f_ref) for x in got)
+
+
+def test_the_load_cell_wrench_is_rclpys_both_ways_on_any_axis():
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import deserialize_message, serialize_message
+    for ns, f in ((0, 0.0), (1, -1.5e4), (10**9 * (2**31 - 1), 1e308)):
+        data = c.load_to_cdr(c.Load(ns, f))
+        m = deserialize_message(data, WrenchStamped)
+        assert (c.stamp_ns(m.header), m.header.frame_id, m.wrench.force.z) == (ns, 'load_cell', f)
+        assert (m.wrench.force.x, m.wrench.torque.z) == (0.0, 0.0)
+        assert c.load_from_msg(m) == c.Load(ns, f) == c.load_from_cdr(data)
+    # a force/torque sensor broadcaster's wrench, its frame and axis its own
+    w = WrenchStamped()
+    w.header.frame_id = 'ft_sensor_frame'
+    w.header.stamp.sec = 3
+    w.wrench.force.x, w.wrench.force.y, w.wrench.torque.y = 1.0, -250.5, 7.0
+    raw = serialize_message(w)
+    assert c.load_from_cdr(raw, 'force.y') == c.Load(3 * 10**9, -250.5) == \
+        c.load_from_msg(w, 'force.y')
+    assert c.load_from_cdr(raw, 'torque.y').force == 7.0
+    d = c.fill_load(c.empty_msg(c.LOAD_CELL.msg_type), c.Load(5, 12.0), 'force.x')
+    assert d['wrench']['force'] == {'x': 12.0, 'y': 0.0, 'z': 0.0}
+    with pytest.raises(ValueError, match="axis 'force.w' is not one of"):
+        c.load_from_cdr(raw, 'force.w')
+    with pytest.raises(ValueError, match='truncated in wrench'):
+        c.load_from_cdr(raw[:40])

@@ -142,7 +142,29 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     _p('K_C', 'm^3/(s*Pa)', 2.0e-13, 0.0, 1.0e-10, 'internal leakage across the piston',
        'cylinder', 'K'),
     _p('m_p', 'kg', 200.0, 1.0, 1.0e5, 'moving mass (piston, rod, fixture)', 'cylinder', 'I'),
-    _p('k_L', 'N/m', 0.0, 0.0, 1.0e9, 'load (specimen) stiffness', 'cylinder', 'I'),
+    # the specimen and its load cell (ros_ehs.core.model.specimen)
+    _p('k_L', 'N/m', 0.0, 0.0, 1.0e9, 'specimen stiffness, its load train included (0: no '
+       'specimen: the piston moves free)', 'specimen', 'I', est_lo=1.0e3),
+    _p('c_L', 'N*s/m', 0.0, 0.0, 1.0e7, 'specimen damping', 'specimen', 'I'),
+    _p('z_L', 'm', 0.0, -2.0, 2.0, "specimen's installed position: the piston position at "
+       'which it carries no load', 'specimen', 'I'),
+    _p('specimen_life', '1', 1.0e6, 1.0, 1.0e12, 'cycles to fracture at the force range '
+       '`specimen_life_range` (Paris crack growth from `specimen_crack0`)', 'specimen', 'I'),
+    _p('specimen_life_range', 'N', 1.0e4, 1.0, 1.0e8, 'the force range (peak to valley) the '
+       'life holds at', 'specimen', 'I'),
+    _p('specimen_paris_m', '1', 3.0, 1.0, 10.0, "Paris exponent: a cycle's crack growth "
+       'goes with the force range to this power', 'specimen', 'K'),
+    _p('specimen_crack0', '1', 0.1, 1.0e-4, 0.99, 'initial crack, a fraction of the crack '
+       'at fracture', 'specimen', 'I'),
+    _p('specimen_compliance', '1', 1.0, 0.0, 100.0, 'compliance growth with the crack: the '
+       'stiffness is k_L / (1 + this a^2) for a crack a (a fraction of the crack at '
+       'fracture)', 'specimen', 'I'),
+    _p('specimen_scatter', '1', 0.0, 0.0, 1.0, 'scatter of the life: the standard deviation '
+       'of its log10, drawn from `specimen_seed` (0: the life as set)', 'specimen', 'I'),
+    _p('specimen_seed', '1', 0.0, 0.0, 2.0**31 - 1, 'seed of the life scatter', 'specimen',
+       'I'),
+    _p('load_cell_noise', 'N', 0.0, 0.0, 1.0e5, 'white noise (1 sigma) on the load cell '
+       'reading', 'specimen', 'I'),
     # friction and damping: the four actuator parameters of Table 1
     _p('F_cc', 'N', 1046.9, 0.0, 1.0e5, 'Coulomb friction force', 'friction', 'P',
        est_lo=50.0, est_hi=math.inf, scale=100.0, initial=200.0, estimated=1046.9),

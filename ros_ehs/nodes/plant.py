@@ -40,8 +40,11 @@ repeated stamp with the same command). Its topics go out over the contract's
 ``LOCKSTEP_QOS`` (reliable, depth 10000), so a recorder that the OS pauses still gets every
 sample; the subscriptions stay best effort and match any publisher.
 
-The chamber pressures (only when someone listens) carry the stamp of the state they belong
-to. In real time they go out once that state's command has come, or at the next tick if none
+The chamber pressures and the load cell (``load_cell``, a ``WrenchStamped`` as ros2_control's
+force_torque_sensor_broadcaster publishes it; only when someone listens) carry the stamp of
+the state they belong to; with a specimen installed (``k_L`` > 0) the state also carries the
+load cell's reading (joint ``load_cell``, its effort), so a controller has it with the state.
+In real time they go out once that state's command has come, or at the next tick if none
 came: off the loop's path, so the controller, which shares the plant's CPU and priority, gets
 the state without waiting behind them.
 
@@ -70,6 +73,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from ros_ehs.core.options import PLANT
 from ros_ehs.core.params import Params, PLANT_SPECS
@@ -127,11 +131,11 @@ class PlantNode(Node):
         self.stats = LoopStats()
         self._pending: Params | None = None
         self._listen_check = 0.0
-        self._listening = [False, False]
+        self._listening = [False, False, False]
         # real time: the pressures of the latest state, sent once its command has come (or at
         # the next tick), off the loop's path: the controller shares the plant's CPU and
         # priority, so work after the state's publish delays the answer
-        self._unsent: deque[tuple[int, float, float]] = deque(maxlen=1)
+        self._unsent: deque[tuple[int, float, float, float]] = deque(maxlen=1)
 
         def out(t):      # lock-step: the loop topics go out reliable (see LOCKSTEP_QOS)
             return qos_profile(t.qos_in(self.lockstep))
@@ -142,6 +146,8 @@ class PlantNode(Node):
                                            out(contract.PRESSURE_P))
         self.pub_t = self.create_publisher(FluidPressure, contract.PRESSURE_T.name,
                                            out(contract.PRESSURE_T))
+        self.pub_load = self.create_publisher(WrenchStamped, contract.LOAD_CELL.name,
+                                              out(contract.LOAD_CELL))
         self.pub_diag = self.create_publisher(
             DiagnosticArray, contract.DIAGNOSTICS.name,
             qos_profile(contract.DIAGNOSTICS.qos))
@@ -274,23 +280,25 @@ class PlantNode(Node):
         if now >= self._listen_check:      # who listens to the pressures, every 50 ms
             self._listen_check = now + 0.05
             self._listening = [pub.get_subscription_count() > 0
-                               for pub in (self.pub_p, self.pub_t)]
-        if self._listening[0] or self._listening[1]:       # only when someone listens
+                               for pub in (self.pub_p, self.pub_t, self.pub_load)]
+        if any(self._listening):       # only when someone listens
             if self._unsent:         # a late tick's catch-up: the earlier state's go now
                 self._send_pressures()
-            self._unsent.append((st, s.p_cp, s.p_ct))
+            self._unsent.append((st, s.p_cp, s.p_ct, s.load))
             if self.lockstep:
                 self._send_pressures()
 
     def _send_pressures(self) -> None:
         try:
-            st, pa, pb = self._unsent.popleft()     # atomic: the loop thread may tick meanwhile
+            st, pa, pb, f = self._unsent.popleft()   # atomic: the loop thread may tick meanwhile
         except IndexError:
             return
         for pub, p, listening in ((self.pub_p, pa, self._listening[0]),
                                   (self.pub_t, pb, self._listening[1])):
             if listening:
                 pub.publish(contract.pressure_to_cdr(contract.Pressure(st, p)))
+        if self._listening[2]:
+            self.pub_load.publish(contract.load_to_cdr(contract.Load(st, f)))
 
     def _log_notes(self) -> None:
         """Log what the axis noted (a fault starting or ending, a failed model step), once."""

@@ -38,7 +38,7 @@ __all__ = ['N_COEF', 'pack', 'flow_gain_kq', 'ff_force_gain']
  C_AP, C_LIAC, C_STROKE, C_KSTOP, C_KC, C_MP, C_KL,
  C_FCC, C_FSC, C_CC, C_VCS, C_EPSV, C_TAUST,
  C_RENORM, C_XI0, C_LINEAR, C_KQ, C_SMOOTH,
- C_GV0, C_CSV, C_TAUV, C_A2V, N_COEF) = range(56)
+ C_GV0, C_CSV, C_TAUV, C_A2V, C_ZL, C_CL, N_COEF) = range(58)
 
 
 def flow_gain_kq(p: Params) -> float:
@@ -89,6 +89,7 @@ def pack(p: Params, smooth: bool = True) -> np.ndarray:
     c[C_RC], c[C_XBIAS] = p['r_c'], p['x_bias']
     c[C_AP], c[C_LIAC], c[C_STROKE], c[C_KSTOP] = p['A_p'], p['l_iac'], p['stroke'], p['k_stop']
     c[C_KC], c[C_MP], c[C_KL] = p['K_C'], p['m_p'], p['k_L']
+    c[C_ZL], c[C_CL] = p['z_L'], p['c_L']
     c[C_FCC], c[C_FSC], c[C_CC] = p['F_cc'], p['F_sc'], p['c_c']
     c[C_VCS], c[C_EPSV], c[C_TAUST] = p['v_c'], p['eps_v'], p['tau_st']
     c[C_RENORM] = 1.0 if p['friction_law'] == 'renormalised' else 0.0

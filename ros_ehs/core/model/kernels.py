@@ -25,7 +25,9 @@ State vectors (paper order, eqs. (2) and (5)):
   valve's dynamics and its load-dependent gain, derived from the full model:
   :func:`valve_reduction`)
 
-Input ``u = [i, F_L]``: servo current [A] and external load force on the piston [N].
+Input ``u = [i, F_L]``: servo current [A] and external load force on the piston [N]. The
+load string is a spring and damper: the specimen's stiffness ``k_L`` and damping ``c_L``,
+carrying no load at the piston position ``z_L`` (its installed position).
 """
 
 import math
@@ -34,13 +36,13 @@ from numba import njit
 import numpy as np
 
 from ros_ehs.core.model.coefficients import (C_A0, C_A2V, C_AN, C_AP, C_AS, C_BA, C_BETA_E,
-                                             C_BETA_P, C_BS, C_CC, C_CD, C_CD0, C_CDF, C_CLR,
+                                             C_BETA_P, C_BS, C_CC, C_CD, C_CD0, C_CDF, C_CL, C_CLR,
                                              C_CSV, C_EPSV, C_FCC, C_FSC, C_GV0, C_JA, C_KA, C_KC,
                                              C_KFF, C_KL, C_KM, C_KNOZ, C_KQ, C_KSTOP, C_KSTOPS,
                                              C_KT, C_KW, C_KX, C_LFB, C_LIAC, C_LINEAR, C_MP, C_MS,
                                              C_PCR, C_PS, C_PT, C_RC, C_RENORM, C_RF, C_RHO,
                                              C_SMOOTH, C_STROKE, C_TAUST, C_TAUV, C_VC, C_VCS, C_W,
-                                             C_XBIAS, C_XF0, C_XI0, C_XVMAX, pack)
+                                             C_XBIAS, C_XF0, C_XI0, C_XVMAX, C_ZL, pack)
 
 FULL = 0
 SIMPLIFIED = 1
@@ -185,7 +187,7 @@ def _cylinder(pA, pB, zd, z, qa, qb, f_load, c, out, o):
     vb = ap * (c[C_LIAC] - z)
     out[o] = c[C_BETA_E] / va * (qa - ap * zd - leak)
     out[o + 1] = c[C_BETA_E] / vb * (qb + ap * zd + leak)
-    f_oc = ap * (pA - pB) - c[C_CC] * zd - c[C_KL] * z + f_load
+    f_oc = ap * (pA - pB) - (c[C_CC] + c[C_CL]) * zd - c[C_KL] * (z - c[C_ZL]) + f_load
     f_c = friction(zd, f_oc, c)
     f_stop = _stop(z, zd, c[C_STROKE], c[C_KSTOP], c[C_MP])
     out[o + 2] = (f_oc + f_c + f_stop) / c[C_MP]
@@ -484,7 +486,7 @@ def _cylinder_jacobian(pA, pB, zd, z, qa, qb, dqa, dqb, f_load, c, out, jac, o):
     jac[o + 1, o + 3] = fb * ap / vb
     # piston: f_oc, the friction of eqs. (14)-(15) (see :func:`friction`), the end stop
     mp = c[C_MP]
-    f_oc = ap * (pA - pB) - c[C_CC] * zd - c[C_KL] * z + f_load
+    f_oc = ap * (pA - pB) - (c[C_CC] + c[C_CL]) * zd - c[C_KL] * (z - c[C_ZL]) + f_load
     eps = c[C_EPSV]
     vcs = c[C_VCS]
     if sm > 0.5:
@@ -519,7 +521,7 @@ def _cylinder_jacobian(pA, pB, zd, z, qa, qb, dqa, dqb, f_load, c, out, jac, o):
         dstop_v = -1.4 * math.sqrt(c[C_KSTOP] * mp)
     jac[o + 2, o + 0] = df_doc * ap / mp
     jac[o + 2, o + 1] = -df_doc * ap / mp
-    jac[o + 2, o + 2] = (-df_doc * c[C_CC] + df_dv + dstop_v) / mp
+    jac[o + 2, o + 2] = (-df_doc * (c[C_CC] + c[C_CL]) + df_dv + dstop_v) / mp
     jac[o + 2, o + 3] = (-df_doc * c[C_KL] + dstop_z) / mp
     jac[o + 3, o + 0] = 0.0
     jac[o + 3, o + 1] = 0.0

@@ -162,6 +162,17 @@ class Plant:
         self._l_iac = float(params['l_iac'])
         self._calls = 0          # the integrator's W from the new set at once
 
+    def set_load(self, stiffness: float, damping: float) -> None:
+        """
+        Take the load string's stiffness [N/m] and damping [N s/m] from the next step on.
+
+        The specimen's, as its crack grows (:class:`ros_ehs.core.model.specimen.Specimen`); its
+        installed position stays ``z_L``. Unchecked (a fast path): finite values >= 0.
+        """
+        self._c[K.C_KL] = stiffness
+        self._c[K.C_CL] = damping
+        self._calls = 0          # the integrator's W from the new load at once
+
     # -- checks ------------------------------------------------------------------------
     def _check_x(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float)

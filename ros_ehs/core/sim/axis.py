@@ -41,6 +41,13 @@ a later on-time tick finds the command too old as well (a controller that stoppe
 ``resend_period`` of silence; the answer to the current state steps exactly one period
 (:meth:`command`). :meth:`clock_due` says which states carry ``/clock``.
 
+**The specimen** (:class:`~ros_ehs.core.model.specimen.Specimen`, when ``k_L`` > 0): each
+step its force is taken from the new state, its crack grows at each reversal (the model's load
+string follows), and it fractures at its life. The load cell reads its force with
+``load_cell_noise`` (drawn from its own stream of ``seed``): in the state (joint
+``load_cell``) while a specimen is installed, and for :meth:`load` always (an empty load
+train reads 0 N). A change of a specimen's parameters installs a new one.
+
 **Faults** (``fault`` from ``fault_time`` of sim time): ``frozen_sensor`` (position and
 velocity of the fault's start from then on), ``nan_sensor``, ``stuck_valve`` (the current at
 the start stays applied), ``lost_pressure`` (supply to ``LOST_SUPPLY``).
@@ -59,11 +66,12 @@ from typing import NamedTuple
 import numpy as np
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.model.plant import Plant
+from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import Params
-from ros_ehs_msgs_py import AxisState
+from ros_ehs_msgs_py import AxisState, Load
 
-__all__ = ['FAULTS', 'LOST_SUPPLY', 'MAX_CATCHUP', 'Sample', 'SimulatedAxis', 'TRIP_LOG',
-           'WatchdogTrip']
+__all__ = ['FAULTS', 'LOST_SUPPLY', 'MAX_CATCHUP', 'SPECIMEN_PARAMS', 'Sample', 'SimulatedAxis',
+           'TRIP_LOG', 'WatchdogTrip']
 
 #: The faults the axis can inject.
 FAULTS = ('none', 'frozen_sensor', 'nan_sensor', 'stuck_valve', 'lost_pressure')
@@ -92,11 +100,18 @@ class WatchdogTrip:
 
 
 class Sample(NamedTuple):
-    """What the sensors read at a period's stamp: the state and the chamber pressures [Pa]."""
+    """What the sensors read at a period's stamp: the state, the chamber pressures [Pa], load."""
 
     state: AxisState
     p_cp: float
     p_ct: float
+    load: float = 0.0      #: the load cell's reading [N] (0 N without a specimen, plus noise)
+
+
+#: the parameters of the specimen: a change installs a new one
+SPECIMEN_PARAMS = ('k_L', 'c_L', 'z_L', 'specimen_life', 'specimen_life_range',
+                   'specimen_paris_m', 'specimen_crack0', 'specimen_compliance',
+                   'specimen_scatter', 'specimen_seed')
 
 
 class SimulatedAxis:
@@ -148,7 +163,11 @@ class SimulatedAxis:
         self._A_p = float(params['A_p'])
         self.i_limit = 2.0 * float(params['i_rated'])
         self._rng = np.random.default_rng(int(seed))
+        self._rng_load = np.random.default_rng([int(seed), 1])     # the load cell's own
         self._noise = tuple(float(s) for s in noise)
+        self.specimen = Specimen(params)
+        self.plant.set_load(self.specimen.stiffness, self.specimen.damping)
+        self._load_noise = float(params['load_cell_noise'])
         self.watchdog_periods = 1
         self.fault = 'none'
         self.fault_time = 0.0
@@ -202,11 +221,21 @@ class SimulatedAxis:
             self.fault_time = float(fault_time)
 
     def set_params(self, params: Params) -> None:
-        """Rebuild the model with ``params``, keeping the state (a live parameter change)."""
+        """
+        Rebuild the model with ``params``, keeping the state (a live parameter change).
+
+        A change of the specimen's parameters installs a new specimen; otherwise the one in
+        the load string stays, its crack and stiffness as they are.
+        """
+        new_specimen = any(params[n] != self.params[n] for n in SPECIMEN_PARAMS)
         self.params = params
         self.plant = Plant(params, self.model)
         self._A_p = float(params['A_p'])
         self.i_limit = 2.0 * float(params['i_rated'])
+        self._load_noise = float(params['load_cell_noise'])
+        if new_specimen:
+            self.specimen = Specimen(params)
+        self.plant.set_load(self.specimen.stiffness, self.specimen.damping)
 
     # -- time --------------------------------------------------------------------------------
     def stamp_ns(self, k: int | None = None) -> int:
@@ -359,6 +388,14 @@ class SimulatedAxis:
         if ok:
             self.x, self._x_next = nxt, self.x
             self._failing = False
+            sp = self.specimen
+            if sp.present and not sp.broken:
+                was = sp.broken
+                if sp.update(sp.force(float(nxt[self._iz]), float(nxt[self._iv]))):
+                    self.plant.set_load(sp.stiffness, sp.damping)
+                    if sp.broken and not was:
+                        self.notes.append(('warning', f'the specimen fractured after '
+                                           f'{sp.cycles:g} cycles, at {self.k * self.dt:.6g} s'))
         else:
             self.model_faults += 1
             self.i_cmd = 0.0
@@ -399,9 +436,18 @@ class SimulatedAxis:
                 z, v = self._fault_hold[0], self._fault_hold[1]
             elif self.fault == 'nan_sensor':
                 z = v = math.nan
+        sp = self.specimen
+        load = sp.force(xs[self._iz], xs[self._iv])
+        if self._load_noise:
+            load += self._load_noise * float(self._rng_load.standard_normal())
         state = AxisState(self.stamp_ns(), z, v, self._A_p * (xs[self._ipa] - xs[self._ipb]),
-                          xs[self._ixv] if self._ixv >= 0 else math.nan, self.applied)
-        return Sample(state, xs[self._ipa] + npr * e[2], xs[self._ipb] + npr * e[3])
+                          xs[self._ixv] if self._ixv >= 0 else math.nan, self.applied,
+                          load if sp.present else math.nan)
+        return Sample(state, xs[self._ipa] + npr * e[2], xs[self._ipb] + npr * e[3], load)
+
+    def load(self, sample: Sample) -> Load:
+        """Return the load cell's message of a sample (stamped as its state)."""
+        return Load(sample.state.stamp_ns, sample.load)
 
     @property
     def fault_active(self) -> bool:
@@ -422,6 +468,8 @@ class SimulatedAxis:
              'future_commands': self.counts['future'], 'model_faults': self.model_faults,
              'overruns': self.overruns, 'resends': self.resends, 'finished': self.finished,
              'fault': self.fault if self._fault_on else 'none'}
+        if self.specimen.present:
+            f.update(self.specimen.figures())
         if self.lockstep:
             end = self._last_step if self.finished else now
             span = end - self._first_rx
