@@ -23,7 +23,7 @@ from ros_ehs.core.control import (Controller, DelayLine, DeltaP, Feedforward, Pi
 from ros_ehs.core.errors import InputError, ParameterError
 from ros_ehs.core.metrics import tracking_metrics
 from ros_ehs.core.model import ff_force_gain
-from ros_ehs.core.params import preset
+from ros_ehs.core.params import Params, preset
 from ros_ehs.core.sim.paper_runs import paper_runs
 
 
@@ -315,3 +315,34 @@ def test_closed_loop_command_delay_holds_each_command_one_period_late():
     for bad in (-1, 0.5):
         with pytest.raises(InputError, match='`command_delay`'):
             run_closed_loop(p, Sine(0.04, 1.0), 0.1, model='simplified', command_delay=bad)
+
+
+def test_a_handover_starts_from_the_output_it_takes_over():
+    pid = Pid(PidGains())
+    pid.update(0.01, 1e-3)
+    pid.handover(0.004)
+    assert pid.prev_error is None and pid.d_state == 0.0 and pid.last_u == 0.004
+    assert pid.update(0.0, 1e-3) == pytest.approx(0.004)          # zero error: no bump
+    pid.handover(math.nan)                                         # nothing to take over
+    assert pid.update(0.0, 1e-3) == 0.0
+
+
+def test_an_output_limited_further_undoes_the_integration_pushing_into_it():
+    pid = Pid(PidGains(kp=1.0, ki=10.0, kd=0.0))
+    pid.update(0.001, 1e-3)
+    i_before = pid.i_term
+    pid.update(0.001, 1e-3)
+    assert pid.i_term > i_before
+    pid.limited(0.0)                                   # the error pushes up, limited down
+    assert pid.i_term == pytest.approx(i_before) and pid.last_u == 0.0
+    pid.update(-0.001, 1e-3)
+    i_before = pid.i_term
+    pid.update(0.001, 1e-3)
+    pid.limited(0.5)                                   # limited the other way: keeps it
+    assert pid.i_term > i_before
+
+
+def test_gains_of_another_loop_come_by_their_prefix():
+    p = Params().replace(force_kp=2e-7, force_ki=3e-6, force_kd=1e-9, u_max=0.01)
+    g = PidGains.from_params(p, 'force_')
+    assert (g.kp, g.ki, g.kd, g.u_max) == (2e-7, 3e-6, 1e-9, 0.01)

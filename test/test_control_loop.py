@@ -27,15 +27,16 @@ from ros_ehs.core.control.loop import (ControlLoop, EPOCH_PERIODS, LOST_FACTOR, 
                                        REF_BUFFER)
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.params import Params
-from ros_ehs_msgs_py import AxisState, Reference
+from ros_ehs_msgs_py import AxisState, Load, Reference
 
 MS = 1_000_000
 T0 = 10**18          # a stamp on the system clock [ns]
 
 
-def _st(k: int, z: float = 0.0, v: float = 0.0, f: float = 0.0) -> AxisState:
+def _st(k: int, z: float = 0.0, v: float = 0.0, f: float = 0.0,
+        load: float = math.nan) -> AxisState:
     """State of period ``k`` (1 kHz) stamped on the node's clock."""
-    return AxisState(T0 + k * MS, z, v, f)
+    return AxisState(T0 + k * MS, z, v, f, load=load)
 
 
 def _loop(**kw) -> ControlLoop:
@@ -266,3 +267,64 @@ def test_the_figures_report_tracking_and_the_safety_state():
 def test_bad_options_are_named(kw, match):
     with pytest.raises(InputError, match=match):
         _loop(**kw)
+
+
+# -- the load cell and the control modes -------------------------------------------------------
+def test_a_load_topic_in_real_time_gives_each_state_the_newest_fresh_reading():
+    loop = _loop(load_source='topic')
+    loop.load(Load(T0, 1500.0))
+    _answer(loop, 0)
+    assert loop.measured.load == 1500.0 and loop.load_ok()
+    loop.load(Load(T0 - MS, 99.0))                 # an older reading does not replace it
+    _answer(loop, 1)
+    assert loop.measured.load == 1500.0
+    # stale: older than stale_timeout (5 ms) before the state
+    _answer(loop, 6)
+    assert math.isnan(loop.measured.load) and not loop.load_ok()
+    ok, why, ev = loop.set_mode('force')
+    assert not ok and 'load cell' in why and ev.kind == 'mode_refused'
+    loop.load(Load(T0 + 7 * MS, 1600.0))
+    _answer(loop, 7)
+    assert loop.load_ok() and loop.set_mode('force')[0]
+
+
+def test_lockstep_with_a_load_topic_waits_for_the_reading_of_the_states_stamp():
+    loop = _loop(lockstep=True, load_source='topic')
+    loop.trajectory([Reference(T0, 0.0, 0.0, 500.0)])
+    assert _answer(loop, 0) is None                         # its load has not come
+    assert loop.load(Load(T0 + MS, 1.0)) is None            # another stamp's
+    r = loop.load(Load(T0, 480.0))
+    assert r is not None and r.stamp_ns == T0 and loop.measured.load == 480.0
+    # the load first, then the reference
+    loop.load(Load(T0 + 2 * MS, 490.0))
+    assert _answer(loop, 2) is None
+    assert loop.trajectory([Reference(T0 + 2 * MS, 0.0, 0.0, 500.0)]) is not None
+
+
+def test_a_force_reference_is_carried_to_the_states_instant_with_its_rate():
+    loop = _loop(params=Params().replace(control_mode='force', ramp_time=0.0,
+                                         mode_blend_time=0.0, k_L=5e6))
+    loop.reference(Reference(T0, math.nan, math.nan, 1000.0), 0.0)
+    loop.reference(Reference(T0 + MS, math.nan, math.nan, 1010.0), 0.0)    # 1e4 N/s
+    _answer(loop, 0, load=1000.0)
+    r = loop.state(AxisState(T0 + 3 * MS, 0.0, 0.0, math.nan, load=1020.0), 0.003, T0 + 3 * MS)
+    assert r is not None and loop.axis.force.target == pytest.approx(1030.0)
+
+
+def test_a_mode_switch_is_an_event_and_its_figures_say_which_loop_drives():
+    loop = _loop(params=Params().replace(ramp_time=0.0, k_L=5e6))
+    _answer(loop, 0, load=200.0)
+    assert loop.figures()['control_mode'] == 'displacement'
+    ok, why, ev = loop.set_mode('force')
+    assert ok and (ev.kind, ev.detector) == ('mode', 'force') and 'from displacement' in why
+    _answer(loop, 1, load=200.0)
+    f = loop.figures()
+    assert (f['control_mode'], f['driving'], f['load_n']) == ('force', 'force', 200.0)
+    assert f['force_ref_n'] == 200.0 and f['force_error_n'] == 0.0
+    # an interlock latched: the switch back to force is refused until the reset
+    loop.set_mode('displacement')
+    loop.set_params(loop.params.replace(limit_load_max=100.0, limit_load_max_action='hold'))
+    r = _answer(loop, 2, load=200.0)
+    assert [e.detector for e in r.events] == ['limit_load_max']
+    ok, why, _ = loop.set_mode('force')
+    assert not ok and 'reset first' in why

@@ -53,10 +53,11 @@ def test_a_limit_trips_above_it_not_at_it_and_reports_once(det, field, limit, in
     assert sup.tripped() == [det] and sup.counts[det] == 1
 
 
-def test_an_off_detector_never_trips_and_feedback_is_the_one_on_by_default():
+def test_an_off_detector_never_trips_and_only_the_feedback_and_specimen_ones_are_on():
     cfg = SafetyConfig()
     assert {d: cfg.action(d) for d in DETECTORS} == {
-        **dict.fromkeys(DETECTORS, 'off'), 'feedback': 'power_off'}
+        **dict.fromkeys(DETECTORS, 'off'), 'feedback': 'power_off', 'specimen_break': 'hold',
+        'load_feedback': 'hold'}
     assert cfg.actions == SafetyConfig.from_params(Params()).actions
     sup = Supervisor(SafetyConfig(ramp_time=0.0))
     d, ev = _feed(sup, 0, z=5.0, z_dot=50.0, force=1e7)
@@ -382,3 +383,101 @@ def test_ramp_again_blends_a_jumped_trajectory_from_the_last_demand():
     zs = [_feed(sup, k, z=0.01, z_traj=0.05)[0].z_ref for k in range(200, 400)]
     assert zs[0] == pytest.approx(0.01) and zs[-1] == 0.05       # from the demand, onto it
     assert max(np.abs(np.diff(zs))) < 0.04 / 100 * 2              # spread over the 100 periods
+
+
+# -- the specimen's detectors ------------------------------------------------------------------
+def _feed_load(sup, k, load, z=0.0, needs_load=False):
+    return sup.update(k * MS, z, 0.0, math.nan, z, 0.0, 0.0, False, load=load,
+                      needs_load=needs_load)
+
+
+@pytest.mark.parametrize('det,limit,inside,beyond', [
+    ('limit_load_max', 5e3, 5e3, 5e3 + 1e-9),
+    ('limit_load_min', -2e3, -2e3, -2e3 - 1e-9),
+])
+def test_a_load_limit_trips_beyond_it_not_at_it_skipping_a_non_finite_load(
+        det, limit, inside, beyond):
+    sup = _sup(**{det: limit, det + '_action': 'indicate'})
+    for k, load in enumerate((inside, math.nan, math.inf)):
+        assert _feed_load(sup, k, load)[1] == []
+    ev = _feed_load(sup, 3, beyond)[1]
+    assert [(e.detector, e.value, e.limit, e.unit) for e in ev] == [(det, beyond, limit, 'N')]
+
+
+@pytest.mark.parametrize('det,limit,inside,beyond', [
+    ('limit_specimen_max', 0.125, 0.375, 0.375 + 1e-9),
+    ('limit_specimen_min', -0.125, 0.125, 0.125 - 1e-9),
+])
+def test_a_specimen_limit_is_on_the_displacement_from_the_installed_position(det, limit,
+                                                                             inside, beyond):
+    sup = _sup(**{det + '_action': 'hold', 'z_L': 0.25, 'limit_position_max': 1.0,
+                  'limit_specimen_max': 0.125, 'limit_specimen_min': -0.125})
+    assert _feed_load(sup, 0, 0.0, z=inside)[1] == []
+    d, ev = _feed_load(sup, 1, 0.0, z=beyond)
+    assert [e.detector for e in ev] == [det] and ev[0].value == pytest.approx(beyond - 0.25)
+    assert _feed_load(sup, 2, 0.0, z=beyond)[0].mode == 'hold'
+    # reset: refused until inside by the hysteresis (5 %) of the pair's span (0.25 m)
+    back = math.copysign(0.04 * 0.25, beyond - inside)
+    ok, why, _ = sup.reset(3 * MS, inside - back)
+    assert not ok and det in why and 'z - z_L' in why, why
+    ok, why, _ = sup.reset(3 * MS, inside - 1.5 * back)
+    assert ok, why
+
+
+def test_the_break_needs_the_drop_and_the_travel_beyond_theirs_within_its_window():
+    sup = _sup(break_drop=1000.0, break_travel=1e-4, break_window=0.005)
+    _feed_load(sup, 0, 5000.0, z=0.001)
+    # exactly at the drop and the travel: no trip
+    assert _feed_load(sup, 1, 4000.0, z=0.001 + 1e-4)[1] == []
+    # a drop with the force (unloading: the piston comes back) is no break
+    sup = _sup(break_drop=1000.0, break_travel=1e-4, break_window=0.005)
+    _feed_load(sup, 0, 5000.0, z=0.001)
+    assert _feed_load(sup, 1, 0.0, z=0.0)[1] == []
+    # the force collapses while the piston runs on the way that loaded it
+    sup = _sup(break_drop=1000.0, break_travel=1e-4, break_window=0.005)
+    _feed_load(sup, 0, -5000.0, z=-0.001)
+    d, ev = _feed_load(sup, 1, -10.0, z=-0.0012)
+    assert [(e.detector, e.action) for e in ev] == [('specimen_break', 'hold')]
+    assert ev[0].value == pytest.approx(4990.0) and 'fell 4990 N' in ev[0].message
+    # ... but not once the window has passed
+    sup = _sup(break_drop=1000.0, break_travel=1e-4, break_window=0.005)
+    _feed_load(sup, 0, 5000.0, z=0.001)
+    for k in range(1, 6):
+        _feed_load(sup, k, 5000.0, z=0.001)
+    assert _feed_load(sup, 6, 0.0, z=0.0013)[1] != []          # still the window's samples
+    sup = _sup(break_drop=1000.0, break_travel=1e-4, break_window=0.005)
+    for k, (f, z) in enumerate([(5000.0, 0.001)] + [(math.nan, 0.001)] + [(0.0, 0.0013)]):
+        ev = _feed_load(sup, k, f, z=z)[1]
+    assert ev == []                                            # a NaN restarts the window
+
+
+def test_load_feedback_trips_only_where_the_load_is_needed_and_running():
+    sup = _sup()
+    assert _feed_load(sup, 0, math.nan)[1] == []
+    ev = _feed_load(sup, 1, math.nan, needs_load=True)[1]
+    assert [(e.detector, e.action) for e in ev] == [('load_feedback', 'hold')]
+    assert _feed_load(sup, 2, math.nan, needs_load=True)[0].mode == 'hold'   # once
+
+
+def test_the_force_error_detector_trips_after_longer_than_its_time():
+    sup = _sup(limit_force_error=500.0, limit_error_time=0.003,
+               limit_force_error_action='stop')
+    assert sup.judge_force_error(0, 500.0) == []                    # at it
+    for k in range(1, 4):
+        assert sup.judge_force_error(k * MS, -501.0) == []          # 1, 2, 3 ms: not longer
+    ev = sup.judge_force_error(4 * MS, 600.0)
+    assert [(e.detector, e.unit, e.action) for e in ev] == [('limit_force_error', 'N', 'stop')]
+    sup = _sup(limit_force_error=500.0, limit_error_time=0.0, limit_force_error_action='hold')
+    assert sup.judge_force_error(0, math.nan) == []
+    assert sup.judge_force_error(MS, 501.0) != []
+
+
+def test_a_blend_from_a_position_ramps_the_demand_from_it():
+    sup = _sup()
+    _feed(sup, 0, z=0.0, z_traj=0.0)
+    sup.blend_from(0.002, 0.01)
+    d, _ = _feed(sup, 1, z=0.002, z_traj=0.0)
+    assert d.mode == 'ramp' and d.z_ref == 0.002
+    d, _ = _feed(sup, 6, z=0.001, z_traj=0.0)
+    assert d.z_ref == pytest.approx(0.002 * (1 - ramp_weight(0.5)[0]))
+    assert _feed(sup, 12, z=0.0, z_traj=0.0)[0].mode == 'run'

@@ -221,6 +221,28 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'held longer than this (the static load) is not opposed', 'stabilisation', 'D'),
     _p('stale_timeout', 's', 0.005, 1.0e-4, 10.0, 'state older than this is stale: hold, '
        'then zero the command', 'safety', 'D'),
+    # the control modes (ros_ehs.core.control.modes)
+    ParamSpec('control_mode', '', 'displacement', meaning='the loop that drives the valve: '
+              'displacement (PID + feedforward on the position), force (PIDF on the load cell) '
+              'or displacement_force_limited (specimen protect: the displacement loop, its '
+              'output limited so that |load| stays within protect_force). A switch is bumpless '
+              '(mode_blend_time); to force it is refused while the load cell is missing, stale '
+              'or invalid or an interlock is latched', group='modes', source='D',
+              choices=('displacement', 'force', 'displacement_force_limited')),
+    _p('force_kp', 'A/N', 3.0e-7, 0.0, 1.0e-2, 'force loop proportional gain (scales with '
+       '1/specimen stiffness: `ehs_sim tune`)', 'modes', 'D'),
+    _p('force_ki', 'A/(N*s)', 1.0e-5, 0.0, 1.0, 'force loop integral gain', 'modes', 'D'),
+    _p('force_kd', 'A*s/N', 0.0, 0.0, 1.0e-3, 'force loop derivative gain (filtered with '
+       'd_filter_tau)', 'modes', 'D'),
+    _p('force_ff', '1', 1.1, 0.0, 1.5, "weight of the force loop's feedforward: the flow "
+       'that the force rate needs through the load train and the oil column, '
+       'dF_ref/dt (1/k_L + l_iac/(2 beta_e A_p)), with the friction terms (0: off)',
+       'modes', 'D'),
+    _p('mode_blend_time', 's', 0.2, 0.0, 60.0, 'a mode switch, and force control coming on: '
+       "the new loop's reference blends from its measured value to the reference over this "
+       'time (quintic)', 'modes', 'D'),
+    _p('protect_force', 'N', 2.0e3, 1.0, 1.0e7, 'displacement_force_limited: the load cell '
+       'magnitude the displacement loop may not push beyond', 'modes', 'I'),
 )
 
 #: What a detector does when it trips (``off``: the detector is disabled), least severe first.
@@ -276,6 +298,33 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
     _p('ramp_time', 's', 1.0, 0.0, 600.0, 'ramp-on: on start, enable and reset the reference '
        'blends from the measured position to the trajectory over this time (0: no ramp)',
        'safety', 'D'),
+    # the specimen's detectors (the load cell, the displacement from its installed position z_L)
+    _p('limit_load_max', 'N', 1.0e5, -1.0e7, 1.0e7, 'upper load limit: trips when the load '
+       'cell reads above it', 'safety', 'I'),
+    _action('limit_load_max', 'off', 'upper load limit'),
+    _p('limit_load_min', 'N', -1.0e5, -1.0e7, 1.0e7, 'lower load limit: trips when the load '
+       'cell reads below it', 'safety', 'I'),
+    _action('limit_load_min', 'off', 'lower load limit'),
+    _p('limit_specimen_max', 'm', 0.01, -2.0, 2.0, 'upper specimen limit: trips when the '
+       'displacement from the installed position, z - z_L, is above it', 'safety', 'I'),
+    _action('limit_specimen_max', 'off', 'upper specimen displacement limit'),
+    _p('limit_specimen_min', 'm', -0.01, -2.0, 2.0, 'lower specimen limit: trips when z - z_L '
+       'is below it', 'safety', 'I'),
+    _action('limit_specimen_min', 'off', 'lower specimen displacement limit'),
+    _p('limit_force_error', 'N', 2.0e3, 1.0e-3, 1.0e7, 'force control: trips when |F_ref - F| '
+       'is above it for longer than limit_error_time', 'safety', 'I'),
+    _action('limit_force_error', 'off', 'force tracking error'),
+    _p('break_drop', 'N', 1.0e3, 1.0, 1.0e7, 'specimen break: the load magnitude falls by more '
+       'than this within break_window...', 'safety', 'I'),
+    _p('break_travel', 'm', 1.0e-4, 1.0e-6, 0.1, '...while the piston moves more than this '
+       'away from the installed position (the way that would load it more)', 'safety', 'I'),
+    _p('break_window', 's', 0.02, 1.0e-3, 1.0, 'specimen break: the window the drop and the '
+       'travel are judged over', 'safety', 'D'),
+    _action('specimen_break', 'hold', 'specimen break (the force collapses while the piston '
+            'runs away; with hold or more, force control ends: displacement from then on)'),
+    _action('load_feedback', 'hold', 'load cell validity under force control and specimen '
+            'protect (non-finite, missing or stale; with hold or more, displacement from '
+            'then on)'),
 )
 
 ALL_SPECS: tuple[ParamSpec, ...] = PLANT_SPECS + CONTROL_SPECS + SAFETY_SPECS
@@ -319,6 +368,11 @@ def _check_cross(v: Mapping[str, float | str]) -> None:
         raise ParameterError(f"parameter `limit_position_min` = {v['limit_position_min']!r} m "
                              'must be below `limit_position_max` = '
                              f"{v['limit_position_max']!r} m")
+    for lo, hi, unit in (('limit_load_min', 'limit_load_max', 'N'),
+                         ('limit_specimen_min', 'limit_specimen_max', 'm')):
+        if lo in v and hi in v and not v[lo] < v[hi]:
+            raise ParameterError(f'parameter `{lo}` = {v[lo]!r} {unit} must be below `{hi}` = '
+                                 f'{v[hi]!r} {unit}')
     if 'l_iac' in v and 'stroke' in v and not v['stroke'] < v['l_iac']:
         raise ParameterError(f"parameter `stroke` = {v['stroke']!r} m must be below `l_iac` = "
                              f"{v['l_iac']!r} m (a chamber volume would vanish)")
@@ -390,11 +444,15 @@ def _table1(column: str) -> dict[str, float]:
 
 
 #: Named presets. ``g761_baseline`` is the default table (paper estimates in it);
-#: ``table1_initial`` and ``table1_estimated`` set the seven parameters of Table 1.
+#: ``table1_initial`` and ``table1_estimated`` set the seven parameters of Table 1;
+#: ``fatigue_actuator`` is ``table1_estimated`` with a fatigue actuator's seals (hydrostatic
+#: bearings: 50 N Coulomb, 100 N breakaway friction where the paper's cylinder has 1.0 and
+#: 2.2 kN), the rig of the force benchmark (docs/controller.md says why).
 PRESETS: dict[str, dict[str, float]] = {
     'g761_baseline': {},
     'table1_initial': _table1('initial'),
     'table1_estimated': _table1('estimated'),
+    'fatigue_actuator': {**_table1('estimated'), 'F_cc': 50.0, 'F_sc': 100.0},
 }
 
 

@@ -55,8 +55,20 @@ reset the PID); no state for ``feedback_timeout``: the feedback detector trips
 (:meth:`ros_ehs.core.control.safety.Supervisor.feedback_lost`), and a power-off or a disabled
 axis sends 0 A at once.
 
+**The load cell** comes with each state (its ``load``: the state's joint ``load_cell``), or
+from a topic of its own (``load_source='topic'``, :meth:`ControlLoop.load`): in real time a
+state takes the newest reading stamped at most ``stale_timeout`` before it (an older one is
+stale: no reading); in lock-step a state waits for the reading of its own stamp as it waits
+for its reference (at most ``REF_BUFFER`` kept). The force reference is the reference's
+``f_ref``; in real time it is carried to the state's instant with the rate of the last two
+references (a first-order hold, as the position).
+
+**Control modes** (``control_mode``): :meth:`ControlLoop.set_mode` switches, refused with the
+reason when the load cell has no valid reading (:meth:`ControlLoop.load_ok`) or an interlock
+is latched (:mod:`ros_ehs.core.control.supervised`).
+
 **Safety and the controller** are :class:`~ros_ehs.core.control.supervised.AxisController`
-(limit and error detectors, latched actions, ramp-on, PID + feedforward, delta-P): each
+(limit and error detectors, latched actions, ramp-on, the control modes, delta-P): each
 state's command comes from it, and its events come back in the :class:`Reply`.
 
 What the node should log is left in :attr:`ControlLoop.notes` as ``(level, text)``: each
@@ -76,7 +88,7 @@ from ros_ehs.core.control.supervised import AxisController
 from ros_ehs.core.control.waveforms import first_order_hold
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.params import Params
-from ros_ehs_msgs_py import AxisState, Reference
+from ros_ehs_msgs_py import AxisState, Load, Reference
 
 __all__ = ['ControlLoop', 'EPOCH_PERIODS', 'LOST_FACTOR', 'NOTE_PERIOD', 'REF_BUFFER', 'Reply']
 
@@ -116,9 +128,13 @@ class ControlLoop:
 
     def __init__(self, params: Params, *, rate_hz: float = 1000.0, lockstep: bool = False,
                  wall: bool = True, start_enabled: bool = True,
-                 reference_timeout: float = 0.1, future_tolerance: float = 0.05) -> None:
+                 reference_timeout: float = 0.1, future_tolerance: float = 0.05,
+                 load_source: str = 'state') -> None:
         if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
             raise InputError(f'`rate_hz` = {rate_hz!r} must be a positive number of Hz')
+        if load_source not in ('state', 'topic'):
+            raise InputError(f'`load_source` = {load_source!r} is not one of [state, topic]')
+        self.load_source = load_source
         self.dt = 1.0 / float(rate_hz)
         self.dt_ns = int(round(self.dt * 1e9))
         self.params = params
@@ -132,8 +148,11 @@ class ControlLoop:
         self.last_stamp = -1
         self.last_rx = math.nan           # when the newest state arrived [s, monotonic]
         self.measured = AxisState(-1, math.nan, math.nan)    # the newest answered state
-        self._refs: dict[int, tuple[float, float]] = {}      # lock-step, insertion-ordered
+        self._refs: dict[int, tuple[float, float, float]] = {}   # lock-step: z, v, f
+        self._loads: dict[int, float] = {}                       # lock-step, a load topic
+        self._load: Load | None = None            # real time, a load topic: the newest
         self._ref: tuple[float, float, float, int] | None = None   # z, v, arrival, stamp
+        self._f: tuple[float, float, int] = (math.nan, 0.0, -1)   # real time: f, rate, stamp
         self._ref_stale = False
         self._hold_z: float | None = None
         self._waiting: AxisState | None = None    # lock-step: parked until its reference
@@ -169,43 +188,78 @@ class ControlLoop:
     # -- references --------------------------------------------------------------------------
     def reference(self, r: Reference, now: float) -> None:
         """Take a real-time reference that arrived at ``now`` [s]."""
+        f0, _, st0 = self._f
+        rate = 0.0
+        if math.isfinite(r.f_ref) and math.isfinite(f0) and r.stamp_ns > st0 >= 0:
+            rate = (r.f_ref - f0) / ((r.stamp_ns - st0) * 1e-9)
+        self._f = (r.f_ref, rate, r.stamp_ns)
         self._ref = (r.z_ref, r.v_ref, now, r.stamp_ns)
 
     def trajectory(self, refs: Sequence[Reference]) -> Reply | None:
         """Take lock-step references; answer the state that waited for one of them."""
         buf = self._refs
         for r in refs:
-            buf[r.stamp_ns] = (r.z_ref, r.v_ref)
+            buf[r.stamp_ns] = (r.z_ref, r.v_ref, r.f_ref)
         while len(buf) > REF_BUFFER:
             del buf[next(iter(buf))]
-        w = self._waiting
-        if w is not None and w.stamp_ns in buf:
-            self._waiting = None
-            return self._answer(w, *buf.pop(w.stamp_ns))
+        return self._try_waiting()
+
+    def load(self, reading: Load, now: float = math.nan) -> Reply | None:
+        """Take a load cell reading from its own topic; answer a state that waited for it."""
+        if self.lockstep:
+            self._loads[reading.stamp_ns] = reading.force
+            while len(self._loads) > REF_BUFFER:
+                del self._loads[next(iter(self._loads))]
+            return self._try_waiting()
+        if self._load is None or reading.stamp_ns >= self._load.stamp_ns:
+            self._load = reading
         return None
 
-    def _reference_for(self, s: AxisState, now: float) -> tuple[float, float] | None:
-        if self.lockstep:
-            return self._refs.pop(s.stamp_ns, None)
+    def _try_waiting(self) -> Reply | None:
+        w = self._waiting
+        if w is None or w.stamp_ns not in self._refs:
+            return None
+        if self.load_source == 'topic':
+            if w.stamp_ns not in self._loads:
+                return None
+            w = w._replace(load=self._loads.pop(w.stamp_ns))
+        self._waiting = None
+        return self._answer(w, *self._refs.pop(w.stamp_ns))
+
+    def _load_for(self, s: AxisState) -> AxisState:
+        """Return ``s`` with its load from the topic (real time): the newest, if fresh."""
+        if self.load_source == 'state':
+            return s
+        r = self._load
+        fresh = r is not None and r.stamp_ns >= s.stamp_ns - self.stale_timeout * 1e9
+        return s._replace(load=r.force if fresh else math.nan)
+
+    def _reference_for(self, s: AxisState, now: float) -> tuple[float, float, float]:
+        """Return the real-time reference at the state's instant: z, v, f."""
         if self._ref is None:
             if self._hold_z is None and math.isfinite(s.z):
                 self._hold_z = s.z
-            return (self._hold_z if self._hold_z is not None else math.nan), 0.0
+            return (self._hold_z if self._hold_z is not None else math.nan), 0.0, math.nan
         z, v, rx, stamp = self._ref
+        f, rate, _ = self._f
         if now - rx > self.reference_timeout:
             if not self._ref_stale:
                 self._ref_stale = True
                 self.counts['reference_stale'] += 1
                 self._note('warning', f'no reference for {self.reference_timeout:g} s: '
                            'holding its last position')
-            return z, 0.0
+            return z, 0.0, f
         if self._ref_stale:        # back, and moved on meanwhile: ramp onto it, no step
             self._ref_stale = False
             self.axis.supervisor.ramp_again()
             self._note('info', 'the reference is back: ramping onto it from the held position')
         # to the state's instant, forward or back (carried only forward, the demand led the
         # state by up to a reference period, by the random phase of the two nodes' timers)
-        return first_order_hold(z, v, stamp, s.stamp_ns, self.reference_timeout), v
+        if math.isfinite(f):
+            f = first_order_hold(f, rate, stamp, s.stamp_ns, self.reference_timeout)
+        z_at = first_order_hold(z, v, stamp, s.stamp_ns, self.reference_timeout) \
+            if math.isfinite(z) else z
+        return z_at, v, f
 
     # -- states ------------------------------------------------------------------------------
     def malformed(self, now: float = math.nan) -> None:
@@ -240,11 +294,11 @@ class ControlLoop:
             self.counts['stale'] += 1
             self.last_stamp = s.stamp_ns
             return Reply(s.stamp_ns, self.axis.output)
-        ref = self._reference_for(s, now)
-        if ref is None:
+        if self.lockstep:
             self._waiting = s
-            return None
-        return self._answer(s, *ref, now=now)
+            return self._try_waiting()
+        ref = self._reference_for(s, now)
+        return self._answer(self._load_for(s), *ref, now=now)
 
     def _new_run(self, stamp_ns: int, now: float) -> None:
         """Start a new run at ``stamp_ns``: PID from rest, lock-step references forgotten."""
@@ -253,18 +307,20 @@ class ControlLoop:
         self.axis.restart()
         self.last_stamp = -1
         self._refs.clear()
+        self._loads.clear()
         self._waiting = None
         self._note('info', f'new run: the state stamp jumped back {back:.6g} s; PID restarted '
                    f'from rest (run {self.counts["epochs"] + 1})', now, key='new_run')
 
-    def _answer(self, s: AxisState, z_ref: float, v_ref: float,
+    def _answer(self, s: AxisState, z_ref: float, v_ref: float, f_ref: float = math.nan,
                 now: float = math.nan) -> Reply:
         if self.lost:
             self.lost = False
-            self.axis.ctrl.reset()
+            self.axis.restart_loops()
             self._note('info', 'states are back; PID restarted from rest')
-        i = self.axis.step(s.stamp_ns, s.z, s.z_dot, s.force, z_ref, v_ref)
-        if not (math.isfinite(s.z) and math.isfinite(z_ref) and math.isfinite(v_ref)):
+        i = self.axis.step(s.stamp_ns, s.z, s.z_dot, s.force, z_ref, v_ref, s.load, f_ref)
+        has_ref = math.isfinite(z_ref) and math.isfinite(v_ref) or math.isfinite(f_ref)
+        if not (math.isfinite(s.z) and has_ref):
             self.counts['nonfinite'] += 1
             if not self.axis.supervisor.latches['feedback'].tripped:   # else reported once
                 self._note('warning', 'non-finite state or reference: command 0 A', now,
@@ -307,12 +363,12 @@ class ControlLoop:
         self.counts['events'] += len(events)
         zero = bool(events) and (not sup.enabled or sup.action == 'power_off')
         if zero:
-            self.axis.ctrl.reset()
+            self.axis.restart_loops()
         limit = LOST_FACTOR * self.stale_timeout
         if not self.lost and now - self.last_rx >= limit:
             self.lost = True
             self.counts['state_lost_events'] += 1
-            self.axis.ctrl.reset()      # the held command is 0 A until states return
+            self.axis.restart_loops()   # the held command is 0 A until states return
             self._note('warning', f'no state for {limit * 1e3:g} ms: command 0 A')
             zero = True
         return (Reply(clock_ns, 0.0) if zero else None), events
@@ -322,9 +378,9 @@ class ControlLoop:
         """Clear the latches unless a latched condition still holds: (ok, why, event)."""
         m = self.measured
         ok, why, ev = self.axis.supervisor.reset(m.stamp_ns, m.z, m.z_dot, m.force,
-                                                 self.feedback_age(now))
+                                                 self.feedback_age(now), m.load)
         if ok:
-            self.axis.ctrl.reset()
+            self.axis.restart_loops()
         self.counts['events'] += 1
         return ok, why, ev
 
@@ -332,7 +388,34 @@ class ControlLoop:
         """Turn the hydraulics on (ramp-on from the measured position) or off: (ok, why, event)."""
         ok, why, ev = self.axis.supervisor.enable(bool(on), self.measured.stamp_ns)
         if ok:
-            self.axis.ctrl.reset()
+            self.axis.restart_loops()
+        self.counts['events'] += 1
+        return ok, why, ev
+
+    def load_ok(self) -> bool:
+        """
+        Return True when the load cell has a valid reading now.
+
+        The newest answered state's load is finite and states are coming (real time: not
+        lost); from a load topic in real time, the newest reading is also at most
+        ``stale_timeout`` older than that state.
+        """
+        m = self.measured
+        if self.lost or m.stamp_ns < 0:
+            return False
+        if self.load_source == 'topic' and not self.lockstep:
+            r = self._load
+            return r is not None and math.isfinite(r.force) and \
+                r.stamp_ns >= m.stamp_ns - self.stale_timeout * 1e9
+        return math.isfinite(m.load)
+
+    def check_mode(self, mode: str) -> str:
+        """Return why a switch to ``mode`` would be refused now ('' when it would not)."""
+        return self.axis.check_mode(mode, self.load_ok())
+
+    def set_mode(self, mode: str) -> tuple[bool, str, Event]:
+        """Switch the control mode at the next state (bumpless): (ok, why, event)."""
+        ok, why, ev = self.axis.set_mode(mode, self.measured.stamp_ns, self.load_ok())
         self.counts['events'] += 1
         return ok, why, ev
 
@@ -349,13 +432,18 @@ class ControlLoop:
     def figures(self) -> dict:
         """Return the figures the diagnostics report."""
         e = np.fromiter(self.errors, float, len(self.errors))
-        c = self.axis.ctrl
+        ax = self.axis
+        c = ax.ctrl
         f = dict(self.counts)
         f.update(tracking_rms_m=float(np.sqrt((e * e).mean())) if e.size else math.nan,
                  tracking_max_m=float(np.abs(e).max()) if e.size else math.nan,
-                 command_a=float(c.output), fault=c.fault, saturated=c.pid.saturated,
-                 feedforward_a=float(c.last_ff), delta_p_a=float(c.dp.last),
-                 state_lost=self.lost)
+                 command_a=float(ax.output), fault=ax.fault, saturated=ax.saturated,
+                 feedforward_a=float(ax.force.last_ff if ax.driving == 'force' else c.last_ff),
+                 delta_p_a=float(c.dp.last), state_lost=self.lost,
+                 control_mode=ax.mode, driving=ax.driving or 'none',
+                 load_n=float(self.measured.load), force_ref_n=float(ax.force.target),
+                 force_error_n=float(ax.force.error) if ax.driving == 'force' else math.nan,
+                 protect_limiting=ax.limited)
         sup = self.axis.supervisor
         f.update(mode=sup.mode, interlock=sup.action, tripped=','.join(sup.tripped()),
                  **{f'trips_{d}': n for d, n in sup.counts.items()})
@@ -372,7 +460,7 @@ class ControlLoop:
             level, msg = 1, 'hydraulics off: 0 A (~/enable)'
         elif act == 'indicate':
             level, msg = 1, f'limit indicated: {", ".join(sup.tripped())} (~/reset)'
-        elif self.axis.ctrl.fault:
+        elif self.axis.fault:
             level, msg = 2, ('no hydraulic force in the state for dp_gain: command 0 A'
                              if self.axis.ctrl.force_missing(self.measured.force) else
                              'non-finite input: command 0 A')

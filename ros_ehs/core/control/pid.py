@@ -38,6 +38,13 @@ Edge-case policy (each branch is tested in ``test/test_control.py``):
   ``test/test_control.py``). Conditional integration leaves the integrator where it was.
 * derivative on the error, first-order low-pass with ``d_filter_tau`` (0: unfiltered).
 * gain changes are bumpless: the integrator is rescaled so the output does not jump.
+* a handover (:meth:`Pid.handover`, a loop taking the valve over from another, or from 0 A):
+  the loop starts at rest with its integrator holding the output it takes over, so its first
+  command is that output when its first error and feedforward are zero (the blends of
+  :mod:`ros_ehs.core.control.modes` start at the measured value, so they are).
+* an output limited further by the caller (:meth:`Pid.limited`, specimen protect's force
+  limit): the command is the caller's; the integration of that period is undone when the
+  error pushes further into the limit (conditional integration against the new limit).
 """
 
 from __future__ import annotations
@@ -80,9 +87,15 @@ class PidGains:
         return math.sqrt(self.kd / self.ki) if self.kd > 0 else self.kp / self.ki or math.inf
 
     @classmethod
-    def from_params(cls, params) -> 'PidGains':
-        """Build from a :class:`~ros_ehs.core.params.Params` (or any mapping with the names)."""
-        return cls(**{k: params[k] for k in _NAMES})
+    def from_params(cls, params, prefix: str = '') -> 'PidGains':
+        """
+        Build from a :class:`~ros_ehs.core.params.Params` (or any mapping with the names).
+
+        ``prefix``: the loop's own gains (``force_``: ``force_kp``, ``force_ki``,
+        ``force_kd``); the filter, limit and anti-windup are shared.
+        """
+        own = ('kp', 'ki', 'kd')
+        return cls(**{k: params[prefix + k if k in own else k] for k in _NAMES})
 
 
 class Pid:
@@ -103,6 +116,27 @@ class Pid:
         self.last_unsat = 0.0
         self.fault = False
         self.saturated = False
+        self._i_before = self.i_term
+
+    def handover(self, u: float) -> None:
+        """
+        Take the valve over at command ``u`` [A]: at rest, the integrator holding ``u``.
+
+        The next :meth:`update` returns ``u`` when its error and feedforward are zero.
+        """
+        self.reset(u if math.isfinite(u) else 0.0)
+        self.last_u = self.last_unsat = self.i_term
+
+    def limited(self, u: float) -> None:
+        """
+        Record that the caller limited the last output further, to ``u`` [A].
+
+        When the error pushes beyond that limit, the last period's integration is undone.
+        """
+        if u != self.last_u and self.prev_error is not None and \
+                self.prev_error * (self.last_u - u) > 0.0:
+            self.i_term = self._i_before
+        self.last_u = u
 
     def set_gains(self, gains: PidGains) -> None:
         """Change gains bumplessly (the P + D output jump is absorbed by the integrator)."""
@@ -144,6 +178,7 @@ class Pid:
         u = g.kp * error + self.i_term + g.kd * self.d_state + ff
         u_sat = min(max(u, -g.u_max), g.u_max)
         self.saturated = u_sat != u
+        self._i_before = self.i_term
         if g.antiwindup == 'back_calculation':
             self.i_term += dt * (g.ki * error + (u_sat - u) / g.t_track)
         elif g.antiwindup == 'none' or not (self.saturated and error * u > 0.0):

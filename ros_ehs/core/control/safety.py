@@ -31,11 +31,23 @@ Detectors (``ros_ehs.core.params.SAFETY_SPECS`` holds their limits and actions):
                         frozen: bit-identical for ``frozen_periods`` periods with
                         ``|i| >= frozen_current`` (periods without neither count nor clear)
 ``saturation``          the command at ``u_max`` for longer than ``limit_saturation_time``
+``limit_load_max``      the load cell above ``limit_load_max`` (when there is a reading)
+``limit_load_min``      the load cell below ``limit_load_min``
+``limit_specimen_max``  the specimen's displacement ``z - z_L`` above ``limit_specimen_max``
+``limit_specimen_min``  ``z - z_L`` below ``limit_specimen_min``
+``limit_force_error``   force control: ``|F_ref - F| > limit_force_error`` for longer than
+                        ``limit_error_time`` (:meth:`Supervisor.judge_force_error`)
+``specimen_break``      within ``break_window`` the load's magnitude fell by more than
+                        ``break_drop`` while the piston moved more than ``break_travel`` the
+                        way that would have loaded the specimen more: its force path is lost
+``load_feedback``       force control or specimen protect (``needs_load``): the load cell
+                        non-finite, missing or stale
 =====================  ======================================================================
 
 Edge-case policy (each branch tested in ``test/test_safety.py``):
 
-* a value exactly at its limit does not trip; a time-qualified detector trips when the
+* a value exactly at its limit does not trip (the break detector: a drop and a travel
+  exactly at theirs do not); a time-qualified detector trips when the
   condition has held for *longer* than its time (``n`` periods with ``n dt > T``);
 * a trip is **latched** (and reported once, as an :class:`Event`) until :meth:`reset`
   succeeds; the action applies from the command that answers the state on which the
@@ -47,10 +59,10 @@ Edge-case policy (each branch tested in ``test/test_safety.py``):
   valve current; from ``hold`` or ``stop`` a more severe action starts from the measured
   position again;
 * :meth:`reset` is refused, naming the detectors, while a latched limit is still beyond its
-  limit less the hysteresis (``limit_hysteresis`` of the limit, of the position span for the
-  position limits), or the feedback is still non-finite or lost. The tracking-error,
-  saturation and frozen conditions cannot be judged while the axis is held or off: they
-  count as clear, and are judged again from the ramp-on;
+  limit less the hysteresis (``limit_hysteresis`` of the limit, of the span between the pair
+  for the position and the specimen limits), or the feedback is still non-finite or lost.
+  The tracking-error, saturation and frozen conditions cannot be judged while the axis is
+  held or off: they count as clear, and are judged again from the ramp-on;
 * **ramp-on** at the start, on :meth:`enable` and after a reset: the reference starts at the
   measured position ``z0`` and blends into the trajectory,
   ``z_ref = z0 + w (z_traj - z0)``, ``v_ref = w v_traj + w' (z_traj - z0)`` with the quintic
@@ -61,32 +73,54 @@ Edge-case policy (each branch tested in ``test/test_safety.py``):
   is latched ("reset first");
 * non-finite velocity or force in a state: the velocity is differenced from the position,
   the force detector skips the sample; a non-finite trajectory is passed on (the PID's
-  policy: 0 A and ``fault``).
+  policy: 0 A and ``fault``). A non-finite load skips the load limits and the break
+  detector (its window restarts), and trips ``load_feedback`` where the load is needed;
+* the position's tracking error is judged only while the displacement loop drives the valve
+  (``track_position``) and not while specimen protect limits its command (``limited``: the
+  force limit, not a fault, keeps the position from its reference);
+* :meth:`blend_from` starts a ramp like the ramp-on, from a given position over a given time:
+  the displacement loop taking over from the force loop (a mode switch) starts there.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 import math
 from typing import Mapping, NamedTuple
 
 from ros_ehs.core.errors import InputError
+from ros_ehs.core.model.coefficients import flow_gain_kq
 from ros_ehs.core.params import ACTIONS, spec
 from ros_ehs_msgs_py.values import SafetyEvent as Event
 
 __all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'SafetyConfig', 'Supervisor',
-           'braking_distance', 'ramp_weight']
+           'break_travel', 'braking_distance', 'ramp_weight']
 
 #: The detectors, in the order they are checked and reported.
 DETECTORS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
-             'limit_error', 'feedback', 'saturation')
+             'limit_error', 'feedback', 'saturation', 'limit_load_max', 'limit_load_min',
+             'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'specimen_break',
+             'load_feedback')
 _SEVERITY = {a: k for k, a in enumerate(ACTIONS)}
 _UNITS = {'limit_position_max': 'm', 'limit_position_min': 'm', 'limit_velocity': 'm/s',
-          'limit_force': 'N', 'limit_error': 'm', 'feedback': '', 'saturation': 's'}
+          'limit_force': 'N', 'limit_error': 'm', 'feedback': '', 'saturation': 's',
+          'limit_load_max': 'N', 'limit_load_min': 'N', 'limit_specimen_max': 'm',
+          'limit_specimen_min': 'm', 'limit_force_error': 'N', 'specimen_break': 'N',
+          'load_feedback': ''}
 _NUMBERS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
             'limit_error', 'limit_error_time', 'feedback_timeout', 'frozen_periods',
             'frozen_current', 'limit_saturation_time', 'limit_hysteresis', 'safe_position',
-            'safe_velocity', 'ramp_time')
+            'safe_velocity', 'ramp_time', 'limit_load_max', 'limit_load_min',
+            'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'break_drop',
+            'break_travel', 'break_window', 'z_L')
+#: the pairs of limits whose hysteresis is a fraction of their span
+_PAIRS = {'limit_position_max': ('limit_position_min', 'limit_position_max', 1),
+          'limit_position_min': ('limit_position_min', 'limit_position_max', -1),
+          'limit_load_max': ('limit_load_min', 'limit_load_max', 1),
+          'limit_load_min': ('limit_load_min', 'limit_load_max', -1),
+          'limit_specimen_max': ('limit_specimen_min', 'limit_specimen_max', 1),
+          'limit_specimen_min': ('limit_specimen_min', 'limit_specimen_max', -1)}
 
 
 @dataclass(frozen=True)
@@ -107,6 +141,15 @@ class SafetyConfig:
     safe_position: float = 0.0
     safe_velocity: float = 0.01
     ramp_time: float = 1.0
+    limit_load_max: float = 1.0e5
+    limit_load_min: float = -1.0e5
+    limit_specimen_max: float = 0.01
+    limit_specimen_min: float = -0.01
+    limit_force_error: float = 2.0e3
+    break_drop: float = 1.0e3
+    break_travel: float = 1.0e-4
+    break_window: float = 0.02
+    z_L: float = 0.0
     actions: Mapping[str, str] = field(default_factory=lambda: {
         d: spec(d + '_action').default for d in DETECTORS})
 
@@ -120,9 +163,12 @@ class SafetyConfig:
         if unknown:
             raise InputError(f'`actions` names unknown detectors {sorted(unknown)}; '
                              f'known: {list(DETECTORS)}')
-        if not self.limit_position_min < self.limit_position_max:
-            raise InputError(f'`limit_position_min` = {self.limit_position_min!r} m must be '
-                             f'below `limit_position_max` = {self.limit_position_max!r} m')
+        for lo, hi, unit in (('limit_position_min', 'limit_position_max', 'm'),
+                             ('limit_load_min', 'limit_load_max', 'N'),
+                             ('limit_specimen_min', 'limit_specimen_max', 'm')):
+            if not getattr(self, lo) < getattr(self, hi):
+                raise InputError(f'`{lo}` = {getattr(self, lo)!r} {unit} must be below `{hi}` '
+                                 f'= {getattr(self, hi)!r} {unit}')
 
     @classmethod
     def from_params(cls, params: Mapping[str, object]) -> 'SafetyConfig':
@@ -137,8 +183,8 @@ class SafetyConfig:
     def limit(self, detector: str) -> float:
         """Return the limit a detector compares with, in its unit (feedback: the timeout)."""
         return {'limit_error': self.limit_error, 'feedback': self.feedback_timeout,
-                'saturation': self.limit_saturation_time}.get(
-                    detector, getattr(self, detector, math.nan))
+                'saturation': self.limit_saturation_time, 'specimen_break': self.break_drop,
+                'load_feedback': math.nan}.get(detector, getattr(self, detector, math.nan))
 
 
 class Demand(NamedTuple):
@@ -180,6 +226,33 @@ def braking_distance(params: Mapping[str, object], v: float, dt: float,
     return abs(v) * (periods * dt + tau_v) + abs(v) / omega_h
 
 
+def break_travel(params: Mapping[str, object], force: float, dt: float) -> float:
+    """
+    Return how far the piston can travel after its specimen breaks at ``force`` [N] [m].
+
+    The bound the ``specimen_break`` detector with a hold keeps (docs/safety.md):
+
+    * the oil column lets go: the chambers held ``force`` against the specimen, and released
+      they drive the piston until their pressure difference is spent, at most ``2 |F| /
+      k_h`` (a mass on a spring released from its preload; ``k_h = 2 beta_e A_p / l_iac``);
+    * the valve keeps flowing while the break is detected and acted on: the piston must run
+      ``break_travel``, accelerating at ``|F| / m_p`` from rest (``t_d = sqrt(2 break_travel
+      m_p / |F|)``), the hold acts a period or two later and the spool closes in ``tau_v``;
+      at the most the valve is open at ``u_max``, a speed of ``u_max K_q K_x / A_p``.
+
+    Friction and the displacement loop pulling back only shorten it.
+    """
+    beta, a_p, l_iac, m_p = (float(params[k]) for k in ('beta_e', 'A_p', 'l_iac', 'm_p'))
+    k_h = 2.0 * beta * a_p / l_iac
+    f = abs(float(force))
+    if f <= 0:
+        return 0.0
+    tau_v = max(2.0e-3, math.sqrt(float(params['m_s']) / float(params['K_w'])))
+    t_d = math.sqrt(2.0 * float(params['break_travel']) * m_p / f)
+    v_max = float(params['u_max']) * flow_gain_kq(params) * float(params['K_x']) / a_p
+    return 2.0 * f / k_h + v_max * (t_d + 2.0 * dt + tau_v)
+
+
 class _Latch:
     """One detector's state: latched, and the periods its condition has held."""
 
@@ -204,6 +277,7 @@ class Supervisor:
         self.latches = {d: _Latch() for d in DETECTORS}
         self.enabled = bool(enabled)
         self.counts = dict.fromkeys(DETECTORS, 0)
+        self._window: deque[tuple[float, float]] = deque()    # (load, z): the break window
         self._restart()
 
     # -- state -------------------------------------------------------------------------------
@@ -212,6 +286,8 @@ class Supervisor:
         self._ramp_t0 = 0
         self._ramp_z0 = math.nan
         self._ramp_from = math.nan      # ramp_again: from the last demand, not the measurement
+        self._ramp_time = math.nan      # blend_from: this ramp's own time (NaN: ramp_time)
+        self._ramp_T = 0.0              # the running ramp's time [s]
         self._mode = 'run'              # 'run' | 'hold' | 'stop' | 'power_off'
         self._hold_z = math.nan
         self._last_z = math.nan
@@ -234,6 +310,17 @@ class Supervisor:
         if math.isfinite(self._last_ref):
             self._ramp_pending = True
             self._ramp_from = self._last_ref
+
+    def blend_from(self, z: float, duration: float) -> None:
+        """
+        Ramp onto the trajectory from position ``z`` [m] over ``duration`` [s] (a mode switch).
+
+        Only while running: a hold or a stop keeps its own demand.
+        """
+        if math.isfinite(z) and self._mode == 'run':
+            self._ramp_pending = True
+            self._ramp_from = float(z)
+            self._ramp_time = float(duration)
 
     @property
     def mode(self) -> str:
@@ -261,12 +348,18 @@ class Supervisor:
     # -- per period --------------------------------------------------------------------------
     def update(self, stamp_ns: int, z: float, z_dot: float, force: float,
                z_traj: float, v_traj: float, i_last: float,
-               saturated: bool) -> tuple[Demand, list[Event]]:
+               saturated: bool, *, load: float = math.nan, needs_load: bool = False,
+               track_position: bool = True,
+               limited: bool = False) -> tuple[Demand, list[Event]]:
         """
         Check the detectors on one state; return the demand for its command and the events.
 
         ``i_last`` is the command the controller sent for the previous state and
         ``saturated`` whether it was at the limit (the frozen and saturation detectors).
+        ``load`` the load cell [N] (NaN: none); ``needs_load``: force control or specimen
+        protect, which need it; ``track_position``: the displacement loop drives the valve
+        (its tracking error is judged); ``limited``: specimen protect limited the previous
+        command.
         """
         cfg = self.config
         events: list[Event] = []
@@ -303,6 +396,7 @@ class Supervisor:
         if math.isfinite(force):
             self._check('limit_force', abs(force) > cfg.limit_force, stamp_ns, force, '',
                         events)
+        self._check_specimen(stamp_ns, z, load, needs_load, powered, events)
         # saturation: the previous command at its limit for longer than the time
         sat = self.latches['saturation']
         sat.count = sat.count + 1 if (saturated and powered) else 0
@@ -314,13 +408,69 @@ class Supervisor:
         # tracking error against the reference this command will track
         err = self.latches['limit_error']
         e = demand.z_ref - z if (finite and demand.power) else math.nan
-        bad = math.isfinite(e) and abs(e) > cfg.limit_error and demand.mode != 'waiting'
+        bad = math.isfinite(e) and abs(e) > cfg.limit_error and demand.mode != 'waiting' and \
+            (track_position or demand.mode in ('hold', 'stop')) and not limited
         err.count = err.count + 1 if bad else 0
         if self._check('limit_error', bad and err.count * dt > cfg.limit_error_time, stamp_ns,
                        e, f'|z_ref - z| = {abs(e):.6g} m above {cfg.limit_error:g} m for '
                        f'{err.count * dt:.6g} s', events):
             demand = self._demand(stamp_ns, z, z_traj, v_traj)
         return demand, events
+
+    def _check_specimen(self, stamp_ns: int, z: float, load: float, needs_load: bool,
+                        powered: bool, events: list[Event]) -> None:
+        """Check the load limits, the specimen's displacement limits, its break, the load."""
+        cfg = self.config
+        if math.isfinite(z):
+            d = z - cfg.z_L
+            self._check('limit_specimen_max', d > cfg.limit_specimen_max, stamp_ns, d, '',
+                        events)
+            self._check('limit_specimen_min', d < cfg.limit_specimen_min, stamp_ns, d, '',
+                        events)
+        win = self._window
+        if not (math.isfinite(load) and math.isfinite(z)):
+            win.clear()
+            if needs_load and powered and self._mode in ('run',):
+                self._check('load_feedback', True, stamp_ns, load,
+                            'load_feedback: no valid load cell reading (non-finite, missing or '
+                            'stale) under force control or specimen protect', events)
+            return
+        self._check('limit_load_max', load > cfg.limit_load_max, stamp_ns, load, '', events)
+        self._check('limit_load_min', load < cfg.limit_load_min, stamp_ns, load, '', events)
+        # the break: against each reading in the window, the drop of |F| and the travel the
+        # way that loaded it (sign of that reading's force)
+        for f0, z0 in win:
+            drop = abs(f0) - abs(load)
+            travel = math.copysign(1.0, f0) * (z - z0)
+            if drop > cfg.break_drop and travel > cfg.break_travel:
+                self._check('specimen_break', True, stamp_ns, drop,
+                            f'specimen_break: the load fell {drop:.6g} N (from {f0:.6g} N to '
+                            f'{load:.6g} N) while the piston moved {travel * 1e3:.6g} mm the way '
+                            f'that loads it', events)
+                break
+        win.append((load, z))
+        n = max(1, int(math.ceil(cfg.break_window / self.dt - 1e-9)))
+        while len(win) > n:
+            win.popleft()
+
+    def judge_force_error(self, stamp_ns: int, e: float, dt: float | None = None
+                          ) -> list[Event]:
+        """
+        Judge the force loop's error ``e`` = F_ref - F [N] of this period; return its events.
+
+        Call it once per period while the force loop drives the valve (a non-finite error
+        clears the count).
+        """
+        cfg = self.config
+        events: list[Event] = []
+        lat = self.latches['limit_force_error']
+        bad = math.isfinite(e) and abs(e) > cfg.limit_force_error
+        lat.count = lat.count + 1 if bad else 0
+        t = lat.count * (self.dt if dt is None else dt)
+        self._check('limit_force_error', bad and t > cfg.limit_error_time, stamp_ns, e,
+                    f'|F_ref - F| = {abs(e):.6g} N above {cfg.limit_force_error:g} N for '
+                    f'{t:.6g} s', events)
+        return events
 
     def _check(self, det: str, cond: bool, stamp_ns: int, value: float, why: str,
                events: list[Event]) -> bool:
@@ -346,6 +496,10 @@ class Supervisor:
         if _SEVERITY[act] > _SEVERITY.get(self._mode, 0):
             self._mode = act
             self._hold_z = math.nan       # set from the measured position in _demand
+
+    def demand_for(self, stamp_ns: int, z: float, z_traj: float, v_traj: float) -> Demand:
+        """Return this period's demand again (after a trip judged once the demand was made)."""
+        return self._demand(stamp_ns, z, z_traj, v_traj)
 
     def _demand(self, stamp_ns: int, z: float, z_traj: float, v_traj: float) -> Demand:
         cfg = self.config
@@ -374,13 +528,16 @@ class Supervisor:
             self._ramp_t0 = stamp_ns
             self._ramp_z0 = self._ramp_from if math.isfinite(self._ramp_from) else z
             self._ramp_from = math.nan
+            self._ramp_T = self._ramp_time if math.isfinite(self._ramp_time) else cfg.ramp_time
+            self._ramp_time = math.nan
         t = (stamp_ns - self._ramp_t0) * 1e-9
-        if cfg.ramp_time > 0 and t < cfg.ramp_time:
-            w, dw = ramp_weight(t / cfg.ramp_time)
+        T = self._ramp_T
+        if T > 0 and t < T:
+            w, dw = ramp_weight(t / T)
             z0 = self._ramp_z0
             zr = z0 + w * (z_traj - z0)
             self._last_ref = zr
-            return Demand('ramp', zr, w * v_traj + dw / cfg.ramp_time * (z_traj - z0), True)
+            return Demand('ramp', zr, w * v_traj + dw / T * (z_traj - z0), True)
         self._last_ref = z_traj
         return Demand('run', z_traj, v_traj, True)
 
@@ -401,25 +558,34 @@ class Supervisor:
 
     # -- operator ----------------------------------------------------------------------------
     def still_active(self, z: float, z_dot: float, force: float,
-                     feedback_age_s: float = 0.0) -> list[str]:
+                     feedback_age_s: float = 0.0, load: float = math.nan) -> list[str]:
         """
         Return the latched detectors whose condition still holds, with the hysteresis.
 
-        ``z``, ``z_dot``, ``force``: the newest measurement; ``feedback_age_s``: its age
-        (real time). The tracking-error, saturation and frozen conditions count as clear
-        (see the module docstring).
+        ``z``, ``z_dot``, ``force``, ``load``: the newest measurement; ``feedback_age_s``: its
+        age (real time). The tracking-error, saturation, frozen, break and load-feedback
+        conditions count as clear (see the module docstring).
         """
         cfg = self.config
         h = cfg.limit_hysteresis
-        span = cfg.limit_position_max - cfg.limit_position_min
         out = []
         for d, s in self.latches.items():
             if not s.tripped:
                 continue
-            if d == 'limit_position_max':
-                bad = not (z <= cfg.limit_position_max - h * span)
-            elif d == 'limit_position_min':
-                bad = not (z >= cfg.limit_position_min + h * span)
+            if d in _PAIRS:
+                lo, hi, side = _PAIRS[d]
+                span = getattr(cfg, hi) - getattr(cfg, lo)
+                if d.startswith('limit_load'):      # of the limit itself: loads are not
+                    span = abs(getattr(cfg, d))     # symmetric about a centre
+                x = {'limit_load_max': load, 'limit_load_min': load,
+                     'limit_specimen_max': z - cfg.z_L,
+                     'limit_specimen_min': z - cfg.z_L}.get(d, z)
+                if d.startswith('limit_load') and not math.isfinite(x):
+                    bad = False          # no reading: the load limits cannot hold it
+                elif side > 0:
+                    bad = not (x <= getattr(cfg, hi) - h * span)
+                else:
+                    bad = not (x >= getattr(cfg, lo) + h * span)
             elif d == 'limit_velocity':
                 bad = math.isfinite(z_dot) and abs(z_dot) > (1.0 - h) * cfg.limit_velocity
             elif d == 'limit_force':
@@ -433,16 +599,18 @@ class Supervisor:
         return out
 
     def reset(self, stamp_ns: int, z: float, z_dot: float = math.nan,
-              force: float = math.nan, feedback_age_s: float = 0.0) -> tuple[bool, str, Event]:
+              force: float = math.nan, feedback_age_s: float = 0.0,
+              load: float = math.nan) -> tuple[bool, str, Event]:
         """
         Clear every latch unless a latched condition still holds; return (ok, reason, event).
 
         On success the axis ramps on from the measured position (when enabled).
         """
-        active = self.still_active(z, z_dot, force, feedback_age_s)
+        active = self.still_active(z, z_dot, force, feedback_age_s, load)
         if active:
             why = ('still tripping: ' + ', '.join(
-                f'{d} ({self._describe(d, z, z_dot, force, feedback_age_s)})' for d in active))
+                f'{d} ({self._describe(d, z, z_dot, force, feedback_age_s, load)})'
+                for d in active))
             return False, why, Event(stamp_ns, 'reset_refused', ','.join(active), math.nan,
                                      math.nan, '', self.action, why)
         cleared = self.tripped()
@@ -450,6 +618,7 @@ class Supervisor:
             s.tripped = False
             s.count = 0
         self._same = 0
+        self._window.clear()
         was = self._mode
         self._mode = 'run'
         if was != 'run' or cleared:
@@ -458,10 +627,15 @@ class Supervisor:
         return True, why, Event(stamp_ns, 'reset', ','.join(cleared), math.nan, math.nan, '',
                                 'off', why)
 
-    def _describe(self, d: str, z: float, z_dot: float, force: float, age: float) -> str:
+    def _describe(self, d: str, z: float, z_dot: float, force: float, age: float,
+                  load: float = math.nan) -> str:
         cfg = self.config
         if d in ('limit_position_max', 'limit_position_min'):
             return f'z = {z:.6g} m, limit {cfg.limit(d):g} m'
+        if d in ('limit_load_max', 'limit_load_min'):
+            return f'load = {load:.6g} N, limit {cfg.limit(d):g} N'
+        if d in ('limit_specimen_max', 'limit_specimen_min'):
+            return f'z - z_L = {z - cfg.z_L:.6g} m, limit {cfg.limit(d):g} m'
         if d == 'limit_velocity':
             return f'z_dot = {z_dot:.6g} m/s, limit {cfg.limit_velocity:g} m/s'
         if d == 'limit_force':

@@ -12,14 +12,35 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The supervised axis controller: the safety supervisor in front of PID + feedforward.
+The supervised axis controller: the safety supervisor in front of the control modes.
 
-:class:`~ros_ehs.core.control.safety.Supervisor` in front of
-:class:`~ros_ehs.core.control.controller.Controller`, one call per control period. This is what
-the controller node runs and what :func:`ros_ehs.core.sim.closed_loop.run_closed_loop` runs with
+:class:`~ros_ehs.core.control.safety.Supervisor` in front of the displacement loop
+(:class:`~ros_ehs.core.control.controller.Controller`) and the force loop and specimen protect
+(:mod:`ros_ehs.core.control.modes`), one call per control period. This is what the controller
+node runs and what :func:`ros_ehs.core.sim.closed_loop.run_closed_loop` runs with
 ``supervised=True``: the same arithmetic in process and over DDS. While the supervisor
 demands no power (power off, hydraulics off, waiting for a finite position) the command is 0
-A and the PID and feedforward stay at rest, so power returns without a kick.
+A and the loops stay at rest, so power returns without a kick.
+
+**Which loop drives the valve.** The force loop when ``control_mode`` is ``force`` and the
+supervisor runs (or ramps on); the displacement loop otherwise: always in a hold or a stop
+(an interlock's actions are in displacement), and with specimen protect's limit on its
+command when ``control_mode`` is ``displacement_force_limited``. Each change of the driving
+loop is a handover: the new loop takes the last command over and blends from its measured
+value (:mod:`ros_ehs.core.control.modes`); the displacement loop after the force loop blends
+from the measured position over ``mode_blend_time`` (:meth:`Supervisor.blend_from`).
+
+**Mode switches** (:meth:`AxisController.set_mode`): refused, with the reason, to a mode
+that needs the load cell while it has no valid reading (``load_ok``), or while an interlock
+(hold, stop, power off) is latched; to specimen protect also while the load is beyond
+``protect_force`` (the limit would pull the piston back at once). Each switch, accepted or
+refused, is an event (kind ``mode`` or ``mode_refused``). A trip of ``specimen_break`` or
+``load_feedback`` whose action holds or more ends force control: the mode becomes
+``displacement`` (an event), and force control comes back only by a switch.
+
+A displacement loop whose reference carries a force but no position (NaN: a force reference)
+holds the position measured when that began; a reference with neither is bad input (the
+PID's policy: 0 A and ``fault``).
 """
 
 from __future__ import annotations
@@ -27,45 +48,183 @@ from __future__ import annotations
 import math
 
 from ros_ehs.core.control.controller import Controller
+from ros_ehs.core.control.modes import ForceLimit, ForceLoop, LOAD_MODES, MODES
 from ros_ehs.core.control.safety import Demand, Event, SafetyConfig, Supervisor
 from ros_ehs.core.params import Params
 
 __all__ = ['AxisController']
 
+#: Trips that end force control when their action holds or more.
+_ENDS_FORCE = ('specimen_break', 'load_feedback')
+_ACTING = ('hold', 'stop', 'power_off')
+
 
 class AxisController:
-    """Detectors, actions and ramp-on around PID + feedforward."""
+    """Detectors, actions and ramp-on around the control modes (see the module docstring)."""
 
     def __init__(self, params: Params, dt: float = 1e-3, enabled: bool = True) -> None:
         self.ctrl = Controller(params, dt)
+        self.force = ForceLoop(params, dt)
+        self.protect = ForceLimit(params, dt)
         self.supervisor = Supervisor(SafetyConfig.from_params(params), dt, enabled)
         self.demand = Demand('waiting', math.nan, 0.0, False)
         self.events: list[Event] = []     # the newest step's events
+        self.mode = str(params['control_mode'])
+        self.driving: str | None = None   # the loop that drove the valve last, None: 0 A
+        self.limited = False              # specimen protect limited the last command
+        self.blend_time = float(params['mode_blend_time'])
+        self._z_hold = math.nan           # the position held without a position reference
+        self._measured = (math.nan, math.nan)    # the newest (z, load)
 
     @property
     def output(self) -> float:
         """Return the last command [A]."""
-        return self.ctrl.output
+        return self.force.output if self.driving == 'force' else self.ctrl.output
+
+    @property
+    def fault(self) -> bool:
+        """Return True after a non-finite input to the driving loop, until a finite one."""
+        return (self.force.pid.fault if self.driving == 'force' else self.ctrl.fault)
+
+    @property
+    def saturated(self) -> bool:
+        """Return True when the driving loop's last command was at its limit."""
+        return (self.force.pid.saturated if self.driving == 'force' else
+                self.ctrl.pid.saturated)
 
     def set_params(self, params: Params) -> None:
         """Apply new gains, feedforward values, limits and actions (latches stay)."""
         self.ctrl.set_params(params)
+        self.force.set_params(params)
+        self.protect.set_params(params)
         self.supervisor.set_config(SafetyConfig.from_params(params))
+        self.blend_time = float(params['mode_blend_time'])
 
     def restart(self) -> None:
-        """Start a new run (epoch): PID from rest, ramp on again; latches stay."""
-        self.ctrl.reset()
+        """Start a new run (epoch): the loops from rest, ramp on again; latches stay."""
+        self._rest()
         self.supervisor.restart()
 
+    def restart_loops(self) -> None:
+        """Put the loops at rest (0 A): the next powered state hands the valve over again."""
+        self._rest()
+
+    def _rest(self) -> None:
+        self.ctrl.reset()
+        self.force.pid.reset()
+        self.protect.reset()
+        self.driving = None
+        self.limited = False
+        self._z_hold = math.nan
+
+    # -- modes -------------------------------------------------------------------------------
+    def check_mode(self, mode: str, load_ok: bool) -> str:
+        """Return why a switch to ``mode`` is refused now ('' when it is not)."""
+        if mode not in MODES:
+            return f'unknown control mode {mode!r}; known: {", ".join(MODES)}'
+        if mode == self.mode:
+            return ''
+        sup = self.supervisor
+        if mode in LOAD_MODES:
+            if not load_ok:
+                return (f'{mode} needs the load cell, and it has no valid reading (missing, '
+                        'stale or non-finite)')
+            if sup.action in _ACTING:
+                return f'interlock latched ({", ".join(sup.tripped())}: {sup.action}): reset first'
+            load = self._measured[1]
+            if mode == 'displacement_force_limited' and \
+                    abs(load) > self.protect.limit:
+                return (f'the load {load:.6g} N is beyond protect_force '
+                        f'{self.protect.limit:g} N')
+        return ''
+
+    def set_mode(self, mode: str, stamp_ns: int, load_ok: bool) -> tuple[bool, str, Event]:
+        """Switch the control mode (bumpless, at the next state): (ok, why, event)."""
+        why = self.check_mode(mode, load_ok)
+        if why:
+            return False, why, Event(stamp_ns, 'mode_refused', mode, math.nan, math.nan, '',
+                                     self.supervisor.action, f'to {mode} refused: {why}')
+        was, self.mode = self.mode, mode
+        what = (f'control mode {mode} (from {was}): blending over {self.blend_time:g} s'
+                if mode != was else f'control mode {mode} already')
+        return True, what, Event(stamp_ns, 'mode', mode, math.nan, math.nan, '',
+                                 self.supervisor.action, what)
+
+    # -- per period ----------------------------------------------------------------------------
     def step(self, stamp_ns: int, z: float, z_dot: float, force: float, z_traj: float,
-             v_traj: float) -> float:
-        """Return the servo current [A] for one state; ``events`` holds what happened."""
-        c = self.ctrl
-        d, self.events = self.supervisor.update(stamp_ns, z, z_dot, force, z_traj, v_traj,
-                                                c.output, c.pid.saturated)
+             v_traj: float, load: float = math.nan, f_traj: float = math.nan) -> float:
+        """
+        Return the servo current [A] for one state; ``events`` holds what happened.
+
+        ``load``: the load cell [N] (NaN: none, or not valid); ``f_traj``: the force
+        reference [N] (NaN: none).
+        """
+        sup = self.supervisor
+        self._measured = (z, load)
+        if self.driving == 'force' and self.mode != 'force':   # switched away: blend in z
+            sup.blend_from(z, self.blend_time)
+        d, events = sup.update(stamp_ns, z, z_dot, force, z_traj, v_traj, self.output,
+                               self.saturated, load=load, needs_load=self.mode in LOAD_MODES,
+                               track_position=self.mode != 'force', limited=self.limited)
+        self.events = events
+        for e in events:
+            if e.kind == 'trip' and e.detector in _ENDS_FORCE and e.action in _ACTING and \
+                    self.mode != 'displacement':
+                what = (f'control mode displacement (from {self.mode}): {e.detector} '
+                        f'tripped')
+                self.mode = 'displacement'
+                events.append(Event(stamp_ns, 'mode', 'displacement', math.nan, math.nan,
+                                    '', e.action, what))
         self.demand = d
         if not d.power:
-            if c.output != 0.0 or c.pid.prev_error is not None:
-                c.reset()
+            if self.driving is not None or self.ctrl.pid.prev_error is not None:
+                self._rest()
             return 0.0
-        return c.step(d.z_ref, d.v_ref, z, force=force)
+        want = 'force' if (self.mode == 'force' and d.mode in ('run', 'ramp')) else \
+            'displacement'
+        if want != self.driving:
+            self._handover(want, stamp_ns, z, load, d.mode == 'ramp')
+        if want == 'force':
+            i = self.force.step(stamp_ns, load, f_traj, z)
+            new = sup.judge_force_error(stamp_ns, self.force.error)
+            events.extend(new)
+            if any(e.action in _ACTING for e in new):       # held in displacement from now
+                d = self.demand = sup.demand_for(stamp_ns, z, z_traj, v_traj)
+                self._handover('displacement', stamp_ns, z, load, False)
+                i = self._displacement(d, z, force, load, f_traj)
+            return i
+        return self._displacement(d, z, force, load, f_traj)
+
+    def _handover(self, loop: str, stamp_ns: int, z: float, load: float, ramp: bool) -> None:
+        u = self.output if self.driving is not None else 0.0
+        if loop == 'force':     # coming on (a ramp-on) over ramp_time, a switch over the blend
+            self.force.start(stamp_ns, load, u, self.supervisor.config.ramp_time if ramp
+                             else self.blend_time)
+            self.ctrl.reset()
+        elif self.driving == 'force':
+            self.ctrl.reset()
+            self.ctrl.pid.handover(u)
+        self.protect.reset()
+        self.limited = False
+        self._z_hold = math.nan
+        self.driving = loop
+
+    def _displacement(self, d: Demand, z: float, force: float, load: float,
+                      f_traj: float) -> float:
+        z_ref, v_ref = d.z_ref, d.v_ref
+        if not math.isfinite(z_ref) and math.isfinite(f_traj) and d.mode in ('run', 'ramp'):
+            # a reference without a position (a force reference): hold where it took over
+            if not math.isfinite(self._z_hold):
+                self._z_hold = z
+            z_ref, v_ref = self._z_hold, 0.0
+        else:
+            self._z_hold = math.nan
+        i = self.ctrl.step(z_ref, v_ref, z, force=force)
+        self.limited = False
+        if self.mode == 'displacement_force_limited':
+            u = self.protect.apply(i, load)
+            if u != i:
+                self.ctrl.pid.limited(u)
+                self.limited = True
+                i = u
+        return i

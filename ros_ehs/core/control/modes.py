@@ -1,0 +1,197 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+r"""
+The control modes beside the displacement loop: the force loop and specimen protect.
+
+* ``displacement``: the position loop of :mod:`ros_ehs.core.control.controller`.
+* ``force``: :class:`ForceLoop`, a PIDF on the load cell. ``force_kp``, ``force_ki``,
+  ``force_kd`` act on the force error ``F_ref - F`` [N] (the derivative filter, the output
+  limit and the anti-windup are the displacement loop's). Its feedforward is the flow the force
+  rate needs: a force that changes at :math:`\dot F` compresses the load train and the oil
+  column, so the piston must move at
+
+  .. math:: v_{eq} = \dot F_{ref} \left(\frac{1}{k_L} + \frac{l_{iac} + z}{2 \beta_e A_p}\right)
+
+  (the specimen's stiffness, its load train included, in series with the two chambers' oil at
+  the piston's position); the feedforward is ``force_ff`` times the current of that flow,
+  ``A_p v_eq / (K_q K_x)``, plus, with ``ff_enable``, the friction terms of eq. (20) at
+  ``v_eq``. (It leaves out the valve's flow factor at the load pressure: the odd harmonics a
+  compensation of it puts into the command meet the loop's resonance at a 20 Hz test's third
+  harmonic, and cost more than they correct; amplitude control takes the rest.) Without a
+  specimen stiffness (``k_L`` = 0) there is no model: no feedforward.
+* ``displacement_force_limited`` (specimen protect): the displacement loop, its command
+  limited by :class:`ForceLimit` to what two proportional force loops towards
+  ``+-protect_force`` allow: ``i_lo <= i <= i_hi`` with
+  ``i_hi = force_kp (P - F) - force_kd dF/dt``, ``i_lo = force_kp (-P - F) - force_kd dF/dt``
+  (a min/max override selector, as test controllers build their limit loops): far from the
+  limit the displacement loop drives; near it the force loop takes over and, the valve being
+  an integrator of flow, settles the force at the limit.
+
+**Blends.** The loop that takes the valve over starts from the measured value of its own
+signal and blends to its reference with the ramp-on's quintic, over ``mode_blend_time`` at a
+mode switch and over ``ramp_time`` when force control comes on with the ramp-on (start,
+hydraulics on, a reset); its integrator
+takes the command it takes over (:meth:`ros_ehs.core.control.pid.Pid.handover`), so the valve
+command is continuous. A reference without a force (NaN: a displacement reference) holds the
+force measured when the loop took over.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+from ros_ehs.core.control.feedforward import Feedforward
+from ros_ehs.core.control.pid import Pid, PidGains
+from ros_ehs.core.control.safety import ramp_weight
+
+__all__ = ['ForceLimit', 'ForceLoop', 'LOAD_MODES', 'MODES', 'load_train_compliance']
+
+#: The control modes, in the order of ``control_mode``'s choices.
+MODES = ('displacement', 'force', 'displacement_force_limited')
+#: The modes that need the load cell.
+LOAD_MODES = ('force', 'displacement_force_limited')
+
+
+def load_train_compliance(params: Mapping[str, object], z: float = 0.0) -> float:
+    """
+    Return the compliance a force change meets at piston position ``z`` [m/N].
+
+    The specimen's ``1 / k_L`` in series with the chambers' oil, ``(l_iac + z) / (2 beta_e
+    A_p)`` (both chambers, at mid-stroke the softest); 0 without a specimen (``k_L`` = 0).
+    """
+    k = float(params['k_L'])
+    if not k > 0:
+        return 0.0
+    l_iac, beta, a_p = (float(params[n]) for n in ('l_iac', 'beta_e', 'A_p'))
+    return 1.0 / k + (l_iac + abs(z)) / (2.0 * beta * a_p)
+
+
+class ForceLoop:
+    """The force loop: PIDF on the load cell, blended in at a handover (module docstring)."""
+
+    def __init__(self, params: Mapping[str, object], dt: float) -> None:
+        self.dt = float(dt)
+        self.pid = Pid(PidGains.from_params(params, 'force_'))
+        self.ff = Feedforward(params, self.dt)
+        self._configure(params)
+        self.target = math.nan      # the force the loop tracked last [N]
+        self.error = math.nan       # its error [N]
+        self.last_ff = 0.0
+        self._t0 = 0
+        self._blend = 0.0
+        self._from = self._hold = math.nan
+        self._prev: float | None = None
+
+    def _configure(self, params: Mapping[str, object]) -> None:
+        self.params = params
+        self.ff_enabled = float(params['ff_enable']) >= 0.5
+        self.ff_weight = float(params['force_ff'])
+        self.blend_time = float(params['mode_blend_time'])
+
+    @property
+    def output(self) -> float:
+        """Return the last command [A]."""
+        return self.pid.last_u
+
+    def set_params(self, params: Mapping[str, object]) -> None:
+        """Take new gains bumplessly and the feedforward's values (its estimate kept)."""
+        self.pid.set_gains(PidGains.from_params(params, 'force_'))
+        f_p = self.ff.f_p
+        self.ff = Feedforward(params, self.dt)
+        self.ff.f_p = f_p
+        self._configure(params)
+
+    def start(self, stamp_ns: int, load: float, u: float,
+              blend_time: float | None = None) -> None:
+        """
+        Take the valve over at ``stamp_ns`` from command ``u`` [A], the load at ``load``.
+
+        The reference blends in over ``blend_time`` [s] (default ``mode_blend_time``).
+        """
+        self.pid.handover(u)
+        self._blend = self.blend_time if blend_time is None else float(blend_time)
+        self.ff.reset()
+        self._t0 = int(stamp_ns)
+        self._from = self._hold = float(load)
+        self._prev = None
+        self.target = float(load)
+
+    def reference(self, stamp_ns: int, f_traj: float) -> float:
+        """Return the force to track at ``stamp_ns``: the blend into ``f_traj`` [N]."""
+        f_ref = f_traj if math.isfinite(f_traj) else self._hold
+        t = (stamp_ns - self._t0) * 1e-9
+        if self._blend > 0 and t < self._blend:
+            w = ramp_weight(t / self._blend)[0]
+            return self._from + w * (f_ref - self._from)
+        return f_ref
+
+    def step(self, stamp_ns: int, load: float, f_traj: float, z: float = 0.0,
+             dt: float | None = None) -> float:
+        """Return the command [A] for load cell reading ``load`` [N] (the PID's NaN policy)."""
+        dt = self.dt if dt is None else dt
+        target = self.reference(stamp_ns, f_traj)
+        ff = 0.0
+        c = load_train_compliance(self.params, z if math.isfinite(z) else 0.0)
+        if c > 0.0 and dt > 0 and self._prev is not None:
+            v = (target - self._prev) / dt * c
+            ff = self.ff_weight * self.ff.i_per_speed * v
+            if self.ff_enabled:
+                ff += self.ff.update(v, self.pid.last_u)
+        if dt > 0:
+            self._prev = target
+        self.target = target
+        self.error = target - load
+        self.last_ff = ff
+        return self.pid.update(self.error, dt, ff)
+
+
+class ForceLimit:
+    """Specimen protect: the limits two proportional force loops put on a command."""
+
+    def __init__(self, params: Mapping[str, object], dt: float) -> None:
+        self.dt = float(dt)
+        self.set_params(params)
+        self.reset()
+
+    def set_params(self, params: Mapping[str, object]) -> None:
+        """Take ``protect_force``, ``force_kp``, ``force_kd`` and ``d_filter_tau``."""
+        self.limit = float(params['protect_force'])
+        self.kp = float(params['force_kp'])
+        self.kd = float(params['force_kd'])
+        self.tau = float(params['d_filter_tau'])
+
+    def reset(self) -> None:
+        """Forget the rate's memory."""
+        self._prev: float | None = None
+        self._rate = 0.0
+        self.active = False
+
+    def apply(self, u: float, load: float, dt: float | None = None) -> float:
+        """Return ``u`` [A] limited for load ``load`` [N]; ``active`` says if it was."""
+        dt = self.dt if dt is None else dt
+        if not math.isfinite(load):
+            self.active = False
+            return u
+        if self._prev is not None and dt > 0:
+            raw = (load - self._prev) / dt
+            a = dt / (self.tau + dt) if self.tau > 0 else 1.0
+            self._rate += a * (raw - self._rate)
+        self._prev = load
+        damp = self.kd * self._rate
+        hi = self.kp * (self.limit - load) - damp
+        lo = self.kp * (-self.limit - load) - damp
+        out = min(max(u, lo), hi)
+        self.active = out != u
+        return out

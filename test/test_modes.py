@@ -1,0 +1,218 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The control modes without DDS: the force loop, bumpless switches, refusals, protect, a break.
+
+Closed loops run the plant node's and the controller node's cores in lock-step
+(:func:`ros_ehs.core.sim.specimen_runs.run_axis`); the rules of one period are fed by hand.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from ros_ehs.core.control.modes import ForceLimit, ForceLoop, load_train_compliance
+from ros_ehs.core.control.safety import break_travel
+from ros_ehs.core.control.supervised import AxisController
+from ros_ehs.core.params import preset
+from ros_ehs.core.sim.specimen_runs import run_axis
+
+MS = 1_000_000
+NAN = math.nan
+#: a fatigue rig with a compliant specimen and gains tuned for it (the force benchmark's)
+RIG = preset('fatigue_actuator', k_L=5e6, specimen_life=1e12, ramp_time=0.2,
+             force_kp=1.675e-7, force_ki=5.0e-7)
+
+
+def _force(t, f=NAN):
+    return (NAN, NAN, f)
+
+
+def test_the_force_loop_tracks_a_force_and_holds_it():
+    run = run_axis(RIG.replace(control_mode='force'), 1.5,
+                   lambda t: _force(t, 4e3 if t >= 0.5 else 0.0))
+    assert set(run.driving) == {'force'}
+    late = run.t > 1.2
+    assert np.max(np.abs(run.load[late] - 4e3)) < 40.0          # 1 % of the step
+    assert abs(run.load[-1] - 4e3) < 20.0
+    # no specimen stiffness in the controller: no feedforward, the loop alone still holds it
+    run = run_axis(RIG.replace(control_mode='force'), 1.5,
+                   lambda t: _force(t, 4e3 if t >= 0.5 else 0.0),
+                   controller_params=RIG.replace(control_mode='force', k_L=0.0))
+    assert abs(run.load[-1] - 4e3) < 40.0
+
+
+def test_the_force_feedforward_is_the_flow_of_the_load_trains_compliance():
+    c = load_train_compliance(RIG)
+    k_h = 2 * RIG['beta_e'] * RIG['A_p'] / RIG['l_iac']
+    assert c == pytest.approx(1 / 5e6 + 1 / k_h)
+    assert load_train_compliance(RIG.replace(k_L=0.0)) == 0.0
+    loop = ForceLoop(RIG.replace(ff_enable=0.0), 1e-3)
+    loop.start(0, 0.0, 0.0, blend_time=0.0)
+    loop.step(0, 0.0, 0.0)                       # the first target: no rate yet
+    u = loop.step(MS, 0.0, 10.0)                 # 10 N in 1 ms: 1e4 N/s
+    v = 1e4 * c
+    ff = RIG['force_ff'] * loop.ff.i_per_speed * v
+    assert loop.last_ff == pytest.approx(ff)
+    assert u == pytest.approx(ff + RIG['force_kp'] * 10.0 + RIG['force_ki'] * 1e-3 * 0.0)
+
+
+def test_a_force_loop_takes_over_at_the_command_it_finds():
+    loop = ForceLoop(RIG, 1e-3)
+    loop.start(5 * MS, 1234.0, 0.004)
+    # at the handover the reference is the measured load: error 0, no feedforward yet
+    assert loop.step(5 * MS, 1234.0, 5000.0) == pytest.approx(0.004)
+    assert loop.target == 1234.0
+    # and it blends to the reference over mode_blend_time
+    half = 5 * MS + int(RIG['mode_blend_time'] / 2 * 1e9)
+    assert loop.reference(half, 5000.0) == pytest.approx(1234.0 + 0.5 * (5000.0 - 1234.0))
+    assert loop.reference(half * 10, 5000.0) == 5000.0
+    # a reference without a force holds the load of the handover
+    assert loop.reference(half * 10, NAN) == 1234.0
+
+
+@pytest.mark.parametrize('kind', ['stiff', 'compliant'])
+def test_switches_between_displacement_and_force_are_bumpless(kind):
+    k = 5e7 if kind == 'stiff' else 5e6
+    p = RIG.replace(k_L=k, force_kp=6.9e-8 if kind == 'stiff' else 1.675e-7)
+    z0 = 5e3 / k
+    run = run_axis(p, 2.5, lambda t: (z0, 0.0, NAN) if t < 1.5 else (NAN, NAN, 5e3),
+                   actions=((1.0, 'mode', 'force'), (1.5, 'mode', 'displacement')))
+    assert [a[1:3] for a in run.answers] == [('mode', True), ('mode', True)]
+    k1, k2 = (int(np.searchsorted(run.t, t - 1e-9)) for t in (1.0, 1.5))
+    assert run.driving[k1 - 1] == 'displacement' and run.driving[k1] == 'force'
+    assert run.driving[k2 - 1] == 'force' and run.driving[k2] == 'displacement'
+    for kk in (k1, k2):
+        f0 = run.load[kk - 1]
+        assert np.max(np.abs(run.load[kk:kk + 400] - f0)) < 0.01 * 1e4      # 1 % of 10 kN
+        assert np.max(np.abs(np.diff(run.i[kk - 10:kk + 10]))) < 0.01 * p['i_rated']
+    kinds = [(e.kind, e.detector) for e in run.events]
+    assert kinds == [('mode', 'force'), ('mode', 'displacement')]
+
+
+def _axis(**kw) -> AxisController:
+    return AxisController(RIG.replace(ramp_time=0.0, **kw), 1e-3)
+
+
+def _step(ax, k, z=0.0, load=1000.0, z_traj=0.0, f_traj=NAN):
+    return ax.step(k * MS, z, 0.0, NAN, z_traj, 0.0, load, f_traj)
+
+
+def test_a_switch_to_force_is_refused_without_a_valid_load_or_with_an_interlock():
+    ax = _axis()
+    _step(ax, 0)
+    ok, why, ev = ax.set_mode('force', 0, load_ok=False)
+    assert not ok and 'load cell' in why and ev.kind == 'mode_refused' and ax.mode == \
+        'displacement'
+    ok, why, ev = ax.set_mode('sideways', 0, load_ok=True)
+    assert not ok and 'unknown control mode' in why
+    # an interlock latched: reset first
+    ax = _axis(limit_position_max=0.01, limit_position_max_action='hold')
+    _step(ax, 0, z=0.02)
+    ok, why, _ = ax.set_mode('force', 1, load_ok=True)
+    assert not ok and 'reset first' in why and 'limit_position_max' in why
+    # protect while the load is beyond the protect force
+    ax = _axis(protect_force=500.0)
+    _step(ax, 0, load=600.0)
+    ok, why, _ = ax.set_mode('displacement_force_limited', 1, load_ok=True)
+    assert not ok and 'beyond protect_force' in why
+    _step(ax, 1, load=500.0)                     # exactly at it: allowed
+    assert ax.set_mode('displacement_force_limited', 2, load_ok=True)[0]
+    # back to displacement is never refused
+    assert ax.set_mode('displacement', 3, load_ok=False)[0]
+
+
+def test_force_control_without_a_valid_load_trips_load_feedback_and_holds_in_displacement():
+    ax = _axis(control_mode='force')
+    _step(ax, 0, load=1000.0, f_traj=1000.0)
+    assert ax.driving == 'force'
+    _step(ax, 1, z=1e-4, load=NAN, f_traj=1000.0)
+    trips = [(e.kind, e.detector, e.action) for e in ax.events]
+    assert ('trip', 'load_feedback', 'hold') in trips
+    assert ('mode', 'displacement') in [(e.kind, e.detector) for e in ax.events]
+    assert ax.mode == 'displacement' and ax.driving == 'displacement'
+    assert ax.demand.mode == 'hold' and ax.demand.z_ref == 1e-4
+    # the displacement loop took the command over where the force loop left it
+    assert ax.output == pytest.approx(ax.ctrl.pid.i_term, abs=1e-12)
+
+
+def test_a_non_finite_load_in_displacement_is_no_fault():
+    ax = _axis()
+    for k in range(3):
+        _step(ax, k, load=NAN)
+    assert ax.events == [] and not ax.fault and ax.supervisor.tripped() == []
+
+
+def test_an_interlocks_hold_in_force_control_is_in_displacement_and_force_returns_after_reset():
+    ax = _axis(control_mode='force', limit_load_max=2000.0, limit_load_max_action='hold')
+    _step(ax, 0, load=1500.0, f_traj=1500.0)
+    _step(ax, 1, z=2e-4, load=2100.0, f_traj=2500.0)
+    assert [(e.kind, e.detector) for e in ax.events] == [('trip', 'limit_load_max')]
+    assert ax.driving == 'displacement' and ax.demand.mode == 'hold'
+    assert ax.mode == 'force'                       # an ordinary trip keeps the mode
+    ok, why, _ = ax.supervisor.reset(2 * MS, 2e-4, load=1950.0)     # hysteresis: 5 %
+    assert not ok and 'limit_load_max (load = 1950 N' in why
+    ok, why, _ = ax.supervisor.reset(2 * MS, 2e-4, load=1900.0)
+    assert ok, why
+    _step(ax, 3, z=2e-4, load=1500.0, f_traj=1500.0)
+    assert ax.driving == 'force'                    # back, blended from the measured load
+    assert ax.force.target == 1500.0
+
+
+def test_specimen_protect_keeps_a_move_into_a_stiff_specimen_under_its_limit():
+    p = RIG.replace(k_L=5e7, force_kp=6.9e-8, control_mode='displacement_force_limited',
+                    protect_force=2e3)
+
+    def ref(t):
+        s = min(max(t - 0.5, 0.0) * 0.01, 0.005)
+        return s, (0.01 if 0.0 < s < 0.005 else 0.0), NAN
+
+    run = run_axis(p, 1.5, ref)
+    assert np.max(np.abs(run.load)) <= 2e3 * 1.05
+    assert run.figures['protect_limiting']
+    # and the tracking error detector does not take the limit for a fault
+    assert run.figures['trips_limit_error'] == 0
+    # without protect the same move loads it far beyond
+    run = run_axis(p.replace(control_mode='displacement'), 0.7, ref)
+    assert np.max(run.load) > 2e4
+
+
+def test_the_limit_pulls_back_towards_its_force_and_undoes_the_integration():
+    lim = ForceLimit(RIG.replace(protect_force=1000.0, force_kd=0.0), 1e-3)
+    assert lim.apply(0.01, 0.0) == pytest.approx(RIG['force_kp'] * 1000.0) and lim.active
+    assert lim.apply(-0.01, 0.0) == pytest.approx(-RIG['force_kp'] * 1000.0)
+    assert lim.apply(1e-6, 0.0) == 1e-6 and not lim.active
+    assert lim.apply(0.01, NAN) == 0.01                           # no reading: no limit
+
+
+@pytest.mark.parametrize('kind', ['stiff', 'compliant'])
+def test_a_break_in_force_control_ends_held_in_displacement_within_its_bound(kind):
+    k = 5e7 if kind == 'stiff' else 5e6
+    p = RIG.replace(k_L=k, force_kp=6.9e-8 if kind == 'stiff' else 1.675e-7,
+                    control_mode='force', specimen_life=5.0, specimen_life_range=9e3,
+                    specimen_compliance=0.0)
+    run = run_axis(p, 3.0, lambda t: _force(t, 5.5e3 + 4.5e3 * math.sin(2 * math.pi * 5 * t)))
+    kb = int(np.nonzero((run.load == 0.0) & (run.t > 0.2))[0][0])
+    trips = [e for e in run.events if e.kind == 'trip']
+    assert [e.detector for e in trips] == ['specimen_break']
+    assert trips[0].action == 'hold' and trips[0].value > p['break_drop']
+    assert run.figures['control_mode'] == 'displacement' and run.figures['mode'] == 'hold'
+    peak = np.max(run.load[kb - 60:kb])
+    travel = np.max(np.abs(run.z[kb:] - run.z[kb]))
+    assert 0 < travel <= break_travel(p, peak, 1e-3)
+    assert np.max(np.abs(run.z_dot[-200:])) < 1e-3            # held: the loop settles it
+    # without the detector the force loop runs the piston away, towards its end stop
+    run = run_axis(p.replace(specimen_break_action='off', load_feedback_action='off'), 3.0,
+                   lambda t: _force(t, 5.5e3 + 4.5e3 * math.sin(2 * math.pi * 5 * t)))
+    assert np.max(np.abs(run.z)) > 0.05
