@@ -130,13 +130,14 @@ def fill_state(msg: Any, s: AxisState) -> Any:
 
 def state_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float],
                       velocity: Sequence[float], effort: Sequence[float],
-                      joint: str = JOINT_PISTON) -> AxisState:
+                      joint: str = JOINT_PISTON, load_joint: str = JOINT_LOAD) -> AxisState:
     """
     Read an :class:`AxisState` from a ``state`` JointState's fields (ValueError if bad).
 
     ``joint``: the axis's joint (a rig driver's ``/joint_states`` names its own); its position
     is required, and its velocity too for the contract's ``piston``; a rig's joint without
-    a velocity gives NaN (the controller then differences the position).
+    a velocity gives NaN (the controller then differences the position). ``load_joint``: the
+    joint whose effort is the load cell (NaN without one).
     """
     names = list(names)
     k = joint_index(names, joint, 'state')
@@ -148,8 +149,8 @@ def state_from_arrays(stamp: int, names: Sequence[str], position: Sequence[float
     if JOINT_VALVE in names:
         j = names.index(JOINT_VALVE)
         i = float(effort[j]) if len(effort) > j else math.nan
-    if JOINT_LOAD in names:
-        j = names.index(JOINT_LOAD)
+    if load_joint in names:
+        j = names.index(load_joint)
         load = float(effort[j]) if len(effort) > j else math.nan
     required = (('position', position), ('velocity', velocity)) if joint == JOINT_PISTON \
         else (('position', position),)

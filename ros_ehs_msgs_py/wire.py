@@ -252,10 +252,12 @@ def decode_joint_state(data: bytes) -> JointStateData:
     return _decode_slow(data)
 
 
-def state_from_cdr(data: bytes, joint: str = JOINT_PISTON) -> AxisState:
+def state_from_cdr(data: bytes, joint: str = JOINT_PISTON,
+                   load_joint: str = JOINT_LOAD) -> AxisState:
     """Read an :class:`AxisState` from a serialized ``state`` JointState (``joint``'s)."""
     m = decode_joint_state(data)
-    return state_from_arrays(m.stamp_ns, m.name, m.position, m.velocity, m.effort, joint)
+    return state_from_arrays(m.stamp_ns, m.name, m.position, m.velocity, m.effort, joint,
+                             load_joint)
 
 
 def reference_from_cdr(data: bytes) -> Reference:

@@ -77,6 +77,7 @@ SHORT = {
     'soak': (['--seconds', '4', '--max-bag-duration', '1', '--sample', '0.5'],
              'rss_slope_mb_per_h'),
     'realtime': (['--seconds', '3'], 'rig'),
+    'force': (['--frequencies', '20', '--cycles', '3', '--specimens', 'stiff'], 'protect'),
 }
 
 

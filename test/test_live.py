@@ -249,3 +249,33 @@ def test_the_trend_of_a_bag_without_estimates_names_the_topics_it_has(tmp_path, 
     assert main(['trend', 'bags/sample_sine_1hz']) == 2
     err = capsys.readouterr().err
     assert "no topic 'parameter_estimates'" in err and '/state' in err
+
+
+def test_a_live_window_with_a_load_cell_refits_the_specimens_stiffness():
+    """The window keeps the load cell; a refit of k_L from it, with its standard error."""
+    from ros_ehs.core.sim.specimen_runs import run_axis
+    truth = preset('fatigue_actuator', k_L=5e6, specimen_life=1e12, specimen_compliance=0.0,
+                   load_cell_noise=20.0)
+    run = run_axis(truth, 3.0, lambda t: (0.0015 * math.sin(2 * math.pi * 2 * t),
+                                          0.003 * math.pi * math.cos(2 * math.pi * 2 * t),
+                                          math.nan), model='reduced')
+    win = SampleWindow(2.0, 4000)
+    rng = np.random.default_rng(3)              # the bench's sensor noise
+    for k, t in enumerate(run.t):
+        st = int(round(t * 1e9))
+        win.add_state(st, run.z[k] + 5e-6 * rng.standard_normal(),
+                      run.z_dot[k] + 1e-3 * rng.standard_normal())
+        win.add_command(st, run.i[k])
+        win.add_load(st, run.load[k])
+        win.add_pressure(0, st, run.p_a[k] + 2e4 * rng.standard_normal())
+        win.add_pressure(1, st, run.p_b[k] + 2e4 * rng.standard_normal())
+    win.add_load(0, math.nan)                  # a non-finite reading is not kept
+    exps = win.experiments()
+    assert len(exps) == 1 and exps[0].load_cell is not None
+    live = LiveIdentifier(truth.replace(k_L=4e6), free=['k_L'], pushable=['k_L'],
+                          model='reduced', sigmas=3.0, rel_change=0.02, push_period=0.0)
+    live.controller = {'k_L': 4e6}
+    est, r = live.refit(exps, int(run.t[-1] * 1e9), 2.0)
+    assert est.values['k_L'] == pytest.approx(5e6, rel=0.01)
+    assert 0 < est.stderr['k_L'] < 0.01 * 5e6
+    assert est.pushed and 'k_L' in est.reason

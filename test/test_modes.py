@@ -25,6 +25,7 @@ import pytest
 from ros_ehs.core.control.modes import ForceLimit, ForceLoop, load_train_compliance
 from ros_ehs.core.control.safety import break_travel
 from ros_ehs.core.control.supervised import AxisController
+from ros_ehs.core.model.coefficients import flow_gain_kq
 from ros_ehs.core.params import preset
 from ros_ehs.core.sim.specimen_runs import run_axis
 
@@ -58,12 +59,12 @@ def test_the_force_feedforward_is_the_flow_of_the_load_trains_compliance():
     k_h = 2 * RIG['beta_e'] * RIG['A_p'] / RIG['l_iac']
     assert c == pytest.approx(1 / 5e6 + 1 / k_h)
     assert load_train_compliance(RIG.replace(k_L=0.0)) == 0.0
-    loop = ForceLoop(RIG.replace(ff_enable=0.0), 1e-3)
+    loop = ForceLoop(RIG, 1e-3)
     loop.start(0, 0.0, 0.0, blend_time=0.0)
     loop.step(0, 0.0, 0.0)                       # the first target: no rate yet
     u = loop.step(MS, 0.0, 10.0)                 # 10 N in 1 ms: 1e4 N/s
     v = 1e4 * c
-    ff = RIG['force_ff'] * loop.ff.i_per_speed * v
+    ff = RIG['force_ff'] * RIG['A_p'] / (flow_gain_kq(RIG) * RIG['K_x']) * v
     assert loop.last_ff == pytest.approx(ff)
     assert u == pytest.approx(ff + RIG['force_kp'] * 10.0 + RIG['force_ki'] * 1e-3 * 0.0)
 

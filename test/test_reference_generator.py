@@ -204,3 +204,47 @@ def test_without_a_correction_there_is_nothing_to_learn_or_freeze():
     assert not g.frozen_by
     assert isinstance(correction_for(_values(), _options(amplitude_phase_control=True)),
                       AmplitudePhaseControl)
+
+
+# -- force control: the waveform is a force ----------------------------------------------------
+def test_a_force_waveform_goes_out_as_each_references_force_with_no_position():
+    g = ReferenceGenerator(_values(amplitude=4e3, offset=5e3, frequency=2.0),
+                           _options(control_mode='force'), sim_time=True)
+    refs = g.clock(T0)
+    assert all(math.isnan(r.z_ref) and math.isnan(r.v_ref) for r in refs)
+    assert refs[0].f_ref == pytest.approx(5e3)
+    assert refs[5].f_ref == pytest.approx(5e3 + 4e3 * math.sin(2 * math.pi * 2 * 5e-3))
+    # real time alike
+    g = ReferenceGenerator(_values(amplitude=4e3, offset=5e3), _options(control_mode='force'))
+    r = g.tick(T0, 0)
+    assert math.isnan(r.z_ref) and r.f_ref == pytest.approx(5e3)
+
+
+def test_a_position_waveform_beyond_2_m_is_refused_naming_force_control():
+    with pytest.raises(ParameterError, match='control_mode force'):
+        ReferenceGenerator(_values(amplitude=4e3), _options())
+    g = ReferenceGenerator(_values(), _options())
+    with pytest.raises(ParameterError, match='`offset`'):
+        g.set_waveform({'offset': -2.5})
+
+
+def test_apc_and_pvc_correct_the_force_from_the_load_cell():
+    """APC of a force sine, and PVC of a force block sequence, on a specimen, in process."""
+    from ros_ehs.core.control.pvc import parse_blocks, PeakValleyControl
+    from ros_ehs.core.params import preset
+    from ros_ehs.core.sim.specimen_runs import run_axis
+    rig = preset('fatigue_actuator', k_L=5e6, specimen_life=1e12, control_mode='force',
+                 force_kp=1.675e-7, force_ki=5.0e-7, ramp_time=0.2)
+    apc = correction_for(_values(amplitude=4e3, offset=5e3, frequency=5.0),
+                         _options(control_mode='force', amplitude_phase_control=True,
+                                  ramp_time=0.2))
+    run = run_axis(rig, 0.2 + 20 / 5.0, apc, signal='force')
+    assert apc.converged_at is not None and apc.converged_at <= 15
+    last = run.t > run.t[-1] - 0.2
+    want = 5e3 + 4e3 * np.sin(2 * np.pi * 5.0 * run.t[last])
+    assert np.sqrt(np.mean((run.load[last] - want) ** 2)) < 0.01 * 4e3
+    blocks = parse_blocks('10000 1000 6; 6000 2000 6')        # N: a block-loading sequence
+    pvc = PeakValleyControl(blocks, 2.0, 'haversine', latency=0.02, learn_from=0.2)
+    run_axis(rig, 0.2 + 36 / 2.0, pvc, signal='force')
+    assert pvc.converged_at is not None and pvc.converged_at <= 20
+    assert max(pvc.errors) <= 0.005                  # every block's peak and valley: 0.5 %

@@ -375,3 +375,32 @@ def test_the_cli_refuses_a_bad_input_delay_by_name(tmp_path):
                         '--input-delay', 'soon'], capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and ("argument --input-delay: parameter `input_delay` = 'soon' "
                                   'must be a number [s] or auto') in p.stderr, p.stderr
+
+
+def test_a_specimens_stiffness_is_fitted_from_a_rigs_load_cell_with_its_standard_error(
+        tmp_path):
+    """
+    A rig with a specimen, its load cell a force/torque broadcaster's wrench (force.x).
+
+    The actuator identified before the specimen went in (Table 1's values known), the
+    specimen's stiffness is fitted from a bag that rosbags wrote, starting from nothing: the
+    fit starts from the load against the position.
+    """
+    from ros_ehs.core.control.waveforms import Sine
+    truth = preset('table1_estimated', k_L=5e6, F_cc=50.0, F_sc=100.0)
+    lay = RigLayout(rate_hz=1000.0, load_cell=True, storage='sqlite3')
+    record_rig_bag(tmp_path / 'bag', lay, plant_params=truth, controller_params=truth,
+                   reference=Sine(0.0015, 2.0), duration=4.0)
+    exps = load_experiments(tmp_path / 'bag', topics=lay.topic_map(0.001))
+    assert all(e.load_cell is not None for e in exps)
+    assert exps[0].noise['load_cell'] == pytest.approx(lay.noise_f, rel=0.2)
+    r = identify(exps, free=['k_L'], model='reduced', base=truth.replace(k_L=0.0))
+    assert r.x['k_L'] == pytest.approx(5e6, rel=0.01)
+    assert 0 < r.stderr['k_L'] < 0.01 * 5e6 and r.adequate
+    assert 'load_cell' in r.metrics[exps[0].name]
+    # a bag without a load cell: nothing to start k_L from, said by name
+    lay = RigLayout(rate_hz=1000.0)
+    record_rig_bag(tmp_path / 'free', lay, duration=1.0)
+    with pytest.raises(InputError, match='load cell'):
+        identify(load_experiments(tmp_path / 'free', topics=lay.topic_map(0.001)),
+                 free=['k_L'], model='reduced', base=truth.replace(k_L=0.0))

@@ -94,3 +94,21 @@ def test_bad_tuning_requests_are_named(kw, match):
 def test_a_force_loop_needs_a_specimen():
     with pytest.raises(InputError, match='k_L'):
         tune(RIG, 'force')
+
+
+def test_ehs_sim_tune_prints_checks_and_writes_gains_the_controller_reads(tmp_path, capsys):
+    from ros_ehs.core.params import load_yaml
+    from ros_ehs.tools.cli import main
+    out = tmp_path / 'gains.yaml'
+    assert main(['tune', '--preset', 'fatigue_actuator', '--set', 'k_L=5e6', '--loop', 'force',
+                 '--bandwidth', '20', '--out', str(out)]) == 0
+    text = capsys.readouterr().out
+    assert 'phase margin' in text and 'square wave +-2000 N' in text and 'points from' in text
+    assert 'margins asked for hold only up to' in text        # 20 Hz is beyond this specimen
+    p = load_yaml(out)
+    r = tune(RIG.replace(k_L=5e6), 'force', bandwidth_hz=20.0, gain_margin_db=10.0, step=4e3)
+    assert p['force_kp'] == pytest.approx(r.gains.kp) and p['force_ki'] == pytest.approx(
+        r.gains.ki)
+    # no specimen: a force loop cannot be tuned, said by name
+    assert main(['tune', '--loop', 'force', '--no-check']) == 2
+    assert 'set k_L' in capsys.readouterr().err

@@ -216,7 +216,7 @@ def main(argv=None) -> int:
                                 end_stop_distance_mm=min(v['end_stop_distance_mm']
                                                          for v in br))
     _print(figures)
-    return report({'force': figures})
+    return report(figures)
 
 
 def _print(fig: dict) -> None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from ros_ehs.core.control.apc import MAX_HARMONICS
 from ros_ehs.core.control.feedforward import MODEL_PARAMS
+from ros_ehs.core.control.modes import SPECIMEN_PARAMS
 from ros_ehs.core.params import CONTROL_SPECS, ESTIMATED, PLANT_SPECS, SAFETY_SPECS, spec
 from ros_ehs.core.settings import Setting
 from ros_ehs.core.sim.axis import FAULTS
@@ -58,6 +59,16 @@ MODEL = Setting('model', '', 'simplified', meaning='model: full (10 states), red
                 "simplified with the full model's valve dynamics: for a real rig) or "
                 'simplified (4 states, the paper)', choices=_MODELS)
 _WAIT_SUBSCRIBERS = ('wait_subscribers', '', 0, 0, 1000)
+# where the load cell comes from (the controller, the reference's force corrections)
+LOAD_TOPIC = Setting('load_topic', '', '', meaning='the load cell from its own topic, a '
+                     "geometry_msgs/WrenchStamped (ros2_control's force_torque_sensor_"
+                     'broadcaster: <name>/wrench) read on load_axis; empty: from the state '
+                     '(joint load_joint, its effort), as the plant sends it')
+LOAD_AXIS = Setting('load_axis', '', 'force.z', meaning="load_topic: the wrench's component "
+                    'that is the specimen force (tension positive)',
+                    choices=contract.WRENCH_AXES)
+LOAD_JOINT = Setting('load_joint', '', contract.JOINT_LOAD, meaning='the joint of the state '
+                     'whose effort is the load cell (a rig driver may name its own)')
 
 # -- nodes ------------------------------------------------------------------------------------
 PLANT = (
@@ -132,12 +143,19 @@ CONTROLLER = (
             "controller's joints; the others get 0 A)"),
     Setting('command_scale', '', 1.0, 1.0e-6, 1.0e6, 'forward_command: units per A the driver '
             'takes (1000: mA)'),
+    LOAD_TOPIC,
+    LOAD_AXIS,
+    LOAD_JOINT,
     RT_PRIORITY,
     CPU_AFFINITY,
 )
 
 REFERENCE = (
     RATE_HZ,
+    Setting('control_mode', '', 'displacement', meaning='what the waveform commands: a position '
+            '[m] (displacement, and specimen protect) or a force [N] (force control: '
+            "amplitude, offset and blocks in N, sent as the reference's effort; APC and PVC "
+            'correct it from the load cell)', choices=('displacement', 'force')),
     Setting('preview', 's', 0.02, 0.0, 1.0, 'use_sim_time: each /clock t is answered with the '
             "samples up to t + preview; must exceed the plant's clock_period"),
     Setting('duration', 's', 0.0, 0.0, 1.0e9, 'hold the last position after this time (0: '
@@ -150,8 +168,8 @@ REFERENCE = (
     Setting(*_WAIT_SUBSCRIBERS, 'real time: start the trajectory (time zero) only once '
             '`reference` has this many subscribers; publish nothing until then'),
     Setting('blocks', '', '', meaning='kind triangle or haversine: a block-loading sequence, '
-            "`peak valley cycles` per block [m, m, -], blocks apart by ';' (empty: offset -+ "
-            'amplitude)'),
+            '`peak valley cycles` per block [m, m, -] (N, N, - in force control), blocks apart '
+            "by ';' (empty: offset -+ amplitude)"),
     Setting('amplitude_phase_control', '', False, meaning='kind sine or chirp: correct the '
             "command's amplitude, phase and mean each cycle from the measured position (APC); "
             'frozen while a safety trip acts or states are lost'),
@@ -164,6 +182,9 @@ REFERENCE = (
     Setting('apc_harmonics', '', 5, 1, MAX_HARMONICS, 'APC of a sine: the harmonics corrected, '
             'the fundamental included (1: amplitude and phase only; 2 and up also cancel the '
             'distortion at 2 f, 3 f, ...); a chirp corrects the fundamental only'),
+    LOAD_TOPIC,
+    LOAD_AXIS,
+    LOAD_JOINT,
     CPU_AFFINITY,
 )
 
@@ -242,6 +263,8 @@ IDENTIFY = (
             'or pressure/chamber_t)', flags=('--pressure-t',)),
     Setting('use_pressures', '', True, meaning='fit the chamber pressures when the bags have '
             'them', flags=('--no-pressures',)),
+    Setting('load_topic', '', '', meaning="the load cell, a WrenchStamped (default: the map's, "
+            'or load_cell: fitted when it reads a load, which makes k_L identifiable)'),
     Setting('input_delay', 's', -1.0, -1.0, 0.5, 'from a command to the valve acting on it; '
             '-1 (auto): the map says, or estimated where the bags record commands',
             words=(('auto', -1.0),)),
@@ -281,7 +304,8 @@ NODE_OPTIONS = {'plant': PLANT, 'controller': CONTROLLER, 'reference': REFERENCE
 
 #: the parameters the controller declares: its own, the safety layer's and the plant values
 #: its feedforward uses
-CONTROLLER_SPECS = CONTROL_SPECS + SAFETY_SPECS + tuple(spec(n) for n in MODEL_PARAMS)
+CONTROLLER_SPECS = CONTROL_SPECS + SAFETY_SPECS + tuple(spec(n) for n in MODEL_PARAMS) + \
+    tuple(spec(n) for n in SPECIMEN_PARAMS)
 #: each node's parameters (model, controller, safety), declared with its options
 NODE_PARAMS = {'plant': PLANT_SPECS, 'controller': CONTROLLER_SPECS}
 
@@ -332,6 +356,25 @@ CLI_OPTIONS = {
                       "environment's)")),
     'identify': tuple(s for s in IDENTIFY if s.name not in _NODE_ONLY) + (
         Setting('quiet', '', False, meaning='do not print each iteration'),),
+    'tune': (Setting(*_PRESET, meaning='the model: a parameter preset, under `params`'),
+             Setting('params', '', '', meaning='parameters YAML over the preset: an identified '
+                     'model (ehs_sim identify writes one), with the specimen (k_L) fitted'),
+             Setting('set', '', [], meaning='values over those, NAME=VALUE each, e.g. '
+                     'k_L=5e7; repeat for more'),
+             Setting('loop', '', 'both', meaning='the loop to tune',
+                     choices=('displacement', 'force', 'both')),
+             Setting('bandwidth', 'Hz', 10.0, 0.01, 250.0, "the closed loop's -3 dB bandwidth "
+                     'asked for (the margins may lower it: said so)'),
+             Setting('phase_margin', 'deg', 45.0, 1.0, 90.0, 'the least phase margin'),
+             Setting('gain_margin', 'dB', 10.0, 1.0, 40.0, 'the least gain margin'),
+             Setting('step', 'm or N', 0.0, 0.0, 1.0e7, "the square wave's peak to peak: the "
+                     'valve is linearised over the opening it commands (0: 2 mm or 4 kN)'),
+             Setting('model', '', 'reduced', meaning='the model the gains are computed from',
+                     choices=_MODELS),
+             Setting('check', '', True, meaning='check the prediction with a square wave on '
+                     'the full model in process, as a rig engineer tunes with one'),
+             Setting(*_OUT, '', meaning='write the gains as a ROS 2 parameters file for the '
+                     'controller (empty: not written)')),
     'trend': (Setting('bag', '', '', meaning='the bag (directory, .mcap or .db3)'),
               Setting(*_OUT, '', meaning='PNG of each parameter against time, with its band'),
               Setting('sigmas', '', 3.0, 0.0, 100.0, 'band width in standard errors')),

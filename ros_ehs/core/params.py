@@ -144,7 +144,7 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     _p('m_p', 'kg', 200.0, 1.0, 1.0e5, 'moving mass (piston, rod, fixture)', 'cylinder', 'I'),
     # the specimen and its load cell (ros_ehs.core.model.specimen)
     _p('k_L', 'N/m', 0.0, 0.0, 1.0e9, 'specimen stiffness, its load train included (0: no '
-       'specimen: the piston moves free)', 'specimen', 'I', est_lo=1.0e3),
+       'specimen: the piston moves free)', 'specimen', 'I', est_lo=1.0e3, scale=1.0e6),
     _p('c_L', 'N*s/m', 0.0, 0.0, 1.0e7, 'specimen damping', 'specimen', 'I'),
     _p('z_L', 'm', 0.0, -2.0, 2.0, "specimen's installed position: the piston position at "
        'which it carries no load', 'specimen', 'I'),
@@ -236,7 +236,7 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'd_filter_tau)', 'modes', 'D'),
     _p('force_ff', '1', 1.1, 0.0, 1.5, "weight of the force loop's feedforward: the flow "
        'that the force rate needs through the load train and the oil column, '
-       'dF_ref/dt (1/k_L + l_iac/(2 beta_e A_p)), with the friction terms (0: off)',
+       'dF_ref/dt (1/k_L + l_iac/(2 beta_e A_p)) (0: off)',
        'modes', 'D'),
     _p('mode_blend_time', 's', 0.2, 0.0, 60.0, 'a mode switch, and force control coming on: '
        "the new loop's reference blends from its measured value to the reference over this "
@@ -478,9 +478,11 @@ def markdown_table() -> str:
         for s in specs:
             rng = ', '.join(s.choices) if s.is_choice else f'[{s.lo:g}, {s.hi:g}]'
             t1 = ''
-            if s.scale is not None:
+            if s.initial is not None:
                 t1 = (f'{s.initial:g} / [{s.est_lo:g}, {s.est_hi:g}] / {s.estimated:g} / '
                       f'{s.scale:g}')
+            elif s.est_lo is not None:       # fittable, not in Table 1: its fit bound, scale
+                t1 = f'- / [{s.est_lo:g}, {s.hi:g}] / - / {s.scale or 1:g}'
             default = s.default if s.is_choice else f'{s.default:g}'
             lines.append(f'| `{s.name}` | {s.unit} | {default} | {rng} | {s.meaning} | '
                          f'{s.source} | {t1} |')

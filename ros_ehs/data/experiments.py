@@ -46,7 +46,9 @@ Signals:
   Savitzky-Golay derivative (quadratic, about 5 ms wide, at least 3 samples) and its noise,
   which the fit's verdict compares the residual with, is the position's noise times that
   filter's gain (``Experiment.noise``), not estimated from the derived signal itself;
-* chamber pressures (or one load pressure) are interpolated onto the grid when mapped.
+* chamber pressures (or one load pressure) are interpolated onto the grid when mapped, and
+  so is the load cell (``load_cell``, a WrenchStamped's ``load_axis``) when the bag has it
+  and it reads a load (a plant without a specimen publishes a load cell that reads 0).
 """
 
 from __future__ import annotations
@@ -60,8 +62,8 @@ from ros_ehs.core.identify.experiment import (cut_experiment, Experiment, MIN_SA
                                               on_grid, run_bounds, Series, sorted_by_time,
                                               split_runs)
 from ros_ehs.data.bag.reader import Bag, open_bag
-from ros_ehs.data.mapping import (COMMAND_TYPES, decoder, PRESSURE_TYPES, STATE_TYPES,
-                                  TopicDecoder, TopicMap)
+from ros_ehs.data.mapping import (COMMAND_TYPES, decoder, LOAD_TYPES, PRESSURE_TYPES,
+                                  STATE_TYPES, TopicDecoder, TopicMap)
 import ros_ehs_msgs_py as contract
 
 __all__ = ['load_experiment', 'load_experiments', 'resolve_topic']
@@ -183,10 +185,21 @@ def _read(path, tmap: TopicMap, bag: Bag | None, start=None, end=None) -> Series
             if not pdec.stamped:
                 tp = tp + offset
             pressures.append(sorted_by_time(tp, pv))
+    cell = None
+    if tmap.load_cell:    # the contract's load_cell is optional (no specimen); a rig's is not
+        top = resolve_topic(bag, tmap.load_cell,
+                            required=tmap.load_cell != contract.LOAD_CELL.name)
+        if top is not None:
+            _check_type(bag, top, LOAD_TYPES, 'load_cell')
+            rows, rx = _series(bag, top, decoder(tmap, 'load_cell', bag.topics[top].msg_type))
+            tl, fl = _times(rows, rx)
+            if tl.size and np.ptp(fl) > 0:     # a load cell that reads: a specimen
+                cell = sorted_by_time(tl, fl)
     if bag.truncated:
         name += ' (truncated)'
     delay = 0.0 if tmap.input_delay is None else float(tmap.input_delay)
-    return Series(name, ts, z, v, applied, tc, vc, pressures, bool(tmap.pressure_load), delay)
+    return Series(name, ts, z, v, applied, tc, vc, pressures, bool(tmap.pressure_load), delay,
+                  cell)
 
 
 def _topic_map(topics: TopicMap | None, state, command, pressure_p, pressure_t) -> TopicMap:

@@ -25,6 +25,8 @@ ros2_control's conventions needs a few lines of YAML (``--topics rig.yaml``)::
     pressure_p: /hydraulics/chamber_a     # FluidPressure [Pa], or Float64 in pressure_unit
     pressure_t: /hydraulics/chamber_b
     pressure_unit: bar
+    load_cell: /fts_broadcaster/wrench    # geometry_msgs/WrenchStamped: a specimen's force
+    load_axis: force.z              # its component that is the load (tension positive)
     input_delay: auto               # or seconds, e.g. 0.002
 
 Accepted message types: state ``sensor_msgs/JointState`` (position always; velocity used when
@@ -32,7 +34,8 @@ present, else derived from the position); command ``sensor_msgs/JointState`` (th
 ``command_joint``), ``std_msgs/Float64`` or ``std_msgs/Float64MultiArray``
 (``command_index``); pressures ``sensor_msgs/FluidPressure`` or ``std_msgs/Float64``, per
 chamber (``pressure_p``, ``pressure_t``) or as one load pressure ``p_CP - p_CT``
-(``pressure_load``), or none.
+(``pressure_load``), or none; the load cell ``geometry_msgs/WrenchStamped`` (the component
+``load_axis``; ros2_control's force_torque_sensor_broadcaster), or none.
 """
 
 from __future__ import annotations
@@ -46,16 +49,18 @@ from typing import Any, Callable, Mapping
 from ros_ehs.core.errors import InputError
 import ros_ehs_msgs_py as contract
 
-__all__ = ['COMMAND_TYPES', 'PRESSURE_TYPES', 'ROLES', 'STATE_TYPES', 'TopicDecoder',
-           'TopicMap', 'decoder', 'load_topic_map', 'topic_map', 'topic_map_of']
+__all__ = ['COMMAND_TYPES', 'LOAD_TYPES', 'PRESSURE_TYPES', 'ROLES', 'STATE_TYPES',
+           'TopicDecoder', 'TopicMap', 'decoder', 'load_topic_map', 'topic_map', 'topic_map_of']
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 FLOAT64 = 'std_msgs/msg/Float64'
 FLOAT64_ARRAY = 'std_msgs/msg/Float64MultiArray'
 FLUID_PRESSURE = 'sensor_msgs/msg/FluidPressure'
+WRENCH = 'geometry_msgs/msg/WrenchStamped'
 STATE_TYPES = (JOINT_STATE,)
 COMMAND_TYPES = (JOINT_STATE, FLOAT64, FLOAT64_ARRAY)
 PRESSURE_TYPES = (FLUID_PRESSURE, FLOAT64)
+LOAD_TYPES = (WRENCH,)
 #: Pa per unit of a Float64 pressure (FluidPressure is Pa by definition)
 PRESSURE_UNITS = {'Pa': 1.0, 'kPa': 1.0e3, 'MPa': 1.0e6, 'bar': 1.0e5}
 
@@ -81,6 +86,8 @@ class TopicMap:
     pressure_t: str | None = contract.PRESSURE_T.name
     pressure_load: str | None = None
     pressure_unit: str = 'Pa'
+    load_cell: str | None = contract.LOAD_CELL.name
+    load_axis: str = 'force.z'
     input_delay: float | None = None
 
     def __post_init__(self) -> None:
@@ -89,7 +96,7 @@ class TopicMap:
             v = getattr(self, name)
             if not isinstance(v, str) or not v:
                 raise InputError(f'topic map: `{name}` = {v!r} must be a non-empty string')
-        for name in ('pressure_p', 'pressure_t', 'pressure_load'):
+        for name in ('pressure_p', 'pressure_t', 'pressure_load', 'load_cell'):
             v = getattr(self, name)
             if v is not None and (not isinstance(v, str) or not v):
                 raise InputError(f'topic map: `{name}` = {v!r} must be a topic name or null')
@@ -108,6 +115,9 @@ class TopicMap:
                 or self.command_scale == 0:
             raise InputError(f'topic map: `command_scale` = {self.command_scale!r} must be a '
                              'finite, non-zero number [A per unit]')
+        if self.load_axis not in contract.WRENCH_AXES:
+            raise InputError(f'topic map: `load_axis` = {self.load_axis!r} is not one of '
+                             f'{list(contract.WRENCH_AXES)}')
         if self.pressure_unit not in PRESSURE_UNITS:
             raise InputError(f'topic map: `pressure_unit` = {self.pressure_unit!r} is not one '
                              f'of {list(PRESSURE_UNITS)}')
@@ -183,8 +193,8 @@ def topic_map_of(options: Mapping[str, Any], where: str = 'the options') -> Topi
 
     ``topic_map`` (a file, or the contract), then the topic options that are set over it
     (``state_topic``, ``joint``, ``command_topic``, ``command_index`` >= 0,
-    ``pressure_p_topic``, ``pressure_t_topic``, ``input_delay`` >= 0), without pressures when
-    ``use_pressures`` is false.
+    ``pressure_p_topic``, ``pressure_t_topic``, ``load_topic``, ``input_delay`` >= 0), without
+    pressures when ``use_pressures`` is false.
     """
     o = options
     tmap = topic_map(o['topic_map'] or None, where, state=o['state_topic'] or None,
@@ -192,6 +202,7 @@ def topic_map_of(options: Mapping[str, Any], where: str = 'the options') -> Topi
                      command_index=None if o['command_index'] < 0 else o['command_index'],
                      pressure_p=o['pressure_p_topic'] or None,
                      pressure_t=o['pressure_t_topic'] or None,
+                     load_cell=o.get('load_topic') or None,
                      input_delay=None if o['input_delay'] < 0 else o['input_delay'])
     return tmap if o['use_pressures'] else tmap.without_pressures()
 
@@ -212,7 +223,8 @@ def topic_map(path: str | os.PathLike | None = None, where: str = 'the options',
 
 #: The signals a map places, and the message types each may come as.
 ROLES = {'state': STATE_TYPES, 'command': COMMAND_TYPES, 'pressure_p': PRESSURE_TYPES,
-         'pressure_t': PRESSURE_TYPES, 'pressure_load': PRESSURE_TYPES}
+         'pressure_t': PRESSURE_TYPES, 'pressure_load': PRESSURE_TYPES,
+         'load_cell': LOAD_TYPES}
 
 
 class TopicDecoder:
@@ -222,7 +234,8 @@ class TopicDecoder:
     What a bag's reader (:mod:`ros_ehs.data.experiments`) and the live identifier both call.
 
     Calling it returns, for the ``state``, ``(stamp [ns], z [m], z_dot [m/s] or NaN, applied
-    current [A] or NaN)``, and for a command or a pressure ``(stamp [ns], value [A or Pa])``;
+    current [A] or NaN)``, and for a command, a pressure or the load cell ``(stamp [ns], value
+    [A, Pa or N])``;
     the stamp is None for a message without a header (``Float64``, ``Float64MultiArray``: the
     caller puts its receive time on the state's clock). A message without the mapped joint
     gives None and its joints are kept in :attr:`seen` (the first 20), for an error that names
@@ -303,6 +316,12 @@ def decoder(tmap: TopicMap, role: str, msg_type: str) -> TopicDecoder:
                     raise ValueError(f'`command_index` = {ci} but its Float64MultiArray '
                                      f'message has {len(values)} values')
                 return None, values[ci] * scale
+    elif role == 'load_cell':
+        axis = tmap.load_axis
+
+        def read(data: bytes):
+            r = contract.load_from_cdr(data, axis)
+            return r.stamp_ns, r.force
     elif msg_type == FLUID_PRESSURE:
         read = contract.fluid_pressure_from_cdr
     else:

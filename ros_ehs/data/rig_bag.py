@@ -20,11 +20,12 @@ controller (as its node runs it: ramp-on from rest); the bag is written by anoth
 ``/joint_states`` with the axis's joint among others, position only or with velocity;
 commands as a forward-command controller's ``Float64MultiArray`` (or ``Float64``, or a
 ``JointState`` effort); pressures per chamber as ``FluidPressure`` [Pa] or ``Float64``
-[bar], as one load pressure, or none, at their own rate; the driver's stamps jittered, on
-its own clock, with lost samples; ``/rosout`` and ``/tf`` beside. The driver applies each
-command ``delay_periods`` cycles after the state it answers. Used by the tests and ``bench
-identify`` to read a bag that is neither our layout nor our writer; labelled synthetic
-wherever it is used.
+[bar], as one load pressure, or none, at their own rate; a load cell (a specimen's force)
+as a force/torque broadcaster's ``WrenchStamped`` on ``force.x``, or none; the driver's
+stamps jittered, on its own clock, with lost samples; ``/rosout`` and ``/tf`` beside. The
+driver applies each command ``delay_periods`` cycles after the state it answers. Used by
+the tests and ``bench identify`` to read a bag that is neither our layout nor our writer;
+labelled synthetic wherever it is used.
 """
 
 from __future__ import annotations
@@ -43,8 +44,10 @@ from ros_ehs.core.model.plant import Plant
 from ros_ehs.core.params import Params, preset
 from ros_ehs.data.mapping import TopicMap
 
-__all__ = ['RigLayout', 'record_rig_bag']
+__all__ = ['LOAD_TOPIC', 'RigLayout', 'record_rig_bag']
 
+#: where the driver's force/torque broadcaster publishes the load cell
+LOAD_TOPIC = '/fts_broadcaster/wrench'
 #: the driver's clock at the first sample, and the recorder's (another machine's) [ns]
 DRIVER_T0 = 1_700_000_100_000_000_000
 RECORDER_T0 = DRIVER_T0 - 3_217_000_000
@@ -70,6 +73,8 @@ class RigLayout:
     noise_z: float = 5e-6
     noise_v: float = 1e-3
     noise_p: float = 2e4
+    load_cell: bool = False                   # a force/torque broadcaster's wrench (force.x)
+    noise_f: float = 20.0
 
     def topic_map(self, input_delay: float | None = None) -> TopicMap:
         """Return the mapping a user writes for this layout."""
@@ -83,6 +88,7 @@ class RigLayout:
                         command_scale=self.command_scale, pressure_p=press[0],
                         pressure_t=press[1], pressure_load=press[2],
                         pressure_unit='bar' if self.pressures == 'float64_bar' else 'Pa',
+                        load_cell=LOAD_TOPIC if self.load_cell else None, load_axis='force.x',
                         input_delay=input_delay)
 
 
@@ -184,6 +190,12 @@ def record_rig_bag(out: str | os.PathLike, layout: RigLayout = RigLayout(), *,
             c_p = [w.add_connection('/hydraulics/load_pressure', ptype.__msgtype__,
                                     typestore=ts)]
         every = max(1, int(round(layout.rate_hz / layout.pressure_rate_hz)))
+        c_f = None
+        if layout.load_cell:
+            WS = T['geometry_msgs/msg/WrenchStamped']
+            V3, WR = T['geometry_msgs/msg/Vector3'], T['geometry_msgs/msg/Wrench']
+            c_f = w.add_connection(LOAD_TOPIC, WS.__msgtype__, typestore=ts)
+            k_l, c_l, z_l = (float(plant_params[n]) for n in ('k_L', 'c_L', 'z_L'))
         log = T['rcl_interfaces/msg/Log'](stamp=tm(sec=0, nanosec=0), level=20,
                                           name='driver', msg='cycle ok', file='d.cpp',
                                           function='f', line=1)
@@ -222,6 +234,14 @@ def record_rig_bag(out: str | os.PathLike, layout: RigLayout = RigLayout(), *,
                         m = F64(data=float(p / (1e5 if layout.pressures == 'float64_bar'
                                                 else 1.0)))
                     w.write(con, int(recv[k]) + 20_000, ser(m))
+            if c_f is not None and k not in lost:
+                f = k_l * (samp[k, 0] - z_l) + c_l * samp[k, 1] + \
+                    layout.noise_f * rng.standard_normal()
+                hd = hdr(stamp=tm(sec=int(stamps[k] // 10**9), nanosec=int(stamps[k] % 10**9)),
+                         frame_id='load_cell_link')
+                w.write(c_f, int(recv[k]) + 10_000, ser(WS(
+                    header=hd, wrench=WR(force=V3(x=float(f), y=0.0, z=0.0),
+                                         torque=V3(x=0.0, y=0.0, z=0.0)))))
             if k % 100 == 0:
                 w.write(c_log, int(recv[k]), ser(log))
                 w.write(c_tf, int(recv[k]), ser(tf))

@@ -34,6 +34,13 @@ with their ranges; a live change is validated as a whole and rejected with the r
   ``LOCKSTEP_QOS`` (reliable) so a recorder gets every one;
 * ``command_interface: forward_command``: commands go to a ros2_control forward command
   controller as Float64MultiArray (no header);
+* the load cell comes with each state (joint ``load_joint``) or, with ``load_topic``, from a
+  WrenchStamped topic (ros2_control's force_torque_sensor_broadcaster; ``load_axis``);
+* ``control_mode`` (a parameter, set live through the parameter services like any other)
+  switches between displacement, force and specimen protect: a switch the loop refuses (no
+  valid load cell, an interlock latched) rejects the parameter change with the reason, and
+  both are events on ``events``; when the loop ends force control itself (a specimen break)
+  the parameter follows;
 * on SIGINT or SIGTERM the node sends 0 A once and no command after it (a forward command
   controller holds the last command it got), then exits within a bounded time, whatever its
   executor does (:func:`ros_ehs.nodes.ros_common.run`).
@@ -46,7 +53,10 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import WrenchStamped
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from ros_ehs.core.control.loop import ControlLoop, Reply
 from ros_ehs.core.errors import ParameterError
 from ros_ehs.core.options import CONTROLLER, CONTROLLER_SPECS
@@ -92,7 +102,8 @@ class ControllerNode(Node):
         self.loop = ControlLoop(self.params, rate_hz=float(o['rate_hz']), lockstep=self.lockstep,
                                 wall=wall, start_enabled=bool(o['start_enabled']),
                                 reference_timeout=float(o['reference_timeout']),
-                                future_tolerance=float(o['future_tolerance']))
+                                future_tolerance=float(o['future_tolerance']),
+                                load_source='topic' if o['load_topic'] else 'state')
         self._pending: Params | None = None
         self.compute = Ring(2000)
         self._stopped = False               # stop(): no command after the safe one
@@ -111,9 +122,10 @@ class ControllerNode(Node):
             self.pub_cmd = self.create_publisher(
                 JointState, o['command_topic'] or contract.COMMAND.name,
                 qos_profile(contract.COMMAND.qos_in(self.lockstep)))
-        joint = o['joint']
-        self._read_state = (contract.state_from_cdr if joint == contract.JOINT_PISTON else
-                            functools.partial(contract.state_from_cdr, joint=joint))
+        joint, load_joint = o['joint'], o['load_joint']
+        self._read_state = (contract.state_from_cdr if (joint, load_joint) == (
+            contract.JOINT_PISTON, contract.JOINT_LOAD) else functools.partial(
+                contract.state_from_cdr, joint=joint, load_joint=load_joint))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               qos_profile(contract.DIAGNOSTICS.qos))
         self.pub_events = self.create_publisher(DiagnosticArray, contract.EVENTS.name,
@@ -123,6 +135,9 @@ class ControllerNode(Node):
         # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire, the fast path)
         self.create_subscription(JointState, o['state_topic'], self._on_state,
                                  qos_profile(contract.STATE.qos), raw=True)
+        if o['load_topic']:     # a rig's load cell on its own (ros2_control's broadcaster)
+            self.create_subscription(WrenchStamped, o['load_topic'], self._on_load,
+                                     qos_profile(contract.LOAD_CELL.qos), raw=True)
         if wall:     # a timer, not a QoS deadline: that would need every state publisher
             # (a rig, a bag player) to offer a deadline too
             self.create_timer(0.01, self._tick, clock=steady_clock())
@@ -155,6 +170,16 @@ class ControllerNode(Node):
             return
         self._send(self.loop.trajectory(refs))
 
+    def _on_load(self, data: bytes) -> None:
+        r = read_msg(self, self._read_load, data, 'load_cell')
+        if r is None:
+            self.loop.malformed()
+            return
+        self._send(self.loop.load(r, time.monotonic()))
+
+    def _read_load(self, data: bytes) -> contract.Load:
+        return contract.load_from_cdr(data, self.opt['load_axis'])
+
     def _on_state(self, data: bytes) -> None:
         now = time.monotonic()
         s = read_msg(self, self._read_state, data, 'state')
@@ -179,8 +204,16 @@ class ControllerNode(Node):
         if reply is not None:
             self._publish(reply.stamp_ns, reply.current)
             self._report(reply.events)
+            if any(e.kind == 'mode' for e in reply.events):    # the core ended force control
+                self._mode_param()
         elif self.loop.notes:
             self._report(())
+
+    def _mode_param(self) -> None:
+        """Keep the ``control_mode`` parameter the mode the loop runs in."""
+        mode = self.loop.axis.mode
+        if self.get_parameter('control_mode').value != mode:
+            self.set_parameters([Parameter('control_mode', value=mode)])
 
     def _publish(self, stamp_ns: int, i: float, last: bool = False) -> None:
         with self._cmd_lock:
@@ -236,6 +269,14 @@ class ControllerNode(Node):
     # -- parameters and diagnostics ----------------------------------------------------------
     def _check_params(self, changes):
         res, self._pending = validate_changes(self.params, changes, SPECS, OPTIONS)
+        mode = next((p.value for p in changes if p.name == 'control_mode'), None)
+        if res.successful and mode is not None:
+            why = self.loop.check_mode(mode)
+            if why:
+                res = SetParametersResult(successful=False, reason=f'control_mode: {why}')
+                self._pending = None
+                _, _, ev = self.loop.set_mode(mode)      # refused: its event for the bag
+                self._report([ev])
         if not res.successful:
             self.loop.counts['param_rejects'] += 1
             self.get_logger().warning(f'parameter change rejected: {res.reason}')
@@ -246,6 +287,9 @@ class ControllerNode(Node):
         if new is not None and new != self.params:
             self.params = new
             self.loop.set_params(new)
+            if new['control_mode'] != self.loop.axis.mode:
+                _, _, ev = self.loop.set_mode(str(new['control_mode']))
+                self._report([ev])
             self.get_logger().info('parameters changed: ' + ', '.join(
                 f'{p.name}={p.value}' for p in changes))
         update_settings(self.opt, changes, OPTIONS)

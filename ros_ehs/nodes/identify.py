@@ -49,12 +49,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
-from ros_ehs.core.control.feedforward import MODEL_PARAMS
 from ros_ehs.core.errors import DataError, EhsError
 from ros_ehs.core.identify.live import (LiveIdentifier, ReceiveClock, RefitSchedule,
                                         SampleWindow)
-from ros_ehs.core.options import IDENTIFY
-from ros_ehs.core.params import CONTROL_SPECS, load_yaml, preset
+from ros_ehs.core.options import CONTROLLER_SPECS, IDENTIFY
+from ros_ehs.core.params import load_yaml, preset
 from ros_ehs.data.identification import run_options
 from ros_ehs.data.mapping import decoder, topic_map_of, TopicDecoder, TopicMap
 from ros_ehs.nodes.parameters import declare_settings
@@ -75,7 +74,7 @@ LIVE_QUEUE = 2000
 
 def pushable(names) -> list[str]:
     """Return those of ``names`` that the controller node declares (in that order)."""
-    declared = {s.name for s in CONTROL_SPECS} | set(MODEL_PARAMS)
+    declared = {s.name for s in CONTROLLER_SPECS}
     return [n for n in names if n in declared]
 
 
@@ -184,8 +183,11 @@ class IdentifyNode(Node):
                                              qos_profile(contract.ESTIMATES.qos))
         self._subscribed: dict[str, str] = {}
         roles = ('state', 'command') + (('pressure_p', 'pressure_t') if self.tmap.pressure_p
-                                        else ())
+                                        else ()) + (('load_cell',) if self.tmap.load_cell
+                                                    else ())
         self._wanted = {getattr(self.tmap, r): r for r in roles}
+        # the contract's load cell is there only with a specimen: not waited for
+        self._optional = {self.resolve_topic_name(contract.LOAD_CELL.name)}
         self.create_timer(DISCOVERY_PERIOD, self._discover, clock=steady_clock())
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               qos_profile(contract.DIAGNOSTICS.qos))
@@ -231,7 +233,8 @@ class IdentifyNode(Node):
                   'refits': self.live.refits, 'pushes': self.live.pushes,
                   'busy': self.schedule.busy}
         level, msg = OK, 'refitting' if self.live.refits else 'filling the window'
-        if len(self._subscribed) < len(self._wanted):
+        missing = {self.resolve_topic_name(n) for n in self._wanted} - set(self._subscribed)
+        if missing - self._optional:
             level, msg = WARN, 'waiting for the mapped topics'
         self.pub_diag.publish(diagnostics(self, contract.IDENTIFY_STATUS, level, msg, values))
 
@@ -251,6 +254,8 @@ class IdentifyNode(Node):
                 new_run = self.window.runs != runs
             elif dec.role == 'command':
                 self.window.add_command(stamp, got[1])
+            elif dec.role == 'load_cell':
+                self.window.add_load(stamp, got[1])
             else:
                 self.window.add_pressure(int(dec.role == 'pressure_t'), stamp, got[1])
         if dec.role != 'state':

@@ -362,7 +362,7 @@ class NodeProcesses:
         self._expect('plant', contract.PLANT_STATUS, loop_closed, timeout,
                      'the loop did not close')
         if rec:
-            loop = (contract.STATE, contract.PRESSURE_P, contract.PRESSURE_T)
+            loop = (contract.STATE, contract.LOAD_CELL, contract.PRESSURE_P, contract.PRESSURE_T)
             loop += (contract.CLOCK,) if lock else (contract.COMMAND,)
             self._expect('recorder', contract.RECORDER_STATUS, recording(*loop), timeout,
                          "the recorder did not discover the loop's topics")

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The reference node: publishes z_ref [m] and v_ref [m/s] on ``reference``.
+The reference node: publishes z_ref [m] and v_ref [m/s] (or a force F_ref [N]) on ``reference``.
 
 Trajectories (``kind``): sine (default 0.04 m at 1 Hz, the paper's test), step, chirp,
 triangle or haversine (between ``offset`` -+ ``amplitude``, or through a block-loading
@@ -42,13 +42,19 @@ on a closed loop holding position.
 (kind triangle or haversine) correct the command each cycle from the measured position
 (``state``); they freeze while a safety trip that acts is latched (the controller's
 ``events``) and while no state comes (docs/controller.md).
+
+``control_mode: force``: the waveform is a force [N], published as each reference's effort
+(no position); the corrections take the load cell, from the state (joint ``load_joint``) or
+from ``load_topic`` (a WrenchStamped's ``load_axis``).
 """
 
 from __future__ import annotations
 
+import functools
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from ros_ehs.core.control.reference import ReferenceGenerator
@@ -100,12 +106,20 @@ class ReferenceNode(Node):
         if not self.gen.closed:
             self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self._on_diag,
                                      qos_profile(contract.DIAGNOSTICS.qos))
+        self.force = self.opt['control_mode'] == 'force'
+        self._read_state = functools.partial(contract.state_from_cdr,
+                                             load_joint=self.opt['load_joint'])
         if self.gen.correction is not None:
             # raw: the state's CDR bytes are read directly (ros_ehs_msgs_py.wire); under
             # sim time every state counts, so over the lock-step QoS
-            self.create_subscription(JointState, contract.STATE.name, self._on_state,
-                                     qos_profile(contract.STATE.qos_in(self.sim_time)),
-                                     raw=True)
+            if self.force and self.opt['load_topic']:
+                self.create_subscription(WrenchStamped, self.opt['load_topic'], self._on_load,
+                                         qos_profile(contract.LOAD_CELL.qos_in(self.sim_time)),
+                                         raw=True)
+            else:
+                self.create_subscription(JointState, contract.STATE.name, self._on_state,
+                                         qos_profile(contract.STATE.qos_in(self.sim_time)),
+                                         raw=True)
             self.create_subscription(DiagnosticArray, contract.EVENTS.name, self._on_event,
                                      qos_profile(contract.EVENTS.qos))
             if not self.sim_time:       # in lock-step a slow loop is not a lost one
@@ -129,10 +143,21 @@ class ReferenceNode(Node):
 
     # -- messages in -------------------------------------------------------------------------
     def _on_state(self, data: bytes) -> None:
-        s = read_msg(self, contract.state_from_cdr, data, 'state')
+        s = read_msg(self, self._read_state, data, 'state')
         if s is None:
             return
-        for refs in self.gen.state(s.stamp_ns, s.z, time.monotonic()):
+        self._measured(s.stamp_ns, s.load if self.force else s.z)
+
+    def _on_load(self, data: bytes) -> None:
+        r = read_msg(self, self._read_load, data, 'load_cell')
+        if r is not None:
+            self._measured(r.stamp_ns, r.force)
+
+    def _read_load(self, data: bytes):
+        return contract.load_from_cdr(data, self.opt['load_axis'])
+
+    def _measured(self, stamp_ns: int, value: float) -> None:
+        for refs in self.gen.state(stamp_ns, value, time.monotonic()):
             self._send_window(refs)
         self._log_notes()
 

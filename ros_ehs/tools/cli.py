@@ -19,6 +19,7 @@ Table 1 estimated parameters and prints a summary.
 """
 
 import argparse
+import math
 import sys
 from typing import Sequence
 
@@ -147,6 +148,57 @@ def _cmd_drive(args) -> int:
     return 0 if res['best_pct'] <= args.rms else 1
 
 
+def _cmd_tune(args) -> int:
+    from ros_ehs.core.control.tuning import tune
+    from ros_ehs.core.params import load_yaml, preset, save_yaml
+    from ros_ehs.core.sim.specimen_runs import square_wave
+
+    p = preset(args.preset)
+    if args.params:
+        p = load_yaml(args.params, p)
+    p = p.replace(**dict(parse_assignment(a, CONTROLLER_SPECS) for a in args.set))
+    loops = ('displacement', 'force') if args.loop == 'both' else (args.loop,)
+    if 'force' in loops and not p['k_L'] > 0:
+        if args.loop == 'force':
+            raise InputError('a force loop needs the specimen: set k_L (--set k_L=5e7, or a '
+                             '--params file with the fitted k_L)')
+        loops = ('displacement',)
+        print('no specimen (k_L = 0): the displacement loop only')
+    gains: dict[str, float] = {}
+    worst = 0.0
+    for loop in loops:
+        step = args.step or (4.0e3 if loop == 'force' else 2.0e-3)
+        unit = 'N' if loop == 'force' else 'm'
+        r = tune(p, loop, bandwidth_hz=args.bandwidth, phase_margin_deg=args.phase_margin,
+                 gain_margin_db=args.gain_margin, model=args.model, step=step)
+        gains.update(r.values())
+        print(f'{loop} loop ({args.model} model, k_L {p["k_L"]:g} N/m, steps of {step:g} '
+              f'{unit}):')
+        print('  gains: ' + ', '.join(f'{k} {v:.4g}' for k, v in r.values().items()))
+        print(f'  predicted: crossover {r.crossover_hz:.3g} Hz, bandwidth {r.bandwidth_hz:.3g} '
+              f'Hz, phase margin {r.phase_margin_deg:.1f} deg, gain margin '
+              f'{r.gain_margin_db:.1f} dB')
+        n = r.step.size
+        marks = [k for k in (10, 20, 50, 100, 200, 500, 1000, 2000) if k < n]
+        print(f'  predicted step: overshoot {r.overshoot_pct:.2f} %, settles (2 %) in '
+              f'{r.settling_s * 1e3:.0f} ms; ' + ', '.join(
+                  f'{k} ms {r.step[k]:.3f}' for k in marks))
+        if r.note:
+            print(f'  note: {r.note}')
+        if args.check:
+            period = 2 * max(0.5, 4 * r.settling_s)
+            measured, _ = square_wave(p.replace(**r.values()), loop, step / 2, period=period,
+                                      cycles=2)
+            gap = abs(measured - r.overshoot_pct)
+            worst = max(worst, gap if measured <= 10.0 else math.inf)
+            print(f'  square wave +-{step / 2:g} {unit}, {period:g} s, full model: overshoot '
+                  f'{measured:.2f} % ({gap:.2f} points from the prediction)')
+    if args.out:
+        path = save_yaml(args.out, gains, node_name='controller')
+        print(f'wrote {path}')
+    return 0 if worst <= 3.0 else 1
+
+
 def _cmd_trend(args) -> int:
     from ros_ehs.data.trend import plot_trend, read_estimates, trend_table
     est = read_estimates(args.bag)
@@ -244,6 +296,9 @@ COMMANDS = {
     'drive': (_cmd_drive, 'drive-file iteration, in process or on the bench: a drive that '
               'makes the axis reproduce a target time history (each run a bag)'),
     'identify': (_cmd_identify, "refit Table 1's parameters from bags (report folder)"),
+    'tune': (_cmd_tune, 'displacement and force gains from a model and its specimen for a '
+             'bandwidth and stability margins; predicted margins and step, checked with a '
+             'square wave in process'),
     'trend': (_cmd_trend, 'the live estimates of a long run over time, from its bag (topic '
               'parameter_estimates)'),
 }

@@ -25,8 +25,11 @@ The control modes beside the displacement loop: the force loop and specimen prot
 
   (the specimen's stiffness, its load train included, in series with the two chambers' oil at
   the piston's position); the feedforward is ``force_ff`` times the current of that flow,
-  ``A_p v_eq / (K_q K_x)``, plus, with ``ff_enable``, the friction terms of eq. (20) at
-  ``v_eq``. (It leaves out the valve's flow factor at the load pressure: the odd harmonics a
+  ``A_p v_eq / (K_q K_x)``. It leaves out the friction terms of eq. (20): their estimate of
+  the pressure force (eq. 11, the current integrated while the piston is still) is the
+  friction's only on a free piston; on a specimen the specimen holds that force, and the
+  terms turned a held load into a 3 % transient at a switch (measured). (It leaves out the
+  valve's flow factor at the load pressure too: the odd harmonics a
   compensation of it puts into the command meet the loop's resonance at a 20 Hz test's third
   harmonic, and cost more than they correct; amplitude control takes the rest.) Without a
   specimen stiffness (``k_L`` = 0) there is no model: no feedforward.
@@ -52,16 +55,20 @@ from __future__ import annotations
 import math
 from typing import Mapping
 
-from ros_ehs.core.control.feedforward import Feedforward
 from ros_ehs.core.control.pid import Pid, PidGains
 from ros_ehs.core.control.safety import ramp_weight
+from ros_ehs.core.model.coefficients import flow_gain_kq
 
-__all__ = ['ForceLimit', 'ForceLoop', 'LOAD_MODES', 'MODES', 'load_train_compliance']
+__all__ = ['ForceLimit', 'ForceLoop', 'LOAD_MODES', 'MODES', 'SPECIMEN_PARAMS',
+           'load_train_compliance']
 
 #: The control modes, in the order of ``control_mode``'s choices.
 MODES = ('displacement', 'force', 'displacement_force_limited')
 #: The modes that need the load cell.
 LOAD_MODES = ('force', 'displacement_force_limited')
+#: The specimen's values the controller reads (the controller node declares them too): its
+#: stiffness and damping (the force loop's feedforward) and installed position (its limits).
+SPECIMEN_PARAMS = ('k_L', 'c_L', 'z_L')
 
 
 def load_train_compliance(params: Mapping[str, object], z: float = 0.0) -> float:
@@ -84,7 +91,6 @@ class ForceLoop:
     def __init__(self, params: Mapping[str, object], dt: float) -> None:
         self.dt = float(dt)
         self.pid = Pid(PidGains.from_params(params, 'force_'))
-        self.ff = Feedforward(params, self.dt)
         self._configure(params)
         self.target = math.nan      # the force the loop tracked last [N]
         self.error = math.nan       # its error [N]
@@ -96,8 +102,8 @@ class ForceLoop:
 
     def _configure(self, params: Mapping[str, object]) -> None:
         self.params = params
-        self.ff_enabled = float(params['ff_enable']) >= 0.5
         self.ff_weight = float(params['force_ff'])
+        self.i_per_speed = float(params['A_p']) / (flow_gain_kq(params) * float(params['K_x']))
         self.blend_time = float(params['mode_blend_time'])
 
     @property
@@ -106,11 +112,8 @@ class ForceLoop:
         return self.pid.last_u
 
     def set_params(self, params: Mapping[str, object]) -> None:
-        """Take new gains bumplessly and the feedforward's values (its estimate kept)."""
+        """Take new gains bumplessly and the feedforward's values."""
         self.pid.set_gains(PidGains.from_params(params, 'force_'))
-        f_p = self.ff.f_p
-        self.ff = Feedforward(params, self.dt)
-        self.ff.f_p = f_p
         self._configure(params)
 
     def start(self, stamp_ns: int, load: float, u: float,
@@ -122,7 +125,6 @@ class ForceLoop:
         """
         self.pid.handover(u)
         self._blend = self.blend_time if blend_time is None else float(blend_time)
-        self.ff.reset()
         self._t0 = int(stamp_ns)
         self._from = self._hold = float(load)
         self._prev = None
@@ -146,9 +148,7 @@ class ForceLoop:
         c = load_train_compliance(self.params, z if math.isfinite(z) else 0.0)
         if c > 0.0 and dt > 0 and self._prev is not None:
             v = (target - self._prev) / dt * c
-            ff = self.ff_weight * self.ff.i_per_speed * v
-            if self.ff_enabled:
-                ff += self.ff.update(v, self.pid.last_u)
+            ff = self.ff_weight * self.i_per_speed * v
         if dt > 0:
             self._prev = target
         self.target = target

@@ -31,6 +31,10 @@ and the next; the node converts messages, calls it and publishes. The clocks are
   reordered clock gets the same samples and needs no special case; a clock more than
   ``EPOCH_PERIODS`` periods back starts a new run (a lock-step plant started again, a replayed
   bag): the waveform restarts from its beginning there, and its corrections from scratch.
+* **Force control** (``control_mode`` force): the waveform is a force [N], sent as each
+  reference's ``f_ref`` with no position; the corrections learn from the load cell's reading
+  (the node passes it to :meth:`~ReferenceGenerator.state`). A displacement waveform's
+  amplitude and offset stay within ``POSITION_RANGE``.
 * **Corrections** (APC, PVC) learn from the measured position of each state
   (:meth:`~ReferenceGenerator.state`), once per stamp, in order. A correction starts
   ``preview`` after the end of the cycle it was learnt from, so no sample already sent
@@ -61,12 +65,15 @@ from ros_ehs.core.control.waveforms import cyclic_blocks, make
 from ros_ehs.core.errors import InputError, ParameterError
 from ros_ehs_msgs_py import Reference
 
-__all__ = ['EARLY_STATES', 'ReferenceGenerator', 'STATES_LOST', 'correction_for']
+__all__ = ['EARLY_STATES', 'POSITION_RANGE', 'ReferenceGenerator', 'STATES_LOST',
+           'correction_for']
 
 #: Real time: no state for this long freezes the corrections [s].
 STATES_LOST = 0.2
 #: Sim time: states kept from before time zero (time zero's own).
 EARLY_STATES = 100
+#: A position waveform's amplitude and offset stay within this [m].
+POSITION_RANGE = 2.0
 
 
 def correction_for(values: Mapping[str, Any], options: Mapping[str, Any]
@@ -134,6 +141,7 @@ class ReferenceGenerator:
             raise InputError(f'`rate_hz` = {rate!r} must be a positive number of Hz')
         self.dt_ns = int(round(1e9 / rate))
         self.sim_time = bool(sim_time)
+        self.force = self.options.get('control_mode', 'displacement') == 'force'
         self.values: dict[str, Any] = {}
         self.traj = None
         self.correction: CycleCorrection | None = None
@@ -161,6 +169,12 @@ class ReferenceGenerator:
         drive file) naming the problem; nothing changes then.
         """
         merged = {**self.values, **values}
+        if not self.force:
+            for name in ('amplitude', 'offset'):
+                v = merged.get(name, 0.0)
+                if isinstance(v, (int, float)) and abs(v) > POSITION_RANGE:
+                    raise ParameterError(f'`{name}` = {v!r} m is beyond +-{POSITION_RANGE:g} m '
+                                         '(a force? set control_mode force)')
         traj = make(merged, self.options['csv_path'], self.options['blocks'])
         corr = correction_for(merged, self.options)
         self.traj, self.values, self.correction = traj, merged, corr
@@ -209,7 +223,13 @@ class ReferenceGenerator:
         z, v = self.samples(np.array([stamp_ns], dtype=np.int64))
         self.last_ns = stamp_ns
         self.count += 1
-        return Reference(stamp_ns, float(z[0]), float(v[0]))
+        return self._reference(stamp_ns, float(z[0]), float(v[0]))
+
+    def _reference(self, stamp_ns: int, value: float, rate: float) -> Reference:
+        """Return the sample as a position and its velocity, or as a force."""
+        if self.force:
+            return Reference(stamp_ns, math.nan, math.nan, value)
+        return Reference(stamp_ns, value, rate)
 
     # -- sim time ----------------------------------------------------------------------------
     def malformed_clock(self) -> None:
@@ -252,7 +272,8 @@ class ReferenceGenerator:
         stamps = np.arange(n + 1, dtype=np.int64) * self.dt_ns + t_ns
         z, v = self.samples(stamps)
         self.count += 1
-        return [Reference(int(st), float(zz), float(vv)) for st, zz, vv in zip(stamps, z, v)]
+        return [self._reference(int(st), float(zz), float(vv)) for st, zz, vv in
+                zip(stamps, z, v)]
 
     def _ready(self, t_ns: int) -> bool:
         """Whether a correction has measured every state the preview of ``t_ns`` depends on."""

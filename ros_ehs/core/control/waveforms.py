@@ -194,11 +194,13 @@ WAVEFORM: tuple[Setting, ...] = (
     Setting('kind', '', 'sine', meaning='trajectory: sine, step, chirp, triangle, haversine '
             '(cyclic between offset -+ amplitude, or through `blocks`) or csv (file)',
             choices=KINDS, live=True),
-    Setting('amplitude', 'm', 0.04, -2.0, 2.0, 'amplitude (sine, chirp) or height (step)',
+    Setting('amplitude', 'm or N', 0.04, -1.0e7, 1.0e7, 'amplitude (sine, chirp) or height '
+            '(step); a force [N] under control_mode force, else a position (within +-2 m)',
             live=True),
     Setting('frequency', 'Hz', 1.0, 1.0e-3, 500.0, 'sine, triangle or haversine frequency',
             live=True),
-    Setting('offset', 'm', 0.0, -2.0, 2.0, 'sine, triangle or haversine mean', live=True),
+    Setting('offset', 'm or N', 0.0, -1.0e7, 1.0e7, 'sine, triangle or haversine mean (a '
+            'force under control_mode force)', live=True),
     Setting('step_time', 's', 0.1, 0.0, 1.0e6, 'time of the step', live=True),
     Setting('rise', 's', 0.0, 0.0, 100.0, 'step rise time (cosine ramp; 0: sharp)', live=True),
     Setting('f0', 'Hz', 0.5, 1.0e-3, 500.0, 'chirp start frequency', live=True),

@@ -50,7 +50,7 @@ import warnings
 import numpy as np
 from ros_ehs.core.errors import IdentificationWarning, InputError, ParameterError
 from ros_ehs.core.identify.experiment import Experiment
-from ros_ehs.core.identify.problem import _fd_jacobian, FIT_H, LOAD, Problem, SIGNALS
+from ros_ehs.core.identify.problem import _fd_jacobian, CELL, FIT_H, LOAD, Problem, SIGNALS
 from ros_ehs.core.identify.uncertainty import BLOCK_S, standard_errors
 from ros_ehs.core.identify.verdict import (adequacy, fit_metrics, NOISE_RATIO_LIMIT,
                                            SMALL_MODEL_ERROR, worst_noise_ratio)
@@ -181,7 +181,34 @@ def _check(experiments, free, model, signals, cost, base, x0, segment, h, worker
     dts = {round(e.dt, 12) for e in experiments}
     if h is not None and not (isinstance(h, (int, float)) and 0 < h <= min(dts)):
         raise InputError(f'`h` = {h!r} s must be in (0, sample period]')
+    if 'k_L' in free and base['k_L'] < fit_bounds('k_L')[0]:
+        base = base.replace(k_L=specimen_guess(experiments, float(base['z_L'])))
     return experiments, free, base
+
+
+def specimen_guess(experiments: Sequence[Experiment], z_l: float = 0.0) -> float:
+    """
+    Return a specimen stiffness [N/m] to start a fit from: the load cell against the position.
+
+    The least-squares slope of the recorded load on ``z - z_L`` over every experiment that
+    has a load cell. Raises :class:`InputError` when none has one (nothing to start from).
+    """
+    zs, fs = [], []
+    for e in experiments:
+        if getattr(e, 'load_cell', None) is not None:
+            zs.append(e.z - z_l)
+            fs.append(e.load_cell)
+    if not zs:
+        raise InputError('`free` has k_L, which starts at 0 N/m (no specimen), and no '
+                         'experiment records a load cell to start it from: give its value '
+                         '(--initial) or record the load cell (load_cell in the topic map)')
+    z, f = np.concatenate(zs), np.concatenate(fs)
+    k = float(np.dot(z, f) / np.dot(z, z)) if np.dot(z, z) > 0 else math.nan
+    lo, hi = fit_bounds('k_L')
+    if not (math.isfinite(k) and k > 0):
+        raise InputError(f'the load cell does not rise with the position (slope {k:.4g} N/m): '
+                         'check its sign (load_axis) and the installed position z_L')
+    return min(max(k, lo), hi)
 
 
 def fit_bounds(name: str) -> tuple[float, float]:
@@ -369,7 +396,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         stderr={n: float(s) for n, s in zip(free, se)}, correlation=corr, free=free,
         metrics=metrics, fitted=fitted,
         sigma={ex.name: {**{problem.names[j]: float(s) for j, s in zip(ex.measured, ex.sigma)},
-                         **({LOAD: float(ex.load_sigma)} if ex.load is not None else {})}
+                         **({LOAD: float(ex.load_sigma)} if ex.load is not None else {}),
+                         **({CELL: float(ex.cell_sigma)} if ex.cell is not None else {})}
                for ex in problem.exps},
         warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost,
         adequate=not inadequacy, inadequacy=inadequacy, advice=advice,

@@ -30,7 +30,9 @@ identifier from the running loop):
   plant's joint ``servo_valve``), otherwise the command in force, averaged over the period,
   ``delay`` later than its stamp;
 * a missing velocity is derived from the position by a Savitzky-Golay derivative (quadratic,
-  about 5 ms wide) and its noise is the position's noise times that filter's gain.
+  about 5 ms wide) and its noise is the position's noise times that filter's gain;
+* a load cell (a specimen's force), where recorded, is interpolated onto the grid as the
+  pressures are.
 """
 
 from __future__ import annotations
@@ -80,6 +82,8 @@ class Experiment:
     #: the run starts after a gap in the recording, mid-motion: the fit settles the valve's
     #: states for the first sample instead of starting them at rest
     after_gap: bool = False
+    #: the load cell [N] on the grid, where the run recorded one (a specimen's force)
+    load_cell: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -206,6 +210,7 @@ class Series:
     pressures: list        # [(t [ns], Pa)] per chamber, one (load), or none
     load: bool
     delay: float
+    cell: tuple | None = None     # the load cell: (t [ns], N), or None
 
 
 def _savgol_width(dt: float) -> int:
@@ -225,6 +230,11 @@ def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
     noise = {'z': noise_sigma(z, span)}
     if np.all(np.isfinite(v)):
         noise['z_dot'] = noise_sigma(v, span)
+    if rec.cell is not None:
+        tl, fl = rec.cell
+        m = (tl >= ts[0]) & (tl <= ts[-1])
+        if m.sum() >= 8:
+            noise['load_cell'] = noise_sigma(fl[m], (tl[m] - ts[0]) * 1e-9)
     for key, (tp, pv) in zip(('p_CP', 'p_CT') if not rec.load else ('p_L',), rec.pressures):
         m = (tp >= ts[0]) & (tp <= ts[-1])
         if m.sum() >= 8:
@@ -269,9 +279,12 @@ def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
             pl = vals[0]
         else:
             pa, pb = vals
+    cell = None
+    if rec.cell is not None and rec.cell[0].size >= 2:
+        cell = np.interp(tt, *rec.cell)
     e = experiment_from_arrays(name, t, c, z, v, pa, pb)
     return replace(e, noise=noise, derived=derived, commands=commands, delay=rec.delay,
-                   p_load=pl, t0_ns=t0_ns, after_gap=a > 0)
+                   p_load=pl, t0_ns=t0_ns, after_gap=a > 0, load_cell=cell)
 
 
 def run_bounds(ts: np.ndarray) -> tuple[list[tuple[int, int]], list[int]]:
@@ -284,7 +297,7 @@ def run_bounds(ts: np.ndarray) -> tuple[list[tuple[int, int]], list[int]]:
 
 def experiments_from_series(name: str, ts, z, v, applied=None, commands=None,
                             pressures=(), load: bool = False,
-                            delay: float = 0.0) -> list[Experiment]:
+                            delay: float = 0.0, cell=None) -> list[Experiment]:
     """
     Cut the contiguous runs of series held in memory, as :func:`load_experiments` cuts a bag's.
 
@@ -292,8 +305,9 @@ def experiments_from_series(name: str, ts, z, v, applied=None, commands=None,
     ``z`` [m], velocity ``v`` [m/s] (NaN: derived from the position) and ``applied`` current
     [A] (NaN or None: unknown, then ``commands`` = (stamps [ns, the state's clock], currents
     [A]) held ``delay`` [s] later are used); ``pressures``: (stamps [ns], values [Pa]) per
-    chamber, or one load pressure with ``load``. Raises :class:`DataError` as the bag path
-    does (too little data, no excitation).
+    chamber, or one load pressure with ``load``; ``cell``: the load cell's (stamps [ns],
+    values [N]) or None. Raises :class:`DataError` as the bag path does (too little data, no
+    excitation).
     """
     ts = np.asarray(ts, dtype=np.int64)
     z = np.asarray(z, dtype=float)
@@ -310,7 +324,11 @@ def experiments_from_series(name: str, ts, z, v, applied=None, commands=None,
     tc, vc = sorted_by_time(tc, vc)
     press = [sorted_by_time(np.asarray(t, dtype=np.int64), np.asarray(p, dtype=float))
              for t, p in pressures]
-    return split_runs(Series(name, ts, z, v, applied, tc, vc, press, load, float(delay)))
+    if cell is not None:
+        cell = sorted_by_time(np.asarray(cell[0], dtype=np.int64),
+                              np.asarray(cell[1], dtype=float))
+    return split_runs(Series(name, ts, z, v, applied, tc, vc, press, load, float(delay),
+                             cell))
 
 
 def split_runs(rec: Series) -> list[Experiment]:

@@ -79,6 +79,7 @@ class SampleWindow:
         self._states: deque = deque(maxlen=capacity)
         self._commands: deque = deque(maxlen=capacity)
         self._pressures = (deque(maxlen=capacity), deque(maxlen=capacity))
+        self._cell: deque = deque(maxlen=capacity)
         self._last = -1
 
     def add_state(self, stamp_ns: int, z: float, z_dot: float, i: float = math.nan) -> None:
@@ -102,10 +103,16 @@ class SampleWindow:
         if math.isfinite(p):
             self._pressures[chamber].append((stamp_ns, p))
 
+    def add_load(self, stamp_ns: int, force: float) -> None:
+        """Add a load cell reading [N]."""
+        if math.isfinite(force):
+            self._cell.append((stamp_ns, force))
+
     def clear(self) -> None:
         """Forget every sample."""
         self._states.clear()
         self._commands.clear()
+        self._cell.clear()
         for q in self._pressures:
             q.clear()
         self._last = -1
@@ -135,7 +142,10 @@ class SampleWindow:
         cmd = _columns(self._commands) if self._commands else None
         press = ([_columns(q) for q in self._pressures]
                  if self._pressures[0] and self._pressures[1] else [])
-        return experiments_from_series(name, ts[m], z[m], v[m], i[m], cmd, press)
+        cell = _columns(self._cell) if len(self._cell) >= 2 else None
+        if cell is not None and not np.ptp(cell[1]) > 0:
+            cell = None                  # a load cell that reads nothing: no specimen
+        return experiments_from_series(name, ts[m], z[m], v[m], i[m], cmd, press, cell=cell)
 
 
 class RefitSchedule:

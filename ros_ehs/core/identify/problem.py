@@ -37,14 +37,17 @@ from ros_ehs.core.model.plant import DEFAULT_H, DEFAULT_JAC_EVERY, MODELS, Plant
 from ros_ehs.core.noise import noise_sigma
 from ros_ehs.core.params import Params, spec
 
-__all__ = ['FIT_H', 'LOAD', 'Problem', 'SIGNALS']
+__all__ = ['CELL', 'FIT_H', 'LOAD', 'Problem', 'SIGNALS']
 
 
-SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT', 'p_L')
+SIGNALS = ('z_dot', 'z', 'p_CP', 'p_CT', 'p_L', 'load_cell')
 
 
 #: the load pressure p_CP - p_CT: fitted where a rig records only that (not a state)
 LOAD = 'p_L'
+#: the load cell, the specimen's force ``k_L (z - z_L) + c_L z_dot``: fitted where recorded
+#: (it makes the specimen's stiffness identifiable)
+CELL = 'load_cell'
 
 
 _FD_STEP = 1e-3
@@ -72,6 +75,9 @@ class _Exp:
     x0: np.ndarray               # full initial state (unmeasured from equilibrium)
     load: np.ndarray | None = None    # measured load pressure p_CP - p_CT (chambers not)
     load_sigma: float = 1.0
+    cell: np.ndarray | None = None    # measured load cell [N]
+    cell_sigma: float = 1.0
+    cell_zv: np.ndarray | None = None   # the measured position and velocity it goes with
 
     def segments(self):
         """Yield (first, end) sample indices of each replay segment; the last ends at N+1."""
@@ -150,10 +156,14 @@ class Problem:
             edges = list(range(0, e.t.size - 1, seg)) + [e.t.size]
             if not getattr(e, 'after_gap', False) and e.dt <= 1.01 * BREAKAWAY_DT:
                 edges = _with_breakaway(edges, e.z)
+            cell = getattr(e, 'load_cell', None) if CELL in signals else None
             self.exps.append(_Exp(name, np.column_stack([e.i[:-1], np.zeros(e.t.size - 1)]),
                                   y, measured, sigma, edges, e.dt, x0, load,
                                   known.get(LOAD) or (noise_sigma(load) if load is not None
-                                                      else 1.0)))
+                                                      else 1.0), cell,
+                                  known.get(CELL) or (noise_sigma(cell) if cell is not None
+                                                      else 1.0),
+                                  None if cell is None else np.column_stack([e.z, e.v])))
         self.ipa, self.ipb = self.names.index('p_CP'), self.names.index('p_CT')
         self.nsub = [max(1, int(math.ceil(ex.dt / plant.h - 1e-9))) for ex in self.exps]
         self.nfev = 0
@@ -195,6 +205,19 @@ class Problem:
             outs.append(o)
         return outs
 
+    def cell_force(self, theta: np.ndarray, ex: _Exp) -> np.ndarray:
+        """
+        Return the load cell the model gives for an experiment: the specimen's force.
+
+        On the measured position and velocity (the load cell sees the specimen, whose
+        deflection is measured), not the replay's: a replay that drifts would bias the
+        stiffness by its amplitude error.
+        """
+        d = dict(self.base)
+        d.update(self.values(theta))
+        z, v = ex.cell_zv[:, 0], ex.cell_zv[:, 1]
+        return float(d['k_L']) * (z - float(d['z_L'])) + float(d['c_L']) * v
+
     def residual_parts(self, theta: np.ndarray) -> list[np.ndarray]:
         """Normalised residuals per experiment, shape (N+1, n_measured)."""
         parts = []
@@ -208,6 +231,8 @@ class Problem:
             if ex.load is not None:
                 r = np.column_stack([r, (o[:, self.ipa] - o[:, self.ipb] - ex.load) /
                                      ex.load_sigma])
+            if ex.cell is not None:
+                r = np.column_stack([r, (self.cell_force(theta, ex) - ex.cell) / ex.cell_sigma])
             bad = ~np.isfinite(r)
             if bad.any():
                 r[bad] = 1e3     # diverged: a large, finite penalty keeps TRF going
@@ -221,7 +246,8 @@ class Problem:
             n = ex.y.shape[0]
             per = max(1, int(round(seconds / ex.dt)))
             b = np.arange(n) // per
-            out.append(np.repeat(first + b, len(ex.measured) + (ex.load is not None)))
+            out.append(np.repeat(first + b, len(ex.measured) + (ex.load is not None) +
+                                 (ex.cell is not None)))
             first += int(b[-1]) + 1
         return np.concatenate(out)
 

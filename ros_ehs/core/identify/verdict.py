@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ros_ehs.core.identify.problem import LOAD, Problem, SIGNALS
+from ros_ehs.core.identify.problem import CELL, LOAD, Problem, SIGNALS
 
 __all__ = ['NOISE_RATIO_LIMIT', 'SMALL_MODEL_ERROR', 'adequacy', 'fit_metrics',
            'worst_noise_ratio']
@@ -76,6 +76,10 @@ def fit_metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
             y, f = ex.load, o[:, problem.ipa] - o[:, problem.ipb]
             fit[LOAD] = f
             m[LOAD] = _signal_metrics(y, f - y, ex.load_sigma)
+        if ex.cell is not None:
+            f = problem.cell_force(theta, ex)
+            fit[CELL] = f
+            m[CELL] = _signal_metrics(ex.cell, f - ex.cell, ex.cell_sigma)
         out[ex.name] = m
         if fitted is not None:
             fitted[ex.name] = fit

@@ -56,6 +56,8 @@ class AxisRun:
     i: np.ndarray          #: the command answering the state [A]
     z_ref: np.ndarray      #: the reference given [m] (NaN: none)
     f_ref: np.ndarray      #: the force reference given [N] (NaN: none)
+    p_a: np.ndarray        #: the chamber pressures [Pa]
+    p_b: np.ndarray
     driving: tuple         #: the loop that drove the valve each period ('' for 0 A)
     events: tuple          #: the safety and mode events, in order
     answers: tuple         #: (t, kind, ok, why) of each action
@@ -82,7 +84,7 @@ def run_axis(params: Params, duration: float, reference, *, model: str = 'full',
     loop = ControlLoop(controller_params or params, rate_hz=rate_hz, lockstep=True)
     online = hasattr(reference, 'measure')
     todo = sorted(actions, key=lambda a: a[0])
-    rows = np.full((n, 7), math.nan)
+    rows = np.full((n, 9), math.nan)
     driving, events, answers = [], [], []
     k = 0
     for k in range(n):
@@ -113,14 +115,13 @@ def run_axis(params: Params, duration: float, reference, *, model: str = 'full',
             raise InputError(f'the loop did not answer the state at {t:.6g} s')
         ax.command(st.stamp_ns, reply.current, t)
         events.extend(reply.events)
-        rows[k] = (t, st.z, st.z_dot, s.load, reply.current, ref[0], ref[2])
+        rows[k] = (t, st.z, st.z_dot, s.load, reply.current, ref[0], ref[2], s.p_cp, s.p_ct)
         driving.append(loop.axis.driving or '')
         if stop is not None and stop(k, ax):
             break
     rows = rows[:k + 1]
     figures = {**ax.figures(0.0), **loop.figures()}
-    return AxisRun(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4], rows[:, 5],
-                   rows[:, 6], tuple(driving), tuple(events), tuple(answers), figures)
+    return AxisRun(*rows.T, tuple(driving), tuple(events), tuple(answers), figures)
 
 
 def square_wave(params: Params, loop: str, amplitude: float, *, period: float = 1.0,
