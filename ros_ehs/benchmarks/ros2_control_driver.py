@@ -41,6 +41,7 @@ import time
 
 import numpy as np
 import rclpy
+from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -131,6 +132,9 @@ def main() -> int:
                       'last_command_a': latest['cmd'], 'max_command_a': latest['max'],
                       'stale_cycles': fresh['stale'], 'unread_periods': clock['unread']}),
           flush=True)
+    # a reliable writer that is destroyed drops what its readers have not acknowledged: the
+    # last state (lock-step) would miss a recorder now and then
+    pub.wait_for_all_acked(Duration(seconds=5.0))
     node.destroy_node()
     rclpy.shutdown()
     return 0

@@ -33,11 +33,13 @@ import os
 import signal
 import sys
 import threading
+import time
 from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -153,6 +155,26 @@ def ros_args(argv: Sequence[str]) -> list[str]:
     return out
 
 
+def _wait_acked(node: Node, bound: float = 2.0) -> None:
+    """
+    Wait, up to ``bound`` s in all, until every reliable reader has what this node published.
+
+    A reliable writer that is destroyed drops what its readers have not acknowledged: a
+    node's last word (the controller's 0 A, the last state) would miss a recorder now and then.
+    """
+    end = time.monotonic() + bound
+    for pub in list(node.publishers):
+        if pub.qos_profile.reliability != ReliabilityPolicy.RELIABLE:
+            continue
+        left = end - time.monotonic()
+        if left <= 0:
+            return
+        try:
+            pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+        except Exception:                          # noqa: BLE001 a closing middleware
+            return
+
+
 def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         executor: str = 'events') -> int:
     """
@@ -252,6 +274,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
                 sys.stdout.flush()
                 sys.stderr.flush()
                 os._exit(rc)
+            _wait_acked(node)
             node.destroy_node()
         rclpy.try_shutdown()
         for sig, handler in previous.items():
