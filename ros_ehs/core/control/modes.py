@@ -104,6 +104,11 @@ class ForceLoop:
         self.params = params
         self.ff_weight = float(params['force_ff'])
         self.i_per_speed = float(params['A_p']) / (flow_gain_kq(params) * float(params['K_x']))
+        # load_train_compliance's terms, for the hot path: 1/k_L, l_iac, 1/(2 beta_e A_p)
+        k = float(params['k_L'])
+        self._c_spec = 1.0 / k if k > 0 else 0.0
+        self._l_iac = float(params['l_iac'])
+        self._c_oil = 1.0 / (2.0 * float(params['beta_e']) * float(params['A_p']))
         self.blend_time = float(params['mode_blend_time'])
 
     @property
@@ -145,7 +150,9 @@ class ForceLoop:
         dt = self.dt if dt is None else dt
         target = self.reference(stamp_ns, f_traj)
         ff = 0.0
-        c = load_train_compliance(self.params, z if math.isfinite(z) else 0.0)
+        c = (self._c_spec + (self._l_iac + abs(z)) * self._c_oil) if self._c_spec > 0 and \
+            math.isfinite(z) else self._c_spec + self._l_iac * self._c_oil if self._c_spec > 0 \
+            else 0.0
         if c > 0.0 and dt > 0 and self._prev is not None:
             v = (target - self._prev) / dt * c
             ff = self.ff_weight * self.i_per_speed * v

@@ -277,7 +277,9 @@ class Supervisor:
         self.latches = {d: _Latch() for d in DETECTORS}
         self.enabled = bool(enabled)
         self.counts = dict.fromkeys(DETECTORS, 0)
-        self._window: deque[tuple[float, float]] = deque()    # (load, z): the break window
+        self._window: deque[tuple[int, float, float]] = deque()   # the break window: (n, F, z)
+        self._win_max: deque[tuple[int, float]] = deque()         # its maxima of |F|, falling
+        self._win_seq = 0
         self._restart()
 
     # -- state -------------------------------------------------------------------------------
@@ -430,6 +432,7 @@ class Supervisor:
         win = self._window
         if not (math.isfinite(load) and math.isfinite(z)):
             win.clear()
+            self._win_max.clear()
             if needs_load and powered and self._mode in ('run',):
                 self._check('load_feedback', True, stamp_ns, load,
                             'load_feedback: no valid load cell reading (non-finite, missing or '
@@ -438,20 +441,30 @@ class Supervisor:
         self._check('limit_load_max', load > cfg.limit_load_max, stamp_ns, load, '', events)
         self._check('limit_load_min', load < cfg.limit_load_min, stamp_ns, load, '', events)
         # the break: against each reading in the window, the drop of |F| and the travel the
-        # way that loaded it (sign of that reading's force)
-        for f0, z0 in win:
-            drop = abs(f0) - abs(load)
-            travel = math.copysign(1.0, f0) * (z - z0)
-            if drop > cfg.break_drop and travel > cfg.break_travel:
-                self._check('specimen_break', True, stamp_ns, drop,
-                            f'specimen_break: the load fell {drop:.6g} N (from {f0:.6g} N to '
-                            f'{load:.6g} N) while the piston moved {travel * 1e3:.6g} mm the way '
-                            f'that loads it', events)
-                break
-        win.append((load, z))
+        # way that loaded it (sign of that reading's force); only when the window's largest
+        # |F| is more than the drop above this one (the window's maxima kept in order)
+        top = self._win_max
+        if top and top[0][1] - abs(load) > cfg.break_drop:
+            for _, f0, z0 in win:
+                drop = abs(f0) - abs(load)
+                travel = math.copysign(1.0, f0) * (z - z0)
+                if drop > cfg.break_drop and travel > cfg.break_travel:
+                    self._check('specimen_break', True, stamp_ns, drop,
+                                f'specimen_break: the load fell {drop:.6g} N (from {f0:.6g} N '
+                                f'to {load:.6g} N) while the piston moved {travel * 1e3:.6g} mm '
+                                'the way that loads it', events)
+                    break
+        self._win_seq += 1
+        win.append((self._win_seq, load, z))
+        a = abs(load)
+        while top and top[-1][1] <= a:
+            top.pop()
+        top.append((self._win_seq, a))
         n = max(1, int(math.ceil(cfg.break_window / self.dt - 1e-9)))
         while len(win) > n:
-            win.popleft()
+            old = win.popleft()[0]
+            if top and top[0][0] == old:
+                top.popleft()
 
     def judge_force_error(self, stamp_ns: int, e: float, dt: float | None = None
                           ) -> list[Event]:
@@ -475,9 +488,11 @@ class Supervisor:
     def _check(self, det: str, cond: bool, stamp_ns: int, value: float, why: str,
                events: list[Event]) -> bool:
         """Latch ``det`` if ``cond`` and its action is not off; return True on a new trip."""
+        if not cond:
+            return False
         act = self.config.action(det)
         s = self.latches[det]
-        if not cond or act == 'off' or s.tripped:
+        if act == 'off' or s.tripped:
             return False
         s.tripped = True
         self.counts[det] += 1
@@ -619,6 +634,7 @@ class Supervisor:
             s.count = 0
         self._same = 0
         self._window.clear()
+        self._win_max.clear()
         was = self._mode
         self._mode = 'run'
         if was != 'run' or cleared:
