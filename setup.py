@@ -31,6 +31,7 @@ setup(
             'recorder = ros_ehs.nodes.recorder:main',
             'player = ros_ehs.nodes.player:main',
             'identify = ros_ehs.nodes.identify:main',
+            'procedure = ros_ehs.nodes.procedure:main',
         ],
     },
 )

@@ -24,19 +24,22 @@ which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain
 :mod:`~ros_ehs_msgs_py.wire` (the loop's JointStates to and from CDR bytes, the fast path).
 """
 
-from ros_ehs_msgs_py.conversions import (command_from_msg, empty_msg, estimate_from_msg,
-                                         event_from_msg, event_level, fill_command, fill_estimate,
-                                         fill_event, fill_load, fill_pressure, fill_reference,
+from ros_ehs_msgs_py.conversions import (command_from_msg, CYCLE_RECORD, cycles_from_bytes,
+                                         CYCLES_LABEL, cycles_to_bytes, empty_msg,
+                                         estimate_from_msg, event_from_msg, event_level,
+                                         fill_command, fill_estimate, fill_event, fill_load,
+                                         fill_pressure, fill_procedure_event, fill_reference,
                                          fill_reference_trajectory, fill_state, load_from_msg,
-                                         pressure_from_msg, reference_from_msg,
-                                         reference_trajectory_from_msg, stamp_ns, state_from_msg,
-                                         statuses_from_msg, WRENCH_AXES)
+                                         pressure_from_msg, procedure_event_from_msg,
+                                         reference_from_msg, reference_trajectory_from_msg,
+                                         stamp_ns, state_from_msg, statuses_from_msg, WRENCH_AXES)
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
-from ros_ehs_msgs_py.topics import (by_name, CLOCK, COMMAND, CONTROLLER_STATUS, DIAGNOSTICS,
-                                    ESTIMATES, EVENTS, IDENTIFY_STATUS, JOINT_LOAD, JOINT_PISTON,
-                                    JOINT_SPOOL, JOINT_VALVE, LOAD_CELL, LOCKSTEP_NODE_TOPICS,
-                                    NODE_TOPICS, NodeTopics, PLANT_STATUS, PRESSURE_P, PRESSURE_T,
+from ros_ehs_msgs_py.topics import (by_name, CAPTURES, CLOCK, COMMAND, CONTROLLER_STATUS, CYCLES,
+                                    DIAGNOSTICS, ESTIMATES, EVENTS, IDENTIFY_STATUS, JOINT_LOAD,
+                                    JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE, LOAD_CELL,
+                                    LOCKSTEP_NODE_TOPICS, NODE_TOPICS, NodeTopics, PLANT_STATUS,
+                                    PRESSURE_P, PRESSURE_T, PROCEDURE_EVENTS, PROCEDURE_STATUS,
                                     RECORDER_STATUS, REFERENCE, REFERENCE_STATUS,
                                     REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
 from ros_ehs_msgs_py.values import (AxisState, Command, Load, NodeStatus, ParameterEstimate,
@@ -50,6 +53,8 @@ from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr
                                   state_from_cdr, state_to_cdr, wrench_from_cdr)
 
 __all__ = [
+    'CAPTURES', 'CYCLES', 'CYCLE_RECORD', 'CYCLES_LABEL', 'PROCEDURE_EVENTS', 'PROCEDURE_STATUS',
+    'cycles_from_bytes', 'cycles_to_bytes', 'fill_procedure_event', 'procedure_event_from_msg',
     'JOINT_LOAD', 'LOAD_CELL', 'Load', 'WRENCH_AXES', 'fill_load', 'load_from_cdr',
     'load_from_msg', 'load_to_cdr', 'wrench_from_cdr',
     'NodeStatus', 'statuses_from_msg', 'CONTROLLER_STATUS', 'IDENTIFY_STATUS', 'PLANT_STATUS',

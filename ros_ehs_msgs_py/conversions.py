@@ -22,6 +22,7 @@ message instance, or the nested dicts of :func:`empty_msg` for the bag writer).
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any, Callable, Sequence
 
 from ros_ehs_msgs_py.topics import JOINT_LOAD, JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE
@@ -427,3 +428,46 @@ def statuses_from_msg(msg: Any) -> list[NodeStatus]:
                               _get(st, 'message'),
                               {_get(kv, 'key'): _get(kv, 'value') for kv in _get(st, 'values')}))
     return out
+
+
+# -- the procedure ------------------------------------------------------------------------------
+#: one cycle's record on ``procedure/cycles`` (little-endian, 40 bytes): count (uint32), step
+#: (uint16), flags (uint16, 0), end stamp [ns] (int64), then float32 command hi, lo [m or N],
+#: z hi, lo [m], load hi, lo [N]
+CYCLE_RECORD = struct.Struct('<IHHqffffff')
+CYCLES_LABEL = 'ros_ehs_cycle_v1'
+_PROCEDURE_EVENT_KEYS = ('kind', 'what', 'value', 'total_cycles', 'step', 'stamp_ns')
+
+
+def cycles_to_bytes(rows: Sequence[Sequence[float]]) -> bytes:
+    """Pack ``rows`` of (count, step, end_ns, cmd_hi, cmd_lo, z_hi, z_lo, f_hi, f_lo)."""
+    pack = CYCLE_RECORD.pack
+    return b''.join(pack(int(r[0]), int(r[1]), 0, int(r[2]), *map(float, r[3:9]))
+                    for r in rows)
+
+
+def cycles_from_bytes(data: bytes) -> list[tuple]:
+    """Unpack records of :data:`CYCLE_RECORD`; ValueError when the length is not whole records."""
+    n, rest = divmod(len(data), CYCLE_RECORD.size)
+    if rest:
+        raise ValueError(f'procedure/cycles: {len(data)} bytes is not a whole number of '
+                         f'{CYCLE_RECORD.size}-byte cycle records')
+    return [(c, st, ns, *v) for c, st, _, ns, *v in CYCLE_RECORD.iter_unpack(bytes(data))]
+
+
+def fill_procedure_event(msg: Any, stamp: int, level: int, kind: str, what: str, value: float,
+                         total: int, step: int, message: str, status: Any = None,
+                         key_value: Callable[[], Any] | None = None) -> Any:
+    """Write one of the procedure's events into a ``diagnostic_msgs/DiagnosticArray``."""
+    pairs = [('kind', kind), ('what', what), ('value', f'{value:.9g}'),
+             ('total_cycles', str(total)), ('step', str(step)), ('stamp_ns', str(stamp))]
+    return _fill_status(msg, stamp, level, f'ros_ehs/procedure/{kind}', message, 'axis',
+                        pairs, status, key_value)
+
+
+def procedure_event_from_msg(msg: Any) -> dict[str, Any]:
+    """Read a ``procedure/events`` DiagnosticArray (the first status); ValueError if none."""
+    st, vals = _status_values(msg, 'procedure/events', _PROCEDURE_EVENT_KEYS)
+    return {'kind': vals['kind'], 'what': vals['what'], 'value': float(vals['value']),
+            'total_cycles': int(vals['total_cycles']), 'step': int(vals['step']),
+            'stamp_ns': int(vals['stamp_ns']), 'message': _get(st, 'message')}

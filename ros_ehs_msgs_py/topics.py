@@ -49,6 +49,10 @@ CONTROLLER_STATUS = 'ros_ehs/controller'
 #: the live identify node: values ``subscribed`` (the topics it takes, comma-separated),
 #: ``states``, ``refits``, ``pushes``, ``refused``, ``busy`` (a refit runs).
 IDENTIFY_STATUS = 'ros_ehs/identify'
+#: the procedure node: level OK (WARN interrupted or held, ERROR failed or a checkpoint that
+#: cannot be written); message the state; values state, step, step_index, step_cycles,
+#: total_cycles, time_to_go_s, result, reason, failed_at, checkpoint (the file), file.
+PROCEDURE_STATUS = 'ros_ehs/procedure'
 
 
 class Topic(NamedTuple):
@@ -102,8 +106,26 @@ REFERENCE_TRAJECTORY = Topic(
     '`piston`: positions z_ref [m], velocities v_ref [m/s], effort F_ref [N] when there is '
     'one, each at header.stamp + time_from_start', LOCKSTEP_QOS)
 
+PROCEDURE_EVENTS = Topic(
+    'procedure/events', 'diagnostic_msgs/msg/DiagnosticArray',
+    'the events of the procedure, one status each: name `ros_ehs/procedure/<kind>` (started, '
+    'step, step_end, held, interrupted, restored, running, failure, detector, run_out, '
+    'stopping, finished, ...), level, message; values kind, what, value, total_cycles, step, '
+    'stamp_ns', EVENTS_QOS)
+CYCLES = Topic(
+    'procedure/cycles', 'std_msgs/msg/UInt8MultiArray',
+    'the extremes of every counted cycle, packed: records of CYCLE_RECORD (40 bytes: count, '
+    'step, flags, end stamp [ns], command hi/lo [m or N], z hi/lo [m], load hi/lo [N]), '
+    'a batch a message; layout.dim[0] label `ros_ehs_cycle_v1`, size the records, stride 40',
+    EVENTS_QOS)
+CAPTURES = Topic(
+    'procedure/captures', 'std_msgs/msg/Float64MultiArray',
+    'a full cycle at a log-spaced count (1, 2, 5, 10, 20, ...): rows t [s from the start of '
+    'the cycle], command, z [m], load [N]; layout.dim[0] label `cycle <count>` size 4, dim[1] '
+    'the samples', EVENTS_QOS)
+
 TOPICS = (REFERENCE, STATE, LOAD_CELL, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, EVENTS,
-          ESTIMATES, CLOCK, REFERENCE_TRAJECTORY)
+          ESTIMATES, CLOCK, REFERENCE_TRAJECTORY, PROCEDURE_EVENTS, CYCLES, CAPTURES)
 
 
 class NodeTopics(NamedTuple):
@@ -118,6 +140,8 @@ NODE_TOPICS = {
     'plant': NodeTopics((STATE, LOAD_CELL, PRESSURE_P, PRESSURE_T, DIAGNOSTICS), (COMMAND,)),
     'controller': NodeTopics((COMMAND, DIAGNOSTICS, EVENTS), (STATE, REFERENCE)),
     'reference': NodeTopics((REFERENCE, DIAGNOSTICS), ()),
+    'procedure': NodeTopics((REFERENCE, DIAGNOSTICS, PROCEDURE_EVENTS, CYCLES, CAPTURES),
+                            (STATE, EVENTS)),
 }
 
 #: The same in lock-step (plant ``mode: lockstep``, controller ``lockstep: true``, reference
@@ -128,6 +152,8 @@ LOCKSTEP_NODE_TOPICS = {
                         (COMMAND,)),
     'controller': NodeTopics((COMMAND, DIAGNOSTICS, EVENTS), (STATE, REFERENCE_TRAJECTORY)),
     'reference': NodeTopics((REFERENCE, REFERENCE_TRAJECTORY, DIAGNOSTICS), (CLOCK,)),
+    'procedure': NodeTopics((REFERENCE, REFERENCE_TRAJECTORY, DIAGNOSTICS, PROCEDURE_EVENTS,
+                             CYCLES, CAPTURES), (CLOCK, STATE, EVENTS)),
 }
 
 

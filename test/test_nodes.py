@@ -599,8 +599,11 @@ def test_bad_configuration_is_one_clear_line(dom, tmp_path):
 def test_nodes_create_exactly_the_contract_topics(dom, tmp_path, ros, lockstep):
     infra = {'/rosout', '/parameter_events'}
     topics = c.LOCKSTEP_NODE_TOPICS if lockstep else c.NODE_TOPICS
+    proc = {'file': str(FIXTURES.parent / 'procedure_short.yaml'),
+            'checkpoint': str(tmp_path / 'checkpoint.json')}
     modes = {'plant': {'mode': 'lockstep'}, 'controller': {'lockstep': True},
-             'reference': {'use_sim_time': True}} if lockstep else {}
+             'reference': {'use_sim_time': True},
+             'procedure': {'use_sim_time': True, **proc}} if lockstep else {'procedure': proc}
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         for n in topics:
             procs.start(n, modes.get(n))

@@ -298,9 +298,35 @@ IDENTIFY = (
     CPU_AFFINITY,
 )
 
+#: the procedure node's options
+PROCEDURE = (
+    Setting('file', '', '', meaning='the procedure file (YAML, docs/procedures.md)'),
+    Setting('checkpoint', '', '', meaning="the test's checkpoint (JSON, rewritten atomically at "
+            'every state change and every 10 s of the stamps; default: the file with '
+            '`.checkpoint.json`); found at start, the test is restored, interrupted, for '
+            '~/resume'),
+    Setting('recover_bag', '', '', meaning='a restart: the bag being recorded (its '
+            '`procedure/cycles`); cycles it holds beyond the checkpoint are counted'),
+    Setting('autostart', '', False, meaning='start the test at the first state (else ~/start)'),
+    RATE_HZ,
+    Setting('preview', 's', 0.02, 0.0, 1.0, 'use_sim_time: each /clock t is answered with the '
+            "samples up to t + preview (the reference node's); a decision taken on a state "
+            'acts this long after its stamp (real time too): no sample sent changes'),
+    Setting('controller', '', 'controller', meaning='the controller node: a step in the other '
+            'control mode sets its `control_mode`'),
+    Setting('apc_harmonics', '', 5, 1, MAX_HARMONICS, 'cyclic sine steps with APC: the '
+            'harmonics corrected (the fundamental included)'),
+    LOAD_TOPIC,
+    LOAD_AXIS,
+    LOAD_JOINT,
+    DIAGNOSTICS_PERIOD,
+    CPU_AFFINITY,
+)
+
 #: each node's options: what ``ros2 run ros_ehs <node>`` declares (besides its parameters)
 NODE_OPTIONS = {'plant': PLANT, 'controller': CONTROLLER, 'reference': REFERENCE,
-                'recorder': RECORDER, 'player': PLAYER, 'identify': IDENTIFY}
+                'recorder': RECORDER, 'player': PLAYER, 'identify': IDENTIFY,
+                'procedure': PROCEDURE}
 
 #: the parameters the controller declares: its own, the safety layer's and the plant values
 #: its feedforward uses

@@ -176,6 +176,21 @@ class Specimen:
             n = (self.a0 ** (1.0 - h) - a ** (1.0 - h)) / ((h - 1.0) * self.A)
         return n / r ** self.m
 
+    def crack_after(self, n: float, force_range: float | None = None) -> float:
+        """Return the crack after ``n`` cycles at a constant range [N] (1: it fractures)."""
+        r = (force_range or self.range_ref) / self.range_ref
+        g = self.A * n * r ** self.m
+        h = self.m / 2.0
+        if abs(h - 1.0) < 1e-12:
+            return min(1.0, self.a0 * math.exp(g))
+        w = self.a0 ** (1.0 - h) - (h - 1.0) * g
+        return min(1.0, w ** (1.0 / (1.0 - h))) if w > 0.0 else 1.0
+
+    def stiffness_after(self, n: float, force_range: float | None = None) -> float:
+        """Return the stiffness after ``n`` cycles at a constant range [N/m] (before fracture)."""
+        a = self.crack_after(n, force_range)
+        return self.k0 / (1.0 + self.lam * a * a)
+
     def cycles_to_drop(self, drop: float, force_range: float | None = None) -> float:
         """
         Return the cycles to a stiffness drop ``drop`` (0.1: 10 %) at a constant range.

@@ -1,0 +1,805 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The procedure node's rules: a test run step by step, its cycles counted, its failure decided.
+
+:class:`ProcedureRunner` turns a checked :class:`~ros_ehs.core.procedure.spec.Procedure` into
+the reference of every stamp (:meth:`~ProcedureRunner.sample`), takes the measured states
+(:meth:`~ProcedureRunner.measure`), the controller's events (:meth:`~ProcedureRunner.event`) and
+the operator's requests (start, hold, resume, stop), and leaves for the node what it should
+publish and record: events, each cycle's extremes (:class:`~ros_ehs.core.procedure.
+detectors.Cycle`), full cycles at log-spaced counts, and the checkpoint. The clock is the
+states' stamps (sim or real time), passed in; each rule is tested in
+``test/test_procedure.py`` without DDS, and the node only decodes, calls and publishes.
+
+**The timeline.** The reference is a sequence of segments (a level held, a ramp, a step's
+waveform), each from a stamp on. A step whose end is known (a ramp reaching its level, a
+dwell's time, a count of cycles, a sweep, a drive's passes) hands over to the next exactly
+at its end. A decision taken on a measured state stamped ``s`` (an end condition, a
+failure, hold, stop, an interlock) changes the timeline from ``s + latency`` on: samples up to
+``latency`` (the reference's ``preview``) may already have gone out, and none of them
+changes.
+
+**Cycles** are the step's waveform's (a cyclic step's periods, a sweep's turns of phase, a
+drive's passes), counted exactly: cycle ``k`` of a step is complete when a state stamped at
+or after its end has been measured, and counted once. Each complete cycle's extremes of the
+command, the position and the load are a :class:`Cycle` record; a cycle a hold, an
+interlock or a restart cut is not counted (its load was not completed), and the step goes on
+at the same count.
+
+**Resume** (after a hold, an interlock, a restart of any node or of all of them, from the
+checkpoint): the step continues at the start of its next whole cycle, from the measured
+value, over a lead-in of one cycle (the waveform blends in from where the axis is: no jump;
+that cycle counts, the detectors skip it). The compensation's learnt corrections and the
+detectors' reference cycles come back with it (:meth:`checkpoint`, :meth:`restore`).
+
+**States**: ``idle`` (before start: the level measured is held), ``running``, ``switching``
+(a step in the other control mode waits for the controller's switch), ``held`` (~/hold: the
+command frozen, hydraulics on), ``interrupted`` (an interlock acted, or a restart: resume
+when ready), ``stopping`` (ramping to ``stop_level``), ``finished`` (its ``result``:
+``completed``, ``failed`` (a failure detector or the controller's specimen break),
+``run_out`` or ``stopped``). The end of a test, failed, completed or run out, ramps to
+``stop_level`` as ``~/stop`` does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Any, Mapping
+
+import numpy as np
+from ros_ehs.core.control.apc import AmplitudePhaseControl
+from ros_ehs.core.control.pvc import Block, PeakValleyControl
+from ros_ehs.core.control.safety import ramp_weight
+from ros_ehs.core.control.waveforms import Samples
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.procedure.detectors import Cycle, FailureDetector
+from ros_ehs.core.procedure.spec import Procedure, Step
+from ros_ehs_msgs_py import Reference
+
+__all__ = ['ACTING', 'CHECKPOINT_PERIOD', 'ProcedureRunner', 'STATES', 'capture_counts']
+
+STATES = ('idle', 'running', 'switching', 'held', 'interrupted', 'stopping', 'finished')
+#: a controller trip with one of these actions interrupts the test
+ACTING = ('hold', 'stop', 'power_off')
+#: the checkpoint is due at every state change and at least this often [s of the stamps]
+CHECKPOINT_PERIOD = 10.0
+#: the rate of a stop ramp when neither the procedure nor a ramp step gives one [m/s, N/s]
+STOP_RATE = {'displacement': 1.0e-3, 'force': 1.0e3}
+_NS = 1_000_000_000
+
+
+def capture_counts(n: int) -> bool:
+    """Return True when cycle ``n`` (the test's count) is one the full cycles are kept at."""
+    if n < 1:
+        return False
+    e = 10 ** int(math.floor(math.log10(n) + 1e-12))
+    return n in (e, 2 * e, 5 * e)
+
+
+@dataclass
+class _Segment:
+    """A piece of the timeline from ``t0`` [ns] on (see the module docstring)."""
+
+    kind: str                    # 'level', 'ramp', 'wave'
+    t0: int
+    mode: str
+    v0: float = 0.0              # level; a ramp's start
+    v1: float = 0.0              # a ramp's end
+    rate: float = 0.0            # a ramp's rate
+    step: int = -1               # the step it plays (-1: none)
+    c0: int = 0                  # a wave's first cycle (its count in the step)
+    lead: float = 0.0            # a wave's lead-in [s]
+    lead_from: float = 0.0       # ... from this value
+    end: int | None = None       # the stamp it ends at, when known [ns]
+    n_end: int | None = None     # a wave's count in the step at that end, when known
+    wave: Any = None             # a wave's waveform (_Wave)
+    cyc: dict | None = None      # the cycle being measured
+
+    def ramp_end(self) -> int:
+        return self.t0 + int(round(abs(self.v1 - self.v0) / self.rate * 1e9))
+
+
+class _Wave:
+    """A step's waveform in its own time ``tau`` [s] (cycle ``k`` from ``k`` periods on)."""
+
+    def __init__(self, step: Step, latency: float, harmonics: int, c0: int, lead: float,
+                 learnt: Mapping | None) -> None:
+        self.step = step
+        self.corr = None
+        frozen = False
+        if step.type == 'cyclic':
+            blocks = step['blocks']
+            f = step['frequency']
+            self.period = 1.0 / f
+            comp = step['compensation']
+            sine = step['waveform'] == 'sine' and len(blocks) == 1
+            frozen = comp == 'none'
+            peak, valley = blocks[0][0], blocks[0][1]
+            if comp == 'apc' or (comp in ('auto', 'none') and sine):
+                self.corr = AmplitudePhaseControl(0.5 * (peak - valley), f,
+                                                  0.5 * (peak + valley), harmonics=harmonics,
+                                                  latency=latency, learn_from=0.0)
+            else:
+                self.corr = PeakValleyControl([Block(*b) for b in blocks], f,
+                                              step['waveform'], latency=latency,
+                                              learn_from=0.0)
+            self.blocks = blocks
+        elif step.type == 'sweep':
+            self.period = 1.0 / step['f0']
+            self.corr = AmplitudePhaseControl(step['amplitude'], step['f0'], step['mean'],
+                                              sweep_to=step['f1'],
+                                              sweep_time=step['duration'],
+                                              latency=latency, learn_from=0.0)
+            frozen = step['compensation'] == 'none'
+        else:      # drive: one pass a cycle
+            self.drive = _drive_file(step['file'])
+            self.period = float(self.drive.t[-1])
+        self.t_off = c0 * self.period if step.type != 'sweep' else 0.0
+        if step.type == 'sweep' and c0:
+            self.t_off = self.corr.cycle_start(c0)
+        if self.corr is not None:
+            # the lead-in cycle is not learnt from
+            self.corr.learn_from = self.t_off + (self.period if lead else 0.0)
+            if learnt:
+                _restore(self.corr, learnt)
+            if frozen:                   # the specified waveform, nothing learnt
+                self.corr.freeze()
+
+    def value(self, tau: float) -> tuple[float, float]:
+        """Return the command and its rate at the waveform's time ``tau`` [s]."""
+        if self.corr is not None:
+            return self.corr.reference(tau)
+        x = tau % self.period
+        z, v = self.drive(np.array([x]))
+        return float(z[0]), float(v[0])
+
+    def cycle_of(self, tau: float) -> int:
+        """Return the cycle the waveform's time ``tau`` falls in."""
+        if self.step.type == 'sweep':
+            return self.corr.cycle_of(tau)
+        return int(math.floor(tau / self.period + 1e-9))
+
+    def cycle_start(self, k: int) -> float:
+        """Return the waveform's time at which cycle ``k`` starts."""
+        if self.step.type == 'sweep':
+            return self.corr.cycle_start(k)
+        return k * self.period
+
+    def specified(self, k: int) -> tuple[float, float] | None:
+        """Return the peak and valley specified for the controlled signal in cycle ``k``."""
+        if self.step.type == 'cyclic':
+            b = self.blocks[_block_of(self.blocks, k)]
+            return b[0], b[1]
+        if self.step.type == 'sweep':
+            return (self.step['mean'] + self.step['amplitude'],
+                    self.step['mean'] - self.step['amplitude'])
+        return None
+
+    def measure(self, tau: float, value: float) -> None:
+        """Give the compensation the measured controlled signal at ``tau``."""
+        if self.corr is not None:
+            self.corr.measure(tau, value)
+
+    def learnt(self) -> dict | None:
+        """Return the compensation's learnt corrections (JSON values), or None."""
+        return None if self.corr is None else _learnt(self.corr)
+
+
+def _block_of(blocks, k: int) -> int:
+    per = sum(b[2] for b in blocks)
+    r = k % per
+    for j, b in enumerate(blocks):
+        if r < b[2]:
+            return j
+        r -= b[2]
+    return len(blocks) - 1
+
+
+def _drive_file(path: str) -> Samples:
+    from ros_ehs.core.control.waveforms import CsvTrajectory
+    return CsvTrajectory(path)
+
+
+def _learnt(corr) -> dict:
+    if isinstance(corr, AmplitudePhaseControl):
+        c = corr._segments[-1][4]
+        g = corr._gain_k
+        return {'kind': 'apc', 'c': [[float(x.real), float(x.imag)] for x in c],
+                'mean': float(corr._segments[-1][5]),
+                'gain': [[float(x.real), float(x.imag)] for x in g],
+                'converged_at': corr.converged_at}
+    return {'kind': 'pvc', 'amp': [float(a) for a in corr.amp],
+            'mean': [float(m) for m in corr.mean], 'converged_at': corr.converged_at}
+
+
+def _restore(corr, d: Mapping) -> None:
+    """Put learnt corrections back into a new compensation (a resumed step)."""
+    if isinstance(corr, AmplitudePhaseControl) and d.get('kind') == 'apc':
+        c = np.array([complex(*x) for x in d['c']])
+        if c.size == corr.harmonics:
+            m = float(d['mean'])
+            corr._segments = [(-math.inf, corr.period, c, m, c, m)]
+            corr._gain_k = np.array([complex(*x) for x in d['gain']])
+            corr.converged_at = d.get('converged_at')
+    elif isinstance(corr, PeakValleyControl) and d.get('kind') == 'pvc':
+        if len(d['amp']) == len(corr.blocks):
+            corr.amp = [float(a) for a in d['amp']]
+            corr.mean = [float(m) for m in d['mean']]
+            corr._planned = list(zip(corr.amp, corr.mean))
+            corr._plans = {0: corr._make_plan(0, 0.0)}
+            corr.converged_at = d.get('converged_at')
+
+
+class ProcedureRunner:
+    """
+    The procedure node's rules (see the module docstring).
+
+    ``procedure``: checked; ``latency``: the reference's preview [s] (decisions act that
+    much after the state they were taken on); ``harmonics``: APC's; ``rate_hz``: the loop's;
+    ``observe``: the failure detectors report when they trip and the test goes on (a virtual
+    test that tells when each would trip).
+    """
+
+    def __init__(self, procedure: Procedure, *, latency: float = 0.02, harmonics: int = 5,
+                 rate_hz: float = 1000.0, observe: bool = False) -> None:
+        if not isinstance(procedure, Procedure):
+            raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
+        if not (math.isfinite(latency) and latency >= 0):
+            raise InputError(f'`latency` = {latency!r} s must be >= 0')
+        self.procedure = procedure
+        self.steps = procedure.steps
+        self.latency_ns = int(round(latency * 1e9))
+        self.dt_ns = int(round(1e9 / rate_hz))
+        self.harmonics = int(harmonics)
+        self.observe = bool(observe)    # failure detectors report, the test goes on (virtual)
+        self.tripped: dict[str, int] = {}     #: each failure detector's trip cycle
+        self.state = 'idle'
+        self.result = ''
+        self.reason = ''
+        self.step_index = 0
+        self.counts = [0] * len(self.steps)
+        self.total = 0
+        self.failed_at: int | None = None
+        self.mode = self.steps[0].control_mode
+        self.request_mode: str | None = None   #: the node should switch the controller
+        self.events: list[tuple[str, str, float, str]] = []   #: (kind, what, value, message)
+        self.cycles: list[Cycle] = []          #: complete cycles, for the node to record
+        self.captures: list[dict] = []         #: full cycles at log-spaced counts
+        self.notes: list[tuple[str, str]] = []
+        self.checkpoint_due = False
+        self._segs: list[_Segment] = []
+        self._waves: list[_Segment] = []     # the waveform segments whose cycles are counted
+        self._memo: tuple = (None, (0.0, 0.0))
+        self._learnt: dict[int, dict] = {}
+        self._detectors: dict[int, list[FailureDetector]] = {}
+        self._det_state: dict[int, list[dict]] = {}
+        self._last_ns = -1
+        self._last_meas = (math.nan, math.nan)
+        self._last_checkpoint = -1
+        self._step_t0 = 0                      # the step's start stamp (its time)
+        self._time_in_step = 0.0
+
+    # -- the timeline ----------------------------------------------------------------------
+    def _push(self, seg: _Segment) -> None:
+        self._segs = [s for s in self._segs if s.t0 < seg.t0][-2:] + [seg]
+
+    def _seg_at(self, stamp: int) -> _Segment | None:
+        seg = None
+        for s in self._segs:
+            if s.t0 <= stamp:
+                seg = s
+        return seg
+
+    def _value(self, seg: _Segment, stamp: int) -> tuple[float, float]:
+        key = (id(seg), stamp)
+        if self._memo[0] == key:          # sample() and the measurement ask alike
+            return self._memo[1]
+        out = self._compute(seg, stamp)
+        self._memo = (key, out)
+        return out
+
+    def _compute(self, seg: _Segment, stamp: int) -> tuple[float, float]:
+        t = (stamp - seg.t0) * 1e-9
+        if seg.kind == 'level':
+            return seg.v0, 0.0
+        if seg.kind == 'ramp':
+            d = seg.v1 - seg.v0
+            span = abs(d) / seg.rate
+            if t >= span:
+                return seg.v1, 0.0
+            return seg.v0 + math.copysign(seg.rate * t, d), math.copysign(seg.rate, d)
+        wave = seg.wave
+        tau = wave.t_off + t
+        v, r = wave.value(tau)
+        if seg.lead > 0 and t < seg.lead:
+            w, dw = ramp_weight(t / seg.lead)
+            d0 = seg.lead_from - wave.value(wave.t_off)[0]
+            return v + (1.0 - w) * d0, r - dw / seg.lead * d0
+        return v, r
+
+    def sample(self, stamp_ns: int) -> Reference:
+        """Return the reference at ``stamp_ns`` (advancing to a step whose start is due)."""
+        self._advance(stamp_ns)
+        seg = self._seg_at(stamp_ns)
+        if seg is None:       # idle before anything: hold what was measured
+            z, f = self._last_meas
+            v = f if self.mode == 'force' else z
+            return self._ref(stamp_ns, v, 0.0, self.mode)
+        v, r = self._value(seg, stamp_ns)
+        return self._ref(stamp_ns, v, r, seg.mode)
+
+    @staticmethod
+    def _ref(stamp: int, v: float, r: float, mode: str) -> Reference:
+        if mode == 'force':
+            return Reference(stamp, math.nan, math.nan, v)
+        return Reference(stamp, v, r)
+
+    def _advance(self, stamp: int) -> None:
+        """Hand over from segments whose known end has come, exactly at their end."""
+        for _ in range(len(self.steps) + 2):
+            seg = self._segs[-1] if self._segs else None
+            if seg is None or self.state not in ('running', 'stopping'):
+                return
+            end = seg.end
+            if seg.kind == 'ramp' and end is None:
+                end = seg.ramp_end()
+            if end is None or stamp < end:
+                return
+            if self.state == 'stopping':
+                # finished once at the stop level and every cycle before the stop is counted
+                if seg.kind == 'ramp' and not self._waves:
+                    self._push(_Segment('level', end, seg.mode, v0=seg.v1))
+                    self._finish_stop(end)
+                return
+            if seg.step != self.step_index:
+                return
+            self._end_step(end, 'completed')
+
+    # -- operator ------------------------------------------------------------------------------
+    def start(self, stamp_ns: int) -> tuple[bool, str]:
+        """Start the test (idle) at ``stamp_ns`` + latency: (ok, why)."""
+        if self.state != 'idle':
+            return False, f'the test is {self.state}; start is for an idle test'
+        z, f = self._last_meas
+        if not math.isfinite(f if self.steps[0].control_mode == 'force' else z):
+            return False, 'no measured state yet (or no load cell for a force step)'
+        self._set('running', stamp_ns, 'started')
+        self._begin_step(0, stamp_ns + self.latency_ns)
+        return True, f'started: {self.steps[0].label}'
+
+    def hold(self, stamp_ns: int) -> tuple[bool, str]:
+        """Freeze the command where it is (the step's clock stops): (ok, why)."""
+        if self.state not in ('running', 'switching'):
+            return False, f'the test is {self.state}; nothing runs to hold'
+        self._freeze(stamp_ns, 'held', 'held by the operator')
+        return True, 'held: the command frozen, hydraulics on'
+
+    def resume(self, stamp_ns: int) -> tuple[bool, str]:
+        """Go on from a hold, an interlock or a restart at the same count: (ok, why)."""
+        if self.state not in ('held', 'interrupted'):
+            return False, f'the test is {self.state}; resume is for a held or interrupted test'
+        z, f = self._last_meas
+        step = self.steps[self.step_index]
+        value = f if step.control_mode == 'force' else z
+        if not math.isfinite(value):
+            return False, 'no measured state to resume from'
+        self._set('running', stamp_ns,
+                  f'resumed {step.label} at cycle {self.counts[self.step_index]} of the step '
+                  f'({self.total} in all)')
+        self._begin_step(self.step_index, stamp_ns + self.latency_ns, resume=True)
+        return True, self.events[-1][3]
+
+    def stop(self, stamp_ns: int, why: str = 'stopped by the operator') -> tuple[bool, str]:
+        """Ramp to ``stop_level``, then finish (result ``stopped``): (ok, why)."""
+        if self.state in ('finished', 'stopping'):
+            return False, f'the test is {self.state}'
+        self.result = self.result or 'stopped'
+        self.reason = self.reason or why
+        self._to_stop(stamp_ns + self.latency_ns)
+        return True, f'stopping: to {self.procedure.stop_level:g} then held'
+
+    # -- controller -------------------------------------------------------------------------
+    def event(self, kind: str, detector: str, action: str, stamp_ns: int) -> None:
+        """Take a controller event: an acting trip interrupts; a specimen break fails it."""
+        if kind != 'trip' or action not in ACTING:
+            return
+        if self.state in ('running', 'switching', 'stopping'):
+            if detector == 'specimen_break':
+                self.failed_at = self.total
+                self.result, self.reason = 'failed', (f'the controller detected the specimen '
+                                                      f'break at cycle {self.total}')
+                self._note_event('failure', 'specimen_break', float(self.total), self.reason)
+                self._to_stop(stamp_ns + self.latency_ns)
+                return
+            if self.state != 'stopping':
+                self._freeze(stamp_ns, 'interrupted', f'interlock: {detector} ({action})')
+
+    def mode_switched(self, ok: bool, why: str, stamp_ns: int) -> None:
+        """Take the controller's answer to :attr:`request_mode`."""
+        if self.state != 'switching':
+            return
+        mode, self.request_mode = self._switch_to, None
+        if not ok:
+            self._freeze(stamp_ns, 'held', f'the controller refused {mode}: {why}')
+            return
+        self.mode = mode
+        self._set('running', stamp_ns, f'control mode {mode}')
+        self._begin_step(self.step_index, stamp_ns + self.latency_ns)
+
+    # -- states ------------------------------------------------------------------------------
+    @property
+    def last_stamp(self) -> int:
+        """Return the newest measured state's stamp [ns] (-1: none yet)."""
+        return self._last_ns
+
+    def window(self, t_ns: int, preview_ns: int) -> list[Reference]:
+        """Return the samples at ``t_ns``, one period apart, up to ``t_ns + preview_ns``."""
+        n = max(0, -(-preview_ns // self.dt_ns))
+        return [self.sample(t_ns + j * self.dt_ns) for j in range(n + 1)]
+
+    def state_measured(self) -> tuple[float, float]:
+        """Return the newest measured (position [m], load [N])."""
+        return self._last_meas
+
+    def measure(self, stamp_ns: int, z: float, load: float) -> None:
+        """Take a measured state: count cycles, judge them, check the end conditions."""
+        if stamp_ns <= self._last_ns:
+            return
+        self._last_ns = stamp_ns
+        self._last_meas = (z, load)
+        if self.state in ('running', 'stopping'):
+            self._measure(stamp_ns, z, load)
+        self._advance(stamp_ns)
+        if self._last_checkpoint < 0 or \
+                stamp_ns - self._last_checkpoint >= CHECKPOINT_PERIOD * _NS:
+            self.checkpoint_due = True
+
+    def new_run(self) -> None:
+        """Take a new run of stamps (a restarted plant): interrupt, keep the counts."""
+        if self.state in ('running', 'switching', 'stopping'):
+            self._freeze(None, 'interrupted', 'the loop restarted (a new run of stamps)')
+        self._last_ns = -1
+        self._segs = []
+
+    # -- the steps -----------------------------------------------------------------------------
+    def _begin_step(self, k: int, t0: int, resume: bool = False) -> None:
+        step = self.steps[k]
+        self.step_index = k
+        if step.control_mode != self.mode:
+            self._switch_to = step.control_mode
+            self.request_mode = step.control_mode
+            self.state = 'switching'
+            v = self._value(self._segs[-1], t0)[0] if self._segs else self._measured(self.mode)
+            self._push(_Segment('level', t0, self.mode, v0=v))
+            self.notes.append(('info', f'{step.label}: switching the controller to '
+                               f'{step.control_mode}'))
+            return
+        start = self._measured(step.control_mode) if (resume or not self._segs) else \
+            self._value(self._segs[-1], t0)[0]
+        if not math.isfinite(start):
+            start = self._value(self._segs[-1], t0)[0] if self._segs else 0.0
+        self._step_t0 = t0
+        mode = step.control_mode
+        if not resume:
+            self._note_event('step', step.name, float(k), f'{step.label}: {step.type}')
+        if step.type == 'ramp':
+            rate = step['rate']
+            self._push(_Segment('ramp', t0, mode, v0=start, v1=step['to'], rate=rate, step=k))
+        elif step.type == 'dwell':
+            self._push(_Segment('level', t0, mode, v0=start, step=k,
+                                end=t0 + int(round(step['time'] * 1e9))))
+        else:
+            c0 = self.counts[k]
+            probe = _Wave(step, self.latency_ns * 1e-9, self.harmonics, c0, 0.0,
+                          self._learnt.get(k))
+            lead = probe.period if (resume or abs(start - probe.value(probe.t_off)[0]) >
+                                    1e-9 * max(1.0, abs(start))) else 0.0
+            wave = _Wave(step, self.latency_ns * 1e-9, self.harmonics, c0, lead,
+                         self._learnt.get(k))
+            end, n_end = self._wave_end(wave, step, c0, t0)
+            seg = _Segment('wave', t0, mode, step=k, c0=c0, lead=lead, lead_from=start,
+                           end=end, n_end=n_end, wave=wave)
+            self._push(seg)
+            self._waves.append(seg)
+            dets = [FailureDetector(e.kind, e.values, mode) for e in step.end if e.failure]
+            for d, st in zip(dets, self._det_state.get(k, [])):
+                d.restore(st)
+            self._detectors[k] = dets
+        self.checkpoint_due = True
+
+    def _wave_end(self, w: '_Wave', step: Step, c0: int, t0: int
+                  ) -> tuple[int | None, int | None]:
+        """Return the stamp the step's waveform ends at and its count there, when known."""
+        n = None
+        if step.type == 'cyclic' and step['count']:
+            n = step['count']
+        elif step.type == 'drive':
+            n = step['repeats']
+        run_out = self.procedure.run_out
+        if run_out:
+            left = run_out - self.total
+            n = left + c0 if n is None else min(n, left + c0)
+        if step.type == 'sweep':
+            end = t0 + int(round((step['duration'] - w.t_off) * 1e9))
+            turns = w.corr.cycle_of(step['duration'] - 1e-9)
+            return end, turns if n is None else min(n, turns)
+        if n is None:
+            return None, None
+        return t0 + int(round((w.cycle_start(n) - w.t_off) * 1e9)), n
+
+    def _measured(self, mode: str) -> float:
+        z, f = self._last_meas
+        return f if mode == 'force' else z
+
+    def _measure(self, stamp: int, z: float, load: float) -> None:
+        was = self.state
+        for seg in list(self._waves):
+            if stamp >= seg.t0:
+                self._measure_wave(seg, stamp, z, load)
+            if self.state != was:
+                return
+        if was == 'running':
+            self._check_time_and_level(stamp, z, load)
+
+    def _measure_wave(self, seg: _Segment, stamp: int, z: float, load: float) -> None:
+        """Measure a counted waveform segment: close its cycles, track the one under way."""
+        w = seg.wave
+        step = self.steps[seg.step]
+        tau = w.t_off + (stamp - seg.t0) * 1e-9
+        ended = seg.end is not None and stamp >= seg.end
+        if not ended:
+            w.measure(tau, load if step.control_mode == 'force' else z)
+        k = w.cycle_of(tau)
+        cyc = seg.cyc
+        if cyc is not None and k != cyc['k']:
+            seg.cyc = None
+            was = self.state
+            self._close_cycle(seg, cyc, stamp, whole=k == cyc['k'] + 1)
+            cyc = None
+            if self.state != was:
+                return
+        if ended:
+            self._waves.remove(seg)
+            return
+        cmd = self._value(seg, stamp)[0]
+        if cyc is None:
+            cap = self.total + 1
+            cyc = seg.cyc = {
+                'k': k, 'lead': seg.lead > 0 and tau < w.t_off + seg.lead,
+                'cmd': [cmd, cmd], 'z': [z, z], 'f': [load, load],
+                'first': abs(tau - w.cycle_start(k)) <= 1.5 * self.dt_ns * 1e-9,
+                'capture': ({'count': cap, 't': [], 'cmd': [], 'z': [], 'f': []}
+                            if step.capture == 'log' and capture_counts(cap) else None)}
+        for key, v in (('cmd', cmd), ('z', z), ('f', load)):
+            lo, hi = cyc[key]
+            cyc[key] = [min(lo, v), max(hi, v)] if math.isfinite(v) else [math.nan, math.nan]
+        cap = cyc['capture']
+        if cap is not None:
+            cap['t'].append(stamp)
+            cap['cmd'].append(cmd)
+            cap['z'].append(z)
+            cap['f'].append(load)
+
+    def _close_cycle(self, seg: _Segment, cyc: dict, stamp: int, whole: bool) -> None:
+        """Count, record and judge a cycle a state has ended."""
+        k = seg.step
+        if not (whole and cyc['first']):
+            return                     # not a whole cycle (cut, or begun mid-way): not counted
+        self.counts[k] += 1
+        self.total += 1
+        c = Cycle(self.total, k, stamp, cyc['cmd'][1], cyc['cmd'][0], cyc['z'][1], cyc['z'][0],
+                  cyc['f'][1], cyc['f'][0])
+        self.cycles.append(c)
+        cap = cyc['capture']
+        if cap is not None and cap['count'] == self.total:
+            self.captures.append(cap)
+        if not cyc['lead']:
+            spec = seg.wave.specified(cyc['k'])
+            for d in self._detectors.get(k, []):
+                why = d.cycle(c, spec)
+                if why:
+                    self.tripped.setdefault(d.kind, self.total)
+                    if self.observe:
+                        self._note_event('detector', d.kind, float(self.total), why)
+                        continue
+                    self.failed_at = self.total
+                    self.result, self.reason = 'failed', why
+                    self._note_event('failure', d.kind, float(self.total), why)
+                    self._to_stop(stamp + self.latency_ns)
+                    return
+        run_out = self.procedure.run_out
+        if run_out and self.total >= run_out and self.state == 'running':
+            self.result, self.reason = 'run_out', (f'run-out: {self.total} cycles without a '
+                                                   'failure')
+            self._note_event('run_out', '', float(self.total), self.reason)
+            self._to_stop(stamp + self.latency_ns)
+
+    def _check_time_and_level(self, stamp: int, z: float, load: float) -> None:
+        step = self.steps[self.step_index]
+        t = (stamp - self._step_t0) * 1e-9
+        for e in step.end:
+            if e.kind == 'time' and t >= e.values['time']:
+                self._end_step(stamp + self.latency_ns, f'time {e.values["time"]:g} s')
+                return
+            if e.kind == 'level':
+                x = load if e.values['signal'] == 'load' else z
+                a, b = e.values['above'], e.values['below']
+                if (math.isfinite(a) and x > a) or (math.isfinite(b) and x < b):
+                    self._end_step(stamp + self.latency_ns, f'{e.values["signal"]} '
+                                   f'{x:.6g} crossed its level')
+                    return
+
+    def _end_step(self, t_end: int, why: str) -> None:
+        k = self.step_index
+        step = self.steps[k]
+        self._save_step_state()
+        for seg in self._waves:
+            if seg.step == k and (seg.end is None or seg.end > t_end):
+                seg.end = t_end                 # a condition ended it: no cycle beyond
+        # the cycles up to the end that the states after it will close
+        pending = sum(max(0, s.n_end - self.counts[k]) for s in self._waves
+                      if s.step == k and s.n_end is not None and s.end == t_end)
+        n = self.counts[k] + pending
+        self._note_event('step_end', step.name, float(n),
+                         f'{step.label} ended ({why}): {n} cycles')
+        run_out = self.procedure.run_out
+        if k + 1 < len(self.steps) and not (run_out and self.total + pending >= run_out):
+            self._begin_step(k + 1, t_end)
+            return
+        self.result, self.reason = 'completed', 'every step done'   # or run-out, once counted
+        self._to_stop(t_end)
+
+    def _save_step_state(self) -> None:
+        for seg in self._waves:
+            learnt = seg.wave.learnt()
+            if learnt is not None:
+                self._learnt[seg.step] = learnt
+        k = self.step_index
+        if k in self._detectors:
+            self._det_state[k] = [d.state() for d in self._detectors[k]]
+
+    def _freeze(self, stamp: int | None, state: str, why: str) -> None:
+        """Hold the command at its value ``latency`` on; the cycle under way is not counted."""
+        self._save_step_state()
+        self._waves = []              # the cycles under way are not counted
+        if self._segs and stamp is not None:
+            t = stamp + self.latency_ns
+            seg = self._seg_at(t) or self._segs[-1]
+            v = self._value(seg, t)[0]
+            self._push(_Segment('level', t, seg.mode, v0=v))
+        self._set(state, stamp, why)
+
+    def _to_stop(self, t0: int) -> None:
+        """Ramp to the stop level from the command at ``t0``, then finish."""
+        self._save_step_state()
+        for seg in self._waves:
+            seg.end = min(seg.end or t0, t0)
+        seg = self._seg_at(t0) or (self._segs[-1] if self._segs else None)
+        v = self._value(seg, t0)[0] if seg is not None else self._measured(self.mode)
+        rate = self.procedure.stop_rate or next(
+            (s['rate'] for s in self.steps if s.type == 'ramp' and s.control_mode == self.mode),
+            STOP_RATE[self.mode])
+        self._push(_Segment('ramp', t0, self.mode, v0=v, v1=self.procedure.stop_level,
+                            rate=rate))
+        self._set('stopping', t0, f'to {self.procedure.stop_level:g} at {rate:g}/s: '
+                  f'{self.reason}')
+
+    def _finish_stop(self, stamp: int) -> None:
+        run_out = self.procedure.run_out
+        if self.result == 'completed' and run_out and self.total >= run_out:
+            self.result, self.reason = 'run_out', (f'run-out: {self.total} cycles without a '
+                                                   'failure')
+            self._note_event('run_out', '', float(self.total), self.reason)
+        self.result = self.result or 'stopped'
+        self._set('finished', stamp, f'{self.result}: {self.reason} ({self.total} cycles)')
+
+    # -- bookkeeping -----------------------------------------------------------------------
+    def _set(self, state: str, stamp: int | None, why: str) -> None:
+        was, self.state = self.state, state
+        self._note_event(state, self.steps[self.step_index].name, float(self.total), why)
+        if was != state:
+            self.checkpoint_due = True
+
+    def _note_event(self, kind: str, what: str, value: float, message: str) -> None:
+        self.events.append((kind, what, value, message))
+
+    def time_to_go(self) -> float:
+        """Return the seconds the steps still planned take, NaN where a condition decides."""
+        total = 0.0
+        level = self._measured(self.mode)
+        level = level if math.isfinite(level) else 0.0
+        elapsed = max(0, self._last_ns - self._step_t0) * 1e-9
+        for k in range(self.step_index, len(self.steps)):
+            s = self.steps[k]
+            now = k == self.step_index and self.state in ('running', 'switching')
+            if s.type == 'ramp':
+                d = abs(s['to'] - level) / s['rate']
+                level = s['to']
+            elif s.type == 'dwell':
+                d = s['time'] - (elapsed if now else 0.0)
+            elif s.type == 'cyclic':
+                if not s['count']:
+                    return math.nan
+                d = (s['count'] - self.counts[k]) / s['frequency']
+                level = 0.5 * (s['blocks'][0][0] + s['blocks'][0][1])
+            elif s.type == 'sweep':
+                d = s['duration'] - (elapsed if now else 0.0)
+                level = s['mean']
+            else:
+                return math.nan
+            total += max(d, 0.0)
+        return total
+
+    def status(self) -> dict[str, Any]:
+        """Return the status values: state, step, counts, time to go, result."""
+        k = self.step_index
+        return {'state': self.state, 'step': self.steps[k].name, 'step_index': k,
+                'step_cycles': self.counts[k], 'total_cycles': self.total,
+                'time_to_go_s': self.time_to_go(), 'result': self.result,
+                'reason': self.reason, 'failed_at': self.failed_at
+                if self.failed_at is not None else -1, 'stamp_ns': self._last_ns}
+
+    # -- checkpoint ------------------------------------------------------------------------
+    def checkpoint(self) -> dict[str, Any]:
+        """Return the test's state as JSON values (what a restart resumes from)."""
+        self._save_step_state()
+        self.checkpoint_due = False
+        self._last_checkpoint = self._last_ns
+        return {'version': 1, 'procedure': self.procedure.name,
+                'state': self.state, 'result': self.result, 'reason': self.reason,
+                'step': self.step_index, 'counts': list(self.counts), 'total': self.total,
+                'failed_at': self.failed_at, 'mode': self.mode,
+                'learnt': {str(k): v for k, v in self._learnt.items()},
+                'detectors': {str(k): v for k, v in self._det_state.items()},
+                'stamp_ns': self._last_ns}
+
+    def restore(self, cp: Mapping[str, Any], recovered_total: int | None = None) -> str:
+        """
+        Take a checkpoint back (a restarted node); the test waits ``interrupted`` for resume.
+
+        ``recovered_total``: the test's count the bag shows (cycles recorded after the
+        checkpoint), counted in the checkpoint's step; returns what was restored.
+        """
+        if cp.get('version') != 1 or cp.get('procedure') != self.procedure.name:
+            raise InputError(f"the checkpoint is not this procedure's (it is "
+                             f'{cp.get("procedure")!r}, version {cp.get("version")!r})')
+        counts = [int(c) for c in cp['counts']]
+        if len(counts) != len(self.steps):
+            raise InputError(f'the checkpoint has {len(counts)} steps, the procedure '
+                             f'{len(self.steps)}')
+        self.counts, self.total = counts, int(cp['total'])
+        self.step_index = int(cp['step'])
+        self.mode = cp.get('mode', self.mode)
+        self.failed_at = cp.get('failed_at')
+        self._learnt = {int(k): v for k, v in cp.get('learnt', {}).items()}
+        self._det_state = {int(k): v for k, v in cp.get('detectors', {}).items()}
+        extra = 0
+        if recovered_total is not None and recovered_total > self.total:
+            extra = recovered_total - self.total
+            self.counts[self.step_index] += extra
+            self.total = recovered_total
+        state = cp['state']
+        if state == 'finished':
+            self.state, self.result, self.reason = 'finished', cp['result'], cp['reason']
+            return f'the test had finished: {self.result} ({self.total} cycles)'
+        self.state = 'interrupted'
+        self.result, self.reason = '', ''
+        msg = (f'restored {self.steps[self.step_index].label} at cycle '
+               f'{self.counts[self.step_index]} ({self.total} in all)')
+        if extra:
+            msg += f', {extra} of them recovered from the bag'
+        self._note_event('restored', self.steps[self.step_index].name, float(self.total), msg)
+        return msg

@@ -1,0 +1,192 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+A virtual test: a procedure run in process on the model, faster than real time.
+
+:func:`run_procedure` runs the procedure node's core
+(:class:`~ros_ehs.core.procedure.runner.ProcedureRunner`) against the plant node's and the
+controller node's cores (:class:`~ros_ehs.core.sim.axis.SimulatedAxis` with its specimen,
+:class:`~ros_ehs.core.control.loop.ControlLoop` with its modes and detectors) in lock-step, as
+the nodes run it over DDS: each period's reference first, then the state, the command, the
+step. The controller's events go to the runner (an interlock interrupts the test; the
+specimen's break fails it); a step in the other control mode switches the controller as the
+node does. It tells what the rig would do: the cycles, the time, when each failure detector
+would trip (``observe``: they report and the test goes on to the fracture, the run-out or its
+end), and every cycle's extremes (memory: a fixed-size table, whatever the length).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+import time
+
+import numpy as np
+from ros_ehs.core.control.loop import ControlLoop
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.model.specimen import Specimen
+from ros_ehs.core.params import Params
+from ros_ehs.core.procedure.detectors import Cycle
+from ros_ehs.core.procedure.runner import ProcedureRunner
+from ros_ehs.core.procedure.spec import Procedure
+from ros_ehs.core.sim.axis import SimulatedAxis
+
+__all__ = ['VirtualTest', 'model_trip_cycle', 'run_procedure']
+
+
+@dataclass
+class VirtualTest:
+    """What a virtual test did (SI units)."""
+
+    result: str
+    reason: str
+    total_cycles: int
+    sim_s: float
+    wall_s: float
+    tripped: dict                  #: each failure detector's trip cycle
+    fractured_at: float | None     #: the specimen's fracture (its cycles), None if it held
+    events: list = field(default_factory=list)      #: the runner's and the controller's
+    cycles: np.ndarray | None = None   #: the last cycles' records (count, extremes...)
+    checkpoints: int = 0
+    checkpoint_s: float = 0.0          #: the time the checkpoints took in all [s]
+
+    @property
+    def speed(self) -> float:
+        """Return simulated time over wall time."""
+        return self.sim_s / self.wall_s if self.wall_s > 0 else math.inf
+
+
+def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplified',
+                  controller_params: Params | None = None, rate_hz: float = 1000.0,
+                  max_seconds: float = 1.0e7, observe: bool = True, keep_cycles: int = 100_000,
+                  latency: float = 0.002, checkpoint=None) -> VirtualTest:
+    """
+    Run ``procedure`` on the model of ``params`` (its specimen too) until it finishes.
+
+    ``controller_params``: the controller's (default: the same); ``max_seconds`` of simulated
+    time at most; ``keep_cycles``: the newest cycle records kept (a ring: memory stays flat);
+    ``checkpoint(dict)``: called with each checkpoint the runner makes (what the node writes).
+    """
+    if not isinstance(procedure, Procedure):
+        raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
+    cp = controller_params or params
+    axis = SimulatedAxis(params, model, rate_hz=rate_hz, lockstep=True)
+    loop = ControlLoop(cp.replace(control_mode=procedure.steps[0].control_mode),
+                       rate_hz=rate_hz, lockstep=True)
+    runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz, observe=observe)
+    table = np.full((keep_cycles, 8), np.nan)
+    n_kept = 0
+    events: list = []
+    fractured = None
+    checkpoints, cp_s = 0, 0.0
+    n = int(max_seconds * rate_hz)
+    wall0 = time.perf_counter()
+    started = False
+    k = 0
+    for k in range(n):
+        s = axis.sample()
+        st = s.state
+        if not started:
+            runner.measure(st.stamp_ns, st.z, s.load)
+            ok, why = runner.start(st.stamp_ns)
+            if not ok:
+                raise InputError(f'the procedure did not start: {why}')
+            started = True
+        ref = runner.sample(st.stamp_ns)
+        loop.trajectory([ref])
+        reply = loop.state(st, 0.0, st.stamp_ns)
+        axis.command(st.stamp_ns, reply.current, 0.0)
+        for e in reply.events:
+            events.append(('controller', e.kind, e.detector, e.message))
+            runner.event(e.kind, e.detector, e.action, st.stamp_ns)
+        runner.measure(st.stamp_ns, st.z, s.load)
+        if runner.request_mode is not None:
+            ok, why, ev = loop.set_mode(runner.request_mode)
+            events.append(('controller', ev.kind, ev.detector, ev.message))
+            runner.mode_switched(ok, why, st.stamp_ns)
+        if runner.cycles:
+            for c in runner.cycles:
+                table[n_kept % keep_cycles] = _row(c)
+                n_kept += 1
+            runner.cycles.clear()
+        runner.captures.clear()
+        if runner.events:
+            events.extend(('procedure',) + e for e in runner.events)
+            runner.events.clear()
+        if runner.checkpoint_due:
+            t0 = time.perf_counter()
+            d = runner.checkpoint()
+            if checkpoint is not None:
+                checkpoint(d)
+            cp_s += time.perf_counter() - t0
+            checkpoints += 1
+        if fractured is None and axis.specimen.broken:
+            fractured = axis.specimen.cycles
+        if runner.state == 'finished':
+            break
+    wall = time.perf_counter() - wall0
+    if n_kept > keep_cycles:
+        start = n_kept % keep_cycles
+        table = np.concatenate([table[start:], table[:start]])
+    else:
+        table = table[:n_kept]
+    return VirtualTest(runner.result or runner.state, runner.reason, runner.total,
+                       (k + 1) / rate_hz, wall, dict(runner.tripped), fractured, events, table,
+                       checkpoints, cp_s)
+
+
+def _row(c: Cycle) -> tuple:
+    return (c.count, c.end_ns * 1e-9, c.cmd_hi, c.cmd_lo, c.z_hi, c.z_lo, c.f_hi, c.f_lo)
+
+
+def model_trip_cycle(specimen: Specimen, kind: str, values: dict, peak: float, valley: float,
+                     first: int = 0) -> float:
+    """
+    Return the cycle at which the specimen model meets a failure detector's criterion.
+
+    A force-controlled constant-amplitude test between ``peak`` and ``valley`` [N], its
+    cycles counted from ``first`` specimen cycles on (a preload's). The detector's reference
+    is the model's stiffness averaged over the same cycles as the detector's (after
+    ``settling``), a cycle's stiffness the one half-way through it; ``persist`` cycles beyond.
+    ``stiffness_drop``: the stiffness under ``1 - drop`` of the reference;
+    ``peak_valley_change``: the position's peak moves ``F_peak (1/k - 1/k_ref)``, so the
+    criterion is ``k < k_ref / (1 + tolerance (peak - valley) / |peak|)`` (the peak the larger
+    in magnitude). Returns inf when the specimen fractures first.
+    """
+    rng = peak - valley
+    if kind not in ('stiffness_drop', 'peak_valley_change') or rng <= 0:
+        raise InputError(f'no model criterion for {kind!r} between {valley!r} and {peak!r}')
+
+    def k(n: float) -> float:
+        return specimen.stiffness_after(first + n - 0.5, rng)
+
+    s0, nr = int(values['settling']), int(values['reference'])
+    k_ref = sum(k(n) for n in range(s0 + 1, s0 + nr + 1)) / nr
+    if kind == 'stiffness_drop':
+        k_trip = (1.0 - values['drop']) * k_ref
+    else:
+        f_peak = max(abs(peak), abs(valley))
+        k_trip = k_ref / (1.0 + values['tolerance'] * rng / f_peak)
+    life = specimen.cycles_to(1.0, rng) - first
+    lo, hi = float(s0 + nr), life
+    if k(hi) >= k_trip:
+        return math.inf
+    for _ in range(100):                 # the stiffness falls monotonically: bisect
+        mid = 0.5 * (lo + hi)
+        if k(mid) < k_trip:
+            hi = mid
+        else:
+            lo = mid
+    n = math.floor(hi) if k(math.floor(hi)) < k_trip else math.ceil(hi)
+    return float(n + int(values['persist']) - 1)

@@ -1,0 +1,341 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The procedure node: runs a test from a procedure file through the reference and the controller.
+
+``ros2 run ros_ehs procedure --ros-args -p file:=test.yaml``. It takes the reference node's
+place: it publishes ``reference`` (and under ``use_sim_time`` answers each ``/clock`` with a
+``reference_trajectory`` window, as the reference node does), so every step goes through the
+controller and its limit detectors. The rules are
+:class:`~ros_ehs.core.procedure.runner.ProcedureRunner`'s (docs/procedures.md); this node
+decodes, calls and publishes:
+
+* in: ``state`` (the piston and, joint ``load_joint``, the load cell; or ``load_topic``),
+  the controller's ``events`` (an acting trip interrupts the test, the specimen break fails
+  it), ``/clock`` under sim time;
+* out: ``reference`` (and ``reference_trajectory``), ``procedure/events`` (every state change,
+  step, detector and failure), ``procedure/cycles`` (each counted cycle's extremes, one
+  40-byte record a cycle), ``procedure/captures`` (full cycles at 1, 2, 5, 10, ...), and its
+  status ``ros_ehs/procedure`` in ``diagnostics``;
+* services ``~/start``, ``~/hold``, ``~/resume``, ``~/stop`` (std_srvs/Trigger: success and
+  the reason); a step in the other control mode sets the controller's ``control_mode``
+  through its parameter service;
+* the checkpoint (``checkpoint``) is rewritten atomically at every state change and every
+  10 s of the stamps, off the executor's thread. Started with a checkpoint on disk, the test
+  comes back ``interrupted`` at its step and count (plus the cycles ``recover_bag`` holds
+  beyond it) and waits for ``~/resume``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from pathlib import Path
+import queue
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import WrenchStamped
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.node import Node
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.options import PROCEDURE
+from ros_ehs.core.procedure.runner import ProcedureRunner
+from ros_ehs.core.procedure.spec import load_procedure
+from ros_ehs.data.checkpoint import read_checkpoint, write_checkpoint
+from ros_ehs.data.fatigue import read_cycles
+from ros_ehs.nodes.parameters import declare_settings
+from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, qos_profile, read_msg, run,
+                                      steady_clock, WARN)
+import ros_ehs_msgs_py as contract
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, UInt8MultiArray
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
+
+__all__ = ['OPTIONS', 'ProcedureNode', 'main', 'recovered_total']
+
+#: the node's options (declared in :mod:`ros_ehs.core.options`)
+OPTIONS = PROCEDURE
+_LEVEL = {'failure': ERROR, 'interrupted': WARN, 'held': WARN, 'detector': WARN}
+
+
+def recovered_total(bag: str) -> int | None:
+    """Return the highest cycle count a bag's ``procedure/cycles`` holds (None: none there)."""
+    table = read_cycles(bag)
+    return int(table[:, 0].max()) if len(table) else None
+
+
+class _CheckpointWriter:
+    """Write the newest checkpoint on a thread of its own (an fsync takes milliseconds)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.written = 0
+        self.error = ''
+        self.last_s = 0.0
+        self._q: queue.Queue = queue.Queue()
+        self._t = threading.Thread(target=self._run, name='ehs-checkpoint', daemon=True)
+        self._t.start()
+
+    def put(self, state: dict) -> None:
+        self._q.put(state)
+
+    def _run(self) -> None:
+        while True:
+            state = self._q.get()
+            if state is None:
+                return
+            while not self._q.empty():          # only the newest matters
+                nxt = self._q.get()
+                if nxt is None:
+                    self._write(state)
+                    return
+                state = nxt
+            self._write(state)
+
+    def _write(self, state: dict) -> None:
+        t0 = time.perf_counter()
+        try:
+            write_checkpoint(self.path, state)
+            self.written += 1
+            self.error = ''
+        except OSError as err:
+            self.error = f'cannot write the checkpoint {str(self.path)!r}: {err}'
+        self.last_s = time.perf_counter() - t0
+
+    def close(self, timeout: float = 5.0) -> None:
+        self._q.put(None)
+        self._t.join(timeout)
+
+
+class ProcedureNode(Node):
+    """A procedure file run on the contract topics (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('procedure', **kwargs)
+        self.opt = declare_settings(self, OPTIONS)
+        self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
+        if not self.opt['file']:
+            raise InputError('no procedure: give `file` (-p file:=test.yaml)')
+        self.procedure = load_procedure(self.opt['file'])
+        self.sim_time = bool(self.get_parameter('use_sim_time').value)
+        rate = float(self.opt['rate_hz'])
+        self.dt_ns = int(round(1e9 / rate))
+        self.preview_ns = int(round(float(self.opt['preview']) * 1e9))
+        self.runner = ProcedureRunner(self.procedure, latency=float(self.opt['preview']),
+                                      harmonics=int(self.opt['apc_harmonics']), rate_hz=rate)
+        cp_path = self.opt['checkpoint'] or self.opt['file'] + '.checkpoint.json'
+        self.cp_path = Path(cp_path)
+        restored = self._restore()
+        self.writer = _CheckpointWriter(self.cp_path)
+        self.pub = self.create_publisher(JointState, contract.REFERENCE.name,
+                                         qos_profile(contract.REFERENCE.qos_in(self.sim_time)))
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              qos_profile(contract.DIAGNOSTICS.qos))
+        self.pub_events = self.create_publisher(DiagnosticArray, contract.PROCEDURE_EVENTS.name,
+                                                qos_profile(contract.PROCEDURE_EVENTS.qos))
+        self.pub_cycles = self.create_publisher(UInt8MultiArray, contract.CYCLES.name,
+                                                qos_profile(contract.CYCLES.qos))
+        self.pub_captures = self.create_publisher(Float64MultiArray, contract.CAPTURES.name,
+                                                  qos_profile(contract.CAPTURES.qos))
+        if self.sim_time:
+            self.pub_traj = self.create_publisher(
+                JointTrajectory, contract.REFERENCE_TRAJECTORY.name,
+                qos_profile(contract.REFERENCE_TRAJECTORY.qos))
+            self.create_subscription(Clock, contract.CLOCK.name, self._on_clock,
+                                     qos_profile(contract.CLOCK.qos, depth=10), raw=True)
+        else:
+            self.create_timer(1.0 / rate, self._tick, clock=steady_clock())
+        self._read_state = functools.partial(contract.state_from_cdr,
+                                             load_joint=self.opt['load_joint'])
+        self._load = math.nan
+        if self.opt['load_topic']:
+            self.create_subscription(WrenchStamped, self.opt['load_topic'], self._on_load,
+                                     qos_profile(contract.LOAD_CELL.qos_in(self.sim_time)),
+                                     raw=True)
+        self.create_subscription(JointState, contract.STATE.name, self._on_state,
+                                 qos_profile(contract.STATE.qos_in(self.sim_time)), raw=True)
+        self.create_subscription(DiagnosticArray, contract.EVENTS.name, self._on_event,
+                                 qos_profile(contract.EVENTS.qos))
+        for name in ('start', 'hold', 'resume', 'stop'):
+            self.create_service(Trigger, f'~/{name}', functools.partial(self._on_request,
+                                                                        name))
+        self.mode_client = self.create_client(SetParameters,
+                                              f'/{self.opt["controller"]}/set_parameters')
+        self._mode_call = None
+        self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
+                          clock=steady_clock())
+        self.get_logger().info(f'procedure {self.procedure.name!r}: '
+                               f'{len(self.procedure.steps)} steps, checkpoint '
+                               f'{str(self.cp_path)!r}' + (f'; {restored}' if restored else ''))
+
+    def _restore(self) -> str:
+        cp = read_checkpoint(self.cp_path)
+        if cp is None:
+            return ''
+        extra = recovered_total(self.opt['recover_bag']) if self.opt['recover_bag'] else None
+        return self.runner.restore(cp, extra)
+
+    # -- messages in -------------------------------------------------------------------------
+    def _on_state(self, data: bytes) -> None:
+        s = read_msg(self, self._read_state, data, 'state')
+        if s is None:
+            return
+        load = self._load if self.opt['load_topic'] else s.load
+        if s.stamp_ns <= self.runner.last_stamp and self.runner.last_stamp >= 0 and \
+                s.stamp_ns < self.runner.last_stamp - 10**9:
+            self.runner.new_run()          # the states' clock went back: a restarted plant
+        self.runner.measure(s.stamp_ns, s.z, load)
+        if self.opt['autostart'] and self.runner.state == 'idle':
+            self.runner.start(s.stamp_ns)
+        self._after()
+
+    def _on_load(self, data: bytes) -> None:
+        r = read_msg(self, self._read_wrench, data, 'load_cell')
+        if r is not None:
+            self._load = r.force
+
+    def _read_wrench(self, data: bytes):
+        return contract.load_from_cdr(data, self.opt['load_axis'])
+
+    def _on_event(self, msg: DiagnosticArray) -> None:
+        try:
+            e = contract.event_from_msg(msg)
+        except ValueError:
+            return
+        self.runner.event(e.kind, e.detector, e.action, e.stamp_ns)
+        self._after()
+
+    def _on_clock(self, data: bytes) -> None:
+        t = read_msg(self, contract.clock_from_cdr, data, '/clock')
+        if t is None or self.runner.last_stamp < 0:
+            return                      # nothing measured yet: nothing to hold
+        refs = self.runner.window(t, self.preview_ns)
+        self.pub_traj.publish(contract.reference_trajectory_to_cdr(refs))
+        self.pub.publish(contract.reference_to_cdr(refs[0]))
+        self._after()
+
+    def _tick(self) -> None:
+        if self.runner.last_stamp < 0:
+            return
+        r = self.runner.sample(self.get_clock().now().nanoseconds)
+        self.pub.publish(contract.reference_to_cdr(r))
+        self._after()
+
+    def _on_request(self, name: str, request, response):
+        stamp = max(self.runner.last_stamp, 0)
+        ok, why = getattr(self.runner, name)(stamp)
+        response.success, response.message = bool(ok), why
+        self._log(not ok, f'~/{name}: {why}')
+        self._after()
+        return response
+
+    # -- messages out ------------------------------------------------------------------------
+    def _after(self) -> None:
+        """Publish what the runner left: events, cycles, captures; checkpoint; mode switch."""
+        r = self.runner
+        if r.cycles:
+            rows = [(c.count, c.step, c.end_ns, c.cmd_hi, c.cmd_lo, c.z_hi, c.z_lo, c.f_hi,
+                     c.f_lo) for c in r.cycles]
+            r.cycles.clear()
+            msg = UInt8MultiArray()
+            msg.layout.dim = [MultiArrayDimension(label=contract.CYCLES_LABEL, size=len(rows),
+                                                  stride=contract.CYCLE_RECORD.size)]
+            msg.data = contract.cycles_to_bytes(rows)
+            self.pub_cycles.publish(msg)
+        while r.captures:
+            cap = r.captures.pop(0)
+            t0 = cap['t'][0]
+            n = len(cap['t'])
+            msg = Float64MultiArray()
+            msg.layout.dim = [MultiArrayDimension(label=f'cycle {cap["count"]}', size=4,
+                                                  stride=4 * n),
+                              MultiArrayDimension(label='samples', size=n, stride=n)]
+            msg.data = [(t - t0) * 1e-9 for t in cap['t']] + [float(v) for v in cap['cmd']] + \
+                [float(v) for v in cap['z']] + [float(v) for v in cap['f']]
+            self.pub_captures.publish(msg)
+        while r.events:
+            kind, what, value, message = r.events.pop(0)
+            out = DiagnosticArray()
+            contract.fill_procedure_event(out, max(r.last_stamp, 0), _LEVEL.get(kind, OK),
+                                          kind, what, value, r.total, r.step_index, message,
+                                          DiagnosticStatus(), KeyValue)
+            self.pub_events.publish(out)
+            self._log(kind in _LEVEL, message)
+        while r.notes:
+            self.get_logger().info(r.notes.pop(0)[1])
+        if r.checkpoint_due:
+            self.writer.put(r.checkpoint())
+        if r.request_mode is not None and self._mode_call is None:
+            self._switch(r.request_mode)
+
+    def _log(self, warn: bool, text: str) -> None:
+        # rclpy allows one severity per call site
+        if warn:
+            self.get_logger().warning(text)
+        else:
+            self.get_logger().info(text)
+
+    def _switch(self, mode: str) -> None:
+        if not self.mode_client.service_is_ready():
+            self.runner.mode_switched(False, f'the controller /{self.opt["controller"]} does '
+                                      'not answer', max(self.runner.last_stamp, 0))
+            self._after()
+            return
+        val = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=mode)
+        req = SetParameters.Request(parameters=[Parameter(name='control_mode', value=val)])
+        self._mode_call = self.mode_client.call_async(req)
+        self._mode_call.add_done_callback(self._switched)
+
+    def _switched(self, fut) -> None:
+        self._mode_call = None
+        try:
+            res = fut.result().results[0]
+            ok, why = res.successful, res.reason
+        except Exception as err:              # noqa: BLE001 the service failed
+            ok, why = False, str(err)
+        self.runner.mode_switched(ok, why, max(self.runner.last_stamp, 0))
+        self._after()
+
+    def _diagnose(self) -> None:
+        st = self.runner.status()
+        level = {'failed': ERROR}.get(st['result'], OK)
+        if st['state'] in ('held', 'interrupted'):
+            level = max(level, WARN)
+        if self.writer.error:
+            level = ERROR
+        values = {**st, 'checkpoint': str(self.cp_path), 'file': self.opt['file'],
+                  'checkpoints_written': self.writer.written,
+                  'checkpoint_ms': self.writer.last_s * 1e3}
+        msg = self.writer.error or (f"{st['state']}: {st['step']} at cycle "
+                                    f"{st['step_cycles']} ({st['total_cycles']} in all)")
+        self.pub_diag.publish(diagnostics(self, contract.PROCEDURE_STATUS, level, msg, values))
+
+    def close(self) -> None:
+        """Write the last checkpoint (called as the node closes)."""
+        self.writer.put(self.runner.checkpoint())
+        self.writer.close()
+
+
+def main(args=None) -> int:
+    """Entry point of ``ros2 run ros_ehs procedure``."""
+    return run(ProcedureNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

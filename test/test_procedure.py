@@ -1,0 +1,366 @@
+"""
+The procedure's rules without DDS: the file checked whole, the steps timed, the cycles counted.
+
+Each rule of :mod:`ros_ehs.core.procedure` (spec, runner, detectors) and of the virtual test,
+on the stamps passed in: a perfect axis (the state is the reference) where the rule is the
+runner's, the model where it is the test's.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.model.specimen import Specimen
+from ros_ehs.core.params import preset
+from ros_ehs.core.procedure.detectors import Cycle, FailureDetector
+from ros_ehs.core.procedure.runner import capture_counts, ProcedureRunner
+from ros_ehs.core.procedure.spec import load_procedure, parse_procedure
+from ros_ehs.core.sim.virtual_test import model_trip_cycle, run_procedure
+
+MS = 1_000_000
+T0 = 10**9                     # the first stamp [ns]
+K = 1.0e6                      # the perfect axis's specimen [N/m]
+
+
+def proc(*steps, **top):
+    """Return a checked procedure of ``steps`` (mappings) and ``top`` keys."""
+    return parse_procedure({'name': top.pop('name', 't'), 'steps': list(steps), **top})
+
+
+CYCLIC = {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.002,
+          'amplitude': 0.001, 'frequency': 10.0, 'count': 20, 'compensation': 'none'}
+
+
+class PerfectAxis:
+    """A state that is the reference: z in displacement, the load ``K z`` (and back in force)."""
+
+    def __init__(self, runner, stamp=T0, z=0.0):
+        self.r = runner
+        self.stamp = stamp
+        self.refs = []
+        self.r.measure(stamp, z, K * z)
+
+    def run(self, seconds=None, until=None, bound=10**6):
+        for _ in range(bound if seconds is None else int(round(seconds * 1000))):
+            self.stamp += MS
+            ref = self.r.sample(self.stamp)
+            self.refs.append(ref)
+            if math.isfinite(ref.z_ref):
+                z, f = ref.z_ref, K * ref.z_ref
+            else:
+                z, f = ref.f_ref / K, ref.f_ref
+            self.r.measure(self.stamp, z, f)
+            if until is not None and until(self.r):
+                return
+        if until is not None:
+            raise AssertionError(f'not reached in {bound} periods: {self.r.status()}')
+
+
+def started(p, **kw):
+    r = ProcedureRunner(p, latency=0.0, **kw)
+    ax = PerfectAxis(r)
+    ok, why = r.start(ax.stamp)
+    assert ok, why
+    return r, ax
+
+
+def finished(r):
+    return r.state == 'finished'
+
+
+# -- the file ---------------------------------------------------------------------------------
+@pytest.mark.parametrize('doc, words', [
+    ({'steps': []}, ['steps', 'non-empty']),
+    ({'steps': [{'name': 'a', 'to': 1.0}]}, ['step 1', 'type']),
+    ({'steps': [{'name': 'up', 'type': 'ramp', 'to': 0.01}]}, ['step 1 (up)', 'rate']),
+    ({'steps': [{'name': 'up', 'type': 'ramp', 'to': 0.01, 'rate': -1.0}]},
+     ['step 1 (up)', 'rate']),
+    ({'steps': [{'name': 'up', 'type': 'ramp', 'to': float('nan'), 'rate': 1.0}]},
+     ['step 1 (up)', 'to']),
+    ({'steps': [{'name': 'up', 'type': 'ramp', 'to': 5000.0, 'rate': 1.0}]},
+     ['step 1 (up)', 'to', 'force']),
+    ({'steps': [CYCLIC, {**CYCLIC, 'name': 'cyc2', 'frequncy': 5.0}]},
+     ['step 2 (cyc2)', 'frequncy']),
+    ({'steps': [{**CYCLIC, 'peak': 0.003}]}, ['step 1 (cycles)', 'one way']),
+    ({'steps': [{**CYCLIC, 'end': [{'stiffness_drop': {'drop': 2.0}}]}]},
+     ['step 1 (cycles) end 1', 'stiffness_drop', 'drop']),
+    ({'steps': [{**CYCLIC, 'end': [{'crack': {}}]}]}, ['step 1 (cycles) end 1', 'crack']),
+    ({'steps': [{'name': 'd', 'type': 'dwell', 'time': 1.0,
+                 'end': [{'underpeak': {}}]}]}, ['step 1 (d)', 'cyclic']),
+    ({'steps': [{**CYCLIC, 'count': 0}]}, ['never ends', 'run_out']),
+    ({'steps': [CYCLIC, CYCLIC]}, ['names', 'cycles']),
+    ({'run_out': -3, 'steps': [CYCLIC]}, ['run_out']),
+    ({'steps': [{**CYCLIC, 'mean': None, 'amplitude': None,
+                 'blocks': [[0.002, 0.003, 5]]}]}, ['step 1 (cycles)', 'block 1']),
+])
+def test_a_bad_procedure_is_refused_naming_the_step_and_the_key(doc, words):
+    doc = dict(doc)
+    doc['steps'] = [{k: v for k, v in s.items() if v is not None} for s in doc['steps']]
+    with pytest.raises(InputError) as err:
+        parse_procedure(doc)
+    for w in words:
+        assert w in str(err.value), (w, str(err.value))
+
+
+def test_a_procedure_file_that_is_not_yaml_names_the_file(tmp_path):
+    f = tmp_path / 'bad.yaml'
+    f.write_text('steps: [ {name: a, type: ramp\n')
+    with pytest.raises(InputError, match='bad.yaml.*not YAML'):
+        load_procedure(f)
+    with pytest.raises(InputError, match='cannot read'):
+        load_procedure(tmp_path / 'missing.yaml')
+
+
+def test_capture_counts_are_log_spaced():
+    kept = [n for n in range(1, 1001) if capture_counts(n)]
+    assert kept == [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000]
+
+
+# -- the runner ---------------------------------------------------------------------------------
+def test_a_cyclic_step_counts_its_cycles_exactly_and_ends_at_its_count():
+    p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.02}, CYCLIC)
+    r, ax = started(p)
+    ax.run(until=finished)
+    assert r.result == 'completed' and r.counts == [0, 20] and r.total == 20
+    cycles = r.cycles
+    assert [c.count for c in cycles] == list(range(1, 21))
+    # the ramp takes 0.1 s, the cycles 2 s: the last cycle ends exactly 2.1 s after the start
+    assert cycles[-1].end_ns == T0 + 2100 * MS
+    for c in cycles:        # a perfect axis: the extremes are the sine's (sampled at 1 kHz)
+        assert c.z_hi == pytest.approx(0.003, abs=1e-9) and c.z_lo == pytest.approx(
+            0.001, abs=1e-9)
+        assert c.stiffness == pytest.approx(K, rel=1e-9)
+    # full cycles at 1, 2, 5, 10, 20, each of one period
+    assert [cap['count'] for cap in r.captures] == [1, 2, 5, 10, 20]
+    assert all(len(cap['t']) == 100 for cap in r.captures)
+    # then to the stop level (0) at the ramp's rate, and held
+    assert ax.refs[-1].z_ref == 0.0
+
+
+def test_the_reference_is_continuous_through_every_step():
+    p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.01},
+             {'name': 'wait', 'type': 'dwell', 'time': 0.3}, CYCLIC)
+    r, ax = started(p)
+    ax.run(until=finished)
+    z = np.array([ref.z_ref for ref in ax.refs])
+    # 10 mm/s ramps and a 1 mm, 10 Hz sine: at most 63 um a period
+    assert np.max(np.abs(np.diff(z))) < 2 * math.pi * 10 * 0.001 * 1e-3 * 1.01
+    assert [e[0] for e in r.events if e[0] in ('step', 'step_end')] == \
+        ['step', 'step_end', 'step', 'step_end', 'step', 'step_end']
+
+
+def test_hold_freezes_the_command_and_resume_goes_on_at_the_same_count():
+    p = proc({**CYCLIC, 'count': 30})
+    r, ax = started(p)
+    ax.run(until=lambda r: r.total == 12)
+    ax.run(0.035)                      # a third of cycle 13
+    ok, why = r.hold(ax.stamp)
+    assert ok and r.state == 'held', why
+    n = len(ax.refs)
+    ax.run(0.5)
+    held = {ref.z_ref for ref in ax.refs[n:]}
+    assert len(held) == 1 and r.total == 12          # frozen; the cut cycle is not counted
+    assert not r.hold(ax.stamp)[0]                   # nothing runs to hold
+    ok, why = r.resume(ax.stamp)
+    assert ok and 'cycle 12' in why, why
+    m = len(ax.refs)
+    ax.run(until=finished)
+    z = np.array([ref.z_ref for ref in ax.refs[m - 1:]])
+    assert np.max(np.abs(np.diff(z))) < 1e-4        # the lead-in: no jump
+    assert r.result == 'completed' and r.total == 30 and r.counts == [30]
+    assert [c.count for c in r.cycles] == list(range(1, 31))
+
+
+def test_an_acting_interlock_interrupts_and_a_warning_does_not():
+    p = proc(CYCLIC)
+    r, ax = started(p)
+    ax.run(0.25)
+    r.event('trip', 'limit_position_max', 'warn', ax.stamp)
+    assert r.state == 'running'
+    r.event('trip', 'limit_position_max', 'hold', ax.stamp)
+    assert r.state == 'interrupted' and 'limit_position_max' in r.reason + r.events[-1][3]
+    assert r.resume(ax.stamp)[0]
+    ax.run(until=finished)
+    assert r.total == 20 and r.result == 'completed'
+
+
+def test_a_specimen_break_fails_the_test_and_ramps_to_the_stop_level():
+    p = proc({**CYCLIC, 'count': 0}, run_out=100, stop_level=0.0005)
+    r, ax = started(p)
+    ax.run(until=lambda r: r.total == 7)
+    r.event('trip', 'specimen_break', 'hold', ax.stamp)
+    assert r.result == 'failed' and r.failed_at == 7 and r.state == 'stopping'
+    ax.run(until=finished)
+    assert r.total == 7 and ax.refs[-1].z_ref == 0.0005
+    assert r.status()['failed_at'] == 7
+
+
+def test_the_run_out_ends_the_test_at_its_count():
+    p = proc({**CYCLIC, 'count': 0, 'end': [{'stiffness_drop': {'drop': 0.1}}]}, run_out=25)
+    r, ax = started(p)
+    ax.run(until=finished)
+    assert r.result == 'run_out' and r.total == 25 and 'tripped' not in r.reason
+
+
+def test_a_time_end_condition_ends_the_step_and_a_level_crossing_too():
+    p = proc({**CYCLIC, 'count': 0, 'end': [{'time': 0.55}]},
+             {'name': 'away', 'type': 'ramp', 'to': 0.01, 'rate': 0.01,
+              'end': [{'level': {'signal': 'position', 'above': 0.004}}]})
+    r, ax = started(p)
+    ax.run(until=finished)
+    assert r.counts[0] == 5 and r.result == 'completed'
+    ends = [e for e in r.events if e[0] == 'step_end']
+    assert 'time 0.55' in ends[0][3] and 'crossed' in ends[1][3]
+    assert max(ref.z_ref for ref in ax.refs) < 0.0041
+
+
+def test_a_checkpoint_restores_the_counts_and_the_bag_adds_what_came_after_it():
+    p = proc({**CYCLIC, 'count': 50, 'end': [{'stiffness_drop': {'settling': 2,
+                                                                 'reference': 3}}]})
+    r, ax = started(p)
+    ax.run(until=lambda r: r.total == 17)
+    cp = r.checkpoint()
+    assert cp['counts'] == [17] and cp['detectors']['0'][0]['reference'] is not None
+    ax.run(until=lambda r: r.total == 19)            # two cycles after it, in the bag only
+    again = ProcedureRunner(p, latency=0.0)
+    msg = again.restore(cp, recovered_total=19)
+    assert again.state == 'interrupted' and again.total == 19 and '2 of them' in msg
+    ax2 = PerfectAxis(again, ax.stamp + 5000 * MS, z=0.0025)
+    assert again.resume(ax2.stamp)[0]
+    ax2.run(until=finished)
+    assert again.total == 50 and [c.count for c in again.cycles] == list(range(20, 51))
+    assert again._detectors[0][0].reference == cp['detectors']['0'][0]['reference']
+    with pytest.raises(InputError, match='not this procedure'):
+        ProcedureRunner(proc(CYCLIC, name='other'), latency=0.0).restore(cp)
+
+
+def test_a_step_in_the_other_mode_waits_for_the_controller_and_a_refusal_holds():
+    p = proc({**CYCLIC, 'count': 3},
+             {'name': 'load', 'type': 'ramp', 'to': 2000.0, 'rate': 1.0e4,
+              'control_mode': 'force'})
+    r, ax = started(p)
+    ax.run(until=lambda r: r.request_mode is not None)
+    assert r.state == 'switching' and r.request_mode == 'force'
+    r.mode_switched(True, '', ax.stamp)
+    ax.run(until=finished)
+    assert r.result == 'completed' and r.mode == 'force'
+    r2, ax2 = started(p)
+    ax2.run(until=lambda r: r.request_mode is not None)
+    r2.mode_switched(False, 'no load cell', ax2.stamp)
+    assert r2.state == 'held' and 'no load cell' in r2.events[-1][3]
+
+
+def test_a_restarted_loop_interrupts_and_keeps_the_counts():
+    p = proc(CYCLIC)
+    r, ax = started(p)
+    ax.run(until=lambda r: r.total == 4)
+    r.new_run()
+    assert r.state == 'interrupted' and r.total == 4
+    ax2 = PerfectAxis(r, T0, z=0.002)                  # the stamps start again
+    assert r.resume(ax2.stamp)[0]
+    ax2.run(until=finished)
+    assert r.total == 20
+
+
+def test_start_needs_a_measured_state_and_an_idle_test():
+    p = proc(CYCLIC)
+    r = ProcedureRunner(p, latency=0.0)
+    ok, why = r.start(T0)
+    assert not ok and 'no measured state' in why
+    r.measure(T0, 0.0, 0.0)
+    assert r.start(T0)[0] and not r.start(T0)[0]
+
+
+def test_time_to_go_counts_the_planned_steps():
+    p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.01},
+             {'name': 'wait', 'type': 'dwell', 'time': 0.3}, CYCLIC)
+    r, ax = started(p)
+    assert r.time_to_go() == pytest.approx(0.2 + 0.3 + 2.0)
+    ax.run(0.3)                                  # the ramp done, 0.1 s of the dwell
+    assert r.time_to_go() == pytest.approx(0.2 + 2.0, abs=2e-3)
+    ax.run(until=lambda r: r.total == 5)
+    assert r.time_to_go() == pytest.approx(1.5, abs=2e-3)
+    until = proc({**CYCLIC, 'count': 0, 'end': [{'time': 1.0}]})
+    assert math.isnan(ProcedureRunner(until, latency=0.0).time_to_go())
+
+
+# -- the detectors ---------------------------------------------------------------------------
+def cyc(n, k=K, z=(0.001, -0.001), f=None):
+    f = f or (k * z[0], k * z[1])
+    return Cycle(n, 0, n * 100 * MS, z[0], z[1], z[0], z[1], f[0], f[1])
+
+
+def test_stiffness_drop_trips_after_settling_reference_and_persist():
+    d = FailureDetector('stiffness_drop', {'drop': 0.1, 'settling': 3, 'reference': 2,
+                                           'persist': 2}, 'displacement')
+    assert not any(d.cycle(cyc(n, k=K * 0.5)) for n in (1, 2, 3))     # settling: not judged
+    assert not d.cycle(cyc(4)) and not d.cycle(cyc(5, k=1.1 * K))       # the reference
+    assert d.reference['stiffness'] == pytest.approx(1.05 * K)
+    assert not d.cycle(cyc(6, k=0.94 * K))          # 10.5 % under: one cycle
+    assert not d.cycle(cyc(7, k=K))                  # the run is broken
+    assert not d.cycle(cyc(8, k=0.94 * K))
+    assert not d.cycle(cyc(9, z=(math.nan, 0.0)))    # not judged, breaks the run
+    assert not d.cycle(cyc(10, k=0.94 * K))
+    why = d.cycle(cyc(11, k=0.90 * K))
+    assert 'stiffness_drop' in why and d.tripped_at == 11
+    again = FailureDetector('stiffness_drop', d.values, 'displacement')
+    again.restore(d.state())
+    assert again.reference == d.reference and again.judged == d.judged
+
+
+def test_peak_valley_change_judges_the_uncontrolled_signal():
+    d = FailureDetector('peak_valley_change', {'tolerance': 0.05, 'settling': 0,
+                                               'reference': 1, 'persist': 1}, 'force')
+    ref = Cycle(1, 0, 0, 1.0e4, 1.0e3, 0.0100, 0.0010, 1.0e4, 1.0e3)
+    assert not d.cycle(ref)
+    # the load (controlled) is held; the position's peak moved 4 % then 6 % of its range
+    assert not d.cycle(Cycle(2, 0, 0, 1.0e4, 1.0e3, 0.01036, 0.0010, 1.0e4, 1.0e3))
+    assert 'position' in d.cycle(Cycle(3, 0, 0, 1.0e4, 1.0e3, 0.01054, 0.0010, 1.0e4, 1.0e3))
+
+
+def test_underpeak_judges_the_controlled_range_against_the_specified():
+    d = FailureDetector('underpeak', {'fraction': 0.9, 'settling': 0, 'persist': 1}, 'force')
+    assert not d.cycle(Cycle(1, 0, 0, 0, 0, 0, 0, 1.0e4, 1.0e3), (1.0e4, 1.0e3))
+    assert 'underpeak' in d.cycle(Cycle(2, 0, 0, 0, 0, 0, 0, 9.0e3, 1.0e3), (1.0e4, 1.0e3))
+
+
+# -- the virtual test ------------------------------------------------------------------------
+FATIGUE = {'name': 'coupon', 'control_mode': 'force', 'run_out': 5000, 'steps': [
+    {'name': 'preload', 'type': 'ramp', 'to': 5500.0, 'rate': 2.0e4},
+    {'name': 'settle', 'type': 'dwell', 'time': 0.2},
+    {'name': 'fatigue', 'type': 'cyclic', 'waveform': 'sine', 'mean': 5500.0,
+     'amplitude': 4500.0, 'frequency': 10.0,
+     'end': [{'stiffness_drop': {'drop': 0.10}}, {'peak_valley_change': {'tolerance': 0.05}}]}]}
+
+
+def test_a_virtual_test_trips_its_detectors_where_the_specimen_model_meets_them():
+    """
+    A force-controlled test of a degrading specimen, on the model, to its fracture.
+
+    The detectors observe (they report and the test goes on); each trips within 1 % (here
+    3 cycles) of the cycle at which the specimen model, under the load range the cycle
+    table shows it carried, meets its criterion; the fracture ends the test within a cycle.
+    """
+    life = 300.0
+    p = preset('fatigue_actuator', k_L=1.0e7, ramp_time=0.2, specimen_life=life,
+               specimen_life_range=9000.0)
+    r = run_procedure(parse_procedure(FATIGUE), p, keep_cycles=1000)
+    assert r.result == 'failed' and 'specimen break' in r.reason
+    assert r.fractured_at is not None and abs(r.total_cycles - r.fractured_at) <= 1.0
+    table = r.cycles
+    assert table.shape == (r.total_cycles, 8)
+    peak, valley = np.median(table[:, 6]), np.median(table[:, 7])
+    sp = Specimen(p)
+    for e in parse_procedure(FATIGUE).steps[2].end:
+        model = model_trip_cycle(sp, e.kind, e.values, peak, valley)
+        why = (e.kind, r.tripped, model)
+        assert abs(r.tripped[e.kind] - model) <= max(1.0, 0.01 * model), why
+
+
+def test_a_virtual_tests_memory_is_a_ring_of_cycles():
+    p = preset('fatigue_actuator', k_L=1.0e7, ramp_time=0.2, specimen_life=1e12)
+    doc = {**FATIGUE, 'run_out': 40}
+    r = run_procedure(parse_procedure(doc), p, keep_cycles=16)
+    assert r.result == 'run_out' and r.total_cycles == 40
+    assert r.cycles.shape == (16, 8) and list(r.cycles[:, 0]) == list(range(25, 41))

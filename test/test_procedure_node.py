@@ -1,0 +1,114 @@
+"""
+The procedure node in a lock-step loop: a test run start to end, and one that survives a kill.
+
+The rules are tested in ``test_procedure.py``; here the node's part: it takes the reference
+node's place on the contract topics, answers ``~/start`` and ``~/resume``, records its cycles,
+captures and events in the bag, checkpoints, and a SIGKILL of it loses no cycle and counts
+none twice. Lock-step: the loop waits for the procedure, so the runs do not depend on the
+machine's timing; every wait is on a status, a reply or the bag.
+"""
+
+from pathlib import Path
+import shutil
+import signal
+
+import numpy as np
+import pytest
+from ros_ehs.data.checkpoint import read_checkpoint
+from ros_ehs.data.fatigue import read_captures, read_cycles, read_procedure_events
+from ros_ehs.nodes.processes import NodeProcesses, recording
+import ros_ehs_msgs_py as c
+from waits import BOUND, wait_for_bag
+
+pytestmark = pytest.mark.ros
+FIXTURE = Path(__file__).parent / 'fixtures' / 'procedure_short.yaml'
+FAST = {'diagnostics_period': 0.05}
+CYCLES = 20
+
+
+def _call(ros, name):
+    from std_srvs.srv import Trigger
+    cli = ros.create_client(Trigger, name)
+    assert ros.spin(until=cli.service_is_ready, timeout=BOUND), f'no service {name}'
+    fut = cli.call_async(Trigger.Request())
+    assert ros.spin(until=fut.done, timeout=BOUND), f'{name} did not answer'
+    return fut.result()
+
+
+def _loop(procs, bag, proc_opts, seconds=8.0):
+    """Start the recorder, the controller, the procedure (sim time), then the lock-step plant."""
+    procs.start('recorder', {'out': str(bag), 'use_sim_time': True})
+    assert procs.wait_status(c.RECORDER_STATUS, lambda st: True, BOUND)
+    # the hydraulics ramp on in 50 ms, before the test starts (APC learns from no ramp-on)
+    procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, **FAST})
+    procs.start('procedure', {'use_sim_time': True, **FAST, **proc_opts})
+    assert procs.wait_status(c.RECORDER_STATUS, recording(
+        c.COMMAND, c.REFERENCE, c.CYCLES, c.PROCEDURE_EVENTS), BOUND)
+    procs.start('plant', {'mode': 'lockstep', 'duration': seconds, 'wait_subscribers': 3,
+                          **FAST})
+
+
+def _status(procs, pred):
+    assert procs.wait_status(c.PROCEDURE_STATUS, lambda st: pred(st.values), BOUND), \
+        (procs.status(c.PROCEDURE_STATUS), procs['procedure'].output()[-3000:])
+    return procs.status(c.PROCEDURE_STATUS).values
+
+
+def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, tmp_path, ros):
+    bag = tmp_path / 'bag'
+    proc = tmp_path / 'test.yaml'
+    shutil.copy(FIXTURE, proc)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        _loop(procs, bag, {'file': str(proc)})
+        _status(procs, lambda v: v['state'] == 'idle' and int(v['stamp_ns']) > 0)
+        res = _call(ros, '/procedure/resume')
+        assert not res.success and 'idle' in res.message        # nothing to resume
+        res = _call(ros, '/procedure/start')
+        assert res.success, res.message
+        st = _status(procs, lambda v: v['state'] == 'finished')
+        wait_for_bag(bag, {'/procedure/cycles': CYCLES})
+        procs.stop(['procedure', 'plant', 'controller', 'recorder'])
+    assert st['result'] == 'completed' and st['total_cycles'] == str(CYCLES), st
+    table = read_cycles(bag)
+    assert list(table[:, 0]) == list(range(1, CYCLES + 1))
+    # a 1 mm sine about 2 mm, tracked by the controller: every cycle's extremes near it
+    assert np.all(np.abs(table[2:, 5] - 0.003) < 2e-4) and np.all(
+        np.abs(table[2:, 6] - 0.001) < 2e-4), table[:, 5:7]
+    # APC corrected the command: its peak is no longer the specified one
+    assert np.all(table[3:, 3] > 0.003 + 1e-6)
+    assert [cap['count'] for cap in read_captures(bag)] == [1, 2, 5, 10, 20]
+    kinds = [e['kind'] for e in read_procedure_events(bag)]
+    assert kinds[0] == 'running' and kinds[-1] == 'finished' and kinds.count('step') == 3
+    cp = read_checkpoint(str(proc) + '.checkpoint.json')
+    assert cp['state'] == 'finished' and cp['total'] == CYCLES
+
+
+def test_a_killed_procedure_resumes_at_its_count_and_no_cycle_counts_twice(
+        dom, tmp_path, ros):
+    bag = tmp_path / 'bag'
+    proc = tmp_path / 'test.yaml'
+    shutil.copy(FIXTURE, proc)
+    opts = {'file': str(proc), 'recover_bag': str(bag)}
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        _loop(procs, bag, {**opts, 'autostart': True}, seconds=12.0)
+        _status(procs, lambda v: int(v['total_cycles']) >= 7)
+        procs['procedure'].popen.send_signal(signal.SIGKILL)
+        procs['procedure'].popen.wait(BOUND)
+        # lock-step: the loop waits for the reference, nothing moves meanwhile
+        procs.start('procedure', {'use_sim_time': True, **FAST, **opts}, name='procedure2')
+        # restored, and the plant's resent state measured
+        st = _status(procs, lambda v: v['state'] == 'interrupted' and int(v['stamp_ns']) > 0)
+        before = int(st['total_cycles'])
+        res = _call(ros, '/procedure/resume')
+        assert res.success, res.message
+        st = _status(procs, lambda v: v['state'] == 'finished')
+        wait_for_bag(bag, {'/procedure/cycles': CYCLES})
+        procs.stop(['procedure2', 'plant', 'controller', 'recorder'])
+    assert st['result'] == 'completed' and st['total_cycles'] == str(CYCLES), st
+    from ros_ehs.data.bag import open_bag
+    raw = [r[0] for _, m in open_bag(bag).decoded(['/procedure/cycles'])
+           for r in c.cycles_from_bytes(bytes(m.data))]
+    # every count once, in order: the restarted node went on from the last recorded cycle
+    assert raw == list(range(1, CYCLES + 1)) and before >= 7, (raw, before)
+    kinds = [e['kind'] for e in read_procedure_events(bag)]
+    assert 'restored' in kinds and kinds[-1] == 'finished'
