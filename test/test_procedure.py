@@ -7,16 +7,18 @@ runner's, the model where it is the test's.
 """
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
-from ros_ehs.core.errors import InputError
+from ros_ehs.core.errors import DataError, InputError
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import preset
 from ros_ehs.core.procedure.detectors import Cycle, FailureDetector
 from ros_ehs.core.procedure.runner import capture_counts, ProcedureRunner
 from ros_ehs.core.procedure.spec import load_procedure, parse_procedure
 from ros_ehs.core.sim.virtual_test import model_trip_cycle, run_procedure
+from ros_ehs.data.fatigue import write_fatigue_report
 
 MS = 1_000_000
 T0 = 10**9                     # the first stamp [ns]
@@ -112,6 +114,12 @@ def test_a_procedure_file_that_is_not_yaml_names_the_file(tmp_path):
         load_procedure(tmp_path / 'missing.yaml')
 
 
+def test_a_report_of_a_bag_without_a_procedure_says_so(tmp_path):
+    bag = Path(__file__).parent / 'fixtures' / 'rosbag2' / 'talker.mcap'
+    with pytest.raises(DataError, match='no cycle on /procedure/cycles'):
+        write_fatigue_report(bag, tmp_path / 'report')
+
+
 def test_capture_counts_are_log_spaced():
     kept = [n for n in range(1, 1001) if capture_counts(n)]
     assert kept == [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000]
@@ -194,6 +202,20 @@ def test_a_specimen_break_fails_the_test_and_ramps_to_the_stop_level():
     ax.run(until=finished)
     assert r.total == 7 and ax.refs[-1].z_ref == 0.0005
     assert r.status()['failed_at'] == 7
+
+
+def test_the_controllers_own_switch_to_displacement_holds_the_axis_there():
+    p = proc({**CYCLIC, 'count': 0, 'mean': 5000.0, 'amplitude': 4000.0,
+              'control_mode': 'force'}, run_out=100, control_mode='force')
+    r, ax = started(p)
+    ax.run(until=lambda r: r.total == 3)
+    r.event('trip', 'specimen_break', 'hold', ax.stamp)     # the stop ramp in N begins
+    r.event('mode', 'displacement', 'hold', ax.stamp)      # and the controller left force
+    ax.run(until=finished)
+    ax.run(0.2)
+    assert r.mode == 'displacement' and r.result == 'failed'
+    z = ax.refs[-1].z_ref
+    assert math.isfinite(z) and all(ref.z_ref == z for ref in ax.refs[-50:])
 
 
 def test_the_run_out_ends_the_test_at_its_count():

@@ -15,7 +15,8 @@ import signal
 import numpy as np
 import pytest
 from ros_ehs.data.checkpoint import read_checkpoint
-from ros_ehs.data.fatigue import read_captures, read_cycles, read_procedure_events
+from ros_ehs.data.fatigue import (read_captures, read_cycles, read_procedure_events,
+                                  write_fatigue_report)
 from ros_ehs.nodes.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as c
 from waits import BOUND, wait_for_bag
@@ -23,6 +24,8 @@ from waits import BOUND, wait_for_bag
 pytestmark = pytest.mark.ros
 FIXTURE = Path(__file__).parent / 'fixtures' / 'procedure_short.yaml'
 FAST = {'diagnostics_period': 0.05}
+#: a specimen that does not break, for the load cell
+SPECIMEN = {'k_L': 1.0e6, 'specimen_life': 1.0e12}
 CYCLES = 20
 
 
@@ -40,12 +43,13 @@ def _loop(procs, bag, proc_opts, seconds=8.0):
     procs.start('recorder', {'out': str(bag), 'use_sim_time': True})
     assert procs.wait_status(c.RECORDER_STATUS, lambda st: True, BOUND)
     # the hydraulics ramp on in 50 ms, before the test starts (APC learns from no ramp-on)
-    procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, **FAST})
+    procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, 'k_L': SPECIMEN['k_L'],
+                               **FAST})
     procs.start('procedure', {'use_sim_time': True, **FAST, **proc_opts})
     assert procs.wait_status(c.RECORDER_STATUS, recording(
         c.COMMAND, c.REFERENCE, c.CYCLES, c.PROCEDURE_EVENTS), BOUND)
     procs.start('plant', {'mode': 'lockstep', 'duration': seconds, 'wait_subscribers': 3,
-                          **FAST})
+                          **SPECIMEN, **FAST})
 
 
 def _status(procs, pred):
@@ -81,6 +85,14 @@ def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, t
     assert kinds[0] == 'running' and kinds[-1] == 'finished' and kinds.count('step') == 3
     cp = read_checkpoint(str(proc) + '.checkpoint.json')
     assert cp['state'] == 'finished' and cp['total'] == CYCLES
+    # the report a test engineer reads on Monday
+    rep = write_fatigue_report(bag, tmp_path / 'report')
+    assert rep.cycles == CYCLES and rep.result == 'completed', rep
+    rows = np.loadtxt(tmp_path / 'report' / 'cycles.csv', delimiter=',', skiprows=1)
+    assert rows.shape == (CYCLES, 10)
+    assert np.all(np.abs(rows[:, 9] / SPECIMEN['k_L'] - 1.0) < 0.02)   # and the stiffness
+    assert {'peak_valley.png', 'stiffness.png', 'hysteresis.png'} <= {f.name for f in
+                                                                       rep.files}
 
 
 def test_a_killed_procedure_resumes_at_its_count_and_no_cycle_counts_twice(

@@ -401,10 +401,30 @@ CLI_OPTIONS = {
                      'the full model in process, as a rig engineer tunes with one'),
              Setting(*_OUT, '', meaning='write the gains as a ROS 2 parameters file for the '
                      'controller (empty: not written)')),
+    'procedure': (Setting('file', '', '', meaning='the procedure file (YAML, docs/procedures.md)'),
+                  Setting(*_PRESET, meaning='the model: a parameter preset, under `params`'),
+                  Setting('params', '', '', meaning='parameters YAML over the preset: an '
+                          'identified model with its specimen, and the gains'),
+                  Setting('set', '', [], meaning='values over those, NAME=VALUE each, e.g. '
+                          'k_L=1e7 specimen_life=2e5; repeat for more'),
+                  Setting('model', '', 'simplified', meaning='the plant model',
+                          choices=_MODELS),
+                  RATE_HZ,
+                  Setting('max_time', 's', 1.0e6, 1.0e-3, 1.0e9, 'simulated time at most'),
+                  Setting('observe', '', True, meaning='the failure detectors report when they '
+                          'would trip and the test goes on (to the fracture, the run-out or its '
+                          'end); --no-observe: the first to trip ends it, as on the rig'),
+                  Setting(*_OUT, '', meaning='write the cycle table (the last 10^5 cycles) as '
+                          'CSV here (empty: not written)')),
+    'fatigue-report': (Setting('bags', '', [], meaning="the test's bags, in order (a "
+                               'restarted test spans several)'),
+                       Setting(*_OUT, 'out/fatigue', meaning='the report folder: cycles.csv, '
+                               'captures.csv, events.csv and the plots')),
     'trend': (Setting('bag', '', '', meaning='the bag (directory, .mcap or .db3)'),
               Setting(*_OUT, '', meaning='PNG of each parameter against time, with its band'),
               Setting('sigmas', '', 3.0, 0.0, 100.0, 'band width in standard errors')),
 }
 
 #: the options of each ``ehs_sim`` command given without a flag, in order
-CLI_POSITIONAL = {'drive': ('target',), 'identify': ('bags',), 'trend': ('bag',)}
+CLI_POSITIONAL = {'drive': ('target',), 'identify': ('bags',), 'trend': ('bag',),
+                  'procedure': ('file',), 'fatigue-report': ('bags',)}

@@ -24,14 +24,18 @@ chunk.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import os
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from ros_ehs.core.errors import DataError
 from ros_ehs.data.bag import open_bag
 import ros_ehs_msgs_py as contract
 
-__all__ = ['CYCLE_COLUMNS', 'read_captures', 'read_cycles', 'read_procedure_events']
+__all__ = ['CYCLE_COLUMNS', 'FatigueReport', 'read_captures', 'read_cycles',
+           'read_procedure_events', 'write_fatigue_report']
 
 #: the cycle table's columns
 CYCLE_COLUMNS = ('count', 'step', 'end_s', 'cmd_hi', 'cmd_lo', 'z_hi', 'z_lo', 'load_hi',
@@ -85,3 +89,107 @@ def read_procedure_events(bags: str | os.PathLike | Sequence) -> list[dict]:
             continue
         out.extend(contract.procedure_event_from_msg(msg) for _, msg in b.decoded([_EVENTS]))
     return out
+
+
+@dataclass
+class FatigueReport:
+    """What :func:`write_fatigue_report` found and wrote."""
+
+    cycles: int                  #: counted cycles in the bags
+    result: str                  #: the test's end (the last ``finished`` event), '' if none
+    reason: str
+    failures: list               #: the failure and detector events (kind, what, cycle, message)
+    files: list                  #: the files written
+
+
+def write_fatigue_report(bags: str | os.PathLike | Sequence, out: str | os.PathLike
+                         ) -> FatigueReport:
+    """
+    Write a test's cycle table and captured cycles as CSV, and its plots, into ``out``.
+
+    ``cycles.csv`` (:data:`CYCLE_COLUMNS` and the stiffness [N/m]), ``captures.csv`` (count,
+    t, command, z, load), ``events.csv``; ``peak_valley.png`` (the load's and the position's
+    peaks and valleys against cycles, log scale), ``stiffness.png`` (load range over
+    position range against cycles), ``hysteresis.png`` (load against position of each
+    captured cycle).
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    table = read_cycles(bags)
+    if not len(table):
+        raise DataError(f'no cycle on /{contract.CYCLES.name} in {bags!r}: not a procedure\'s '
+                        'recording (record that topic with the test)')
+    caps = read_captures(bags)
+    events = read_procedure_events(bags)
+    d = Path(out)
+    d.mkdir(parents=True, exist_ok=True)
+    dz = table[:, 5] - table[:, 6]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        k = np.where(dz > 0, (table[:, 7] - table[:, 8]) / dz, np.nan)
+    files = []
+    path = d / 'cycles.csv'
+    np.savetxt(path, np.column_stack([table, k]), delimiter=',', fmt='%.10g',
+               header=','.join(CYCLE_COLUMNS + ('stiffness',)), comments='')
+    files.append(path)
+    path = d / 'captures.csv'
+    with open(path, 'w') as fh:
+        fh.write('count,t,cmd,z,load\n')
+        for c in caps:
+            for row in zip(c['t'], c['cmd'], c['z'], c['load']):
+                fh.write(f"{c['count']}," + ','.join(f'{v:.10g}' for v in row) + '\n')
+    files.append(path)
+    path = d / 'events.csv'
+    with open(path, 'w') as fh:
+        fh.write('stamp_ns,kind,what,total_cycles,step,message\n')
+        for e in events:
+            msg = e['message'].replace('"', "'")
+            fh.write(f"{e['stamp_ns']},{e['kind']},{e['what']},{e['total_cycles']},"
+                     f'{e["step"]},"{msg}"\n')
+    files.append(path)
+    n = table[:, 0]
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for ax, (hi, lo, label) in zip(axes, ((7, 8, 'load [N]'), (5, 6, 'position [m]'))):
+        ax.plot(n, table[:, hi], '-', lw=0.8, label='peak')
+        ax.plot(n, table[:, lo], '-', lw=0.8, label='valley')
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    axes[-1].set_xlabel('cycle')
+    if n.max() > 10:
+        axes[-1].set_xscale('log')
+    fig.tight_layout()
+    files.append(_save(fig, d / 'peak_valley.png'))
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    ax.plot(n, k, '-', lw=0.8)
+    ax.set_xlabel('cycle')
+    ax.set_ylabel('stiffness [N/m]')
+    ax.grid(alpha=0.3)
+    if n.max() > 10:
+        ax.set_xscale('log')
+    fig.tight_layout()
+    files.append(_save(fig, d / 'stiffness.png'))
+    if caps:
+        fig, ax = plt.subplots(figsize=(6, 5))
+        for c in caps:
+            ax.plot(c['z'] * 1e3, c['load'], lw=0.8, label=f"cycle {c['count']}")
+        ax.set_xlabel('position [mm]')
+        ax.set_ylabel('load [N]')
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        files.append(_save(fig, d / 'hysteresis.png'))
+    fin = [e for e in events if e['kind'] == 'finished']
+    result = fin[-1]['message'].split(':')[0] if fin else ''
+    reason = fin[-1]['message'] if fin else ''
+    fails = [(e['kind'], e['what'], e['total_cycles'], e['message']) for e in events
+             if e['kind'] in ('failure', 'detector', 'run_out')]
+    return FatigueReport(len(table), result, reason, fails, files)
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

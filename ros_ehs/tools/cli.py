@@ -199,6 +199,50 @@ def _cmd_tune(args) -> int:
     return 0 if worst <= 3.0 else 1
 
 
+def _cmd_procedure(args) -> int:
+    from ros_ehs.core.params import ALL_SPECS, load_yaml, preset
+    from ros_ehs.core.procedure.spec import load_procedure
+    from ros_ehs.core.sim.virtual_test import run_procedure
+
+    proc = load_procedure(args.file)
+    p = preset(args.preset)
+    if args.params:
+        p = load_yaml(args.params, p)
+    p = p.replace(**dict(parse_assignment(a, ALL_SPECS) for a in args.set))
+    print(f'virtual test of {proc.name!r} ({len(proc.steps)} steps) on the {args.model} model '
+          f'at {args.rate_hz:g} Hz, specimen k_L {p["k_L"]:g} N/m, life '
+          f'{p["specimen_life"]:g} cycles at {p["specimen_life_range"]:g} N')
+    r = run_procedure(proc, p, model=args.model, rate_hz=args.rate_hz,
+                      max_seconds=args.max_time, observe=args.observe)
+    for who, kind, what, message in ((e[0], e[1], e[2], e[-1]) for e in r.events):
+        if kind in ('step', 'step_end', 'failure', 'detector', 'run_out', 'trip', 'mode',
+                    'interrupted', 'finished'):
+            print(f'  {who:10s} {kind:11s} {message}')
+    print(f'result: {r.result} ({r.reason}); {r.total_cycles} cycles, {r.sim_s:.6g} s '
+          f'simulated in {r.wall_s:.3g} s ({r.speed:.1f}x real time)')
+    for kind, n in sorted(r.tripped.items()):
+        print(f'  {kind} would trip at cycle {n}')
+    if r.fractured_at is not None:
+        print(f'  the specimen fractured at cycle {r.fractured_at:g}')
+    if args.out:
+        import numpy as np
+        np.savetxt(args.out, r.cycles, delimiter=',', fmt='%.10g', comments='',
+                   header='count,end_s,cmd_hi,cmd_lo,z_hi,z_lo,load_hi,load_lo')
+        print(f'wrote {args.out}')
+    return 0
+
+
+def _cmd_fatigue_report(args) -> int:
+    from ros_ehs.data.fatigue import write_fatigue_report
+    rep = write_fatigue_report(args.bags, args.out)
+    print(f'{rep.cycles} cycles' + (f'; {rep.reason}' if rep.reason else '; no end recorded'))
+    for kind, what, n, message in rep.failures:
+        print(f'  {kind} {what} at cycle {n}: {message}')
+    for f in rep.files:
+        print(f'wrote {f}')
+    return 0
+
+
 def _cmd_trend(args) -> int:
     from ros_ehs.data.trend import plot_trend, read_estimates, trend_table
     est = read_estimates(args.bag)
@@ -299,6 +343,11 @@ COMMANDS = {
     'tune': (_cmd_tune, 'displacement and force gains from a model and its specimen for a '
              'bandwidth and stability margins; predicted margins and step, checked with a '
              'square wave in process'),
+    'procedure': (_cmd_procedure, 'a virtual test: a procedure file run in process on the '
+                  'model faster than real time: its cycles, time, and when each failure '
+                  'detector would trip'),
+    'fatigue-report': (_cmd_fatigue_report, "a fatigue test's cycle table, captured cycles "
+                       'and events from its bags as CSV, and plots'),
     'trend': (_cmd_trend, 'the live estimates of a long run over time, from its bag (topic '
               'parameter_estimates)'),
 }

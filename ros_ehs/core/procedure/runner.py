@@ -359,9 +359,11 @@ class ProcedureRunner:
             if end is None or stamp < end:
                 return
             if self.state == 'stopping':
-                # finished once at the stop level and every cycle before the stop is counted
-                if seg.kind == 'ramp' and not self._waves:
-                    self._push(_Segment('level', end, seg.mode, v0=seg.v1))
+                # finished once at the stop level (or held where the controller's own switch
+                # left it) and every cycle before the stop is counted
+                if not self._waves:
+                    if seg.kind == 'ramp':
+                        self._push(_Segment('level', end, seg.mode, v0=seg.v1))
                     self._finish_stop(end)
                 return
             if seg.step != self.step_index:
@@ -413,7 +415,21 @@ class ProcedureRunner:
 
     # -- controller -------------------------------------------------------------------------
     def event(self, kind: str, detector: str, action: str, stamp_ns: int) -> None:
-        """Take a controller event: an acting trip interrupts; a specimen break fails it."""
+        """
+        Take a controller event: an acting trip interrupts; a specimen break fails the test.
+
+        A ``mode`` event (the controller ended force control itself: a break, a lost load
+        cell) holds the measured position in that mode from ``latency`` on.
+        """
+        if kind == 'mode' and detector in ('displacement', 'force') and detector != self.mode:
+            self.mode = detector
+            if self._segs and self.state != 'idle':
+                t = stamp_ns + self.latency_ns
+                # a stop under way ends there: the axis holds where it is
+                self._push(_Segment('level', t, detector, v0=self._measured(detector),
+                                    end=t if self.state == 'stopping' else None))
+            self.notes.append(('info', f'the controller switched to {detector} control'))
+            return
         if kind != 'trip' or action not in ACTING:
             return
         if self.state in ('running', 'switching', 'stopping'):
