@@ -91,8 +91,8 @@ def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, t
     rows = np.loadtxt(tmp_path / 'report' / 'cycles.csv', delimiter=',', skiprows=1)
     assert rows.shape == (CYCLES, 10)
     assert np.all(np.abs(rows[:, 9] / SPECIMEN['k_L'] - 1.0) < 0.02)   # and the stiffness
-    assert {'peak_valley.png', 'stiffness.png', 'hysteresis.png'} <= {f.name for f in
-                                                                       rep.files}
+    written = {f.name for f in rep.files}
+    assert {'peak_valley.png', 'stiffness.png', 'hysteresis.png'} <= written
 
 
 def test_a_killed_procedure_resumes_at_its_count_and_no_cycle_counts_twice(

@@ -119,8 +119,8 @@ def write_fatigue_report(bags: str | os.PathLike | Sequence, out: str | os.PathL
 
     table = read_cycles(bags)
     if not len(table):
-        raise DataError(f'no cycle on /{contract.CYCLES.name} in {bags!r}: not a procedure\'s '
-                        'recording (record that topic with the test)')
+        raise DataError(f'no cycle on /{contract.CYCLES.name} in {bags!r}: not the recording '
+                        'of a procedure (record that topic with the test)')
     caps = read_captures(bags)
     events = read_procedure_events(bags)
     d = Path(out)
