@@ -164,3 +164,17 @@ def test_apc_holds_a_sweeps_amplitude_and_phase_on_the_full_model_rig(rig):
                             controller_params=p)
     was = sweep_figures(plain.t, plain.z, apc)
     assert was['amp_ratio'] > 1.15 and was['phase_deg'] < -10, was
+
+
+def test_a_long_test_keeps_only_the_newest_cycles_of_its_history():
+    """A fatigue test runs for days: the history is bounded, the cycle count is not."""
+    from ros_ehs.core.control.cycles import HISTORY
+    f, n = 50.0, 12                          # 12 samples a cycle
+    apc = AmplitudePhaseControl(0.01, f)
+    cycles = 2 * HISTORY + 50
+    for k in range(cycles * n + 1):
+        t = k / (f * n)
+        apc.measure(t, 0.01 * math.sin(apc.omega * t))
+    assert apc.cycles >= cycles - 1
+    assert HISTORY <= len(apc.history) <= 2 * HISTORY
+    assert apc.history[-1]['cycle'] == apc.cycles

@@ -78,6 +78,7 @@ SHORT = {
              'rss_slope_mb_per_h'),
     'realtime': (['--seconds', '3'], 'rig'),
     'force': (['--frequencies', '20', '--cycles', '3', '--specimens', 'stiff'], 'protect'),
+    'fatigue': (['--life', '200', '--speed-cycles', '10', '--kills', '2'], 'resume'),
 }
 
 

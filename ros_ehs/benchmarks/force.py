@@ -68,8 +68,8 @@ RAMP = 0.2
 
 
 def rig(k: float, name: str = 'fatigue_actuator', **changes) -> Params:
-    """Return the rig with a specimen of stiffness ``k`` [N/m] that does not break."""
-    return preset(name, k_L=k, specimen_life=1e12, ramp_time=RAMP, **changes)
+    """Return the rig with a specimen of stiffness ``k`` [N/m], unbreakable unless told."""
+    return preset(name, **{'k_L': k, 'specimen_life': 1e12, 'ramp_time': RAMP, **changes})
 
 
 def gains(p: Params):

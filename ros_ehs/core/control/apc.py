@@ -67,7 +67,7 @@ import cmath
 import math
 
 import numpy as np
-from ros_ehs.core.control.cycles import CycleCorrection
+from ros_ehs.core.control.cycles import CycleCorrection, HISTORY
 from ros_ehs.core.control.waveforms import sweep_phase
 from ros_ehs.core.errors import InputError
 
@@ -152,7 +152,8 @@ class AmplitudePhaseControl(CycleCorrection):
         self.cycles = 0                  #: cycles measured
         self.converged_at: int | None = None   #: the cycle the convergence rule was met
         self._ok = 0
-        #: per cycle: amplitude ratio, phase [deg], mean error [m], harmonics [% of amplitude]
+        #: per cycle: amplitude ratio, phase [deg], mean error [m], harmonics [% of amplitude];
+        #: the newest HISTORY to twice that cycles (a fatigue test runs for days)
         self.history: list[dict] = []
 
     def phase(self, t):
@@ -241,6 +242,8 @@ class AmplitudePhaseControl(CycleCorrection):
                              'mean_err': mean - self.mean,
                              'harmonics_pct': float(np.sqrt(np.sum(np.abs(resp[1:]) ** 2))
                                                     / self.amplitude * 100.0)})
+        if len(self.history) > 2 * HISTORY:
+            del self.history[:-HISTORY]
         ok = abs(ratio - 1.0) <= self.tolerance and abs(phase) <= math.degrees(
             self.tolerance) and abs(mean - self.mean) <= self.tolerance * self.amplitude
         self._ok = self._ok + 1 if ok else 0

@@ -29,7 +29,10 @@ from __future__ import annotations
 
 import math
 
-__all__ = ['CycleCorrection']
+__all__ = ['CycleCorrection', 'HISTORY']
+
+#: the cycles a correction's ``history`` keeps, the newest (a fatigue test runs for days)
+HISTORY = 1000
 
 
 class CycleCorrection:

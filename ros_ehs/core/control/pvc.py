@@ -37,7 +37,7 @@ import math
 from typing import Sequence
 
 import numpy as np
-from ros_ehs.core.control.cycles import CycleCorrection
+from ros_ehs.core.control.cycles import CycleCorrection, HISTORY
 from ros_ehs.core.errors import InputError
 
 __all__ = ['Block', 'Cyclic', 'PeakValleyControl', 'parse_blocks', 'WAVEFORMS', 'waveform']
@@ -157,7 +157,9 @@ class PeakValleyControl(CycleCorrection):
         self._hi, self._lo = -math.inf, math.inf
         self.errors = [math.inf] * len(self.blocks)   # newest peak/valley error per block
         self.converged_at: int | None = None
+        #: the newest cycles judged (HISTORY to twice that: a fatigue test runs for days)
         self.history: list[dict] = []
+        self.judged = 0                    #: cycles judged in all
 
     def _block(self, cycle: int) -> int:
         return int(np.searchsorted(self._starts, cycle % self.cycles_per_pass, 'right') - 1)
@@ -235,6 +237,9 @@ class PeakValleyControl(CycleCorrection):
         self.errors[b] = err
         self.history.append({'cycle': c, 'block': b, 'peak': hi, 'valley': lo,
                              'error': err})
+        self.judged += 1
+        if len(self.history) > 2 * HISTORY:
+            del self.history[:-HISTORY]
         if self.converged_at is None and all(e <= self.tolerance for e in self.errors):
             self.converged_at = c
         if (a0, m0) != (a1, m1):

@@ -352,7 +352,7 @@ class ReferenceGenerator:
         c = self.correction
         last = c.history[-1] if c is not None and c.history else {}
         if isinstance(c, PeakValleyControl):
-            f.update(pvc_cycles=len(c.history), pvc_error=float(last.get('error', math.nan)),
+            f.update(pvc_cycles=c.judged, pvc_error=float(last.get('error', math.nan)),
                      pvc_converged=c.converged_at is not None,
                      pvc_frozen=','.join(sorted(self.frozen_by)))
         elif c is not None:

@@ -74,7 +74,8 @@ __all__ = ['ACTING', 'CHECKPOINT_PERIOD', 'ProcedureRunner', 'STATES', 'capture_
 STATES = ('idle', 'running', 'switching', 'held', 'interrupted', 'stopping', 'finished')
 #: a controller trip with one of these actions interrupts the test
 ACTING = ('hold', 'stop', 'power_off')
-#: the checkpoint is due at every state change and at least this often [s of the stamps]
+#: the checkpoint is due at every state change, every counted cycle, and at least this often
+#: [s of the stamps]
 CHECKPOINT_PERIOD = 10.0
 #: the rate of a stop ramp when neither the procedure nor a ramp step gives one [m/s, N/s]
 STOP_RATE = {'displacement': 1.0e-3, 'force': 1.0e3}
@@ -616,6 +617,7 @@ class ProcedureRunner:
             return                     # not a whole cycle (cut, or begun mid-way): not counted
         self.counts[k] += 1
         self.total += 1
+        self.checkpoint_due = True            # the count on disk is never a cycle behind
         c = Cycle(self.total, k, stamp, cyc['cmd'][1], cyc['cmd'][0], cyc['z'][1], cyc['z'][0],
                   cyc['f'][1], cyc['f'][0])
         self.cycles.append(c)

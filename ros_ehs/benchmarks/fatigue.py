@@ -1,0 +1,308 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Fatigue benchmark: a test to failure, the virtual test's speed, resume after kills, its data.
+
+* ``cycles_to_failure``: a force-controlled constant-amplitude test (1-10 kN at 10 Hz, APC) of
+  a degrading specimen (1e7 N/m, a life of ``--life`` cycles at 9 kN, Paris m = 3, a crack
+  that doubles its compliance) to its fracture, run as a virtual test (in process, the
+  simplified model, the force gains ``ehs_sim tune`` gives); the detectors observe. Per
+  detector (``stiffness_drop`` 10 %, ``peak_valley_change`` 5 %) the cycle it tripped at
+  (``detected``), the cycle at which the specimen model meets the same criterion under the
+  load range the cycle table shows it carried (``model``,
+  :func:`ros_ehs.core.sim.virtual_test.model_trip_cycle`) and ``rel_diff``; ``fracture``: the
+  test's count when the controller's break detector ended it against the model's life at
+  that range. Targets: within 1 %; the fracture ends the test within one cycle.
+* ``virtual_speed``: a run-out test of ``--speed-cycles`` cycles on the ``simplified`` and the
+  ``full`` model: simulated time over wall time. Targets: 50x and 10x.
+* ``memory_mb``: the peak of what a virtual test allocated (tracemalloc), at
+  ``--speed-cycles`` and at four times as many cycles (flat: the cycle table is a fixed-size
+  ring, the corrections keep their newest 1000 cycles).
+* ``resume``: ``--kills`` lock-step tests over DDS (plant, controller, procedure node,
+  recorder; a 20-cycle displacement test at 5 Hz), each killed (SIGKILL) at a random cycle:
+  the procedure node alone, or every process at once (a power cut: the bag is cut too), then
+  restarted from its checkpoint and the bag, resumed with ``~/resume``, run to its end.
+  ``planned`` (the count asked), ``applied`` (the cycles the recorded positions show: rises
+  through the mean + a quarter of the amplitude after a fall below the mean - a quarter, in
+  every bag of the test), ``counted`` (the procedure's). Target: ``counted`` = ``planned``
+  (no cycle applied twice), and ``applied`` within one cycle of it (a cycle cut by the kill
+  is applied in part and not counted).
+* ``cycle_table_bytes_per_cycle``: a cycle's record on ``procedure/cycles`` (40) and what the
+  bags hold of them per cycle (the CDR message with its layout, before compression);
+  ``checkpoint_ms``: the median time of one checkpoint written (write, fsync, rename).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import random
+import signal
+import statistics
+import sys
+import tempfile
+import time
+
+from ros_ehs.benchmarks import count, report
+
+__all__ = ['main']
+
+K = 1.0e7
+PEAK, VALLEY, FREQ = 1.0e4, 1.0e3, 10.0
+FATIGUE = {'name': 'coupon 1-10 kN', 'control_mode': 'force', 'run_out': 10**7, 'steps': [
+    {'name': 'preload', 'type': 'ramp', 'to': 0.5 * (PEAK + VALLEY), 'rate': 2.0e4},
+    {'name': 'settle', 'type': 'dwell', 'time': 0.2},
+    {'name': 'fatigue', 'type': 'cyclic', 'waveform': 'sine', 'peak': PEAK, 'valley': VALLEY,
+     'frequency': FREQ,
+     'end': [{'stiffness_drop': {'drop': 0.10}}, {'peak_valley_change': {'tolerance': 0.05}}]}]}
+#: the resume runs' procedure: a displacement test the lock-step loop runs in seconds
+RESUME_CYCLES = 20
+RESUME = {'name': 'resume test', 'steps': [
+    {'name': 'to mean', 'type': 'ramp', 'to': 0.002, 'rate': 0.01},
+    {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.002, 'amplitude': 0.001,
+     'frequency': 5.0, 'count': RESUME_CYCLES}]}
+BOUND = 180.0
+
+
+def _rig(life: float = 1.0e12):
+    from ros_ehs.benchmarks.force import gains, rig
+    t = gains(rig(K))
+    return rig(K, force_kp=t.values()['force_kp'], force_ki=t.values()['force_ki'],
+               specimen_life=life, specimen_life_range=PEAK - VALLEY)
+
+
+def _failure(life: float) -> dict:
+    import numpy as np
+    from ros_ehs.core.model.specimen import Specimen
+    from ros_ehs.core.procedure.spec import parse_procedure
+    from ros_ehs.core.sim.virtual_test import model_trip_cycle, run_procedure
+    proc = parse_procedure(FATIGUE)
+    p = _rig(life)
+    r = run_procedure(proc, p, keep_cycles=int(2 * life) + 100)
+    peak, valley = float(np.median(r.cycles[:, 6])), float(np.median(r.cycles[:, 7]))
+    sp = Specimen(p)
+    out = {}
+    for e in proc.steps[2].end:
+        model = model_trip_cycle(sp, e.kind, e.values, peak, valley)
+        det = r.tripped.get(e.kind)
+        out[e.kind] = {'detected': det, 'model': model,
+                       'rel_diff': round((det - model) / model, 5) if det else None}
+    life_at = sp.cycles_to(1.0, peak - valley)
+    out['fracture'] = {'detected': r.total_cycles, 'model': round(life_at, 1),
+                       'rel_diff': round((r.total_cycles - life_at) / life_at, 5),
+                       'result': r.result, 'specimen_fractured_at': r.fractured_at,
+                       'ended_within_cycles': round(abs(r.total_cycles - r.fractured_at), 2)
+                       if r.fractured_at is not None else None}
+    out['applied_range_n'] = round(peak - valley, 1)
+    return out
+
+
+def _speed(cycles: int, model: str) -> float:
+    from ros_ehs.core.procedure.spec import parse_procedure
+    from ros_ehs.core.sim.virtual_test import run_procedure
+    doc = {**FATIGUE, 'run_out': cycles}
+    r = run_procedure(parse_procedure(doc), _rig(), model=model, keep_cycles=1000)
+    assert r.result == 'run_out' and r.total_cycles == cycles, (r.result, r.reason)
+    return round(r.speed, 1)
+
+
+def _memory(cycles: int) -> list:
+    import tracemalloc
+    from ros_ehs.core.procedure.spec import parse_procedure
+    from ros_ehs.core.sim.virtual_test import run_procedure
+    out = []
+    p = _rig()
+    for n in (cycles, 4 * cycles):
+        tracemalloc.start()
+        run_procedure(parse_procedure({**FATIGUE, 'run_out': n}), p, keep_cycles=1000)
+        out.append(round(tracemalloc.get_traced_memory()[1] / 2**20, 3))
+        tracemalloc.stop()
+    return out
+
+
+def _checkpoint_ms() -> float:
+    from ros_ehs.core.procedure.runner import ProcedureRunner
+    from ros_ehs.core.procedure.spec import parse_procedure
+    from ros_ehs.data.checkpoint import write_checkpoint
+    r = ProcedureRunner(parse_procedure(FATIGUE), latency=0.0)
+    r.measure(10**9, 0.0, 0.0)
+    r.start(10**9)
+    state = r.checkpoint()
+    times = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(20):
+            t0 = time.perf_counter()
+            write_checkpoint(Path(tmp) / 'test.checkpoint.json', state)
+            times.append(time.perf_counter() - t0)
+    return round(statistics.median(times) * 1e3, 3)
+
+
+# -- resume over DDS --------------------------------------------------------------------------
+def _loop(procs, bag, opts: dict, name: str = 'procedure') -> None:
+    from ros_ehs.nodes.processes import recording
+    import ros_ehs_msgs_py as c
+    fast = {'diagnostics_period': 0.05}
+    procs.start('recorder', {'out': str(bag), 'use_sim_time': True}, name=f'recorder_{name}')
+    if not procs.wait_status(c.RECORDER_STATUS, lambda st: True, BOUND):
+        raise RuntimeError('the recorder did not start')
+    procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, **fast},
+                name=f'controller_{name}')
+    procs.start('procedure', {'use_sim_time': True, **fast, **opts}, name=name)
+    if not procs.wait_status(c.RECORDER_STATUS, recording(
+            c.COMMAND, c.REFERENCE, c.CYCLES, c.PROCEDURE_EVENTS), BOUND):
+        raise RuntimeError('the recorder did not discover the controller and the procedure')
+    procs.start('plant', {'mode': 'lockstep', 'duration': 1.0e4, 'wait_subscribers': 3,
+                          **fast}, name=f'plant_{name}')
+
+
+def _status(procs, pred) -> dict:
+    import ros_ehs_msgs_py as c
+    if not procs.wait_status(c.PROCEDURE_STATUS, lambda st: pred(st.values), BOUND):
+        raise RuntimeError(f'the procedure did not get there: {procs.status(c.PROCEDURE_STATUS)}')
+    return procs.status(c.PROCEDURE_STATUS).values
+
+
+def _applied(bags) -> int:
+    """Count the cycles the recorded positions show (see the module docstring)."""
+    import numpy as np
+    from ros_ehs.data.bag import open_bag
+    import ros_ehs_msgs_py as c
+    n = 0
+    for bag in bags:
+        b = open_bag(bag)
+        z = np.array([s.z for s in sorted((c.state_from_cdr(m.data) for m in
+                                           b.messages(['/state'])),
+                                          key=lambda s: s.stamp_ns)])
+        armed = False
+        for v in z:
+            if v < 0.002 - 0.00025:
+                armed = True
+            elif armed and v > 0.002 + 0.00025:
+                n += 1
+                armed = False
+    return n
+
+
+def _resume(kills: int, seed: int) -> dict:
+    from domain_coordinator import domain_id
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from std_srvs.srv import Trigger
+    from ros_ehs.data.bag import open_bag
+    from ros_ehs.nodes.processes import NodeProcesses
+    import yaml
+    rng = random.Random(seed)
+    runs = []
+    cdr_bytes, cdr_cycles = 0, 0
+    with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=dom)
+        node = rclpy.create_node('fatigue_bench', context=ctx)
+        exe = SingleThreadedExecutor(context=ctx)
+        exe.add_node(node)
+        try:
+            for k in range(kills):
+                everything = k % 2 == 1
+                at = rng.randint(2, RESUME_CYCLES - 3)
+                d = Path(tmp) / f'run{k}'
+                d.mkdir()
+                proc = d / 'test.yaml'
+                proc.write_text(yaml.safe_dump(RESUME))
+                bags = [d / 'bag0']
+                opts = {'file': str(proc), 'recover_bag': str(bags[0])}
+                with NodeProcesses(dom, d / 'logs') as procs:
+                    _loop(procs, bags[0], {**opts, 'autostart': True})
+                    _status(procs, lambda v: int(v['total_cycles']) >= at)
+                    names = [n for n in procs.procs if procs.procs[n].alive()] \
+                        if everything else ['procedure']
+                    for n in names:          # as close to at once as processes allow
+                        procs.procs[n].popen.send_signal(signal.SIGKILL)
+                    for n in names:
+                        procs.procs[n].popen.wait()
+                    if everything:
+                        bags.append(d / 'bag1')
+                        _loop(procs, bags[1], opts, name='procedure_again')
+                    else:
+                        procs.start('procedure', {'use_sim_time': True,
+                                                  'diagnostics_period': 0.05, **opts},
+                                    name='procedure_again')
+                    st = _status(procs, lambda v: v['state'] == 'interrupted' and
+                                 int(v['stamp_ns']) > 0)
+                    restored = int(st['total_cycles'])
+                    cli = node.create_client(Trigger, '/procedure/resume')
+                    _spin(exe, cli.service_is_ready)
+                    fut = cli.call_async(Trigger.Request())
+                    _spin(exe, fut.done)
+                    node.destroy_client(cli)
+                    st = _status(procs, lambda v: v['state'] == 'finished')
+                    procs.stop()
+                for b in bags:
+                    bb = open_bag(b)
+                    if '/procedure/cycles' in bb.topics:
+                        for m in bb.messages(['/procedure/cycles']):
+                            cdr_bytes += len(m.data)
+                cdr_cycles += int(st['total_cycles'])
+                runs.append({'killed': 'all' if everything else 'procedure', 'at': at,
+                             'restored': restored, 'planned': RESUME_CYCLES,
+                             'applied': _applied(bags), 'counted': int(st['total_cycles'])})
+        finally:
+            exe.shutdown()
+            node.destroy_node()
+            rclpy.shutdown(context=ctx)
+    return {'runs': runs, 'bag_cdr_bytes_per_cycle':
+            round(cdr_bytes / cdr_cycles, 1) if cdr_cycles else None}
+
+
+def _spin(exe, until, timeout: float = BOUND) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        exe.spin_once(timeout_sec=0.02)
+        if until():
+            return
+    raise RuntimeError('no answer from the procedure node')
+
+
+def main(argv=None) -> int:
+    """Run the benchmark and print its figures."""
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks fatigue',
+                                 description=__doc__.strip().splitlines()[0])
+    ap.add_argument('--life', type=count, default=2000, help="the specimen's life at 9 kN "
+                    '[cycles]')
+    ap.add_argument('--speed-cycles', type=count, default=300, help='the speed runs [cycles]')
+    ap.add_argument('--kills', type=int, default=10, help='resume runs over DDS (0: none)')
+    ap.add_argument('--seed', type=int, default=1, help='of the kill moments')
+    a = ap.parse_args(argv)
+    fig: dict = {}
+    fig['cycles_to_failure'] = _failure(float(a.life))
+    fig['virtual_speed'] = {'simplified': _speed(a.speed_cycles, 'simplified'),
+                            'full': _speed(a.speed_cycles, 'full')}
+    fig['memory_mb'] = {'cycles': [a.speed_cycles, 4 * a.speed_cycles],
+                        'peak': _memory(a.speed_cycles)}
+    from ros_ehs_msgs_py import CYCLE_RECORD
+    table = {'record': CYCLE_RECORD.size}
+    if a.kills > 0:
+        res = _resume(a.kills, a.seed)
+        fig['resume'] = {'runs': res['runs'],
+                         'worst_applied_minus_counted': max(abs(r['applied'] - r['counted'])
+                                                            for r in res['runs']),
+                         'all_counted_as_planned': all(r['counted'] == r['planned']
+                                                       for r in res['runs'])}
+        table['bag_cdr'] = res['bag_cdr_bytes_per_cycle']
+    fig['cycle_table_bytes_per_cycle'] = table
+    fig['checkpoint_ms'] = _checkpoint_ms()
+    return report(fig)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
