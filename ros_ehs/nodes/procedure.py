@@ -25,14 +25,15 @@ decodes, calls and publishes:
   the controller's ``events`` (an acting trip interrupts the test, the specimen break fails
   it), ``/clock`` under sim time;
 * out: ``reference`` (and ``reference_trajectory``), ``procedure/events`` (every state change,
-  step, detector and failure), ``procedure/cycles`` (each counted cycle's extremes, one
-  40-byte record a cycle), ``procedure/captures`` (full cycles at 1, 2, 5, 10, ...), and its
+  step, detector and failure), ``procedure/cycles`` (each counted cycle's extremes, a
+  40-byte record a cycle, in batches of 10 cycles or 1 s and at every state change), ``procedure/captures`` (full cycles at 1, 2, 5, 10, ...), and its
   status ``ros_ehs/procedure`` in ``diagnostics``;
 * services ``~/start``, ``~/hold``, ``~/resume``, ``~/stop`` (std_srvs/Trigger: success and
   the reason); a step in the other control mode sets the controller's ``control_mode``
   through its parameter service;
-* the checkpoint (``checkpoint``) is rewritten atomically at every state change and every
-  10 s of the stamps, off the executor's thread. Started with a checkpoint on disk, the test
+* the checkpoint (``checkpoint``) is rewritten atomically at every counted cycle, every state
+  change and every 10 s of the stamps, off the executor's thread (the newest wins), with the
+  cycle records not yet published. Started with a checkpoint on disk, the test
   comes back ``interrupted`` at its step and count (plus the cycles ``recover_bag`` holds
   beyond it) and waits for ``~/resume``.
 """
@@ -72,6 +73,10 @@ __all__ = ['OPTIONS', 'ProcedureNode', 'main', 'recovered_total']
 #: the node's options (declared in :mod:`ros_ehs.core.options`)
 OPTIONS = PROCEDURE
 _LEVEL = {'failure': ERROR, 'interrupted': WARN, 'held': WARN, 'detector': WARN}
+#: cycle records go out in batches of this many, or older than CYCLES_BATCH_NS, or at a state
+#: change
+CYCLES_BATCH = 10
+CYCLES_BATCH_NS = 1_000_000_000
 
 
 def recovered_total(bag: str) -> int | None:
@@ -141,6 +146,7 @@ class ProcedureNode(Node):
                                       harmonics=int(self.opt['apc_harmonics']), rate_hz=rate)
         cp_path = self.opt['checkpoint'] or self.opt['file'] + '.checkpoint.json'
         self.cp_path = Path(cp_path)
+        self._rows: list[tuple] = []          # cycle records not yet published
         restored = self._restore()
         self.writer = _CheckpointWriter(self.cp_path)
         self.pub = self.create_publisher(JointState, contract.REFERENCE.name,
@@ -189,6 +195,8 @@ class ProcedureNode(Node):
         if cp is None:
             return ''
         extra = recovered_total(self.opt['recover_bag']) if self.opt['recover_bag'] else None
+        self._rows = [tuple(r) for r in cp.get('unpublished_cycles', []) if
+                      extra is None or r[0] > extra]
         return self.runner.restore(cp, extra)
 
     # -- messages in -------------------------------------------------------------------------
@@ -250,9 +258,14 @@ class ProcedureNode(Node):
         """Publish what the runner left: events, cycles, captures; checkpoint; mode switch."""
         r = self.runner
         if r.cycles:
-            rows = [(c.count, c.step, c.end_ns, c.cmd_hi, c.cmd_lo, c.z_hi, c.z_lo, c.f_hi,
-                     c.f_lo) for c in r.cycles]
+            self._rows.extend((c.count, c.step, c.end_ns, c.cmd_hi, c.cmd_lo, c.z_hi, c.z_lo,
+                               c.f_hi, c.f_lo) for c in r.cycles)
             r.cycles.clear()
+        # in batches (a message carries ~48 bytes besides its records); the records not yet
+        # out are in the checkpoint, rewritten at every cycle, and go out after a restart
+        if self._rows and (len(self._rows) >= CYCLES_BATCH or r.state != 'running' or
+                           r.last_stamp - self._rows[0][2] >= CYCLES_BATCH_NS):
+            rows, self._rows = self._rows, []
             msg = UInt8MultiArray()
             msg.layout.dim = [MultiArrayDimension(label=contract.CYCLES_LABEL, size=len(rows),
                                                   stride=contract.CYCLE_RECORD.size)]
@@ -280,7 +293,7 @@ class ProcedureNode(Node):
         while r.notes:
             self.get_logger().info(r.notes.pop(0)[1])
         if r.checkpoint_due:
-            self.writer.put(r.checkpoint())
+            self.writer.put(self._checkpoint())
         if r.request_mode is not None and self._mode_call is None:
             self._switch(r.request_mode)
 
@@ -327,9 +340,20 @@ class ProcedureNode(Node):
         self.pub_diag.publish(diagnostics(self, contract.PROCEDURE_STATUS, level, msg, values))
 
     def close(self) -> None:
-        """Write the last checkpoint (called as the node closes)."""
-        self.writer.put(self.runner.checkpoint())
+        """Publish the cycles not yet out and write the last checkpoint (as the node closes)."""
+        if self._rows:
+            rows, self._rows = self._rows, []
+            msg = UInt8MultiArray()
+            msg.layout.dim = [MultiArrayDimension(label=contract.CYCLES_LABEL, size=len(rows),
+                                                  stride=contract.CYCLE_RECORD.size)]
+            msg.data = contract.cycles_to_bytes(rows)
+            self.pub_cycles.publish(msg)
+        self.writer.put(self._checkpoint())
         self.writer.close()
+
+    def _checkpoint(self) -> dict:
+        # with the cycle records not yet published: a restart publishes them first
+        return {**self.runner.checkpoint(), 'unpublished_cycles': [list(r) for r in self._rows]}
 
 
 def main(args=None) -> int:
