@@ -26,8 +26,9 @@ decodes, calls and publishes:
   it), ``/clock`` under sim time;
 * out: ``reference`` (and ``reference_trajectory``), ``procedure/events`` (every state change,
   step, detector and failure), ``procedure/cycles`` (each counted cycle's extremes, a
-  40-byte record a cycle, in batches of 10 cycles or 1 s and at every state change), ``procedure/captures`` (full cycles at 1, 2, 5, 10, ...), and its
-  status ``ros_ehs/procedure`` in ``diagnostics``;
+  40-byte record a cycle, in batches of 10 cycles or 1 s and at every state change),
+  ``procedure/captures`` (full cycles at 1, 2, 5, 10, ...), and its status
+  ``ros_ehs/procedure`` in ``diagnostics``;
 * services ``~/start``, ``~/hold``, ``~/resume``, ``~/stop`` (std_srvs/Trigger: success and
   the reason); a step in the other control mode sets the controller's ``control_mode``
   through its parameter service;
