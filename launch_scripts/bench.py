@@ -18,6 +18,12 @@ Start a bench: plant + controller + reference + recorder, each its own process.
     python launch_scripts/bench.py --duration 10 --out bags/my_run
     python launch_scripts/bench.py --mode lockstep --duration 10     # deterministic, fast
     python launch_scripts/bench.py --mode lockstep --duration 60 --no-cpu-affinity
+    python launch_scripts/bench.py --mode lockstep --duration 600 --procedure test.yaml
+
+``--procedure FILE`` runs a test (docs/procedures.md): the procedure node takes the
+reference's place, starts at once (``--no-autostart``: wait for ``~/start``) and the bench
+ends when the test has finished (or after ``--duration``); it then prints the test's events
+and cycle count from the bag (``ehs_sim fatigue-report BAG`` writes the rest).
 
 ``--controller-param NAME=VALUE`` and ``--plant-param NAME=VALUE`` (repeatable) set one node's
 parameters, e.g. the safety limits (docs/safety.md) or a plant fault to inject. After the run
@@ -161,6 +167,21 @@ def _bag_lines(bag: Path, live: bool, error: str = '') -> None:
             print('bench:   ' + line)
 
 
+def _test_lines(bag: Path) -> None:
+    """Print the test's events and cycle count, read from the bag."""
+    from ros_ehs.core.errors import BagError
+    from ros_ehs.data.fatigue import read_cycles, read_procedure_events
+    try:
+        events = read_procedure_events(bag)
+        table = read_cycles(bag)
+    except (BagError, ValueError) as err:
+        print(f'bench: cannot read the test from the bag {bag}: {err}', file=sys.stderr)
+        return
+    print(f'bench: test: {len(table)} cycles recorded, {len(events)} events')
+    for e in events:
+        print(f"bench:   cycle {e['total_cycles']:>8}  {e['kind']}: {e['message']}")
+
+
 def main(argv=None) -> int:
     """Run the bench; see the module docstring."""
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
@@ -196,6 +217,10 @@ def main(argv=None) -> int:
     ap.add_argument('--plant-param', type=_node_param('plant'), action='append', default=[],
                     metavar='NAME=VALUE', help='a plant parameter (repeatable), e.g. '
                     'fault=frozen_sensor')
+    ap.add_argument('--procedure', default=None, metavar='FILE',
+                    help='run a test: the procedure node (this file) instead of the reference')
+    ap.add_argument('--autostart', action=argparse.BooleanOptionalAction, default=True,
+                    help='--procedure: start the test at once (else call ~/start)')
     ap.add_argument('--live-identify', action='store_true',
                     help='also run the identify node in live mode: refit the last 10 s every '
                     '5 s and push significant fits to the controller; its estimates go into '
@@ -252,7 +277,10 @@ def main(argv=None) -> int:
                              params_file=pf,
                              recorder=recorder, pin=a.cpu_affinity,
                              reference={'kind': a.reference,
-                                        'rate_hz': 1000.0 if lock else 250.0})
+                                        'rate_hz': 1000.0 if lock else 250.0},
+                             procedure={'file': str(Path(a.procedure).resolve()),
+                                        'autostart': a.autostart}
+                             if a.procedure else None)
         except StartupError as err:
             print(f'bench: {err}', file=sys.stderr)
             return 1
@@ -272,6 +300,9 @@ def main(argv=None) -> int:
             done = procs.status(contract.PLANT_STATUS)
             if lock and done is not None and done.message == 'lock-step run complete':
                 break
+            test = procs.status(contract.PROCEDURE_STATUS) if a.procedure else None
+            if test is not None and test.values.get('state') == 'finished':
+                break
             if not lock and a.duration > 0 and time.monotonic() - t0 >= a.duration:
                 break
             time.sleep(0.05)
@@ -281,13 +312,17 @@ def main(argv=None) -> int:
         # its controller: a plant outliving the controller would count every period until
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
         recorder = procs.status(contract.RECORDER_STATUS)
-        codes = procs.stop(['recorder', *live, 'reference', 'plant', 'controller', *probes])
+        first = ['procedure'] if a.procedure else []      # its last records reach the bag
+        order = [*first, 'recorder', *live, 'reference', 'plant', 'controller', *probes]
+        codes = procs.stop([n for n in order if n in procs.procs])
     error = ''
     if recorder is not None and recorder.level == 2:
         error = recorder.message
     elif codes.get('recorder', 0) != 0:
         error = f"it exited with code {codes['recorder']} (its log: {logs / 'recorder.log'})"
     _bag_lines(out, bool(live), error)
+    if a.procedure:
+        _test_lines(out)
     try:
         f = procs['plant'].figures()
         span = max(f['sim_time_s'], 1e-9)

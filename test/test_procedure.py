@@ -386,3 +386,38 @@ def test_a_virtual_tests_memory_is_a_ring_of_cycles():
     r = run_procedure(parse_procedure(doc), p, keep_cycles=16)
     assert r.result == 'run_out' and r.total_cycles == 40
     assert r.cycles.shape == (16, 8) and list(r.cycles[:, 0]) == list(range(25, 41))
+
+
+# -- the checkpoint on disk ----------------------------------------------------------------
+def test_a_checkpoint_is_written_whole_and_read_back(tmp_path):
+    from ros_ehs.data.checkpoint import read_checkpoint, write_checkpoint
+    p = tmp_path / 'test.checkpoint.json'
+    assert read_checkpoint(p) is None
+    write_checkpoint(p, {'total': 5, 'x': math.nan})
+    write_checkpoint(p, {'total': 6, 'x': 1.0})
+    assert read_checkpoint(p) == {'total': 6, 'x': 1.0}
+    assert [f.name for f in tmp_path.iterdir()] == ['test.checkpoint.json']   # no temp left
+    p.write_text('{"total": 6, "x"')                 # a file cut short (not ours: we rename)
+    with pytest.raises(InputError, match='test.checkpoint.json.*not JSON.*afresh'):
+        read_checkpoint(p)
+
+
+def test_a_checkpoint_that_cannot_be_written_leaves_the_last_one(tmp_path):
+    from ros_ehs.data.checkpoint import read_checkpoint, write_checkpoint
+    p = tmp_path / 'test.checkpoint.json'
+    write_checkpoint(p, {'total': 6})
+    (tmp_path / 'test.checkpoint.json.tmp').mkdir()     # the temporary file cannot be made
+    with pytest.raises(OSError):
+        write_checkpoint(p, {'total': 7})
+    assert read_checkpoint(p) == {'total': 6}
+
+
+def test_a_finished_tests_checkpoint_is_kept_aside_and_a_new_test_begins(tmp_path):
+    from ros_ehs.data.checkpoint import resume_point, write_checkpoint
+    p = tmp_path / 'test.checkpoint.json'
+    write_checkpoint(p, {'state': 'interrupted', 'total': 6})
+    assert resume_point(p) == ({'state': 'interrupted', 'total': 6}, '')
+    write_checkpoint(p, {'state': 'finished', 'result': 'failed', 'total': 9})
+    cp, note = resume_point(p, now='20261126T080000Z')
+    assert cp is None and 'failed, 9 cycles' in note and not p.exists()
+    assert (tmp_path / 'test.checkpoint.finished_20261126T080000Z.json').exists()

@@ -30,7 +30,7 @@ from typing import Any, Mapping
 
 from ros_ehs.core.errors import InputError
 
-__all__ = ['read_checkpoint', 'write_checkpoint']
+__all__ = ['read_checkpoint', 'resume_point', 'write_checkpoint']
 
 
 def write_checkpoint(path: str | os.PathLike, state: Mapping[str, Any]) -> int:
@@ -56,6 +56,26 @@ def write_checkpoint(path: str | os.PathLike, state: Mapping[str, Any]) -> int:
     finally:
         os.close(dfd)
     return len(data)
+
+
+def resume_point(path: str | os.PathLike, now: str | None = None) -> tuple[dict | None, str]:
+    """
+    Return the checkpoint a restarted node resumes from, and what became of it.
+
+    None when there is none, or when its test had finished: that test is over and this is the
+    next one; its checkpoint is renamed ``<stem>.finished_<now>.json`` (``now``: a UTC time
+    stamp, default the clock's), so that nothing recorded is lost.
+    """
+    p = Path(path)
+    cp = read_checkpoint(p)
+    if cp is None or cp.get('state') != 'finished':
+        return cp, ''
+    import time
+    now = now or time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())
+    done = p.with_name(f'{p.stem}.finished_{now}.json')
+    p.rename(done)
+    return None, (f"the last test had finished ({cp.get('result')}, {cp.get('total')} cycles; "
+                  f'its checkpoint is now {str(done)!r}): a new test')
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict | None:

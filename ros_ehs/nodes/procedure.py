@@ -36,7 +36,8 @@ decodes, calls and publishes:
   change and every 10 s of the stamps, off the executor's thread (the newest wins), with the
   cycle records not yet published. Started with a checkpoint on disk, the test
   comes back ``interrupted`` at its step and count (plus the cycles ``recover_bag`` holds
-  beyond it) and waits for ``~/resume``.
+  beyond it) and waits for ``~/resume``; a checkpoint of a finished test is renamed
+  ``<checkpoint>.finished_<time>.json`` and a new test begins.
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ from ros_ehs.core.errors import InputError
 from ros_ehs.core.options import PROCEDURE
 from ros_ehs.core.procedure.runner import ProcedureRunner
 from ros_ehs.core.procedure.spec import load_procedure
-from ros_ehs.data.checkpoint import read_checkpoint, write_checkpoint
+from ros_ehs.data.checkpoint import resume_point, write_checkpoint
 from ros_ehs.data.fatigue import read_cycles
 from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, qos_profile, read_msg, run,
@@ -192,9 +193,9 @@ class ProcedureNode(Node):
                                f'{str(self.cp_path)!r}' + (f'; {restored}' if restored else ''))
 
     def _restore(self) -> str:
-        cp = read_checkpoint(self.cp_path)
+        cp, note = resume_point(self.cp_path)
         if cp is None:
-            return ''
+            return note
         extra = recovered_total(self.opt['recover_bag']) if self.opt['recover_bag'] else None
         self._rows = [tuple(r) for r in cp.get('unpublished_cycles', []) if
                       extra is None or r[0] > extra]

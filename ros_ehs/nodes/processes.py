@@ -274,6 +274,7 @@ class NodeProcesses:
                    controller: dict[str, Any] | None = None,
                    reference: dict[str, Any] | bool = True,
                    recorder: dict[str, Any] | None = None,
+                   procedure: dict[str, Any] | None = None,
                    params_file: str | os.PathLike | None = None,
                    pin: bool | None = None,
                    timeout: float = 60.0) -> None:
@@ -297,8 +298,9 @@ class NodeProcesses:
           the states from time zero on.
 
         Returns when everything runs. ``plant``, ``controller``, ``reference``, ``recorder``:
-        extra parameters (``reference=False``: no reference node). Raises :class:`StartupError`
-        naming the step that did not happen, with that node's log.
+        extra parameters (``reference=False``: no reference node). ``procedure`` (its
+        options, ``file`` among them): the procedure node in the reference's place. Raises
+        :class:`StartupError` naming the step that did not happen, with that node's log.
 
         ``pin`` (default: when this process may use two CPUs or more) sets the nodes'
         ``cpu_affinity`` as :func:`loop_placement` says, unless given in ``plant``,
@@ -318,9 +320,13 @@ class NodeProcesses:
             if reference is not False:
                 reference = {'cpu_affinity': ref_cpu,
                              **({} if reference is True else reference)}
+            if procedure is not None:
+                procedure = {'cpu_affinity': ref_cpu, **procedure}
         self.placement = cpus
         pf = params_file
         rec = bag is not None
+        if procedure is not None:
+            reference = False
 
         def start_reference(**extra):
             ref = {'use_sim_time': lock, **extra, **({} if reference is True else reference)}
@@ -332,11 +338,15 @@ class NodeProcesses:
             self._expect('recorder', contract.RECORDER_STATUS, lambda st: True,
                          timeout, 'the recorder did not start')
         self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
+        if procedure is not None:
+            self.start('procedure', {'use_sim_time': lock, **procedure}, params_file=pf)
         if lock:
             first = [contract.COMMAND]
             if reference is not False:
                 start_reference()
                 first.append(contract.REFERENCE)
+            if procedure is not None:
+                first += [contract.REFERENCE, contract.CYCLES]
             if rec:
                 self._expect('recorder', contract.RECORDER_STATUS, recording(*first), timeout,
                              'the recorder did not discover the controller and reference')
@@ -357,7 +367,8 @@ class NodeProcesses:
         # the controller, the recorder and a reference that corrects from the state
         corrects = isinstance(reference, dict) and any(
             reference.get(k) for k in ('amplitude_phase_control', 'peak_valley_control'))
-        pl = {'mode': mode, 'wait_subscribers': 1 + rec + corrects, **(plant or {})}
+        pl = {'mode': mode, 'wait_subscribers': 1 + rec + corrects + (procedure is not None),
+              **(plant or {})}
         self.start('plant', pl, params_file=pf)
         self._expect('plant', contract.PLANT_STATUS, loop_closed, timeout,
                      'the loop did not close')
