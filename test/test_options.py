@@ -72,6 +72,10 @@ def test_the_docs_tables_are_generated_from_the_settings():
     from ros_ehs.tools.docs import cli_markdown, DOCS, render
     text = (DOCS / 'nodes.md').read_text()
     assert render(text) == text, 'docs/nodes.md is stale: run python -m ros_ehs.tools.docs'
+    from ros_ehs.tools.docs import procedure_markdown
+    text = (DOCS / 'procedures.md').read_text()
+    assert render(text, procedure_markdown) == text, \
+        'docs/procedures.md is stale: run python -m ros_ehs.tools.docs'
     assert (DOCS / 'cli.md').read_text() == cli_markdown() + '\n', \
         'docs/cli.md is stale: run python -m ros_ehs.tools.docs'
     assert (DOCS / 'parameters.md').read_text() == markdown_table() + '\n'

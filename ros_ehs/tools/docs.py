@@ -17,7 +17,8 @@
 The options tables of ``docs/nodes.md`` (between ``<!-- options:begin -->`` and
 ``<!-- options:end -->``, from :data:`ros_ehs.core.options.NODE_OPTIONS` and the reference's
 waveform), ``docs/cli.md`` (from :data:`ros_ehs.core.options.CLI_OPTIONS`) and
-``docs/parameters.md`` (from :mod:`ros_ehs.core.params`). ``test/test_options.py`` checks that
+``docs/parameters.md`` (from :mod:`ros_ehs.core.params`) and the key tables of
+``docs/procedures.md`` (from :mod:`ros_ehs.core.procedure.spec`). ``test/test_options.py`` checks that
 the files are up to date.
 """
 
@@ -32,7 +33,8 @@ from ros_ehs.core.options import CLI_OPTIONS, CLI_POSITIONAL, NODE_OPTIONS
 from ros_ehs.core.params import markdown_table
 from ros_ehs.core.settings import Setting
 
-__all__ = ['DOCS', 'cli_markdown', 'options_markdown', 'render', 'settings_table', 'write']
+__all__ = ['DOCS', 'cli_markdown', 'options_markdown', 'procedure_markdown', 'render',
+           'settings_table', 'write']
 
 BEGIN, END = '<!-- options:begin -->', '<!-- options:end -->'
 DOCS = Path(__file__).resolve().parents[2] / 'docs'
@@ -90,10 +92,22 @@ def cli_markdown() -> str:
     return '\n'.join(out)
 
 
-def render(text: str) -> str:
-    """Return docs/nodes.md's ``text`` with the part between the markers regenerated."""
+def procedure_markdown() -> str:
+    """Return the tables of a procedure file's keys (docs/procedures.md)."""
+    from ros_ehs.core.procedure.spec import COMMON_KEYS, END_KEYS, STEP_KEYS, TEST_KEYS
+    out = ['### The test', ''] + settings_table(TEST_KEYS, 'key') + ['']
+    out += ['### Every step', ''] + settings_table(COMMON_KEYS, 'key') + ['']
+    for kind, keys in STEP_KEYS.items():
+        out += [f'### `{kind}`', ''] + settings_table(keys, 'key') + ['']
+    for kind, keys in END_KEYS.items():
+        out += [f'### end condition `{kind}`', ''] + settings_table(keys, 'key') + ['']
+    return '\n'.join(out)
+
+
+def render(text: str, body=None) -> str:
+    """Return ``text`` with the part between the markers regenerated (docs/nodes.md's)."""
     a, b = text.index(BEGIN) + len(BEGIN), text.index(END)
-    return text[:a] + '\n' + options_markdown() + '\n' + text[b:]
+    return text[:a] + '\n' + (body or options_markdown)() + '\n' + text[b:]
 
 
 def write(docs: Path = DOCS) -> list[Path]:
@@ -102,7 +116,9 @@ def write(docs: Path = DOCS) -> list[Path]:
     nodes.write_text(render(nodes.read_text()))
     (docs / 'cli.md').write_text(cli_markdown() + '\n')
     (docs / 'parameters.md').write_text(markdown_table() + '\n')
-    return [nodes, docs / 'cli.md', docs / 'parameters.md']
+    proc = docs / 'procedures.md'
+    proc.write_text(render(proc.read_text(), procedure_markdown))
+    return [nodes, docs / 'cli.md', docs / 'parameters.md', proc]
 
 
 def main() -> int:
