@@ -144,6 +144,7 @@ class AmplitudePhaseControl(CycleCorrection):
         c0[0] = self.amplitude
         self._segments: list[tuple] = [(-math.inf, self.period, c0, self.mean, c0, self.mean)]
         self._acc = np.zeros(harmonics, complex)
+        self._zero = np.zeros(harmonics, complex)      # no change (read only)
         self._sum = 0.0
         self._n = 0
         self._w = 0.0
@@ -194,18 +195,24 @@ class AmplitudePhaseControl(CycleCorrection):
                 break
         s = (t - t0) / dur
         if s >= 1.0:
-            return c1, m1, np.zeros_like(c1), 0.0
+            return c1, m1, self._zero, 0.0
         s = max(s, 0.0)
         return c0 + (c1 - c0) * s, m0 + (m1 - m0) * s, (c1 - c0) / dur, (m1 - m0) / dur
 
     def reference(self, t: float) -> tuple[float, float]:
         """Return the command (position [m], velocity [m/s]) at time ``t`` [s]."""
         c, m, dc, dm = self._blend(t)
-        e = np.exp(1j * self.phase(t) * self._k)
         w = 2.0 * math.pi * self.frequency_at(t) if t < self.sweep_time else 0.0
-        z = float((c * e).sum().imag) + m
-        v = float(((1j * w * self._k * c + dc) * e).sum().imag) + dm
-        return z, v
+        # the sum over the harmonics in Python complex arithmetic: a few terms, where numpy's
+        # call overhead is most of the cost (the loop's hot path)
+        e1 = cmath.exp(1j * self.phase(t))
+        e = e1
+        z = v = 0.0
+        for k, (ck, dk) in enumerate(zip(c.tolist(), dc.tolist()), 1):
+            z += (ck * e).imag
+            v += ((1j * w * k * ck + dk) * e).imag
+            e *= e1
+        return z + m, v + dm
 
     def desired(self, t):
         """Return the specified position [m] at ``t`` (a number or an array) [s]."""
@@ -215,7 +222,11 @@ class AmplitudePhaseControl(CycleCorrection):
         # a sweep's samples are weighted by its frequency, so that the sums are over its phase
         # (a DFT in the phase: the harmonics stay orthogonal to the fundamental)
         w = 1.0 if self._rate == 0.0 else self.frequency_at(t) / self.frequency
-        self._acc += w * z * np.exp(-1j * self.phase(t) * self._k)
+        e1 = cmath.exp(-1j * self.phase(t))
+        e, wz, acc = e1, w * z, self._acc
+        for k in range(self.harmonics):
+            acc[k] += wz * e
+            e *= e1
         self._sum += w * z
         self._n += 1
         self._w += w
