@@ -16,10 +16,10 @@
 
 The options tables of ``docs/nodes.md`` (between ``<!-- options:begin -->`` and
 ``<!-- options:end -->``, from :data:`ros_ehs.core.options.NODE_OPTIONS` and the reference's
-waveform), ``docs/cli.md`` (from :data:`ros_ehs.core.options.CLI_OPTIONS`) and
+waveform), ``docs/cli.md`` (from :data:`ros_ehs.core.options.CLI_OPTIONS`),
 ``docs/parameters.md`` (from :mod:`ros_ehs.core.params`) and the key tables of
-``docs/procedures.md`` (from :mod:`ros_ehs.core.procedure.spec`). ``test/test_options.py`` checks that
-the files are up to date.
+``docs/procedures.md`` (from :mod:`ros_ehs.core.procedure.spec`). ``test/test_options.py``
+checks that the files are up to date.
 """
 
 from __future__ import annotations
