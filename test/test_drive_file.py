@@ -232,3 +232,35 @@ def test_a_disturbed_run_is_played_again_and_not_learnt_from(tmp_path):
     always = Flaky(lambda n: n.startswith('target_pass'))
     with pytest.raises(DataError, match='run target_pass: disturbed 3 times'):
         iterate(always, t, r, tmp_path / 'b')
+
+
+def test_the_band_a_target_needs_and_the_error_in_it():
+    from ros_ehs.core.control.drive import band_rms_error_pct, target_band
+    t, z = multisine(20.0, FS, 2.0, 30.0, 0.05, seed=3, taper=0.0)
+    lo, hi = target_band(z, FS, 0.1)
+    assert 1.5 / 1.25 <= lo <= 2.1 / 1.25 and 29.0 * 1.25 <= hi <= 30.5 * 1.25, (lo, hi)
+    # an error at 100 Hz only: none in 2-30 Hz, all of it overall
+    rms = np.sqrt(np.mean(z ** 2))
+    y = z + 0.01 * np.sqrt(2) * rms * np.sin(2 * np.pi * 100.0 * t)     # 1 % RMS
+    assert band_rms_error_pct(z, y, FS, lo, hi) < 1e-9
+    assert rms_error_pct(z, y) == pytest.approx(1.0, rel=0.02)
+
+
+def test_an_iteration_says_what_of_the_target_its_frf_does_not_cover(tmp_path):
+    """A target with content at 80 Hz, an FRF run to 40 Hz: the warning names how much."""
+    from ros_ehs.data.drive_files import iterate
+    t, z = multisine(10.0, FS, 0.5, 20.0, 0.05, seed=1)
+    z = z + 0.05 * np.sqrt(2) * np.std(z) * np.sin(2 * np.pi * 80.0 * t)   # 5 % RMS
+
+    def play(name, t, x):
+        return _loop(x)
+
+    res = iterate(play, t, z, tmp_path / 'o', iterations=3)
+    assert res['band_hz'] == [0.2, 40.0]
+    assert res['uncovered_pct'] == pytest.approx(5.0, rel=0.05)
+    assert any('lies where the FRF is not known' in w for w in res['warnings'])
+    assert res['band_rms_err_pct'] < res['best_pct']        # in band it converges
+    auto = iterate(play, t, z, tmp_path / 'a', iterations=3, band='auto')
+    assert auto['band_hz'][1] >= 99.9 and auto['uncovered_pct'] < 0.5 * res['uncovered_pct']
+    with pytest.raises(InputError, match='band'):
+        iterate(play, t, z, tmp_path / 'b', band=(50.0, 10.0))

@@ -28,7 +28,7 @@ Fatigue benchmark: a test to failure, the virtual test's speed, resume after kil
   ``full`` model: simulated time over wall time. Targets: 50x and 10x.
 * ``memory_mb``: the peak of what a virtual test allocated (tracemalloc), at
   ``--speed-cycles`` and at four times as many cycles (flat: the cycle table is a fixed-size
-  ring, the corrections keep their newest 1000 cycles).
+  ring, the corrections keep their newest 100 to 200 cycles).
 * ``resume``: ``--kills`` lock-step tests over DDS (plant, controller, procedure node,
   recorder; a 20-cycle displacement test at 5 Hz), each killed (SIGKILL) at a random cycle:
   the procedure node alone, or every process at once (a power cut: the bag is cut too), then

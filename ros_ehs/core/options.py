@@ -366,6 +366,9 @@ CLI_OPTIONS = {
               Setting(*_OUT, 'out/drive', meaning='folder for the bags and drive files'),
               Setting('frf_bag', '', '', meaning='a recorded broadband run (reference and '
                       'state) to take the FRF from (default: play and record one)'),
+              Setting('band', 'Hz', [], meaning='the FRF run: its band, F_LO F_HI, or auto (the '
+                      "band the target's spectrum needs: outside it under a tenth of --rms); "
+                      'default 0.2-40 Hz'),
               Setting('iterations', '', 6, 1, 1000, 'most iterations'),
               Setting('rms', '%', 1.0, 1.0e-3, 100.0, 'stop at this RMS error'),
               Setting('plant', '', 'table1_estimated', meaning='the rig: a parameter preset'),

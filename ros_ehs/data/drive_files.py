@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ros_ehs.core.control.drive import (band_error, DriveIteration, frf, multisine,
-                                        rms_error_pct)
+from ros_ehs.core.control.drive import (band_error, band_rms_error_pct, DriveIteration, frf,
+                                        multisine, rms_error_pct, target_band)
 from ros_ehs.core.control.waveforms import CsvTrajectory, Samples
-from ros_ehs.core.errors import DataError
+from ros_ehs.core.errors import DataError, InputError
 
 __all__ = ['InProcessPlayer', 'frf_from_bag', 'iterate', 'lead_in', 'load_drive', 'record_run',
            'run_from_bag', 'save_drive']
@@ -160,14 +160,23 @@ class InProcessPlayer:
 
 def iterate(play, target_t, target_z, out: str | os.PathLike, *, iterations: int = 6,
             rms_target_pct: float = 1.0, frf_bag: str | os.PathLike | None = None,
-            beta: float = 0.8, progress=None) -> dict:
+            beta: float = 0.8, progress=None, band=None) -> dict:
     """
     Iterate a drive for a target; ``play(name, t, drive)`` plays each run and records it.
 
     ``play``: an :class:`InProcessPlayer` or a :class:`BenchPlayer`, which keep each run as a
     bag and its drive as a CSV under ``out``. ``frf_bag``: a recorded broadband run to take the
-    FRF from (default: play a 0.2-40 Hz multisine as long as the target as run
-    ``broadband``). Plays ``target_pass`` (the target as it is) and ``iteration_<k>``, writes
+    FRF from (default: play a multisine as long as the target as run ``broadband``, over
+    ``band``: (f_lo, f_hi) [Hz], ``'auto'`` the band the target's spectrum needs
+    (:func:`~ros_ehs.core.control.drive.target_band`, its tails under a tenth of
+    ``rms_target_pct``), or None 0.2-40 Hz).
+
+    The result says where the drive cannot act: ``uncovered_pct`` (the target's content
+    outside the FRF's coherent band, % of its RMS), ``warnings`` (that content, and the
+    ranges in the band where the coherence is low and the target has content), and the
+    best run's error overall and in the band (``band_rms_err_pct``).
+
+    Plays ``target_pass`` (the target as it is) and ``iteration_<k>``, writes
     ``out/drive.csv`` (the best drive) and returns the RMS errors [%] (first pass, then each
     iteration) and the runs played again (``replayed``: a player's ``disturbed`` named them).
     ``progress(k, rms_pct)`` after each iteration, ``progress(run, why)`` for a replay.
@@ -197,25 +206,58 @@ def iterate(play, target_t, target_z, out: str | os.PathLike, *, iterations: int
                 progress(title, why)
         raise DataError(f'run {name}: disturbed {1 + REPLAYS} times ({"; ".join(replays)})')
 
+    given = band is not None
+    if band == 'auto':
+        band = target_band(r, fs, 0.1 * rms_target_pct)
+    f_lo, f_hi = band if given else (0.2, min(40.0, 0.4 * fs))
+    if not 0 < f_lo < f_hi < fs / 2:
+        raise InputError(f'the band {f_lo:g}-{f_hi:g} Hz must lie in (0, {fs / 2:g}) Hz')
     if frf_bag is None:
-        _, d = multisine(t.size / fs, fs, 0.2, min(40.0, 0.4 * fs), 0.08, seed=2)
-        f, h, coh = frf(d, run('broadband', d), fs)
+        # not below 0.2 Hz: the loop holds slow content itself, and a multisine flat in
+        # velocity over more decades leaves its top too weak to measure
+        _, d = multisine(t.size / fs, fs, max(f_lo, min(0.2, 0.5 * f_hi)), f_hi, 0.08, seed=2)
+        # a band asked for is measured whole (its velocity density); the inverse acts in it
+        f, h, coh = frf(d, run('broadband', d), fs, velocity=given)
     else:
         f, h, coh, _ = frf_from_bag(frf_bag)
     errs = [rms_error_pct(r, run('target_pass', r))]
-    it = DriveIteration(r, fs, f, h, beta=beta, coherence=coh)
-    drive, best = it.first(), (np.inf, None)
+    it = DriveIteration(r, fs, f, h, beta=beta, coherence=coh,
+                        band_hz=(f_lo, f_hi) if given else None)
+    warnings = _coverage(it, r, fs, f, coh, rms_target_pct)
+    drive, best = it.first(), (np.inf, None, None)
     for k in range(1, iterations + 1):
         y = run(f'iteration_{k}', drive)
         errs.append(rms_error_pct(r, y))
         if progress is not None:
             progress(k, errs[-1])
         if errs[-1] < best[0]:
-            best = (errs[-1], drive)
+            best = (errs[-1], drive, y)
         if errs[-1] <= rms_target_pct:
             break
         drive = it.update(drive, y)
     save_drive(out / 'drive.csv', t, best[1])
     db, deg = band_error(r, y, fs, 0.5, min(20.0, 0.4 * fs))
     return {'rms_err_pct': errs, 'best_pct': best[0], 'band_db_max': db, 'band_deg_max': deg,
-            'drive': str(out / 'drive.csv'), 'replayed': replays}
+            'drive': str(out / 'drive.csv'), 'replayed': replays, 'band_hz': [f_lo, f_hi],
+            'band_rms_err_pct': band_rms_error_pct(r, best[2], fs, f_lo, f_hi),
+            'uncovered_pct': it.uncovered_pct(), 'warnings': warnings}
+
+
+def _coverage(it: DriveIteration, r, fs: float, f, coh, rms_target_pct: float) -> list[str]:
+    """Say where the target has content the drive cannot act on (see :func:`iterate`)."""
+    out = []
+    un = it.uncovered_pct()
+    if un > 0.1 * rms_target_pct:
+        out.append(f'{un:.3g} % of the target (RMS) lies where the FRF is not known (coherence '
+                   f'under {it.min_coherence:g}): the iteration cannot correct it; the RMS '
+                   f'error stays above about that much')
+    spec = np.abs(np.fft.rfft(r - r.mean()))
+    fr = np.fft.rfftfreq(r.size, 1.0 / fs)
+    has = np.interp(f, fr, spec) >= 0.01 * spec.max()
+    low = (np.asarray(coh) < it.min_coherence) & has & (f > 0)
+    if low.any():
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], low.astype(int), [0]])))
+        spans = [f'{f[a]:.3g}-{f[b - 1]:.3g} Hz' for a, b in zip(edges[::2], edges[1::2])]
+        out.append('low coherence where the target has content: ' + ', '.join(spans[:8]) +
+                   (' ...' if len(spans) > 8 else ''))
+    return out

@@ -138,11 +138,26 @@ def _cmd_drive(args) -> int:
         print(f'  iteration {k}: RMS error {e:.3f} %' if isinstance(k, int) else
               f'  {k} played again: {e}', flush=True)
 
+    band = None
+    if args.band == ['auto']:
+        band = 'auto'
+    elif args.band:
+        try:
+            band = tuple(float(x) for x in args.band)
+        except ValueError:
+            band = ()
+        if len(band) != 2:
+            raise InputError(f'--band: give F_LO F_HI [Hz] or auto, got {args.band}')
     res = iterate(play, t, z, args.out, iterations=args.iterations, rms_target_pct=args.rms,
-                  frf_bag=args.frf_bag or None, progress=progress)
+                  frf_bag=args.frf_bag or None, progress=progress, band=band)
+    for w in res['warnings']:
+        print(f'warning: {w}')
     if args.bench != 'none':
         print('watchdog trips per run: ' + ', '.join(f'{k} {v}' for k, v in play.trips.items()))
-    print(f"first pass {res['rms_err_pct'][0]:.3f} %, best {res['best_pct']:.3f} %; last "
+    lo, hi = res['band_hz']
+    print(f"first pass {res['rms_err_pct'][0]:.3f} %, best {res['best_pct']:.3f} % overall, "
+          f"{res['band_rms_err_pct']:.3f} % in the FRF's band {lo:g}-{hi:g} Hz "
+          f"({res['uncovered_pct']:.3g} % of the target outside what the FRF covers); last "
           f"response/target within {res['band_db_max']:.3f} dB, {res['band_deg_max']:.2f} "
           f"deg; drive {res['drive']} (the reference node plays it: kind:=csv csv_path:=...)")
     return 0 if res['best_pct'] <= args.rms else 1

@@ -32,7 +32,7 @@ import math
 __all__ = ['CycleCorrection', 'HISTORY']
 
 #: the cycles a correction's ``history`` keeps, the newest (a fatigue test runs for days)
-HISTORY = 1000
+HISTORY = 100
 
 
 class CycleCorrection:

@@ -34,11 +34,13 @@ bench's nodes, :mod:`ros_ehs.nodes.drive_bench`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 
 import numpy as np
 from ros_ehs.core.errors import DataError, InputError
 
-__all__ = ['DriveIteration', 'band_error', 'frf', 'multisine', 'rms_error_pct']
+__all__ = ['DriveIteration', 'band_error', 'band_rms_error_pct', 'frf', 'multisine',
+           'rms_error_pct', 'target_band']
 
 
 def _taper(n: int, fs: float, seconds: float) -> np.ndarray:
@@ -79,12 +81,14 @@ def multisine(duration: float, fs: float, f_lo: float, f_hi: float, v_rms: float
     return t, z
 
 
-def frf(drive, response, fs: float, nperseg: int | None = None
+def frf(drive, response, fs: float, nperseg: int | None = None, velocity: bool = False
         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     Return ``(f, H, coherence)``: the H1 estimate of the response over the drive.
 
-    Zero where the drive carried no energy (below 1e-4 of its peak spectral density).
+    Zero where the drive carried no energy: below 1e-4 of its peak spectral density (with
+    ``velocity``, of its velocity's, ``S_dd f^2``: a multisine flat in velocity over more
+    than two decades has a displacement density that spans more than four).
     """
     from scipy.signal import coherence, csd, welch
     d = np.asarray(drive, dtype=float)
@@ -99,7 +103,8 @@ def frf(drive, response, fs: float, nperseg: int | None = None
     _, coh = coherence(d, y, fs, nperseg=nperseg)
     # only where the drive put energy (1e-4 of its peak density): elsewhere the ratio is
     # noise over nothing, and the inverse must not act there
-    live = sdd > 1e-4 * sdd.max()
+    dens = sdd * f * f if velocity else sdd
+    live = dens > 1e-4 * dens.max()
     h = np.where(live, sdy / np.where(live, sdd, 1.0), 0.0)
     return f, h, np.where(live, coh, 0.0)
 
@@ -109,6 +114,45 @@ def rms_error_pct(target, response) -> float:
     r = np.asarray(target, dtype=float)
     return float(np.sqrt(np.mean((r - np.asarray(response)) ** 2)) / np.sqrt(np.mean(r ** 2))
                  * 100.0)
+
+
+def target_band(target, fs: float, tail_pct: float = 0.1, f_max: float | None = None
+                ) -> tuple[float, float]:
+    """
+    Return the band [Hz] outside which the target's content is under ``tail_pct`` % of its RMS.
+
+    The target's mean apart (the loop holds it itself), each tail (below ``f_lo``, above
+    ``f_hi``) holds at most half of that content's energy, so the part no drive corrects
+    makes an RMS error of ``tail_pct`` % at most; then widened by a quarter each way (an FRF
+    is not known up to its band's very edge: Welch's windows spread it). ``f_max`` (default
+    0.4 ``fs``) caps it.
+    """
+    r = np.asarray(target, dtype=float)
+    if r.size < 16 or not np.all(np.isfinite(r)):
+        raise DataError(f'target_band: need 16 finite samples or more, got {r.size}')
+    p = np.abs(np.fft.rfft(r - r.mean())) ** 2
+    f = np.fft.rfftfreq(r.size, 1.0 / fs)
+    p[0] = 0.0
+    total = p.sum()
+    f_max = 0.4 * fs if f_max is None else f_max
+    if total <= 0.0:
+        return float(f[1]), float(f_max)
+    allowed = 0.5 * (tail_pct / 100.0) ** 2 * total
+    lo = int(np.searchsorted(np.cumsum(p), allowed, 'right'))
+    hi = int(p.size - 1 - np.searchsorted(np.cumsum(p[::-1]), allowed, 'right'))
+    f_lo = float(f[max(lo, 1)]) / 1.25
+    f_hi = float(min(1.25 * f[max(hi, lo + 1)], f_max))
+    return f_lo, max(f_hi, f_lo * 1.5)
+
+
+def band_rms_error_pct(target, response, fs: float, f_lo: float, f_hi: float) -> float:
+    """Return the RMS of ``target - response`` in [f_lo, f_hi] over the target's there [%]."""
+    r = np.fft.rfft(np.asarray(target, dtype=float))
+    e = r - np.fft.rfft(np.asarray(response, dtype=float))
+    f = np.fft.rfftfreq(len(target), 1.0 / fs)
+    band = (f >= f_lo) & (f <= f_hi)
+    den = np.sqrt(np.sum(np.abs(r[band]) ** 2))
+    return float(np.sqrt(np.sum(np.abs(e[band]) ** 2)) / den * 100.0) if den > 0 else math.nan
 
 
 def band_error(target, response, fs: float, f_lo: float, f_hi: float) -> tuple[float, float]:
@@ -144,6 +188,7 @@ class DriveIteration:
     lam: float = 1e-3
     coherence: np.ndarray | None = None
     min_coherence: float = 0.9
+    band_hz: tuple | None = None       #: and only in this band [Hz] (None: wherever known)
     history: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -167,9 +212,18 @@ class DriveIteration:
         else:
             spec = np.abs(np.fft.rfft(self.target))
             self.band = spec >= 1e-3 * spec.max()
+        if self.band_hz is not None:
+            self.band &= (f >= self.band_hz[0]) & (f <= self.band_hz[1])
         peak = np.abs(h[self.band]).max() if self.band.any() else 1.0
         self.g = np.where(self.band, np.conj(h) / (np.abs(h) ** 2 + self.lam * peak ** 2),
                           0.0)
+
+    def uncovered_pct(self) -> float:
+        """Return the target's content the inverse does not act on [% of its RMS, mean apart]."""
+        spec = np.fft.rfft(self.target - self.target.mean())
+        total = np.sum(np.abs(spec) ** 2)
+        out = np.sum(np.abs(spec[~self.band]) ** 2)
+        return float(np.sqrt(out / total) * 100.0) if total > 0 else 0.0
 
     def _apply(self, x: np.ndarray) -> np.ndarray:
         return np.fft.irfft(self.g * np.fft.rfft(x), self.target.size)
