@@ -146,6 +146,45 @@ def test_a_cyclic_step_counts_its_cycles_exactly_and_ends_at_its_count():
     assert ax.refs[-1].z_ref == 0.0
 
 
+def test_block_loading_counts_each_blocks_cycles_at_its_levels():
+    blocks = [[0.003, 0.001, 3], [0.004, 0.0, 2]]
+    p = proc({'name': 'blocks', 'type': 'cyclic', 'waveform': 'triangle', 'blocks': blocks,
+              'frequency': 5.0, 'count': 10, 'compensation': 'none'})
+    r, ax = started(p)
+    ax.run(until=finished)
+    assert r.total == 10
+    # the first cycle leads in from 0 (the measured position); then 3 + 2 a pass, each at
+    # its block's peak; a block's first cycle starts where the last one ended (its valley)
+    order = ([blocks[0]] * 3 + [blocks[1]] * 2) * 2
+    prev = 0.0
+    for c, b in zip(r.cycles[1:], order[1:]):
+        assert c.z_hi == pytest.approx(b[0], abs=1e-9), (c, b)
+        assert min(b[1], prev) - 1e-9 <= c.z_lo <= b[1] + 1e-4, (c, b)
+        prev = b[1]
+
+
+def test_a_sweep_counts_its_turns_of_phase_and_ends_at_its_duration():
+    p = proc({'name': 'sweep', 'type': 'sweep', 'mean': 0.0, 'amplitude': 0.001, 'f0': 2.0,
+              'f1': 10.0, 'duration': 2.0, 'compensation': 'none'})
+    r, ax = started(p)
+    ax.run(until=finished)
+    # phase 2 pi (f0 t + (f1 - f0) t^2 / (2 T)): 2 * 2 + 8 * 2 / 2 = 12 turns in 2 s
+    assert r.total == 12 and r.result == 'completed'
+    assert r.cycles[-1].end_ns == T0 + 2000 * MS
+
+
+def test_a_drive_step_plays_its_file_as_many_times_as_asked(tmp_path):
+    from ros_ehs.data.drive_files import save_drive
+    t = np.arange(0, 501) * 1e-3                     # 0.5 s a pass
+    save_drive(tmp_path / 'road.csv', t, 0.002 * np.sin(2 * np.pi * 4.0 * t) ** 2)
+    p = proc({'name': 'road', 'type': 'drive', 'file': str(tmp_path / 'road.csv'),
+              'repeats': 3})
+    r, ax = started(p)
+    ax.run(until=finished)
+    assert r.total == 3 and r.result == 'completed'
+    assert max(c.z_hi for c in r.cycles) == pytest.approx(0.002, rel=1e-3)
+
+
 def test_the_reference_is_continuous_through_every_step():
     p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.01},
              {'name': 'wait', 'type': 'dwell', 'time': 0.3}, CYCLIC)

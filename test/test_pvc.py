@@ -24,8 +24,11 @@ def test_each_cycle_reaches_its_peak_and_valley_on_the_full_model_rig(waveform, 
     assert max(h['error'] for h in last) <= 0.005, last  # within 0.5 % of the block's range
     first = pvc.history[0]['error']
     assert first > 0.005                                  # uncorrected, the loop misses them
-    # no jump: the command never moves more in a period than its fastest slope allows
-    slope = max(b.peak - b.valley for b in blocks) * math.pi * f * 1.05   # haversine's
+    # no jump: the command never moves more in a period than its fastest slope allows (a
+    # cycle's, or a transition's: from a block's valley to the next one's peak in half a cycle)
+    spans = [b.peak - b.valley for b in blocks] + [
+        abs(nxt.peak - b.valley) for b, nxt in zip(blocks, blocks[1:] + blocks[:1])]
+    slope = max(spans) * math.pi * f * 1.05   # haversine's
     assert np.abs(np.diff(r.z_ref)).max() <= slope * 1e-3
 
 
@@ -95,3 +98,27 @@ def test_blocks_are_read_from_text_and_a_wrong_block_is_named():
     from ros_ehs.core.errors import ParameterError
     with pytest.raises(ParameterError, match='amplitude'):
         make({'kind': 'triangle', 'amplitude': 0.0})
+
+
+def test_between_blocks_the_command_stays_within_the_two_blocks_levels():
+    """The step from the last block's end decays while the new cycle rises: no overshoot."""
+    from ros_ehs.core.control.pvc import Block, PeakValleyControl
+    blocks = [Block(0.003, 0.001, 3), Block(0.004, 0.0, 2), Block(0.012, 0.008, 2)]
+    for kind in ('triangle', 'haversine', 'sine'):
+        c = PeakValleyControl(blocks, 5.0, kind, latency=0.0, learn_from=0.0)
+        c.freeze()
+        n = 200                                       # samples a cycle
+        z = []
+        for k in range(14 * n):                       # a perfect axis: it measures the command
+            t = k / (5.0 * n)
+            z.append(c.reference(t)[0])
+            c.measure(t, z[-1])
+        end = z[0]                    # where the last cycle ended: its block's valley
+        for k in range(14):
+            seg = z[k * n:(k + 1) * n]
+            b = blocks[[0, 0, 0, 1, 1, 2, 2][k % 7]]
+            assert max(seg) <= max(b.peak, end) + 1e-12, (kind, k, max(seg))
+            assert min(seg) >= min(b.valley, end) - 1e-12, (kind, k, min(seg))
+            assert abs(seg[0] - end) < 1e-12 or k == 0          # no jump
+            assert max(seg) == pytest.approx(max(b.peak, end), abs=1e-9)    # no more
+            end = b.valley

@@ -24,8 +24,10 @@ each cycle the measured peak ``p`` and valley ``v`` correct it:
 (``gain`` g 0.7). Each block of a sequence keeps its own correction, learnt over its cycles
 and kept when the sequence repeats; a correction blends in over the next cycle (no jump) and
 that cycle is not used to learn. Between blocks at other levels the command starts from where
-the last cycle ended and the step decays linearly over the first cycle (no jump); that cycle
-is not judged (its valley is the transition), so a block needs two cycles or more to be
+the last cycle ended and rises (or falls) to the new peak over the first half cycle along the
+waveform's own shape (no jump, and nothing beyond the two levels: a step decayed linearly
+over the whole cycle stood half of it on the new peak, an overload at every transition);
+that cycle is not judged (its valley is the transition), so a block needs two cycles or more to be
 corrected. ``converged_at``: the first cycle after which every block's peak and valley are
 within ``tolerance`` of its range (0.5 %). :meth:`freeze` stops the learning, as APC's.
 """
@@ -201,8 +203,12 @@ class PeakValleyControl(CycleCorrection):
         dw = 1.0 / (1.0 - x0) if x0 < x < 1.0 else 0.0
         a, m = a0 + (a1 - a0) * w, m0 + (m1 - m0) * w
         s, ds = waveform(self.waveform, t / self.period)
-        z = m + a * s + jump * (1.0 - min(max(x, 0.0), 1.0))
-        v = (a * ds + ((a1 - a0) * s + (m1 - m0)) * dw - jump) / self.period
+        # the step from the last cycle's end fades as the waveform rises from its valley
+        # (0) to its peak (x = 0.5): from where it was to the new peak, monotonically
+        rising = jump != 0.0 and x < 0.5        # (x a hair under 0 at the start)
+        left, dleft = (0.5 * (1.0 - s), -0.5 * ds) if rising else (0.0, 0.0)
+        z = m + a * s + jump * left
+        v = (a * ds + ((a1 - a0) * s + (m1 - m0)) * dw + jump * dleft) / self.period
         return z, v
 
     def _take(self, t: float, z: float) -> None:
