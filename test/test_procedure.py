@@ -460,3 +460,23 @@ def test_a_finished_tests_checkpoint_is_kept_aside_and_a_new_test_begins(tmp_pat
     cp, note = resume_point(p, now='20261126T080000Z')
     assert cp is None and 'failed, 9 cycles' in note and not p.exists()
     assert (tmp_path / 'test.checkpoint.finished_20261126T080000Z.json').exists()
+
+
+def test_ehs_sim_procedure_prints_what_the_rig_would_do(tmp_path, capsys):
+    import yaml
+    from ros_ehs.tools.cli import main
+    f = tmp_path / 'coupon.yaml'
+    f.write_text(yaml.safe_dump(FATIGUE))
+    out = tmp_path / 'cycles.csv'
+    rc = main(['procedure', str(f), '--preset', 'fatigue_actuator', '--set', 'k_L=1e7',
+               '--set', 'specimen_life=60', '--set', 'specimen_life_range=9000',
+               '--set', 'ramp_time=0.2', '--out', str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert 'result: failed (the controller detected the specimen break' in text
+    assert 'the specimen fractured at cycle' in text and 'x real time' in text
+    rows = np.loadtxt(out, delimiter=',', skiprows=1)
+    assert rows.shape[1] == 8 and rows[-1, 0] == rows.shape[0]
+    f.write_text('steps: []\n')
+    assert main(['procedure', str(f)]) == 2
+    assert 'steps' in capsys.readouterr().err
