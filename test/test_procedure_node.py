@@ -42,7 +42,7 @@ def _loop(procs, bag, proc_opts, seconds=8.0):
     """Start the recorder, the controller, the procedure (sim time), then the lock-step plant."""
     procs.start('recorder', {'out': str(bag), 'use_sim_time': True})
     assert procs.wait_status(c.RECORDER_STATUS, lambda st: True, BOUND)
-    # the hydraulics ramp on in 50 ms, before the test starts (APC learns from no ramp-on)
+    # the hydraulics ramp on in 50 ms, before the test starts (the compensation learns from no ramp-on)
     procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, 'k_L': SPECIMEN['k_L'],
                                **FAST})
     procs.start('procedure', {'use_sim_time': True, **FAST, **proc_opts})
@@ -79,7 +79,7 @@ def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, t
     # a 1 mm sine about 2 mm, tracked by the controller: every cycle's extremes near it
     assert np.all(np.abs(table[2:, 5] - 0.003) < 2e-4) and np.all(
         np.abs(table[2:, 6] - 0.001) < 2e-4), table[:, 5:7]
-    # APC corrected the command: its peak is no longer the specified one
+    # peak/valley control corrected the command: its peak is no longer the specified one
     assert np.all(table[3:, 3] > 0.003 + 1e-6)
     assert [cap['count'] for cap in read_captures(bag)] == [1, 2, 5, 10, 20]
     kinds = [e['kind'] for e in read_procedure_events(bag)]

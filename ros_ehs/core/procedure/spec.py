@@ -109,10 +109,11 @@ STEP_KEYS: dict[str, tuple[Setting, ...]] = {
                _S('frequency', 'Hz', 1.0, 1.0e-3, 200.0, 'cycles a second'),
                _S('count', '1', 0, 0, 10**12, 'the step ends after this many cycles (0: at an '
                   'end condition, or the run-out)'),
-               _S('compensation', '', 'auto', meaning='amplitude/phase (sines) or '
-                  'peak/valley (triangles, haversines, blocks) control of the command, learnt '
-                  'from the measured signal; auto: the one the waveform takes',
-                  choices=COMPENSATIONS)),
+               _S('compensation', '', 'auto', meaning='peak/valley control (pvc: each '
+                  "cycle's peak and valley reach the levels, what a fatigue test is specified "
+                  'by) or amplitude/phase control (apc, sines only: the fundamental and its '
+                  'harmonics), learnt from the measured signal; auto: pvc; none: the waveform '
+                  'as specified', choices=COMPENSATIONS)),
     'sweep': (_S('mean', 'm or N', 0.0, -_LEVEL, _LEVEL, 'the mean'),
               _S('amplitude', 'm or N', 0.0, 0.0, _LEVEL, 'the amplitude'),
               _S('f0', 'Hz', 1.0, 1.0e-3, 200.0, 'the start frequency'),
