@@ -42,7 +42,7 @@ def _loop(procs, bag, proc_opts, seconds=8.0):
     """Start the recorder, the controller, the procedure (sim time), then the lock-step plant."""
     procs.start('recorder', {'out': str(bag), 'use_sim_time': True})
     assert procs.wait_status(c.RECORDER_STATUS, lambda st: True, BOUND)
-    # the hydraulics ramp on in 50 ms, before the test starts (the compensation learns from no ramp-on)
+    # the hydraulics ramp on in 50 ms, before the test starts (nothing learnt from a ramp-on)
     procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, 'k_L': SPECIMEN['k_L'],
                                **FAST})
     procs.start('procedure', {'use_sim_time': True, **FAST, **proc_opts})
