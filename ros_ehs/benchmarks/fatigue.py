@@ -16,8 +16,9 @@ Fatigue benchmark: a test to failure, the virtual test's speed, resume after kil
 
 * ``cycles_to_failure``: a force-controlled constant-amplitude test (1-10 kN at 10 Hz,
   peak/valley control) of a degrading specimen (1e7 N/m, a life of ``--life`` cycles at 9
-  kN, Paris m = 3, a crack that doubles its compliance) to its fracture, run as a virtual test (in process, the
-  simplified model, the force gains ``ehs_sim tune`` gives); the detectors observe. Per
+  kN, Paris m = 3, a crack that doubles its compliance) to its fracture, run as a virtual
+  test (in process, the simplified model, the force gains ``ehs_sim tune`` gives); the
+  detectors observe. Per
   detector (``stiffness_drop`` 10 %, ``peak_valley_change`` 5 %) the cycle it tripped at
   (``detected``), the cycle at which the specimen model meets the same criterion under the
   load range the cycle table shows it carried (``model``,
