@@ -241,11 +241,7 @@ def _resume(kills: int, seed: int) -> dict:
                     st = _status(procs, lambda v: v['state'] == 'interrupted' and
                                  int(v['stamp_ns']) > 0)
                     restored = int(st['total_cycles'])
-                    cli = node.create_client(Trigger, '/procedure/resume')
-                    _spin(exe, cli.service_is_ready)
-                    fut = cli.call_async(Trigger.Request())
-                    _spin(exe, fut.done)
-                    node.destroy_client(cli)
+                    _resume_call(node, exe, Trigger)
                     st = _status(procs, lambda v: v['state'] == 'finished')
                     procs.stop()
                 for b in bags:
@@ -263,6 +259,29 @@ def _resume(kills: int, seed: int) -> dict:
             rclpy.shutdown(context=ctx)
     return {'runs': runs, 'bag_cdr_bytes_per_cycle':
             round(cdr_bytes / cdr_cycles, 1) if cdr_cycles else None}
+
+
+def _resume_call(node, exe, srv) -> None:
+    """
+    Call ``~/resume`` until it answers.
+
+    The killed node's server stays in discovery until its lease ends: a request sent while it
+    is the only one matched is never answered, so one that is not answered within 5 s goes
+    out again (a second resume is refused harmlessly: the test runs).
+    """
+    cli = node.create_client(srv, '/procedure/resume')
+    _spin(exe, cli.service_is_ready)
+    end = time.monotonic() + BOUND
+    while time.monotonic() < end:
+        fut = cli.call_async(srv.Request())
+        try:
+            _spin(exe, fut.done, timeout=5.0)
+        except RuntimeError:
+            cli.remove_pending_request(fut)
+            continue
+        node.destroy_client(cli)
+        return
+    raise RuntimeError('no answer from the procedure node')
 
 
 def _spin(exe, until, timeout: float = BOUND) -> None:
