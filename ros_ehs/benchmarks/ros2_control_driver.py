@@ -29,8 +29,10 @@ state it ended in.
 machine's timing: each cycle's states are stamped on that clock, ``/clock`` goes out every 10
 cycles (with the first), and the next cycle starts only once the controller has answered
 (a command counted for every state; the answer to cycle k is written at cycle k + 1, as in
-real time when the controller answers within the period). ``--seconds`` is then simulated
-time; it exits when done (its JSON line first).
+real time when the controller answers within the period). It starts once the state and
+``/clock`` have their listeners, and a cycle unanswered for ``RESEND`` s sends its clock
+again (one the reference missed: discovery had matched it on the driver's side only).
+``--seconds`` is then simulated time; it exits when done (its JSON line first).
 """
 
 import argparse
@@ -45,6 +47,9 @@ from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+
+#: lock-step: a cycle unanswered this long [s] sends its clock again
+RESEND = 2.0
 
 
 def main() -> int:
@@ -154,11 +159,14 @@ def lockstep(node, a, plant, pub, latest, stop) -> None:
     t0 = 10**9
     u = np.zeros(2)
     answer = 0.0                  # the answer to the last cycle: written at this one
-    while not stop and pub.get_subscription_count() < a.wait_subscribers:
+    # the state's listeners, and the clock's (the reference under sim time)
+    while not stop and (pub.get_subscription_count() < a.wait_subscribers or
+                        clock_pub.get_subscription_count() < 1):
         rclpy.spin_once(node, timeout_sec=0.05)
     for _ in range(20):           # and let every endpoint match before the first cycle
         rclpy.spin_once(node, timeout_sec=0.05)
     steps = int(round(a.seconds * a.rate)) if a.seconds > 0 else 10**12
+    c = None
     for k in range(steps + 1):
         if stop:
             break
@@ -177,8 +185,14 @@ def lockstep(node, a, plant, pub, latest, stop) -> None:
         if k == steps:
             break
         want = k + 1                       # a command for every state so far
+        asked = time.monotonic()
         while not stop and latest['n'] < want:
             rclpy.spin_once(node, timeout_sec=0.05)
+            if time.monotonic() - asked > RESEND:
+                # a clock the reference missed (matched on our side only, as discovery
+                # goes): its window never came, the controller cannot answer; say it again
+                clock_pub.publish(c)
+                asked = time.monotonic()
         u[0] = answer                      # write: the answer to the last cycle's state
         answer = latest['cmd']
         x = plant.step(x, u, dt_ns * 1e-9)
