@@ -31,7 +31,7 @@ from ros_ehs.core.control.safety import break_travel
 from ros_ehs.core.params import preset
 from ros_ehs.nodes.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as c
-from waits import BOUND, lockstep_complete, wait_for_bag, wait_value
+from waits import BOUND, call_service, lockstep_complete, wait_for_bag, wait_value
 
 pytestmark = pytest.mark.ros
 #: the fatigue rig with a compliant specimen (the force benchmark's), its force gains tuned
@@ -68,12 +68,9 @@ def _set(ros, name, value, node='/controller'):
     """Set a string parameter through the node's parameter service: (successful, reason)."""
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
-    cli = ros.create_client(SetParameters, f'{node}/set_parameters')
-    assert ros.spin(until=cli.service_is_ready, timeout=BOUND)
     val = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
-    fut = cli.call_async(SetParameters.Request(parameters=[Parameter(name=name, value=val)]))
-    assert ros.spin(until=fut.done, timeout=BOUND)
-    res = fut.result().results[0]
+    res = call_service(ros, SetParameters, f'{node}/set_parameters', SetParameters.Request(
+        parameters=[Parameter(name=name, value=val)])).results[0]
     return res.successful, res.reason
 
 

@@ -19,7 +19,7 @@ from ros_ehs.data.fatigue import (read_captures, read_cycles, read_procedure_eve
                                   write_fatigue_report)
 from ros_ehs.nodes.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as c
-from waits import BOUND
+from waits import BOUND, call_service
 
 pytestmark = pytest.mark.ros
 FIXTURE = Path(__file__).parent / 'fixtures' / 'procedure_short.yaml'
@@ -30,21 +30,8 @@ CYCLES = 20
 
 
 def _call(ros, name):
-    """
-    Call a Trigger service until it answers, with a bound.
-
-    A killed node's server stays in discovery until its lease ends: a request sent while it is
-    the only one matched is never answered, so one not answered within 5 s goes out again.
-    """
     from std_srvs.srv import Trigger
-    cli = ros.create_client(Trigger, name)
-    assert ros.spin(until=cli.service_is_ready, timeout=BOUND), f'no service {name}'
-    for _ in range(int(BOUND / 5)):
-        fut = cli.call_async(Trigger.Request())
-        if ros.spin(until=fut.done, timeout=5.0):
-            return fut.result()
-        cli.remove_pending_request(fut)
-    raise AssertionError(f'{name} did not answer in {BOUND:g} s')
+    return call_service(ros, Trigger, name, Trigger.Request())
 
 
 def _loop(procs, bag, proc_opts, seconds=8.0):

@@ -18,7 +18,7 @@ from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import lockstep_complete, status_value, wait_for_bag, wait_value
+from waits import call_service, lockstep_complete, status_value, wait_for_bag, wait_value
 
 pytestmark = pytest.mark.ros
 PERIOD = 1_000_000
@@ -47,12 +47,8 @@ def _bag(bag):
     return states, cmds, events
 
 
-def _call(ros, srv_type, name, request, timeout=20.0):
-    cli = ros.create_client(srv_type, name)
-    assert ros.spin(until=cli.service_is_ready, timeout=timeout), f'no service {name}'
-    fut = cli.call_async(request)
-    assert ros.spin(until=fut.done, timeout=timeout), f'{name} did not answer'
-    return fut.result()
+def _call(ros, srv_type, name, request):
+    return call_service(ros, srv_type, name, request)
 
 
 def _wait_trip(procs, detector, timeout=180.0):
