@@ -304,6 +304,9 @@ def test_a_step_in_the_other_mode_waits_for_the_controller_and_a_refusal_holds()
     ax.run(until=lambda r: r.request_mode is not None)
     assert r.state == 'switching' and r.request_mode == 'force'
     r.mode_switched(True, '', ax.stamp)
+    ax.run(0.001)
+    # the force ramp starts from the measured load (K z), not from the last command in m
+    assert ax.refs[-1].f_ref == pytest.approx(K * r.state_measured()[0], rel=1e-3)
     ax.run(until=finished)
     assert r.result == 'completed' and r.mode == 'force'
     r2, ax2 = started(p)

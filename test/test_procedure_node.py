@@ -120,3 +120,40 @@ def test_a_killed_procedure_resumes_at_its_count_and_no_cycle_counts_twice(
     assert raw == list(range(1, CYCLES + 1)) and before >= 7, (raw, before)
     kinds = [e['kind'] for e in read_procedure_events(bag)]
     assert 'restored' in kinds and kinds[-1] == 'finished'
+
+
+def test_a_step_in_force_switches_the_controller_and_loads_the_specimen(dom, tmp_path):
+    """Displacement to a preload, then a force step: the node sets the controller's mode."""
+    import yaml
+    k = 5.0e6                                        # test_force_nodes' specimen and gains
+    proc = tmp_path / 'force.yaml'
+    proc.write_text(yaml.safe_dump({'name': 'force step', 'steps': [
+        {'name': 'preload', 'type': 'ramp', 'to': 0.0004, 'rate': 0.004},
+        {'name': 'load', 'type': 'ramp', 'to': 3000.0, 'rate': 2.0e3, 'control_mode': 'force'},
+        {'name': 'hold', 'type': 'dwell', 'time': 1.0, 'control_mode': 'force'}],
+        'stop_level': 2000.0}))
+    bag = tmp_path / 'bag'
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start('recorder', {'out': str(bag), 'use_sim_time': True})
+        assert procs.wait_status(c.RECORDER_STATUS, lambda st: True, BOUND)
+        procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, 'k_L': k,
+                                   'force_kp': 1.675e-7, 'force_ki': 5.0e-7, **FAST})
+        procs.start('procedure', {'use_sim_time': True, 'file': str(proc), 'autostart': True,
+                                  **FAST})
+        assert procs.wait_status(c.RECORDER_STATUS, recording(
+            c.COMMAND, c.REFERENCE, c.PROCEDURE_EVENTS), BOUND)
+        procs.start('plant', {'mode': 'lockstep', 'duration': 6.0, 'wait_subscribers': 3,
+                              'k_L': k, 'F_cc': 50.0, 'F_sc': 100.0, 'specimen_life': 1.0e12,
+                              **FAST})
+        st = _status(procs, lambda v: v['state'] == 'finished')
+        assert procs.wait_status(c.CONTROLLER_STATUS,
+                                 lambda st: st.values.get('driving') == 'force', BOUND)
+        procs.stop(['procedure', 'plant', 'controller', 'recorder'])
+    assert st['result'] == 'completed', st
+    events = read_procedure_events(bag)
+    assert any(e['kind'] == 'running' and 'control mode force' in e['message']
+               for e in events), [e['message'] for e in events]
+    from ros_ehs.data.bag import open_bag
+    b = open_bag(bag)
+    loads = [c.load_from_cdr(m.data).force for m in b.messages(['/load_cell'])]
+    assert max(loads) == pytest.approx(3000.0, rel=0.03)      # loaded to the step's level

@@ -78,6 +78,8 @@ _LEVEL = {'failure': ERROR, 'interrupted': WARN, 'held': WARN, 'detector': WARN}
 #: cycle records go out in batches of this many, or older than CYCLES_BATCH_NS, or at a state
 #: change
 CYCLES_BATCH = 10
+#: a control mode switch unanswered this long [s] is asked again (three times at most)
+MODE_RESEND = 5.0
 CYCLES_BATCH_NS = 1_000_000_000
 
 
@@ -186,6 +188,8 @@ class ProcedureNode(Node):
         self.mode_client = self.create_client(SetParameters,
                                               f'/{self.opt["controller"]}/set_parameters')
         self._mode_call = None
+        self._mode_sent: tuple | None = None   # (mode, when, requests)
+        self.create_timer(MODE_RESEND / 5.0, self._resend_mode, clock=steady_clock())
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
                           clock=steady_clock())
         self.get_logger().info(f'procedure {self.procedure.name!r}: '
@@ -316,9 +320,34 @@ class ProcedureNode(Node):
         req = SetParameters.Request(parameters=[Parameter(name='control_mode', value=val)])
         self._mode_call = self.mode_client.call_async(req)
         self._mode_call.add_done_callback(self._switched)
+        self._mode_sent = (mode, time.monotonic(), self._mode_sent[2] + 1
+                           if self._mode_sent and self._mode_sent[0] == mode else 1)
+
+    def _resend_mode(self) -> None:
+        """Send the switch again when unanswered for MODE_RESEND s; give up after three."""
+        fut = self._mode_call
+        if fut is None or fut.done() or self._mode_sent is None:
+            return
+        mode, sent, tries = self._mode_sent
+        if time.monotonic() - sent < MODE_RESEND:
+            return
+        # a request sent before the server had discovered this client is never answered
+        self.mode_client.remove_pending_request(fut)
+        self._mode_call = None
+        if tries >= 3:
+            self._mode_sent = None
+            self.runner.mode_switched(False, f'the controller /{self.opt["controller"]} did not '
+                                      f'answer the switch to {mode} ({tries} requests)',
+                                      max(self.runner.last_stamp, 0))
+            self._after()
+            return
+        self._switch(mode)
 
     def _switched(self, fut) -> None:
+        if fut is not self._mode_call:
+            return                            # one given up on
         self._mode_call = None
+        self._mode_sent = None
         try:
             res = fut.result().results[0]
             ok, why = res.successful, res.reason

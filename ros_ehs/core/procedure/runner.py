@@ -456,7 +456,9 @@ class ProcedureRunner:
             return
         self.mode = mode
         self._set('running', stamp_ns, f'control mode {mode}')
-        self._begin_step(self.step_index, stamp_ns + self.latency_ns)
+        # from the measured value of the new mode's signal (the controller holds it: its
+        # switch is bumpless), not from the last command, which was in the other unit
+        self._begin_step(self.step_index, stamp_ns + self.latency_ns, measured=True)
 
     # -- states ------------------------------------------------------------------------------
     @property
@@ -494,7 +496,8 @@ class ProcedureRunner:
         self._segs = []
 
     # -- the steps -----------------------------------------------------------------------------
-    def _begin_step(self, k: int, t0: int, resume: bool = False) -> None:
+    def _begin_step(self, k: int, t0: int, resume: bool = False,
+                    measured: bool = False) -> None:
         step = self.steps[k]
         self.step_index = k
         if step.control_mode != self.mode:
@@ -506,8 +509,8 @@ class ProcedureRunner:
             self.notes.append(('info', f'{step.label}: switching the controller to '
                                f'{step.control_mode}'))
             return
-        start = self._measured(step.control_mode) if (resume or not self._segs) else \
-            self._value(self._segs[-1], t0)[0]
+        start = self._measured(step.control_mode) if (resume or measured or not self._segs) \
+            else self._value(self._segs[-1], t0)[0]
         if not math.isfinite(start):
             start = self._value(self._segs[-1], t0)[0] if self._segs else 0.0
         self._step_t0 = t0
