@@ -95,6 +95,7 @@ def test_a_powered_off_controller_on_a_ros2_control_driver_stops_with_zero_once(
                             lambda m: got.append(m.data[0]), qos_profile(c.RECORD_QOS, 1000))
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         for k in range(3):
+            before = len(got)
             procs.start('controller', {
                 'rate_hz': 500.0, 'state_topic': '/joint_states', 'joint': 'actuator_z',
                 'command_interface': 'forward_command', 'diagnostics_period': 0.05,
@@ -105,6 +106,9 @@ def test_a_powered_off_controller_on_a_ros2_control_driver_stops_with_zero_once(
             assert procs.wait_status(c.CONTROLLER_STATUS, lambda st: 'power_off' in
                                      st.values.get('interlock', ''), BOUND), \
                 procs[f'controller{k}'].output()[-3000:]
+            # this controller's commands reach us (matched, as discovery goes, both ways)
+            assert ros.spin(until=lambda: len(got) > before, timeout=BOUND)
+            ros.spin(0.2)
             n = len(got)
             _stopped(procs, f'controller{k}', signal.SIGTERM)
             assert ros.spin(until=lambda: len(got) > n and got[-1] == 0.0, timeout=BOUND)
