@@ -26,7 +26,7 @@ decodes, calls and publishes:
   it), ``/clock`` under sim time;
 * out: ``reference`` (and ``reference_trajectory``), ``procedure/events`` (every state change,
   step, detector and failure), ``procedure/cycles`` (each counted cycle's extremes, a
-  40-byte record a cycle, in batches of 10 cycles or 1 s and at every state change),
+  40-byte record a cycle, in batches of 10 cycles or 1 s, at a state change and at the end),
   ``procedure/captures`` (full cycles at 1, 2, 5, 10, ...), and its status
   ``ros_ehs/procedure`` in ``diagnostics``;
 * services ``~/start``, ``~/hold``, ``~/resume``, ``~/stop`` (std_srvs/Trigger: success and
@@ -267,16 +267,14 @@ class ProcedureNode(Node):
             self._rows.extend((c.count, c.step, c.end_ns, c.cmd_hi, c.cmd_lo, c.z_hi, c.z_lo,
                                c.f_hi, c.f_lo) for c in r.cycles)
             r.cycles.clear()
-        # in batches (a message carries ~48 bytes besides its records); the records not yet
-        # out are in the checkpoint, rewritten at every cycle, and go out after a restart
-        if self._rows and (len(self._rows) >= CYCLES_BATCH or r.state != 'running' or
+        # in batches (a message carries ~48 bytes besides its records), and at a state change
+        # but 'interrupted': the records not yet out are in the checkpoint, rewritten at every
+        # cycle; a restarted node holds those it restored until the test runs again (sent at
+        # once, they went out before the recorder had discovered the new node, and were lost)
+        if self._rows and (len(self._rows) >= CYCLES_BATCH or
+                           r.state not in ('running', 'interrupted') or
                            r.last_stamp - self._rows[0][2] >= CYCLES_BATCH_NS):
-            rows, self._rows = self._rows, []
-            msg = UInt8MultiArray()
-            msg.layout.dim = [MultiArrayDimension(label=contract.CYCLES_LABEL, size=len(rows),
-                                                  stride=contract.CYCLE_RECORD.size)]
-            msg.data = contract.cycles_to_bytes(rows)
-            self.pub_cycles.publish(msg)
+            self._publish_rows()
         while r.captures:
             cap = r.captures.pop(0)
             t0 = cap['t'][0]
@@ -373,14 +371,17 @@ class ProcedureNode(Node):
     def close(self) -> None:
         """Publish the cycles not yet out and write the last checkpoint (as the node closes)."""
         if self._rows:
-            rows, self._rows = self._rows, []
-            msg = UInt8MultiArray()
-            msg.layout.dim = [MultiArrayDimension(label=contract.CYCLES_LABEL, size=len(rows),
-                                                  stride=contract.CYCLE_RECORD.size)]
-            msg.data = contract.cycles_to_bytes(rows)
-            self.pub_cycles.publish(msg)
+            self._publish_rows()
         self.writer.put(self._checkpoint())
         self.writer.close()
+
+    def _publish_rows(self) -> None:
+        rows, self._rows = self._rows, []
+        msg = UInt8MultiArray()
+        msg.layout.dim = [MultiArrayDimension(label=contract.CYCLES_LABEL, size=len(rows),
+                                              stride=contract.CYCLE_RECORD.size)]
+        msg.data = contract.cycles_to_bytes(rows)
+        self.pub_cycles.publish(msg)
 
     def _checkpoint(self) -> dict:
         # with the cycle records not yet published: a restart publishes them first
