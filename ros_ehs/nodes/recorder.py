@@ -141,7 +141,8 @@ class RecorderNode(Node):
         for got in iter(lambda: sub.handle.take_message(sub.msg_type, True), None):
             self.writer.write(full, got[0], self._now())
 
-    def _subscribe(self, full: str, msg_type: str, offered: list, reliability: str) -> None:
+    def _subscribe(self, full: str, msg_type: str, offered: list, reliability: str,
+                   durability: str = 'volatile') -> None:
         """Subscribe raw to ``full`` and add it to the bag (a type not installed: warn)."""
         try:
             cls = msg_class(msg_type)
@@ -150,7 +151,7 @@ class RecorderNode(Node):
             self._subs[full] = None
             return
         self.writer.add_topic(full, msg_type, offered)
-        qos = qos_profile(contract.QosSpec(reliability, int(self.opt['depth'])))
+        qos = qos_profile(contract.QosSpec(reliability, int(self.opt['depth']), durability))
         write, now = self.writer.write, self._now
 
         def on_msg(data: bytes, topic=full) -> None:
@@ -222,8 +223,13 @@ class RecorderNode(Node):
             specs = [qos_spec(p.qos_profile) for p in pubs]
             rel = ('reliable' if all(q.reliability == 'reliable' for q in specs)
                    else 'best_effort')
+            # as rosbag2 adapts: transient local when every publisher offers it, so what a
+            # publisher sent before this recorder (or before a restarted publisher was
+            # matched, as discovery goes) is delivered late rather than lost
+            dur = ('transient_local' if all(q.durability == 'transient_local' for q in specs)
+                   else 'volatile')
             try:
-                self._subscribe(full, msg_type, [q.as_rosbag2() for q in specs], rel)
+                self._subscribe(full, msg_type, [q.as_rosbag2() for q in specs], rel, dur)
             except BagError as err:
                 self._fail(err)
                 return
