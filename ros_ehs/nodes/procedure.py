@@ -271,9 +271,9 @@ class ProcedureNode(Node):
         # but 'interrupted': the records not yet out are in the checkpoint, rewritten at every
         # cycle; a restarted node holds those it restored until the test runs again (sent at
         # once, they went out before the recorder had discovered the new node, and were lost)
-        if self._rows and (len(self._rows) >= CYCLES_BATCH or
-                           r.state not in ('running', 'interrupted') or
-                           r.last_stamp - self._rows[0][2] >= CYCLES_BATCH_NS):
+        if self._rows and r.state != 'interrupted' and (
+                len(self._rows) >= CYCLES_BATCH or r.state != 'running' or
+                r.last_stamp - self._rows[0][2] >= CYCLES_BATCH_NS):
             self._publish_rows()
         while r.captures:
             cap = r.captures.pop(0)
