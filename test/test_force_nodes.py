@@ -31,7 +31,7 @@ from ros_ehs.core.control.safety import break_travel
 from ros_ehs.core.params import preset
 from ros_ehs.nodes.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as c
-from waits import BOUND, call_service, lockstep_complete, wait_for_bag, wait_value
+from waits import BOUND, call_service, Frozen, lockstep_complete, wait_for_bag, wait_value
 
 pytestmark = pytest.mark.ros
 #: the fatigue rig with a compliant specimen (the force benchmark's), its force gains tuned
@@ -74,21 +74,6 @@ def _set(ros, name, value, node='/controller'):
     return res.successful, res.reason
 
 
-class _Frozen:
-    """The lock-step loop held still (the plant stopped) while the test switches modes."""
-
-    def __init__(self, procs):
-        self.plant = procs['plant'].popen
-
-    def __enter__(self):
-        import signal
-        self.plant.send_signal(signal.SIGSTOP)
-
-    def __exit__(self, *exc):
-        import signal
-        self.plant.send_signal(signal.SIGCONT)
-
-
 def test_a_mode_switch_on_a_running_loop_is_bumpless_and_a_refused_one_says_why(
         dom, tmp_path, ros):
     bag = tmp_path / 'bag'
@@ -99,7 +84,7 @@ def test_a_mode_switch_on_a_running_loop_is_bumpless_and_a_refused_one_says_why(
                          reference={'kind': 'step', 'amplitude': 0.0006, 'step_time': 0.1,
                                     'rise': 0.5})
         wait_value(procs, c.PLANT_STATUS, 'steps', 1500)        # held still at 3 kN
-        with _Frozen(procs):
+        with Frozen(procs):
             ok, why = _set(ros, 'control_mode', 'displacement_force_limited')
             assert not ok and 'beyond protect_force 100 N' in why, why
             ok, why = _set(ros, 'control_mode', 'force')

@@ -18,6 +18,7 @@ Each wait has a bound (generous: a test waits for what it needs, so a loaded mac
 makes it slower), and says on timeout what it saw.
 """
 
+import signal
 import time
 
 from ros_ehs.core.errors import BagError
@@ -100,3 +101,16 @@ def call_service(ros, srv_type, name: str, request, timeout: float = BOUND):
             return fut.result()
         cli.remove_pending_request(fut)
     raise AssertionError(f'{name} did not answer in {timeout:g} s')
+
+
+class Frozen:
+    """The lock-step loop held still (its plant stopped) while a test calls a service."""
+
+    def __init__(self, procs):
+        self.plant = procs['plant'].popen
+
+    def __enter__(self):
+        self.plant.send_signal(signal.SIGSTOP)
+
+    def __exit__(self, *exc):
+        self.plant.send_signal(signal.SIGCONT)

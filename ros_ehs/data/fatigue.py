@@ -45,50 +45,52 @@ _CAPTURES = '/' + contract.CAPTURES.name
 _EVENTS = '/' + contract.PROCEDURE_EVENTS.name
 
 
-def _bags(bags) -> list:
-    return [bags] if isinstance(bags, (str, os.PathLike)) else list(bags)
-
-
-def read_cycles(bags: str | os.PathLike | Sequence) -> np.ndarray:
-    """Return the cycle table of ``bags`` (n x 9, :data:`CYCLE_COLUMNS`), each count once."""
-    rows: dict[int, tuple] = {}
-    for path in _bags(bags):
+def _decoded(bags, topics) -> dict[str, list]:
+    """Return each of ``topics``' decoded messages in ``bags``, in order; each bag read once."""
+    paths = [bags] if isinstance(bags, (str, os.PathLike)) else list(bags)
+    out: dict[str, list] = {t: [] for t in topics}
+    for path in paths:
         b = open_bag(path)
-        if _CYCLES not in b.topics:
-            continue
-        for _, msg in b.decoded([_CYCLES]):
-            for r in contract.cycles_from_bytes(bytes(msg.data)):
-                rows.setdefault(r[0], r)
+        there = [t for t in topics if t in b.topics]
+        if there:
+            for m, msg in b.decoded(there):
+                out[m.topic].append(msg)
+    return out
+
+
+def _cycles(msgs) -> np.ndarray:
+    rows: dict[int, tuple] = {}
+    for msg in msgs:
+        for r in contract.cycles_from_bytes(bytes(msg.data)):
+            rows.setdefault(r[0], r)
     out = np.array([rows[k] for k in sorted(rows)], float).reshape(-1, 9)
     out[:, 2] *= 1e-9
     return out
 
 
+def _captures(msgs) -> list[dict]:
+    out = []
+    for msg in msgs:
+        n = msg.layout.dim[1].size
+        d = np.asarray(msg.data, float).reshape(4, n)
+        out.append({'count': int(msg.layout.dim[0].label.split()[-1]), 't': d[0],
+                    'cmd': d[1], 'z': d[2], 'load': d[3]})
+    return out
+
+
+def read_cycles(bags: str | os.PathLike | Sequence) -> np.ndarray:
+    """Return the cycle table of ``bags`` (n x 9, :data:`CYCLE_COLUMNS`), each count once."""
+    return _cycles(_decoded(bags, [_CYCLES])[_CYCLES])
+
+
 def read_captures(bags: str | os.PathLike | Sequence) -> list[dict]:
     """Return the captured full cycles: count, t [s], command, z [m], load [N] each."""
-    out = []
-    for path in _bags(bags):
-        b = open_bag(path)
-        if _CAPTURES not in b.topics:
-            continue
-        for _, msg in b.decoded([_CAPTURES]):
-            label = msg.layout.dim[0].label
-            n = msg.layout.dim[1].size
-            d = np.asarray(msg.data, float).reshape(4, n)
-            out.append({'count': int(label.split()[-1]), 't': d[0], 'cmd': d[1], 'z': d[2],
-                        'load': d[3]})
-    return out
+    return _captures(_decoded(bags, [_CAPTURES])[_CAPTURES])
 
 
 def read_procedure_events(bags: str | os.PathLike | Sequence) -> list[dict]:
     """Return the procedure's events (kind, what, value, total_cycles, step, message...)."""
-    out = []
-    for path in _bags(bags):
-        b = open_bag(path)
-        if _EVENTS not in b.topics:
-            continue
-        out.extend(contract.procedure_event_from_msg(msg) for _, msg in b.decoded([_EVENTS]))
-    return out
+    return [contract.procedure_event_from_msg(m) for m in _decoded(bags, [_EVENTS])[_EVENTS]]
 
 
 @dataclass
@@ -117,12 +119,13 @@ def write_fatigue_report(bags: str | os.PathLike | Sequence, out: str | os.PathL
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    table = read_cycles(bags)
+    got = _decoded(bags, [_CYCLES, _CAPTURES, _EVENTS])       # each bag read once
+    table = _cycles(got[_CYCLES])
     if not len(table):
         raise DataError(f'no cycle on /{contract.CYCLES.name} in {bags!r}: not the recording '
                         'of a procedure (record that topic with the test)')
-    caps = read_captures(bags)
-    events = read_procedure_events(bags)
+    caps = _captures(got[_CAPTURES])
+    events = [contract.procedure_event_from_msg(m) for m in got[_EVENTS]]
     d = Path(out)
     d.mkdir(parents=True, exist_ok=True)
     dz = table[:, 5] - table[:, 6]
