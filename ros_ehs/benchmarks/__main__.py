@@ -18,7 +18,7 @@ import sys
 
 #: the benchmarks, each a module of this package with a ``main(argv)``
 BENCHMARKS = ('model', 'paper', 'identify', 'loop', 'lockstep', 'record', 'soak', 'window',
-              'tracking', 'drift', 'live', 'realtime', 'force', 'fatigue')
+              'tracking', 'drift', 'live', 'realtime', 'force', 'fatigue', 'verdict')
 
 
 def main(argv=None) -> int:

@@ -23,7 +23,8 @@ import warnings
 from ros_ehs.core.errors import IdentificationWarning, InputError
 from ros_ehs.core.identify.delay import estimate_delay, with_delay
 from ros_ehs.core.identify.design import identifiability, recommend
-from ros_ehs.core.identify.estimator import IdentificationResult, identify, multistart, score
+from ros_ehs.core.identify.estimator import (IdentificationResult, identify, judge,
+                                             multistart, score)
 from ros_ehs.core.identify.problem import SIGNALS
 from ros_ehs.core.params import ESTIMATED, load_yaml, preset
 from ros_ehs.data.experiments import load_experiments
@@ -92,21 +93,27 @@ def run_identification(bags: Sequence[str | os.PathLike], out: str | os.PathLike
     commanded = any(e.commands is not None for e in exps)
     kw = {'free': free, 'model': model, 'cost': cost, 'signals': signals,
           'segment': segment, 'workers': workers, 'max_nfev': max_nfev}
+    estimate = commanded and topics.input_delay is None and not _contract_commands(topics)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', IdentificationWarning)   # kept in result.warnings
-        result = identify(exps, base=base, progress=progress, **kw)
+        # a fit the delay's estimate refits is judged once, at the end
+        result = identify(exps, base=base, progress=progress, verdict=not estimate, **kw)
         delay = {}
-        if commanded and topics.input_delay is None and not _contract_commands(topics):
+        if estimate:
             first = estimate_delay(exps, result.params or base, model=model,
                                    signals=signals, segment=segment, n_free=len(free))
             exps = with_delay(exps, first.value)
-            result = identify(exps, base=base, x0=dict(result.x), progress=progress, **kw)
+            result = identify(exps, base=base, x0=dict(result.x), progress=progress,
+                              verdict=False, **kw)
             est = estimate_delay(exps, result.params or base, model=model, signals=signals,
                                  segment=segment, n_free=len(free),
                                  widening=result.stderr_widening)
             if abs(est.value - first.value) > 0.5 * est.stderr:
                 exps = with_delay(exps, est.value)
-                result = identify(exps, base=base, x0=dict(result.x), progress=progress, **kw)
+                result = identify(exps, base=base, x0=dict(result.x), progress=progress,
+                                  verdict=False, **kw)
+            result = judge(result, exps, signals=signals, segment=segment, workers=workers,
+                           max_nfev=max_nfev)
             delay = est.as_dict()
         elif commanded and topics.input_delay is None:    # the contract's own commands
             delay = {'value_s': 0.0, 'estimated': False,

@@ -31,9 +31,9 @@ import math
 import os
 from pathlib import Path
 import re
+import textwrap
 
 from ros_ehs.core.identify.estimator import IdentificationResult
-from ros_ehs.core.identify.verdict import worst_noise_ratio
 from ros_ehs.core.params import save_yaml
 
 __all__ = ['write_report']
@@ -91,11 +91,9 @@ def write_report(result: IdentificationResult, experiments, out: str | os.PathLi
                           for k, v in m.items() if k in ('z_dot', 'z'))
         ax[0].set_title(f'{name}: {title}')
         if not result.adequate:
-            worst = worst_noise_ratio({name: m})
-            fig.suptitle(f'NOT ADEQUATE: residuals up to {worst:.1f}x the sensor noise'
-                         + ('; stopped at the evaluation limit' if result.status == 0 else '')
-                         + ' (summary.json: why, and what to run instead)', color='C3',
-                         fontsize=9)
+            first = textwrap.shorten(result.inadequacy[0], 110, placeholder=' ...')
+            fig.suptitle(f'NOT ADEQUATE: {first} (summary.json: why, and what to run instead)',
+                         color='C3', fontsize=8)
         for a in ax:
             a.grid(True, alpha=0.3)
             a.legend(loc='upper right')

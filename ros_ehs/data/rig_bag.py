@@ -71,6 +71,7 @@ class RigLayout:
     delay_periods: int = 1
     storage: str = 'mcap'                     # 'mcap' | 'sqlite3'
     noise_z: float = 5e-6
+    quantum_z: float = 0.0                    # the encoder's resolution [m] (0: none)
     noise_v: float = 1e-3
     noise_p: float = 2e4
     load_cell: bool = False                   # a force/torque broadcaster's wrench (force.x)
@@ -112,6 +113,12 @@ def record_rig_bag(out: str | os.PathLike, layout: RigLayout = RigLayout(), *,
     controller_params = controller_params or preset('table1_estimated')
     reference = reference or Sine(0.04, 1.0)
     rng = np.random.default_rng(seed)
+    q = layout.quantum_z
+
+    def encoder(z):
+        """Return what the encoder reads at ``z`` (noise added): its nearest count."""
+        return np.round(z / q) * q if q > 0 else z
+
     dt = 1.0 / layout.rate_hz
     n = int(round(duration / dt))
     sub = 8
@@ -136,15 +143,15 @@ def record_rig_bag(out: str | os.PathLike, layout: RigLayout = RigLayout(), *,
             if s == jit_steps[k]:
                 # the driver's cycle k wakes: it samples, the controller answers (received
                 # 0.3 ms on), and it writes the command of cycle k - delay_periods
-                cmds[k] = ctrl.step(int(round(t[k] * 1e9)), float(x[iz]) + layout.noise_z *
-                                    rng.standard_normal(), np.nan, np.nan, float(z_ref[k]),
-                                    float(v_ref[k]))
+                cmds[k] = ctrl.step(int(round(t[k] * 1e9)), float(encoder(
+                    x[iz] + layout.noise_z * rng.standard_normal())), np.nan, np.nan,
+                    float(z_ref[k]), float(v_ref[k]))
                 queue.append(cmds[k])
                 u[0] = queue.popleft()
             x = plant.step(x, u, dt / sub)
             fine[k * sub + s + 1] = x[[iz, iv, ipa, ipb]]
     samp = fine[np.arange(n) * sub + jit_steps]
-    z = samp[:, 0] + layout.noise_z * rng.standard_normal(n)
+    z = encoder(samp[:, 0] + layout.noise_z * rng.standard_normal(n))
     stamps = DRIVER_T0 + np.round((t + jit_steps * dt / sub) * 1e9).astype(np.int64)
     lat = rng.uniform(0.1e-3, 0.2e-3, n)             # driver -> recorder, states
     recv = RECORDER_T0 + (stamps - DRIVER_T0) + np.round(lat * 1e9).astype(np.int64)

@@ -52,6 +52,7 @@ from rclpy.task import Future
 from ros_ehs.core.errors import DataError, EhsError
 from ros_ehs.core.identify.live import (LiveIdentifier, ReceiveClock, RefitSchedule,
                                         SampleWindow)
+from ros_ehs.core.identify.verdict import why_adequate
 from ros_ehs.core.options import CONTROLLER_SPECS, IDENTIFY
 from ros_ehs.core.params import load_yaml, preset
 from ros_ehs.data.identification import run_options
@@ -124,7 +125,7 @@ class IdentifyNode(Node):
             weak = result.excitation.get('recommended') is not None
             (log.warning if weak else log.info)(f'excitation: {result.excitation["message"]}')
         if result.adequate:
-            log.info('verdict: adequate (the sensor noise explains the residuals)')
+            log.info(f'verdict: adequate: {why_adequate(result.halves)}')
         else:
             log.error('verdict: NOT ADEQUATE: ' + '; '.join(result.inadequacy))
             for a in result.advice:

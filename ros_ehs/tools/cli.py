@@ -69,7 +69,7 @@ def _cmd_params_doc(args) -> int:
 
 
 def _print_identification(result, files, held) -> None:
-    from ros_ehs.core.identify.verdict import worst_noise_ratio
+    from ros_ehs.core.identify.verdict import why_adequate
     print(f'identification ({result.model} model, {result.cost_kind.upper()}): '
           f'{result.message} after {result.iterations} iterations, {result.nfev} evaluations, '
           f'{result.wall_s:.1f} s')
@@ -91,8 +91,7 @@ def _print_identification(result, files, held) -> None:
     if result.excitation:
         print(f'  excitation: {result.excitation["message"]}')
     if result.adequate:
-        print('  verdict: adequate: the residuals are within '
-              f'{worst_noise_ratio(result.metrics):.2f}x the sensor noise')
+        print(f'  verdict: adequate: {why_adequate(result.halves)}')
     else:
         print('  verdict: NOT ADEQUATE; do not trust these values:')
         for w in result.inadequacy:

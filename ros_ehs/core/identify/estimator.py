@@ -52,13 +52,13 @@ from ros_ehs.core.errors import IdentificationWarning, InputError, ParameterErro
 from ros_ehs.core.identify.experiment import Experiment
 from ros_ehs.core.identify.problem import _fd_jacobian, CELL, FIT_H, LOAD, Problem, SIGNALS
 from ros_ehs.core.identify.uncertainty import BLOCK_S, standard_errors
-from ros_ehs.core.identify.verdict import (adequacy, fit_metrics, NOISE_RATIO_LIMIT,
+from ros_ehs.core.identify.verdict import (adequacy, fit_metrics, halves, halves_check,
                                            SMALL_MODEL_ERROR, worst_noise_ratio)
 from ros_ehs.core.model.plant import MODELS
 from ros_ehs.core.params import ESTIMATED, Params, preset, spec
 from scipy.optimize import least_squares
 
-__all__ = ['IdentificationResult', 'fit_bounds', 'identify', 'multistart', 'score']
+__all__ = ['IdentificationResult', 'fit_bounds', 'identify', 'judge', 'multistart', 'score']
 
 #: Relative step and cost-change tolerances (``xtol``, ``ftol``) of the solve and of the SSE
 #: stage before an SAE one. The parameters' standard errors are 4e-4 to 1e-2 of their values
@@ -97,9 +97,10 @@ class IdentificationResult:
     wall_s: float = 0.0
     model: str = 'simplified'
     cost_kind: str = 'sae'
-    #: the model-adequacy verdict: False when the sensor noise does not explain the fit or
-    #: the solver stopped at its evaluation limit; ``inadequacy`` says why, ``advice`` what
-    #: to run instead
+    #: the verdict (:mod:`ros_ehs.core.identify.verdict`): False when the values do not predict
+    #: held-out data, the halves of the record disagree on them, they are not a valid set or
+    #: the solver stopped at its evaluation limit; ``inadequacy`` says why, ``advice`` what to
+    #: run instead
     adequate: bool = True
     inadequacy: list[str] = field(default_factory=list)
     advice: list[str] = field(default_factory=list)
@@ -114,6 +115,9 @@ class IdentificationResult:
     #: it (:mod:`ros_ehs.core.identify.delay`) ``stderr_s`` and the profile; empty when every run
     #: records the current the valve got
     input_delay: dict = field(default_factory=dict)
+    #: the check on the record's halves the verdict read (``verdict.halves_check``); empty
+    #: when the fit was asked not to run it (``verdict=False``) or it could not run
+    halves: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """Return a JSON-ready summary."""
@@ -132,7 +136,8 @@ class IdentificationResult:
             'adequate': self.adequate, 'inadequacy': self.inadequacy, 'advice': self.advice,
             'stderr_widening': self.stderr_widening, 'starts': self.starts,
             'excitation': self.excitation, 'input_delay': self.input_delay,
-            'fit': self.metrics, 'noise_sigma': self.sigma, 'warnings': self.warnings,
+            'halves': self.halves, 'fit': self.metrics, 'noise_sigma': self.sigma,
+            'warnings': self.warnings,
             'history': self.history,
         }
 
@@ -309,7 +314,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
              signals: Sequence[str] = SIGNALS, cost: str = 'sae', base: Params | None = None,
              x0: dict[str, float] | None = None, segment: float | None = 1.0,
              h: float | None = None, workers: int | None = None, max_nfev: int = 100,
-             warm: bool = False,
+             warm: bool = False, verdict: bool = True,
              progress: Callable[[dict], None] | None = None) -> IdentificationResult:
     """
     Fit the ``free`` parameters of ``model`` to ``experiments`` (jointly).
@@ -348,6 +353,12 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         The starting values are a recent estimate of the same system (a live refit): the
         SAE solve starts from them directly, without the SSE stage that brings a cold start
         close first.
+    verdict : bool
+        Judge the fit on held-out data (default, :func:`judge`): refit each half of the
+        record warm from the joint values, replay each half with the other's values, and
+        compare the halves' values. It adds about the time of one warm refit of the whole
+        record. False: judged on convergence, validity and the sensed signals only (the
+        halves' own refits, :func:`multistart`'s, a fit refitted next).
     progress : callable, optional
         Called with ``{'iteration', 'cost', 'x'}`` after each iteration.
 
@@ -356,7 +367,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     base = base if base is not None else preset('table1_initial')
     experiments, free, base = _check(experiments, free, model, signals, cost, base, x0,
                                      segment, h, workers, max_nfev)
-    h = FIT_H[model] if h is None else h
+    h_given, h = h, FIT_H[model] if h is None else h
     if workers is None:
         workers = min(2, os.cpu_count() or 1)
     lo, hi = _bounds(free, base)
@@ -374,21 +385,22 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
                                                 problem.blocks(BLOCK_S))
     se = se * sc
     worst = worst_noise_ratio(metrics)
-    if SMALL_MODEL_ERROR < worst <= NOISE_RATIO_LIMIT:
-        notes.append(f'the worst residual is {worst:.2f}x the sensor noise: a small model '
-                     'error remains, and it can bias the values by more than their standard '
-                     'errors (docs/identification.md)')
+    if worst > SMALL_MODEL_ERROR:
+        notes.append(f'the worst residual is {worst:.2f}x the sensor noise: the model is not '
+                     'exactly the rig; the standard errors see the noise, not this model '
+                     'error (the held-out check of the verdict does: docs/identification.md)')
     xv = problem.values(theta)
     notes += _value_notes(xv, se, free, theta, lo_s, hi_s)
+    invalid = ''
     try:
         params = base.replace(**xv)
     except ParameterError as e:
-        params = None
+        params, invalid = None, str(e)
         notes.append(f'the fitted set is not a valid parameter set: {e}')
     for note in notes:
         warnings.warn(note, IdentificationWarning, stacklevel=2)
-    inadequacy, advice = adequacy(metrics, int(sol.status), max_nfev, model)
-    return IdentificationResult(
+    inadequacy, advice = adequacy(int(sol.status), max_nfev, model, invalid, None, metrics)
+    result = IdentificationResult(
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
         sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),
         message=str(sol.message), success=bool(sol.success), nfev=int(sol.nfev),
@@ -402,6 +414,52 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost,
         adequate=not inadequacy, inadequacy=inadequacy, advice=advice,
         stderr_widening=widening)
+    return judge(result, experiments, signals=signals, segment=segment, h=h_given,
+                 workers=workers, max_nfev=max_nfev) if verdict else result
+
+
+def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] = SIGNALS,
+          segment: float | None = 1.0, h: float | None = None, workers: int | None = None,
+          max_nfev: int = 100) -> IdentificationResult:
+    """
+    Judge ``result`` on held-out data; return it with its verdict and ``halves`` filled in.
+
+    Each half of ``experiments`` (:func:`ros_ehs.core.identify.verdict.halves`) is refitted
+    warm from ``result``'s values, with its model, free set and cost (the other arguments as
+    :func:`identify` took them); :func:`ros_ehs.core.identify.verdict.adequacy` reads the
+    check. A fit that did not converge or is not a valid set is judged without it, and a half
+    whose fit is not a valid set is a reason of its own.
+    """
+    if result.params is None or result.status == 0:
+        return result
+    t0 = time.perf_counter()
+    experiments = [experiments] if isinstance(experiments, Experiment) else list(experiments)
+    parts = halves(experiments)
+    refits = []
+    for part in parts:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', IdentificationWarning)
+            r = identify(part, free=result.free, model=result.model, signals=signals,
+                         cost=result.cost_kind, base=result.params, segment=segment, h=h,
+                         workers=workers, max_nfev=max_nfev, warm=True, verdict=False)
+        if r.params is None:
+            result.adequate = False
+            result.wall_s += time.perf_counter() - t0
+            result.inadequacy.append('held out: the fit of one half of the record is not a '
+                                     'valid parameter set: the data do not determine the values')
+            return result
+        refits.append(r)
+    step = FIT_H[result.model] if h is None else h
+
+    def problem_of(exps, p):
+        return Problem(exps, p, result.free, result.model, signals, segment, step)
+
+    result.halves = halves_check(parts, refits, result.x, problem_of)
+    result.inadequacy, result.advice = adequacy(result.status, max_nfev, result.model, '',
+                                                result.halves, result.metrics)
+    result.adequate = not result.inadequacy
+    result.wall_s += time.perf_counter() - t0
+    return result
 
 
 def _loss(r: np.ndarray, cost: str) -> float:
@@ -449,7 +507,7 @@ def multistart(experiments, result: IdentificationResult, *, starts: int = 10, s
             x0['F_cc'], x0['F_sc'] = x0['F_sc'], x0['F_cc']
         with warnings.catch_warnings():
             warnings.simplefilter('ignore', IdentificationWarning)
-            r = identify(experiments, x0=x0, **kwargs)
+            r = identify(experiments, x0=x0, **{'verdict': False, **kwargs})
         same = all(abs(r.x[n] - result.x[n])
                    <= max(within * abs(result.x[n]), 2.0 * result.stderr[n]) for n in free)
         runs.append({'x0': x0, 'x': r.x, 'cost': r.cost, 'same_optimum': bool(same),

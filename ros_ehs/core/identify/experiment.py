@@ -103,6 +103,27 @@ class Experiment:
             out['p_CT'] = self.p_b
         return out
 
+    def window(self, a: int, b: int) -> 'Experiment':
+        """Return samples ``a:b`` of this run as a run of its own (its clock starts at 0)."""
+        n = self.t.size
+        a, b = max(0, int(a)), min(n, int(b))
+        if b - a < 2:
+            raise DataError(f'{self.name}: samples {a}:{b} of {n} are not a run')
+        t0 = float(self.t[a])
+
+        def cut(y):
+            return None if y is None else y[a:b]
+
+        commands = None
+        if self.commands is not None:
+            tc, vc = self.commands
+            commands = (tc - t0, vc)
+        return replace(self, name=f'{self.name}[{a}:{b}]', t=self.t[a:b] - t0, i=cut(self.i),
+                       z=cut(self.z), v=cut(self.v), p_a=cut(self.p_a), p_b=cut(self.p_b),
+                       p_load=cut(self.p_load), load_cell=cut(self.load_cell),
+                       commands=commands, t0_ns=self.t0_ns + int(round(t0 * 1e9)),
+                       after_gap=self.after_gap or a > 0)
+
     def with_delay(self, delay: float) -> 'Experiment':
         """Return this run with the current rebuilt from its commands ``delay`` [s] later."""
         if self.commands is None:

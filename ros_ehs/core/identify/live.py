@@ -47,7 +47,7 @@ import numpy as np
 from ros_ehs.core.errors import DataError, IdentificationWarning, InputError
 from ros_ehs.core.identify.estimator import fit_bounds, IdentificationResult, identify
 from ros_ehs.core.identify.experiment import experiments_from_series
-from ros_ehs.core.identify.verdict import worst_noise_ratio
+from ros_ehs.core.identify.verdict import why_adequate
 from ros_ehs.core.params import Params, spec
 from ros_ehs_msgs_py import ParameterEstimate
 
@@ -240,8 +240,7 @@ class LiveIdentifier:
         wall = time.perf_counter() - t0
         ok = r.adequate and r.success and r.params is not None
         if r.adequate:
-            verdict = (f'adequate: worst residual {worst_noise_ratio(r.metrics):.2f}x the '
-                       'sensor noise')
+            verdict = f'adequate: {why_adequate(r.halves)}'
         else:
             verdict = 'not adequate: ' + '; '.join(r.inadequacy)
         if r.adequate and not ok:
