@@ -89,9 +89,9 @@ NULL_SHAPE = ('r_c', 'x_bias')
 #: position's ratio is reported beside.
 DRIFT_FREE = ('z_dot', 'p_CP', 'p_CT', LOAD, CELL)
 
-#: A fit whose worst residual is between this many times the sensor noise and 2 carries a
-#: warning: a small model error remains, and it can bias the values by more than their
-#: standard errors (the reduced model on full-model bags sits at about 1.15).
+#: A fit whose worst residual is above this many times the sensor noise carries a warning: a
+#: model error remains, and it can bias the values by more than their standard errors (the
+#: reduced model on full-model bags sits at about 1.15).
 SMALL_MODEL_ERROR = 1.1
 
 
@@ -183,12 +183,6 @@ def spread(first: float, second: float, whole: float) -> float:
     return (max(vals) - min(vals)) / abs(whole) if whole else math.inf
 
 
-def _run_rms(problem: Problem, theta: np.ndarray) -> list[dict[str, float]]:
-    """Return each of the problem's runs' residual RMS per fitted signal."""
-    return [{name: sig['rms'] for name, sig in m.items()}
-            for m in fit_metrics(problem, theta).values()]
-
-
 def halves_check(parts: Sequence[Sequence[Experiment]], refits: Sequence, joint: dict,
                  problem_of) -> dict:
     """
@@ -205,13 +199,16 @@ def halves_check(parts: Sequence[Sequence[Experiment]], refits: Sequence, joint:
     """
     ratios: dict[str, list[float]] = {}
     for b, a in ((0, 1), (1, 0)):
-        own, other = refits[b].params, refits[a].params
-        pb, po = problem_of(parts[b], own), problem_of(parts[b], other)
-        rms_own = _run_rms(pb, np.array([own[n] for n in pb.free]) / pb.scale)
-        rms_other = _run_rms(po, np.array([other[n] for n in po.free]) / po.scale)
-        for mine, theirs in zip(rms_own, rms_other):
-            for name, r in mine.items():
-                ratios.setdefault(name, []).append(theirs[name] / r if r > 0 else math.inf)
+        # its own fit's residuals are the half's refit's metrics; the other half's values
+        # are replayed here
+        other = refits[a].params
+        po = problem_of(parts[b], other)
+        replayed = fit_metrics(po, np.array([other[n] for n in po.free]) / po.scale)
+        for mine, theirs in zip(refits[b].metrics.values(), replayed.values()):
+            for name, m in mine.items():
+                r = m['rms']
+                ratios.setdefault(name, []).append(theirs[name]['rms'] / r if r > 0
+                                                   else math.inf)
     prediction = {name: float(np.median(v)) for name, v in ratios.items()}
     disagreement = {n: spread(refits[0].x[n], refits[1].x[n], v) for n, v in joint.items()}
     return {'prediction': prediction,
