@@ -52,3 +52,41 @@ def test_lockstep_turns_the_best_effort_loop_topics_reliable_and_nothing_else():
         else:
             assert lock == t.qos
     assert c.STATE.qos_in(True) == c.CLOCK.qos_in(True) == c.LOCKSTEP_QOS
+
+
+class _Client:
+    """A service client whose first ``lost`` requests are never answered."""
+
+    def __init__(self, lost):
+        from rclpy.task import Future
+        self.Future, self.lost, self.sent, self.dropped = Future, lost, [], []
+
+    def call_async(self, request):
+        fut = self.Future()
+        self.sent.append(request)
+        if len(self.sent) > self.lost:
+            fut.set_result(('answer to', request))
+        return fut
+
+    def remove_pending_request(self, fut):
+        self.dropped.append(fut)
+
+
+def test_an_unanswered_request_goes_out_again_and_the_answer_is_returned():
+    from ros_ehs.nodes.ros_common import call_until_answered
+    cli, waited = _Client(lost=1), []
+
+    def spin(until, seconds):
+        waited.append(seconds)
+        return until()
+
+    assert call_until_answered(cli, 'req', spin, timeout=60.0, resend=5.0) == ('answer to', 'req')
+    assert cli.sent == ['req', 'req'] and len(cli.dropped) == 1    # the lost one given up
+    assert waited == [5.0, 5.0]                                      # each waited resend s
+
+
+def test_a_request_never_answered_within_the_bound_gives_none():
+    from ros_ehs.nodes.ros_common import call_until_answered
+    cli = _Client(lost=10**9)
+    assert call_until_answered(cli, 'req', lambda until, s: until(), timeout=0.05) is None
+    assert len(cli.sent) == len(cli.dropped) >= 1

@@ -23,6 +23,7 @@ import time
 
 from ros_ehs.core.errors import BagError
 from ros_ehs.data.bag import open_bag
+from ros_ehs.nodes.ros_common import call_until_answered
 import ros_ehs_msgs_py as c
 
 #: the bound of a wait for a lock-step run or a bag [s]: a run of seconds takes a few on a
@@ -75,32 +76,25 @@ def wait_value(procs, status: str, key: str, least: float, timeout: float = BOUN
                              timeout), (status, key, least, procs.status(status))
 
 
-#: a service request unanswered this long [s] goes out again (see call_service)
-RESEND = 5.0
-
-
 def call_service(ros, srv_type, name: str, request, timeout: float = BOUND):
     """
     Call service ``name`` from the test's node and return the response, with a bound.
 
     One client per service, kept on the node: a second client made for the same service sent
     a request the server had not discovered yet, and it was never answered (discovery matches
-    the two sides one at a time). A request unanswered for RESEND s goes out again, on the
-    same grounds (a server restarted after a kill lingers in discovery until its lease ends);
-    the services called so are ones a repeat answers harmlessly.
+    the two sides one at a time). An unanswered request goes out again
+    (:func:`ros_ehs.nodes.ros_common.call_until_answered`); the services called so are ones a
+    repeat answers harmlessly.
     """
     clients = ros.__dict__.setdefault('_ehs_clients', {})
     cli = clients.get((srv_type, name))
     if cli is None:
         cli = clients[(srv_type, name)] = ros.create_client(srv_type, name)
     assert ros.spin(until=cli.service_is_ready, timeout=timeout), f'no service {name}'
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        fut = cli.call_async(request)
-        if ros.spin(until=fut.done, timeout=min(RESEND, max(end - time.monotonic(), 0.1))):
-            return fut.result()
-        cli.remove_pending_request(fut)
-    raise AssertionError(f'{name} did not answer in {timeout:g} s')
+    res = call_until_answered(cli, request, lambda until, t: ros.spin(until=until, timeout=t),
+                              timeout)
+    assert res is not None, f'{name} did not answer in {timeout:g} s'
+    return res
 
 
 class Frozen:

@@ -262,26 +262,22 @@ def _resume(kills: int, seed: int) -> dict:
 
 
 def _resume_call(node, exe, srv) -> None:
-    """
-    Call ``~/resume`` until it answers.
-
-    The killed node's server stays in discovery until its lease ends: a request sent while it
-    is the only one matched is never answered, so one that is not answered within 5 s goes
-    out again (a second resume is refused harmlessly: the test runs).
-    """
+    """Call ``~/resume`` until it answers (a killed node's server lingers in discovery)."""
+    from ros_ehs.nodes.ros_common import call_until_answered
     cli = node.create_client(srv, '/procedure/resume')
     _spin(exe, cli.service_is_ready)
-    end = time.monotonic() + BOUND
-    while time.monotonic() < end:
-        fut = cli.call_async(srv.Request())
+
+    def spin(until, seconds):
         try:
-            _spin(exe, fut.done, timeout=5.0)
+            _spin(exe, until, timeout=seconds)
         except RuntimeError:
-            cli.remove_pending_request(fut)
-            continue
-        node.destroy_client(cli)
-        return
-    raise RuntimeError('no answer from the procedure node')
+            return False
+        return True
+
+    # a second resume is refused harmlessly: the test runs
+    if call_until_answered(cli, srv.Request(), spin, BOUND) is None:
+        raise RuntimeError('no answer from the procedure node')
+    node.destroy_client(cli)
 
 
 def _spin(exe, until, timeout: float = BOUND) -> None:

@@ -51,8 +51,9 @@ from ros_ehs.nodes.parameters import check_names
 from ros_ehs.nodes.scheduling import set_cpu_affinity, set_realtime
 import ros_ehs_msgs_py as contract
 
-__all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'WARN', 'diagnostics', 'msg_class',
-           'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock', 'STOP_GRACE']
+__all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'RESEND', 'WARN', 'call_until_answered', 'diagnostics',
+           'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock',
+           'STOP_GRACE']
 
 OK, WARN, ERROR = 0, 1, 2
 #: The plant's status in ``diagnostics`` (level OK once its loop is closed; see the contract)
@@ -153,6 +154,32 @@ def ros_args(argv: Sequence[str]) -> list[str]:
     if extra:
         out += ['--ros-args'] + extra
     return out
+
+
+#: a service request unanswered this long [s] goes out again (see call_until_answered)
+RESEND = 5.0
+
+
+def call_until_answered(client: Any, request: Any,
+                        spin: Callable[[Callable[[], bool], float], bool], timeout: float,
+                        resend: float = RESEND) -> Any:
+    """
+    Call a service through ``client``, sending the request again while it is unanswered.
+
+    Returns the response, or None when nothing answered within ``timeout`` [s]. ``spin(until,
+    seconds)`` spins the caller's node until ``until()`` or for ``seconds``, and says which.
+    A request goes out again after ``resend`` s unanswered: one sent while discovery had
+    matched only this side (a server restarted after a kill lingers in discovery until its
+    lease ends; a client made just now) is never answered. Only for services that a repeat
+    answers harmlessly.
+    """
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        fut = client.call_async(request)
+        if spin(fut.done, min(resend, max(end - time.monotonic(), 0.1))):
+            return fut.result()
+        client.remove_pending_request(fut)
+    return None
 
 
 def _wait_acked(node: Node, bound: float = 2.0) -> None:
