@@ -8,6 +8,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*', 'bags', 'launch_scripts']),
+    # the station's page and its vendored scripts (rig networks are offline: no CDN)
+    package_data={'ros_ehs.web': ['static/*.*', 'static/vendor/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -15,7 +17,7 @@ setup(
          glob('launch_scripts/*.py') + glob('launch_scripts/*.xml')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'pyyaml', 'matplotlib', 'psutil',
-                      'mcap', 'mcap-ros2-support'],
+                      'mcap', 'mcap-ros2-support', 'aiohttp'],
     extras_require={'test': ['pytest']},
     zip_safe=False,
     maintainer='ros_ehs maintainers',
@@ -32,6 +34,7 @@ setup(
             'player = ros_ehs.nodes.player:main',
             'identify = ros_ehs.nodes.identify:main',
             'procedure = ros_ehs.nodes.procedure:main',
+            'station = ros_ehs.nodes.station:main',
         ],
     },
 )

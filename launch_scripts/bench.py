@@ -225,6 +225,14 @@ def main(argv=None) -> int:
                     help='also run the identify node in live mode: refit the last 10 s every '
                     '5 s and push significant fits to the controller; its estimates go into '
                     'the bag (ehs_sim trend BAG; docs/identification.md, "Live mode")')
+    ap.add_argument('--station', type=int, default=None, metavar='PORT',
+                    help="the operator's station beside the bench: the page on "
+                         'http://HOST:PORT/ (docs/station.md; 0: a free port)')
+    ap.add_argument('--station-host', default='127.0.0.1',
+                    help="the station's address (another interface: read-only to other "
+                         'machines without --station-token)')
+    ap.add_argument('--station-token', default='',
+                    help='the token a page from another machine must give to act')
     rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
     rec.add_argument('--max-bag-size', type=int, default=None,
                      help='split once a file holds this many bytes (0: never)')
@@ -290,6 +298,19 @@ def main(argv=None) -> int:
             procs.start('identify', {'live': True, 'push': True, 'cpu_affinity': ref_cpu,
                                      'use_sim_time': lock}, params_file=pf)
             live = ['identify']
+        if a.station is not None:
+            ref_cpu = -1 if procs.placement is None else procs.placement[1]
+            procs.start('station', {'port': a.station, 'host': a.station_host,
+                                    'token': a.station_token, 'cpu_affinity': ref_cpu},
+                        params_file=pf)
+            live.append('station')
+            ok = procs.wait_status(contract.STATION_STATUS, lambda st: 'url' in st.values, 30.0)
+            st = procs.status(contract.STATION_STATUS)
+            if not ok or st is None:
+                print(f"bench: the station did not start (its log: {logs / 'station.log'})",
+                      file=sys.stderr)
+            else:
+                print(f"bench: station on {st.values['url']}", flush=True)
         where = ('' if procs.placement is None else
                  '; plant and controller on CPU {}, reference on CPU {}'.format(
                      *procs.placement))

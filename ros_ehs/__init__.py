@@ -14,11 +14,12 @@
 """
 ros_ehs: electro-hydraulic servo axis (MOOG G761-class valve, symmetric cylinder).
 
-Four layers, whose imports run one way (``LAYERS``, lowest first; ``test/test_layers.py``
+Five layers, whose imports run one way (``LAYERS``, lowest first; ``test/test_layers.py``
 walks every module and checks it):
 
 * ``ros_ehs.core``: the numerical core, every rule (numpy, scipy, numba; no ROS, no files);
 * ``ros_ehs.data``: bag and data I/O (rosbag2 bags, a rig's topic map, reports, drive files);
+* ``ros_ehs.web``: the operator's station's web server and page (aiohttp; no ROS);
 * ``ros_ehs.nodes``: the rclpy nodes and the processes that run them;
 * ``ros_ehs.tools`` and ``ros_ehs.benchmarks``: the ``ehs_sim`` command line, the benchmarks.
 
@@ -38,9 +39,10 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 __version__ = '0.1.0'
 
 #: The layers, lowest first: a module may import its own layer and those below it.
-LAYERS = ('contract', 'core', 'data', 'nodes', 'tools')
+LAYERS = ('contract', 'core', 'data', 'web', 'nodes', 'tools')
 _PACKAGES = {'ros_ehs_msgs_py': 'contract', 'ros_ehs.core': 'core', 'ros_ehs.data': 'data',
-             'ros_ehs.nodes': 'nodes', 'ros_ehs.tools': 'tools', 'ros_ehs.benchmarks': 'tools'}
+             'ros_ehs.web': 'web', 'ros_ehs.nodes': 'nodes', 'ros_ehs.tools': 'tools',
+             'ros_ehs.benchmarks': 'tools'}
 
 
 def layer_of(module: str) -> str:

@@ -29,10 +29,12 @@ from ros_ehs_msgs_py.conversions import (command_from_msg, CYCLE_RECORD, cycles_
                                          estimate_from_msg, event_from_msg, event_level,
                                          fill_command, fill_estimate, fill_event, fill_load,
                                          fill_pressure, fill_procedure_event, fill_reference,
-                                         fill_reference_trajectory, fill_state, load_from_msg,
+                                         fill_reference_trajectory, fill_state,
+                                         fill_station_event, load_from_msg,
                                          pressure_from_msg, procedure_event_from_msg,
                                          reference_from_msg, reference_trajectory_from_msg,
-                                         stamp_ns, state_from_msg, statuses_from_msg, WRENCH_AXES)
+                                         stamp_ns, state_from_msg, station_event_from_msg,
+                                         statuses_from_msg, WRENCH_AXES)
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
 from ros_ehs_msgs_py.topics import (by_name, CAPTURES, CLOCK, COMMAND, CONTROLLER_STATUS, CYCLES,
@@ -41,7 +43,8 @@ from ros_ehs_msgs_py.topics import (by_name, CAPTURES, CLOCK, COMMAND, CONTROLLE
                                     LOCKSTEP_NODE_TOPICS, NODE_TOPICS, NodeTopics, PLANT_STATUS,
                                     PRESSURE_P, PRESSURE_T, PROCEDURE_EVENTS, PROCEDURE_STATUS,
                                     RECORDER_STATUS, REFERENCE, REFERENCE_STATUS,
-                                    REFERENCE_TRAJECTORY, STATE, Topic, TOPICS)
+                                    REFERENCE_TRAJECTORY, STATE, STATION_EVENTS, STATION_STATUS,
+                                    Topic, TOPICS)
 from ros_ehs_msgs_py.values import (AxisState, Command, Load, NodeStatus, ParameterEstimate,
                                     Pressure, Reference, SafetyEvent)
 from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr, command_to_cdr,
@@ -59,7 +62,8 @@ __all__ = [
     'load_from_msg', 'load_to_cdr', 'wrench_from_cdr',
     'NodeStatus', 'statuses_from_msg', 'CONTROLLER_STATUS', 'IDENTIFY_STATUS', 'PLANT_STATUS',
     'RECORDER_STATUS',
-    'REFERENCE_STATUS',
+    'REFERENCE_STATUS', 'STATION_EVENTS', 'STATION_STATUS', 'fill_station_event',
+    'station_event_from_msg',
     'AxisState', 'CLOCK', 'CLOCK_QOS', 'COMMAND', 'Command', 'DIAGNOSTICS', 'ESTIMATES',
     'EVENTS', 'ParameterEstimate', 'estimate_from_msg', 'fill_estimate',
     'EVENTS_QOS', 'JOINT_PISTON', 'SafetyEvent', 'event_from_msg', 'event_level', 'fill_event',

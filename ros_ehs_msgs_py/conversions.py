@@ -465,6 +465,32 @@ def fill_procedure_event(msg: Any, stamp: int, level: int, kind: str, what: str,
                         pairs, status, key_value)
 
 
+# -- the station --------------------------------------------------------------------------------
+_STATION_EVENT_KEYS = ('action', 'origin', 'result', 'reason')
+
+
+def fill_station_event(msg: Any, stamp: int, action: str, origin: str, result: str,
+                       reason: str, status: Any = None,
+                       key_value: Callable[[], Any] | None = None) -> Any:
+    """
+    Write one operator's action into a ``diagnostic_msgs/DiagnosticArray`` (``station/events``).
+
+    ``result`` is ``done``, ``refused`` (by the node, or by the station's access rule) or
+    ``unanswered``; ``reason`` the answer or why.
+    """
+    pairs = [('action', action), ('origin', origin), ('result', result), ('reason', reason)]
+    return _fill_status(msg, stamp, _OK if result == 'done' else _WARN,
+                        f'ros_ehs/station/{action}', f'{action} {result}: {reason}', 'axis',
+                        pairs, status, key_value)
+
+
+def station_event_from_msg(msg: Any) -> dict[str, Any]:
+    """Read a ``station/events`` DiagnosticArray (the first status); ValueError if none."""
+    st, vals = _status_values(msg, 'station/events', _STATION_EVENT_KEYS)
+    return {**{k: vals[k] for k in _STATION_EVENT_KEYS}, 'stamp_ns': stamp_ns(_get(msg, 'header')),
+            'message': _get(st, 'message')}
+
+
 def procedure_event_from_msg(msg: Any) -> dict[str, Any]:
     """Read a ``procedure/events`` DiagnosticArray (the first status); ValueError if none."""
     st, vals = _status_values(msg, 'procedure/events', _PROCEDURE_EVENT_KEYS)

@@ -25,7 +25,7 @@ __all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'ESTIMATES', 'EVENTS', 'JOINT_LOAD
            'LOCKSTEP_NODE_TOPICS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T',
            'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name',
            'CONTROLLER_STATUS', 'IDENTIFY_STATUS', 'PLANT_STATUS', 'RECORDER_STATUS',
-           'REFERENCE_STATUS']
+           'REFERENCE_STATUS', 'STATION_EVENTS', 'STATION_STATUS']
 
 JOINT_PISTON = 'piston'
 JOINT_SPOOL = 'spool'
@@ -53,6 +53,9 @@ IDENTIFY_STATUS = 'ros_ehs/identify'
 #: cannot be written); message the state; values state, step, step_index, step_cycles,
 #: total_cycles, time_to_go_s, result, reason, failed_at, checkpoint (the file), file.
 PROCEDURE_STATUS = 'ros_ehs/procedure'
+#: the operator's station: level OK serving (WARN: the controller not heard); values url,
+#: pages (open pages), updates_per_s (frames sent to the pages), actions, refused.
+STATION_STATUS = 'ros_ehs/station'
 
 
 class Topic(NamedTuple):
@@ -124,8 +127,16 @@ CAPTURES = Topic(
     'the cycle], command, z [m], load [N]; layout.dim[0] label `cycle <count>` size 4, dim[1] '
     'the samples', EVENTS_QOS)
 
+STATION_EVENTS = Topic(
+    'station/events', 'diagnostic_msgs/msg/DiagnosticArray',
+    "every operator's action at the station, one status each: name "
+    '`ros_ehs/station/<action>` (reset, enable, disable, start, hold, resume, stop), level OK '
+    '(done) or WARN (refused or not answered), message the answer; values action, origin (the '
+    "page's address and browser), result, reason", EVENTS_QOS)
+
 TOPICS = (REFERENCE, STATE, LOAD_CELL, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, EVENTS,
-          ESTIMATES, CLOCK, REFERENCE_TRAJECTORY, PROCEDURE_EVENTS, CYCLES, CAPTURES)
+          ESTIMATES, CLOCK, REFERENCE_TRAJECTORY, PROCEDURE_EVENTS, CYCLES, CAPTURES,
+          STATION_EVENTS)
 
 
 class NodeTopics(NamedTuple):
@@ -142,6 +153,8 @@ NODE_TOPICS = {
     'reference': NodeTopics((REFERENCE, DIAGNOSTICS), ()),
     'procedure': NodeTopics((REFERENCE, DIAGNOSTICS, PROCEDURE_EVENTS, CYCLES, CAPTURES),
                             (STATE, EVENTS)),
+    'station': NodeTopics((DIAGNOSTICS, STATION_EVENTS),
+                          (STATE, REFERENCE, DIAGNOSTICS, EVENTS, PROCEDURE_EVENTS, ESTIMATES)),
 }
 
 #: The same in lock-step (plant ``mode: lockstep``, controller ``lockstep: true``, reference

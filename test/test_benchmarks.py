@@ -80,6 +80,7 @@ SHORT = {
     'force': (['--frequencies', '20', '--cycles', '3', '--specimens', 'stiff'], 'protect'),
     'fatigue': (['--life', '200', '--speed-cycles', '10', '--kills', '2'], 'resume'),
     'verdict': (['--rigs', '1', '--seconds', '3', '--first', '12'], 'misses'),
+    'station': (['--seconds', '2', '--rounds', '2'], 'updates_per_s'),
 }
 
 

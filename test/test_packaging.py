@@ -18,6 +18,7 @@ from pathlib import Path
 import shutil
 import subprocess
 import sys
+import urllib.request
 
 import pytest
 
@@ -87,7 +88,7 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     # the colcon-built executables start and talk (what `ros2 run ros_ehs plant` starts)
     from domain_coordinator import domain_id
     from ros_ehs.nodes.processes import loop_closed, NodeProcesses
-    from ros_ehs_msgs_py import PLANT_STATUS
+    from ros_ehs_msgs_py import PLANT_STATUS, STATION_STATUS
     site = next(install.glob('lib/python*/site-packages'))
     with domain_id() as dom:
         built = {'PYTHONPATH': str(site), 'AMENT_PREFIX_PATH': prefix_path}
@@ -95,9 +96,18 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
             procs.start('plant', cmd=[str(lib / 'plant')])
             procs.start('controller', cmd=[str(lib / 'controller')])
             ok = procs.wait_status(PLANT_STATUS, loop_closed, 60)
-            codes = procs.stop(['controller', 'plant'])
+            # the station's page and its charting library came with the install
+            procs.start('station', cmd=[str(lib / 'station'), '--ros-args', '-p', 'port:=0'])
+            served = procs.wait_status(STATION_STATUS, lambda st: 'url' in st.values, 60)
+            url = procs.status(STATION_STATUS).values['url'] if served else ''
+            page = urllib.request.urlopen(url, timeout=30).read() if served else b''
+            lib_js = urllib.request.urlopen(url + 'static/vendor/uPlot.iife.min.js',
+                                            timeout=30).read() if served else b''
+            codes = procs.stop(['station', 'controller', 'plant'])
     assert ok, procs['plant'].output()[-2000:] + procs['controller'].output()[-2000:]
-    assert codes == {'controller': 0, 'plant': 0}
+    assert served, procs['station'].output()[-2000:]
+    assert b'ros_ehs station' in page and lib_js.startswith(b'/*! https://github.com/leeoniya')
+    assert codes == {'station': 0, 'controller': 0, 'plant': 0}
     where = subprocess.run([str(lib / 'identify'), '--ros-args', '-p', 'bags:=[nope]'],
                            env=dict(env, PYTHONPATH=str(site)), capture_output=True, text=True)
     assert where.returncode == 2 and 'no bag at' in where.stderr, where.stderr

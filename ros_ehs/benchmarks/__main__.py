@@ -18,7 +18,8 @@ import sys
 
 #: the benchmarks, each a module of this package with a ``main(argv)``
 BENCHMARKS = ('model', 'paper', 'identify', 'loop', 'lockstep', 'record', 'soak', 'window',
-              'tracking', 'drift', 'live', 'realtime', 'force', 'fatigue', 'verdict')
+              'tracking', 'drift', 'live', 'realtime', 'force', 'fatigue', 'verdict',
+              'station')
 
 
 def main(argv=None) -> int:

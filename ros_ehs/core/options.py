@@ -33,7 +33,7 @@ from ros_ehs.core.sim.axis import FAULTS
 import ros_ehs_msgs_py as contract
 
 __all__ = ['CLI_OPTIONS', 'CLI_POSITIONAL', 'COMPRESSIONS', 'CONTROLLER', 'CONTROLLER_SPECS',
-           'CPU_AFFINITY', 'DIAGNOSTICS_PERIOD', 'IDENTIFY', 'MODEL', 'NODE_OPTIONS',
+           'CPU_AFFINITY', 'DIAGNOSTICS_PERIOD', 'IDENTIFY', 'MODEL', 'NODE_OPTIONS', 'STATION',
            'NODE_PARAMS', 'PLANT', 'PLAYER', 'RATE_HZ', 'RECORDER', 'REFERENCE', 'RT_PRIORITY']
 
 #: MCAP chunk compressions a recorder can write.
@@ -323,10 +323,35 @@ PROCEDURE = (
     CPU_AFFINITY,
 )
 
+#: the operator's station's options (docs/station.md)
+STATION = (
+    Setting('host', '', '127.0.0.1', meaning='the address the page is served on: 127.0.0.1 '
+            'this machine only; another interface (0.0.0.0: all) shows the page read-only to '
+            'other machines unless they give the token'),
+    Setting('port', '', 8080, 0, 65535, 'the TCP port of the page (0: a free one, said in the '
+            'status as `url`)'),
+    Setting('token', '', '', meaning='the token a page from another machine must give to act '
+            '(at least 8 characters; empty: other machines only watch)'),
+    Setting('controller', '', 'controller', meaning='the controller node: its `~/reset`, '
+            '`~/enable`, status and events'),
+    Setting('procedure', '', 'procedure', meaning='the procedure node: its `~/start`, '
+            '`~/hold`, `~/resume`, `~/stop` and status'),
+    Setting('push_rate', 'Hz', 25.0, 1.0, 60.0, 'frames a second sent to each open page'),
+    Setting('scope_samples', '', 131072, 1000, 2000000, "the scope's memory: the newest "
+            'states kept at full rate (131072: 2 min at 1 kHz)'),
+    Setting('scope_buckets', '', 400, 50, 4000, "the slots of a frame's scope trace (min and "
+            'max of each): what a page receives, whatever the time base and the loop rate'),
+    Setting('lost_after', 's', 3.0, 0.5, 60.0, 'no controller status for this long: the page '
+            'says the ROS graph is lost'),
+    LOAD_JOINT,
+    DIAGNOSTICS_PERIOD,
+    CPU_AFFINITY,
+)
+
 #: each node's options: what ``ros2 run ros_ehs <node>`` declares (besides its parameters)
 NODE_OPTIONS = {'plant': PLANT, 'controller': CONTROLLER, 'reference': REFERENCE,
                 'recorder': RECORDER, 'player': PLAYER, 'identify': IDENTIFY,
-                'procedure': PROCEDURE}
+                'procedure': PROCEDURE, 'station': STATION}
 
 #: the parameters the controller declares: its own, the safety layer's and the plant values
 #: its feedforward uses

@@ -69,7 +69,8 @@ def launch_script(name: str) -> Path:
 
 
 #: The node executables of the package (``ros2 run ros_ehs <name>``).
-NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify', 'procedure')
+NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify', 'procedure',
+         'station')
 
 
 def _value(v: Any) -> str:
@@ -149,7 +150,8 @@ class NodeProcess:
 #: each node's status name in ``diagnostics`` (the contract's)
 STATUS_OF = {'plant': contract.PLANT_STATUS, 'controller': contract.CONTROLLER_STATUS,
              'reference': contract.REFERENCE_STATUS, 'recorder': contract.RECORDER_STATUS,
-             'identify': contract.IDENTIFY_STATUS, 'procedure': contract.PROCEDURE_STATUS}
+             'identify': contract.IDENTIFY_STATUS, 'procedure': contract.PROCEDURE_STATUS,
+             'station': contract.STATION_STATUS}
 
 
 def loop_closed(st: contract.NodeStatus) -> bool:

@@ -83,7 +83,7 @@ import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
-from ros_ehs.core.control.safety import Event
+from ros_ehs.core.control.safety import DETECTORS, Event
 from ros_ehs.core.control.supervised import AxisController
 from ros_ehs.core.control.waveforms import first_order_hold
 from ros_ehs.core.errors import InputError
@@ -446,7 +446,12 @@ class ControlLoop:
                  protect_limiting=ax.limited)
         sup = self.axis.supervisor
         f.update(mode=sup.mode, interlock=sup.action, tripped=','.join(sup.tripped()),
+                 enabled=sup.enabled, ramp=float(sup.ramp),
                  **{f'trips_{d}': n for d, n in sup.counts.items()})
+        cfg = sup.config
+        for d in DETECTORS:           # the detector table an operator's station shows
+            f[f'{d}.limit'] = float(cfg.limit(d))
+            f[f'{d}.action'] = cfg.action(d)
         return f
 
     def diagnosis(self) -> tuple[int, str]:

@@ -94,7 +94,7 @@ from ros_ehs.core.model.coefficients import flow_gain_kq
 from ros_ehs.core.params import ACTIONS, spec
 from ros_ehs_msgs_py.values import SafetyEvent as Event
 
-__all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'SafetyConfig', 'Supervisor',
+__all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'SafetyConfig', 'Supervisor', 'UNITS',
            'break_travel', 'braking_distance', 'ramp_weight']
 
 #: The detectors, in the order they are checked and reported.
@@ -103,11 +103,11 @@ DETECTORS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limi
              'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'specimen_break',
              'load_feedback')
 _SEVERITY = {a: k for k, a in enumerate(ACTIONS)}
-_UNITS = {'limit_position_max': 'm', 'limit_position_min': 'm', 'limit_velocity': 'm/s',
-          'limit_force': 'N', 'limit_error': 'm', 'feedback': '', 'saturation': 's',
-          'limit_load_max': 'N', 'limit_load_min': 'N', 'limit_specimen_max': 'm',
-          'limit_specimen_min': 'm', 'limit_force_error': 'N', 'specimen_break': 'N',
-          'load_feedback': ''}
+UNITS = {'limit_position_max': 'm', 'limit_position_min': 'm', 'limit_velocity': 'm/s',
+         'limit_force': 'N', 'limit_error': 'm', 'feedback': '', 'saturation': 's',
+         'limit_load_max': 'N', 'limit_load_min': 'N', 'limit_specimen_max': 'm',
+         'limit_specimen_min': 'm', 'limit_force_error': 'N', 'specimen_break': 'N',
+         'load_feedback': ''}
 _NUMBERS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
             'limit_error', 'limit_error_time', 'feedback_timeout', 'frozen_periods',
             'frozen_current', 'limit_saturation_time', 'limit_hysteresis', 'safe_position',
@@ -290,6 +290,7 @@ class Supervisor:
         self._ramp_from = math.nan      # ramp_again: from the last demand, not the measurement
         self._ramp_time = math.nan      # blend_from: this ramp's own time (NaN: ramp_time)
         self._ramp_T = 0.0              # the running ramp's time [s]
+        self.ramp = 0.0                 #: the ramp-on's progress: 0 waiting/off, 1 on
         self._mode = 'run'              # 'run' | 'hold' | 'stop' | 'power_off'
         self._hold_z = math.nan
         self._last_z = math.nan
@@ -497,7 +498,7 @@ class Supervisor:
         s.tripped = True
         self.counts[det] += 1
         lim = self.config.limit(det)
-        unit = _UNITS[det]
+        unit = UNITS[det]
         msg = why or f'{det}: {value:.6g} {unit} beyond {lim:.6g} {unit}'
         events.append(Event(stamp_ns, 'trip', det, float(value), lim, unit, act,
                             f'{msg}; action {act}'))
@@ -519,8 +520,10 @@ class Supervisor:
     def _demand(self, stamp_ns: int, z: float, z_traj: float, v_traj: float) -> Demand:
         cfg = self.config
         if not self.enabled:
+            self.ramp = 0.0
             return Demand('disabled', math.nan, 0.0, False)
         if self._mode == 'power_off':
+            self.ramp = 0.0
             return Demand('power_off', math.nan, 0.0, False)
         if self._mode in ('hold', 'stop'):
             if not math.isfinite(self._hold_z):     # the period of the trip: start here
@@ -538,6 +541,7 @@ class Supervisor:
             return Demand(self._mode, self._hold_z, 0.0, True)
         if self._ramp_pending:
             if not math.isfinite(z):
+                self.ramp = 0.0
                 return Demand('waiting', math.nan, 0.0, False)
             self._ramp_pending = False
             self._ramp_t0 = stamp_ns
@@ -552,8 +556,10 @@ class Supervisor:
             z0 = self._ramp_z0
             zr = z0 + w * (z_traj - z0)
             self._last_ref = zr
+            self.ramp = t / T
             return Demand('ramp', zr, w * v_traj + dw / T * (z_traj - z0), True)
         self._last_ref = z_traj
+        self.ramp = 1.0
         return Demand('run', z_traj, v_traj, True)
 
     # -- feedback lost (no state at all: the node's timer) -----------------------------------

@@ -1,0 +1,122 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+``python -m ros_ehs.benchmarks station``: whether the operator's station disturbs the loop.
+
+The bench's real-time loop (plant, controller and the reference's 1 Hz sine, placed as
+``NodeProcesses.start_loop`` places them) runs for ``--seconds`` per round, in ``--rounds``
+rounds without and with the station in the order without, with, with, without (so a drift
+of the machine's load weighs on both alike). With it: the station node on the reference's
+CPU and one page open in headless Chromium (Debian's, driven by Playwright) at the default
+5 s time base. Prints each round's fresh-cycle fraction and watchdog trips, the station's CPU
+share and the frames the page received a second; the last line is one JSON object with
+``fresh_with``, ``fresh_without``, ``trips_with``, ``trips_without``, ``station_cpu``
+(fraction of a core, the worst round) and ``updates_per_s`` (what the page received, the
+slowest round), and the spread of the rounds without it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from domain_coordinator import domain_id
+import psutil
+from ros_ehs.benchmarks import count, positive, report
+from ros_ehs.nodes.processes import loop_placement, NodeProcesses
+import ros_ehs_msgs_py as contract
+
+CHROMIUM = '/usr/bin/chromium'
+#: Chromium on a machine without a network (the flags keep it from calling home)
+CHROMIUM_ARGS = ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+                 '--disable-background-networking', '--disable-component-update',
+                 '--disable-sync']
+
+
+def _cpu(pid: int) -> float:
+    t = psutil.Process(pid).cpu_times()
+    return t.user + t.system
+
+
+def _round(dom: int, seconds: float, browser, with_station: bool) -> dict:
+    with NodeProcesses(dom) as procs:
+        procs.start_loop('realtime')
+        station_cpu = updates = 0.0
+        if with_station:
+            ref_cpu = (loop_placement(True) or (-1, -1))[1]
+            procs.start('station', {'port': 0, 'cpu_affinity': ref_cpu})
+            if not procs.wait_status(contract.STATION_STATUS, lambda st: 'url' in st.values,
+                                     60):
+                raise RuntimeError('the station did not start:\n'
+                                   + procs['station'].output()[-3000:])
+            page = browser.new_page()
+            page.goto(procs.status(contract.STATION_STATUS).values['url'])
+            page.wait_for_function('window.station.frames > 0', timeout=60_000)
+            c0, f0 = _cpu(procs['station'].pid), page.evaluate('window.station.frames')
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        if with_station:
+            dt = time.monotonic() - t0
+            station_cpu = (_cpu(procs['station'].pid) - c0) / dt
+            updates = (page.evaluate('window.station.frames') - f0) / dt
+            page.close()
+            procs.stop(['station'])
+        procs.stop(['plant', 'controller', 'reference'])     # the plant first: no stale tail
+        f = procs['plant'].figures()
+    return {'with_station': with_station, 'cycles': f['cycles'],
+            'fresh_cycle_fraction': f['fresh_cycle_fraction'],
+            'watchdog_trips': f['watchdog_trips'], 'station_cpu': round(station_cpu, 3),
+            'updates_per_s': round(updates, 1)}
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; print figures, the last line JSON."""
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks station')
+    ap.add_argument('--seconds', type=positive, default=30.0, help='seconds per round')
+    ap.add_argument('--rounds', type=count, default=4,
+                    help='rounds: without, with, with, without the station, ...')
+    a = ap.parse_args(argv)
+    from playwright.sync_api import sync_playwright
+    rounds = []
+    with domain_id() as dom, sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS,
+                                     headless=True)
+        try:
+            for r in range(a.rounds):
+                res = _round(dom, a.seconds, browser, with_station=r % 4 in (1, 2))  # ABBA
+                rounds.append(res)
+                print(f'round {r + 1}: station {"on " if res["with_station"] else "off"}  '
+                      f'fresh {res["fresh_cycle_fraction"]:.5f}  watchdog trips '
+                      f'{res["watchdog_trips"]}  station CPU {res["station_cpu"]:.3f}  page '
+                      f'updates {res["updates_per_s"]:.1f}/s', flush=True)
+        finally:
+            browser.close()
+    figures = {'seconds': a.seconds, 'rounds': a.rounds, 'per_round': rounds}
+    for kind, on in (('with', True), ('without', False)):
+        rs = [r for r in rounds if r['with_station'] == on]
+        n = sum(r['cycles'] for r in rs)
+        figures[f'fresh_{kind}'] = round(sum(r['fresh_cycle_fraction'] * r['cycles']
+                                             for r in rs) / n, 5) if n else None
+        figures[f'trips_{kind}'] = sum(r['watchdog_trips'] for r in rs) if rs else None
+        fr = [r['fresh_cycle_fraction'] for r in rs]
+        figures[f'fresh_spread_{kind}'] = round(max(fr) - min(fr), 5) if fr else None
+    with_ = [r for r in rounds if r['with_station']]
+    figures['station_cpu'] = max((r['station_cpu'] for r in with_), default=None)
+    figures['updates_per_s'] = min((r['updates_per_s'] for r in with_), default=None)
+    return report(figures)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

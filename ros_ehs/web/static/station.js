@@ -1,0 +1,225 @@
+// ros_ehs station page: frames over a WebSocket, buttons through /api/action (docs/station.md).
+'use strict';
+(function () {
+  const $ = (id) => document.getElementById(id);
+  const params = new URLSearchParams(location.search);
+  const token = params.get('token') || '';
+  // what the tests and the station benchmark read: frames received, the newest frame
+  const state = window.station = { frames: 0, last: null, paused: false, connected: false };
+  const SCALE = { position: 1e3, reference: 1e3, error: 1e6, force: 1e-3, current: 1e3 };
+  const UNIT = { position: 'mm', reference: 'mm', error: 'um', force: 'kN', current: 'mA' };
+  const COLOR = { position: '#1565c0', reference: '#2e7d32', error: '#c62828',
+                  force: '#6a1b9a', current: '#ef6c00' };
+
+  const esc = (t) => String(t).replace(/[&<>"]/g,
+    (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;' })[c]);
+  function fmt(x, digits) {
+    if (x === null || x === undefined || Number.isNaN(x)) return '-';
+    return Number(x).toPrecision(digits || 4);
+  }
+
+  function chart(el, channels, height) {
+    const series = [{}];
+    const bands = [];
+    const axes = [{ label: 's' }];
+    const scales = {};
+    channels.forEach((c, k) => {
+      const hi = series.length;
+      series.push({ label: `${c} max [${UNIT[c]}]`, stroke: COLOR[c], scale: UNIT[c],
+                    spanGaps: false });
+      series.push({ label: `${c} min`, stroke: COLOR[c], scale: UNIT[c], spanGaps: false });
+      bands.push({ series: [hi, hi + 1], fill: COLOR[c] + '33' });
+      if (!scales[UNIT[c]]) {
+        scales[UNIT[c]] = {};
+        axes.push({ scale: UNIT[c], label: UNIT[c], side: Object.keys(scales).length > 1 ? 1 : 3,
+                    grid: { show: Object.keys(scales).length === 1 } });
+      }
+    });
+    const width = Math.max(500, el.parentElement.clientWidth - 30);
+    const opts = { width, height, series, bands, axes, scales: { x: { time: false }, ...scales },
+                   legend: { live: false } };
+    const data = [[]].concat(channels.flatMap(() => [[], []]));
+    return { plot: new uPlot(opts, data, el), channels };
+  }
+
+  const charts = [chart($('chart-z'), ['position', 'reference', 'error'], 300),
+                  chart($('chart-f'), ['force', 'current'], 220)];
+  let trend = null;
+
+  function drawScope(scope) {
+    for (const c of charts) {
+      const data = [scope.t];
+      for (const ch of c.channels) {
+        const s = SCALE[ch];
+        data.push(scope[ch][1].map((v) => (v === null ? null : v * s)));
+        data.push(scope[ch][0].map((v) => (v === null ? null : v * s)));
+      }
+      c.plot.setData(data);
+    }
+  }
+
+  function drawMeters(f) {
+    const rows = Object.entries(f.meters).map(([name, m]) => {
+      const s = SCALE[name];
+      const cells = ['value', 'peak', 'valley', 'min', 'max']
+        .map((k) => `<td data-meter="${name}.${k}">${m[k] === null ? '-' : fmt(m[k] * s)}</td>`);
+      const label = name === 'force' ? `force (${f.force_source})` : name;
+      return `<tr><td>${label} [${UNIT[name]}]</td>${cells.join('')}</tr>`;
+    });
+    $('meters').innerHTML = rows.join('');
+  }
+
+  function drawSafety(f) {
+    const ctl = f.controller ? f.controller.values : {};
+    const enabled = ctl.enabled === 'True';
+    $('hyd').textContent = f.controller ? (enabled ? 'on' : 'off') : '-';
+    $('ramp').value = Number(ctl.ramp || 0);
+    $('mode').textContent = ctl.control_mode ? `${ctl.control_mode} (${ctl.mode})` : '-';
+    $('interlock').textContent = ctl.interlock || '-';
+    $('detectors').innerHTML = f.detectors.map((d) => {
+      const cls = d.latched ? 'latched' : '';
+      const lim = d.limit === null ? '-' : `${fmt(d.limit)} ${d.unit}`;
+      return `<tr class="${cls}" data-detector="${d.name}"><td>${d.name}</td><td>${lim}</td>` +
+             `<td>${d.action}</td><td>${d.latched ? 'TRIPPED' : 'clear'}</td>` +
+             `<td>${d.trips}</td></tr>`;
+    }).join('');
+  }
+
+  function drawProcedure(f) {
+    const p = f.procedure;
+    if (!p) { $('proc').textContent = 'no procedure node heard'; return; }
+    const v = p.values;
+    const ttg = Number(v.time_to_go_s);
+    $('proc').innerHTML = `<div>state <b data-testid="proc-state">${esc(v.state || p.message)}</b>` +
+      ` &middot; step ${esc(v.step_index || '-')} <b>${esc(v.step || '')}</b></div>` +
+      `<div>cycles: step <b data-testid="step-cycles">${v.step_cycles || 0}</b>, total ` +
+      `<b data-testid="total-cycles">${v.total_cycles || 0}</b> &middot; time to go ` +
+      `${Number.isFinite(ttg) ? ttg.toFixed(0) + ' s' : '-'}</div>` +
+      (v.reason ? `<div class="note">${esc(v.reason)}</div>` : '');
+  }
+
+  function drawEstimate(f) {
+    const e = f.estimate;
+    if (!e) return;
+    const rows = Object.entries(e.params).map(([k, p]) =>
+      `<tr><td>${k}</td><td>${fmt(p.value)}</td><td>&plusmn; ${fmt(p.stderr, 2)}</td></tr>`);
+    $('estimate').innerHTML = `<div>${e.adequate ? 'adequate' : 'NOT ADEQUATE'}` +
+      `${e.pushed ? ', pushed to the controller' : ''}: <span class="note">${esc(e.message)}</span>` +
+      `</div><table>${rows.join('')}</table>`;
+    const names = Object.keys(f.trend);
+    if (!names.length) return;
+    if (!trend || trend.names.join() !== names.join()) {
+      $('chart-trend').innerHTML = '';
+      const series = [{}].concat(names.map((n, k) => ({ label: n,
+        stroke: `hsl(${(k * 67) % 360} 60% 40%)` })));
+      trend = { names, plot: new uPlot({ width: 360, height: 160, series,
+        scales: { x: { time: false } }, axes: [{ label: 's' }, { label: 'x / newest' }] },
+        [[]].concat(names.map(() => [])), $('chart-trend')) };
+    }
+    // every parameter's estimates relative to its newest, on one time axis
+    const t = f.trend[names[0]].map((p) => p[0]);
+    trend.plot.setData([t].concat(names.map((n) => {
+      const pts = f.trend[n];
+      const last = pts[pts.length - 1][1];
+      return pts.map((p) => p[1] / last);
+    })));
+  }
+
+  function drawEvents(f) {
+    $('events-total').textContent = `${f.events_total} in all`;
+    $('events').innerHTML = f.events.slice().reverse().slice(0, 100).map((e) =>
+      `<li class="l${e.level}">${new Date(e.at * 1000).toLocaleTimeString()} ` +
+      `<b>${esc(e.source)} ${esc(e.kind)}</b> ${esc(e.message)}</li>`).join('');
+  }
+
+  function drawHeader(f) {
+    const link = $('link');
+    if (f.lost) { link.textContent = f.lost; link.className = 'badge error'; }
+    else { link.textContent = 'connected'; link.className = 'badge ok'; }
+    const c = f.controller;
+    const axis = $('axis');
+    axis.textContent = c ? c.message : 'no controller';
+    axis.className = 'badge ' + (c ? ['ok', 'warn', 'error', 'error'][c.level] : 'warn');
+    const may = f.may_act;
+    $('rights').textContent = may.allowed ? 'operator' : 'read-only';
+    $('rights').title = may.why;
+    const procedure = ['start', 'hold', 'resume', 'stop'];
+    document.querySelectorAll('button.act, #meters-reset').forEach((b) => {
+      b.disabled = !may.allowed || Boolean(f.lost) ||
+        (procedure.includes(b.dataset.action) && !f.procedure);
+    });
+  }
+
+  function onFrame(f) {
+    state.frames += 1;
+    state.last = f;
+    drawHeader(f);
+    if (!state.paused) drawScope(f.scope);
+    drawMeters(f);
+    drawSafety(f);
+    drawProcedure(f);
+    drawEstimate(f);
+    drawEvents(f);
+  }
+
+  let ws = null;
+  function connect() {
+    const url = `ws://${location.host}/ws?span=${$('span').value}` +
+                (token ? `&token=${encodeURIComponent(token)}` : '');
+    ws = new WebSocket(url);
+    ws.onopen = () => { state.connected = true; };
+    ws.onmessage = (m) => onFrame(JSON.parse(m.data));
+    ws.onclose = () => {
+      state.connected = false;
+      $('link').textContent = 'station disconnected: retrying';
+      $('link').className = 'badge error';
+      document.querySelectorAll('button.act').forEach((b) => { b.disabled = true; });
+      setTimeout(connect, 1000);
+    };
+  }
+
+  function answer(ok, text) {
+    const a = $('answer');
+    a.hidden = false;
+    a.textContent = text;
+    a.className = 'answer' + (ok ? '' : ' refused');
+  }
+
+  async function post(path, body) {
+    const r = await fetch(path, { method: 'POST', headers: { 'Content-Type': 'application/json' },
+                                  body: JSON.stringify({ token, ...body }) });
+    return r.json();
+  }
+
+  document.querySelectorAll('button.act').forEach((b) => b.addEventListener('click', async () => {
+    const action = b.dataset.action;
+    const body = {};
+    if (action === 'enable' || action === 'disable') {
+      const what = action === 'enable' ? 'Turn the hydraulics ON? The axis ramps on from where' +
+        ' it is.' : 'Turn the hydraulics OFF? The valve gets 0 A.';
+      if (!window.confirm(what)) return;
+      body.confirm = true;
+    } else if (action === 'stop' && !window.confirm('Stop the test (to its safe point)?')) {
+      return;
+    }
+    try {
+      const r = await post(`/api/action/${action}`, body);
+      answer(r.ok, `${action}: ${r.ok ? 'done' : 'refused'}: ${r.message}`);
+    } catch (err) {
+      answer(false, `${action}: no answer from the station (${err})`);
+    }
+  }));
+  $('meters-reset').addEventListener('click', async () => {
+    const r = await post('/api/meters/reset', {});
+    if (!r.ok) answer(false, `meters: ${r.message}`);
+  });
+  $('pause').addEventListener('click', () => {
+    state.paused = !state.paused;
+    $('pause').textContent = state.paused ? 'Run' : 'Pause';
+    $('scope-note').textContent = state.paused ? 'paused' : '';
+  });
+  $('span').addEventListener('change', () => {
+    if (ws && ws.readyState === 1) ws.send(JSON.stringify({ span: Number($('span').value) }));
+  });
+  connect();
+})();

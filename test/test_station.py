@@ -1,0 +1,329 @@
+"""
+The operator's station without ROS: scope, meters, access, board, and the web server's rules.
+
+Every rule of ``ros_ehs.core.station`` and of ``ros_ehs.web.app`` in process, the clock passed
+in; the web server is the real aiohttp application on a real socket, driven by aiohttp's
+client (a client we did not write), with a recording desk in place of the ROS node.
+"""
+
+import asyncio
+import json
+import math
+import socket
+
+import aiohttp
+import numpy as np
+import pytest
+from ros_ehs.core.station.access import Access
+from ros_ehs.core.station.board import Board
+from ros_ehs.core.station.meters import Meter
+from ros_ehs.core.station.scope import Scope, TIME_BASES
+from ros_ehs.core.station.station import Station
+from ros_ehs.web.app import make_app, StationServer
+from ros_ehs_msgs_py.values import AxisState, ParameterEstimate, Reference
+
+
+# -- scope -------------------------------------------------------------------------------------
+def test_the_scope_envelope_keeps_a_peak_shorter_than_a_slot():
+    s = Scope(10_000, ('position',))
+    for k in range(5000):                         # 5 s at 1 kHz, a 1 ms spike at 2.5005 s
+        s.add(k * 1e-3, {'position': 1.0 if k == 2500 else 0.0})
+    v = s.view(5.0, 50)                           # 100 samples a slot
+    hi = np.array(v['position'][1], dtype=float)
+    assert len(v['t']) == 50 and hi.max() == 1.0 and (hi == 1.0).sum() == 1
+    assert v['t'][0] == pytest.approx(-5.0) and v['end'] == pytest.approx(4.999)
+
+
+def test_the_scope_is_a_ring_and_drops_what_goes_back_in_time():
+    s = Scope(100, ('position',))
+    for k in range(1000):
+        s.add(k * 1e-3, {'position': float(k)})
+    assert len(s) == 100
+    v = s.view(60.0, 10)                          # more than it holds: only what it has
+    lo = [x for x in v['position'][0] if x is not None]
+    assert min(lo) == 900.0 and max(v['position'][1], key=lambda x: x or 0) == 999.0
+    assert not s.add(0.5, {'position': 1.0}) and s.out_of_order == 1
+    assert not s.add(math.nan, {'position': 1.0}) and s.out_of_order == 2
+
+
+def test_the_scope_shows_a_gap_for_nan_and_empty_slots_and_rejects_a_bad_view():
+    s = Scope(100, ('position', 'force'))
+    s.add(0.0, {'position': 1.0, 'force': math.nan})
+    s.add(1.0, {'position': 2.0})
+    v = s.view(1.0, 4)
+    assert v['force'] == [[None] * 4, [None] * 4]
+    assert v['position'][1][1:3] == [None, None]       # nothing in the middle slots
+    for span, buckets in ((0.0, 4), (math.inf, 4), (1.0, 0)):
+        with pytest.raises(ValueError):
+            s.view(span, buckets)
+    assert Scope(10).view(1.0, 4)['end'] is None
+
+
+# -- meters ------------------------------------------------------------------------------------
+def test_a_meter_finds_each_cycles_peak_and_valley_above_the_noise():
+    rng = np.random.default_rng(0)
+    m = Meter(floor=5e-5)          # the station's floor: above 8 sigma of a 5 um noise
+    t = np.arange(0, 3.0, 1e-3)
+    for x in 0.04 * np.sin(2 * np.pi * t) + 5e-6 * rng.standard_normal(t.size):
+        m.add(float(x))
+    assert m.peak == pytest.approx(0.04, abs=3e-5) and \
+        m.valley == pytest.approx(-0.04, abs=3e-5)
+    assert m.as_dict()['cycles'] in (2, 3)
+    held = Meter(floor=5e-5)
+    for x in 5e-6 * rng.standard_normal(2000):    # a held axis: noise only, no cycle
+        held.add(float(x))
+    assert held.cycles == 0 and math.isnan(held.peak)
+
+
+def test_a_meter_ignores_non_finite_values_and_reset_keeps_the_value():
+    m = Meter(floor=1.0)
+    for x in (0.0, 5.0, math.nan, math.inf, -5.0, 5.0):
+        m.add(x)
+    assert m.invalid == 2 and m.max == 5.0 and m.min == -5.0 and m.peak == 5.0
+    m.reset()
+    assert m.value == 5.0 and math.isnan(m.min) and m.as_dict()['peak'] is None
+    with pytest.raises(ValueError):
+        Meter(floor=0.0)
+
+
+# -- access ------------------------------------------------------------------------------------
+def test_access_lets_this_machine_act_and_others_only_with_the_token():
+    a = Access('s3cret-token')
+    assert a.decide('127.0.0.1', None).allowed and a.decide('::1', None).allowed
+    assert a.decide('127.0.0.5', None).allowed
+    no = a.decide('192.0.2.7', None)
+    assert not no.allowed and 'no token' in no.why and '192.0.2.7' in no.why
+    assert 'wrong token' in a.decide('192.0.2.7', 'guess').why
+    assert a.decide('192.0.2.7', 's3cret-token').allowed
+    assert not a.decide('not an address', 's3cret-token').allowed is False   # parsed as remote
+    open_ = Access('')
+    assert not open_.decide('192.0.2.7', '').allowed
+    assert 'without a token' in open_.decide('192.0.2.7', 'anything').why
+    with pytest.raises(ValueError):
+        Access('short')
+
+
+# -- board -------------------------------------------------------------------------------------
+def _controller_values(**extra):
+    v = {'tripped': 'limit_position_max', 'trips_limit_position_max': '1', 'enabled': 'True',
+         'limit_position_max.limit': '0.03', 'limit_position_max.action': 'hold'}
+    v.update(extra)
+    return v
+
+
+def test_the_board_says_the_graph_is_lost_when_the_controller_is_not_heard():
+    b = Board(lost_after=3.0)
+    assert 'waiting for the controller' in b.lost(0.0)
+    b.take_status('controller', 10.0, 2, 'interlock hold', _controller_values())
+    assert b.lost(12.9) is None
+    assert 'for 3.5 s' in b.lost(13.5)
+    with pytest.raises(ValueError):
+        b.take_status('somebody', 0.0, 0, '', {})
+
+
+def test_the_board_lists_every_detector_with_its_limit_action_and_latch():
+    b = Board()
+    b.take_status('controller', 0.0, 2, 'interlock hold', _controller_values())
+    d = {x['name']: x for x in b.detectors()}
+    assert d['limit_position_max'] == {'name': 'limit_position_max', 'limit': 0.03, 'unit': 'm',
+                                       'action': 'hold', 'latched': True, 'trips': 1}
+    assert not d['limit_velocity']['latched'] and d['limit_velocity']['limit'] is None
+    snap = b.snapshot(1.0)
+    assert 'limit_position_max.limit' not in snap['controller']['values']   # in the table only
+    json.dumps(snap, allow_nan=False)
+
+
+def test_the_board_keeps_a_bounded_log_and_trend():
+    b = Board(events=5, trend=3)
+    for k in range(12):
+        b.take_event(float(k), 'controller', 'trip', 2, f'trip {k}')
+        b.take_estimate(float(k), ParameterEstimate(k, {'d_c': 100.0 + k}, {'d_c': 1.0}, True,
+                                                    'adequate', pushed=k % 2 == 0))
+    snap = b.snapshot(12.0)
+    assert [e['message'] for e in snap['events']] == [f'trip {k}' for k in range(7, 12)]
+    assert snap['events_total'] == 12
+    assert snap['trend']['d_c'] == [[-3.0, 109.0], [-2.0, 110.0], [-1.0, 111.0]]
+    assert snap['estimate']['params']['d_c'] == {'value': 111.0, 'stderr': 1.0}
+
+
+# -- the station: scope and meters from states ------------------------------------------------
+def test_the_station_scope_takes_states_and_restarts_with_a_new_run():
+    st = Station(scope_samples=1000, buckets=10)
+    st.take_reference(Reference(0, 0.01, 0.0))
+    for k in range(100):
+        st.take_state(AxisState(10**9 + k * 10**6, 0.009, 0.0, force=100.0, i=0.001))
+    f = st.frame(0.0, 0.1)
+    assert f['meters']['error']['value'] == pytest.approx(0.001)
+    assert f['force_source'] == 'hydraulic' and f['states'] == 100
+    st.take_state(AxisState(5 * 10**6, 0.0, 0.0, load=50.0))       # stamps start again
+    assert len(st.scope) == 1 and st.force_source == 'load cell'
+    with pytest.raises(ValueError):
+        st.frame(0.0, 3.0)
+    json.dumps(st.frame(0.0, TIME_BASES[0]), allow_nan=False)
+
+
+# -- the web server ----------------------------------------------------------------------------
+class FakeDesk:
+    """Records what the web server asks; answers actions as a node would."""
+
+    def __init__(self, answer=(True, 'done')):
+        self.station = Station(1000, 20)
+        self.answer = answer
+        self.acted, self.logged, self.pages = [], [], 0
+
+    def frame(self, span):
+        return self.station.frame(0.0, span)
+
+    async def act(self, action):
+        self.acted.append(action)
+        if self.answer is None:
+            raise asyncio.TimeoutError
+        return self.answer
+
+    def log_action(self, action, origin, result, reason):
+        self.logged.append((action, origin.split(' ')[0], result, reason))
+
+    def page_count(self, delta):
+        self.pages += delta
+
+    def reset_meters(self):
+        self.station.reset_meters()
+
+
+def _serve(desk, token='', host='127.0.0.1', push_rate=25.0):
+    server = StationServer(make_app(desk, Access(token), push_rate), host, 0)
+    return server, server.start()
+
+
+def _post(url, body, headers=None):
+    async def go():
+        async with aiohttp.ClientSession() as s:
+            async with s.post(url, json=body, headers=headers or {}) as r:
+                return r.status, await r.json()
+    return asyncio.run(go())
+
+
+def test_an_action_goes_to_the_desk_and_is_logged_with_its_origin():
+    desk = FakeDesk((False, 'reset refused: limit_position_max still beyond its limit'))
+    server, port = _serve(desk)
+    try:
+        url = f'http://127.0.0.1:{port}/api/action/'
+        status, body = _post(url + 'reset', {})
+        assert status == 200 and body == {'ok': False, 'message': desk.answer[1]}
+        assert desk.acted == ['reset']
+        assert desk.logged == [('reset', '127.0.0.1', 'refused', desk.answer[1])]
+        # hydraulics only with confirm; an unknown action is named; a foreign page refused
+        status, body = _post(url + 'enable', {})
+        assert status == 403 and 'confirm' in body['message'] and desk.acted == ['reset']
+        desk.answer = (True, 'hydraulics on: ramping on')
+        assert _post(url + 'enable', {'confirm': True}) == (200, {'ok': True,
+                                                                  'message': desk.answer[1]})
+        status, body = _post(url + 'explode', {})
+        assert status == 404 and "'explode'" in body['message']
+        status, body = _post(url + 'hold', {}, {'Origin': 'http://evil.example'})
+        assert status == 403 and 'evil.example' in body['message']
+        desk.answer = None                          # the node does not answer
+        status, body = _post(url + 'hold', {})
+        assert status == 504 and 'no answer' in body['message']
+        results = [x[2] for x in desk.logged]
+        assert results == ['refused', 'refused', 'done', 'refused', 'unanswered']
+        assert desk.acted == ['reset', 'enable', 'hold']
+    finally:
+        server.stop()
+
+
+def _remote_address():
+    """Return this machine's first non-loopback IPv4 address (None when it has none)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.connect(('192.0.2.1', 9))            # no packet is sent: picks the interface
+            addr = s.getsockname()[0]
+        except OSError:
+            return None
+    return None if addr.startswith('127.') else addr
+
+
+def test_another_machine_watches_read_only_and_acts_only_with_the_token():
+    addr = _remote_address()
+    assert addr, 'this test needs a non-loopback interface (a page from "another machine")'
+    desk = FakeDesk()
+    server, port = _serve(desk, token='s3cret-token', host='0.0.0.0')
+    try:
+        url = f'http://{addr}:{port}'
+
+        async def frame(q=''):
+            async with aiohttp.ClientSession() as s:
+                async with s.get(f'{url}/api/frame?span=1{q}') as r:
+                    return await r.json()
+        assert not asyncio.run(frame())['may_act']['allowed']
+        assert asyncio.run(frame('&token=s3cret-token'))['may_act']['allowed']
+        status, body = _post(f'{url}/api/action/reset', {})
+        assert status == 403 and 'read-only' in body['message'] and desk.acted == []
+        assert desk.logged[0][1] == addr           # the refusal names where it came from
+        status, body = _post(f'{url}/api/action/reset', {'token': 's3cret-token'})
+        assert status == 200 and desk.acted == ['reset']
+    finally:
+        server.stop()
+
+
+def test_a_page_gets_frames_at_its_rate_and_changes_its_time_base():
+    desk = FakeDesk()
+    server, port = _serve(desk, push_rate=50.0)
+    try:
+        async def go():
+            async with aiohttp.ClientSession() as s:
+                async with s.ws_connect(f'http://127.0.0.1:{port}/ws?span=1') as ws:
+                    first = json.loads((await ws.receive()).data)
+                    await ws.send_str(json.dumps({'span': 0.1}))
+                    await ws.send_str('not json')           # ignored, the page goes on
+                    for _ in range(50):
+                        f = json.loads((await ws.receive()).data)
+                        if f['span'] == 0.1:
+                            break
+                    pages = desk.pages
+                    return first, f, pages
+        first, last, pages = asyncio.run(go())
+        assert first['span'] == 1.0 and last['span'] == 0.1 and pages == 1
+        assert first['may_act']['allowed'] and first['lost'].startswith('waiting')
+        for _ in range(100):                              # the closed page is counted out
+            if desk.pages == 0:
+                break
+            asyncio.run(asyncio.sleep(0.02))
+        assert desk.pages == 0 and desk.acted == []       # a closed page did nothing
+    finally:
+        server.stop()
+
+
+def test_a_bad_time_base_is_refused_naming_the_choices():
+    desk = FakeDesk()
+    server, port = _serve(desk)
+    try:
+        async def go():
+            async with aiohttp.ClientSession() as s:
+                async with s.get(f'http://127.0.0.1:{port}/api/frame?span=3') as r:
+                    return r.status, await r.text()
+        status, text = asyncio.run(go())
+        assert status == 400 and '3' in text and '0.1' in text
+    finally:
+        server.stop()
+
+
+def test_the_page_and_its_charting_library_are_shipped_in_the_package():
+    from ros_ehs.web.app import STATIC
+    assert (STATIC / 'index.html').is_file()
+    lib = (STATIC / 'vendor' / 'uPlot.iife.min.js').read_text()
+    pinned = json.loads((STATIC / 'vendor' / 'package.json').read_text())
+    version = pinned['dependencies']['uplot']
+    assert lib.startswith(f'/*! https://github.com/leeoniya/uPlot (v{version})')
+    html = (STATIC / 'index.html').read_text()
+    assert 'http://' not in html and 'https://' not in html      # no CDN: rigs are offline
+
+
+def test_a_station_on_a_port_in_use_says_so():
+    desk = FakeDesk()
+    server, port = _serve(desk)
+    try:
+        with pytest.raises(OSError, match=f'127.0.0.1:{port}'):
+            StationServer(make_app(desk, Access(), 25.0), '127.0.0.1', port).start()
+    finally:
+        server.stop()

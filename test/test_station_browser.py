@@ -1,0 +1,174 @@
+"""
+The operator's station in a real browser (Debian's Chromium, headless) against a running bench.
+
+Playwright drives the page as an operator would, against the real nodes in lock-step (the
+loop waits for every node, so what the page sees does not depend on the machine's timing):
+the scope and meters update; a tripped limit shows, Reset is refused with its reason while
+the piston is beyond the limit and clears the latch once the limit is raised; Disable and
+Enable (each confirmed in a dialog) turn the hydraulics off and ramp them on; a procedure's
+Start, Hold and Resume. Every action is in the bag (``station/events``, read by rosbags)
+with where it came from. Every wait is on the page's content, a status or the bag.
+"""
+
+from pathlib import Path
+import shutil
+
+import pytest
+from ros_ehs.nodes.processes import NodeProcesses
+import ros_ehs_msgs_py as c
+from waits import BOUND, call_service, status_value, wait_value
+
+pytestmark = pytest.mark.ros
+FAST = {'diagnostics_period': 0.05}
+CHROMIUM = '/usr/bin/chromium'
+#: Chromium on a machine with no network (the flags keep it from calling home)
+ARGS = ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+        '--disable-background-networking', '--disable-component-update', '--disable-sync']
+WAIT_MS = BOUND * 1000
+
+
+@pytest.fixture
+def browser():
+    from playwright.sync_api import sync_playwright
+    assert Path(CHROMIUM).is_file(), \
+        f'{CHROMIUM} is missing: `bash scripts/test.sh` installs Debian chromium'
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        yield b
+        b.close()
+
+
+def _station(procs):
+    """Start the station on a free port; return its url (from its status)."""
+    procs.start('station', {'port': 0, **FAST})
+    assert procs.wait_status(c.STATION_STATUS, lambda st: 'url' in st.values, BOUND), \
+        procs['station'].output()[-3000:]
+    return procs.status(c.STATION_STATUS).values['url']
+
+
+def _page(browser):
+    page = browser.new_page(viewport={'width': 1400, 'height': 1000})
+    errors = []
+    page.on('pageerror', lambda e: errors.append(str(e)))
+    page.on('dialog', lambda d: d.accept())          # the operator confirms
+    page.errors = errors
+    return page
+
+
+def _answer(page, *words):
+    """Wait until the page's answer line says every one of ``words``; return it."""
+    page.wait_for_function(
+        'words => { const a = document.getElementById("answer");'
+        ' return !a.hidden && words.every(w => a.textContent.includes(w)); }',
+        arg=list(words), timeout=WAIT_MS)
+    return page.inner_text('#answer')
+
+
+def _station_events(bag):
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as r:
+        conns = [x for x in r.connections if x.topic == '/station/events']
+        return [c.station_event_from_msg(ts.deserialize_cdr(raw, conn.msgtype))
+                for conn, _, raw in r.messages(conns)]
+
+
+def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path, ros, browser):
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    bag = tmp_path / 'bag'
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', bag=bag, plant={'duration': 600.0, **FAST},
+                         controller={'limit_position_max': 0.03,
+                                     'limit_position_max_action': 'hold', **FAST})
+        page = _page(browser)
+        page.goto(_station(procs))
+        # the scope and the meters update: the scope's newest time moves on, frame to frame
+        page.wait_for_function('window.station.last && window.station.last.scope.end > 0.5',
+                               timeout=WAIT_MS)
+        end = page.evaluate('window.station.last.scope.end')
+        page.wait_for_function(f'window.station.last.scope.end > {end} + 0.2', timeout=WAIT_MS)
+        assert page.inner_text('[data-meter="position.max"]') != '-'
+        # the trip shows, with its limit and action
+        row = page.wait_for_selector('tr.latched[data-detector="limit_position_max"]',
+                                     timeout=WAIT_MS)
+        assert '0.03' in row.inner_text() and 'hold' in row.inner_text()
+        page.wait_for_function('document.getElementById("axis").textContent.includes('
+                               '"interlock hold")', timeout=WAIT_MS)
+        # Reset while the piston is held at the limit: refused, and the page says why
+        page.click('[data-testid=reset]')
+        text = _answer(page, 'refused', 'limit_position_max')
+        assert 'limit 0.03 m' in text, text
+        assert page.query_selector('tr.latched[data-detector="limit_position_max"]')
+        # the engineer raises the limit (the station does not edit limits); Reset clears it
+        val = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.05)
+        req = SetParameters.Request(parameters=[Parameter(name='limit_position_max', value=val)])
+        assert call_service(ros, SetParameters, '/controller/set_parameters',
+                            req).results[0].successful
+        page.click('[data-testid=reset]')
+        _answer(page, 'reset: done')
+        page.wait_for_selector('tr[data-detector="limit_position_max"]:not(.latched)',
+                               timeout=WAIT_MS)
+        # hydraulics off (confirmed), then on: the controller ramps on from where it is
+        page.click('[data-testid=disable]')
+        _answer(page, 'disable: done')
+        page.wait_for_function('document.getElementById("hyd").textContent === "off"',
+                               timeout=WAIT_MS)
+        page.click('[data-testid=enable]')
+        _answer(page, 'enable: done', 'ramping on')
+        page.wait_for_function('document.getElementById("hyd").textContent === "on" && '
+                               'document.getElementById("ramp").value === 1', timeout=WAIT_MS)
+        page.wait_for_function('document.getElementById("events").textContent.includes('
+                               '"enabled")', timeout=WAIT_MS)
+        assert page.errors == []
+        page.close()
+        # a closed page changes nothing on the axis: the loop runs on, no action after it
+        steps = status_value(procs, c.PLANT_STATUS, 'steps')
+        wait_value(procs, c.PLANT_STATUS, 'steps', steps + 500)
+        assert procs.status(c.CONTROLLER_STATUS).message == 'running'
+        procs.stop(['station', 'recorder', 'reference', 'controller', 'plant'])
+    events = _station_events(bag)
+    assert [(e['action'], e['result']) for e in events] == [
+        ('reset', 'refused'), ('reset', 'done'), ('disable', 'done'), ('enable', 'done')]
+    assert all(e['origin'].startswith('127.0.0.1 (') and 'Chrome' in e['origin']
+               for e in events), events
+
+
+def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
+    proc = tmp_path / 'test.yaml'
+    shutil.copy(Path(__file__).parent / 'fixtures' / 'procedure_long.yaml', proc)
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        procs.start_loop('lockstep', bag=tmp_path / 'bag',
+                         plant={'duration': 600.0, 'k_L': 1.0e6, 'specimen_life': 1.0e12,
+                                **FAST},
+                         controller={'ramp_time': 0.05, **FAST},
+                         procedure={'file': str(proc), 'autostart': False, **FAST})
+        page = _page(browser)
+        page.goto(_station(procs))
+        page.wait_for_function('document.querySelector("[data-testid=proc-state]") && '
+                               'document.querySelector("[data-testid=proc-state]")'
+                               '.textContent === "idle"', timeout=WAIT_MS)
+        page.click('[data-testid=start]')
+        _answer(page, 'start: done')
+
+        def cycles_past(n):
+            page.wait_for_function(
+                f'Number(document.querySelector("[data-testid=total-cycles]").textContent) > {n}',
+                timeout=WAIT_MS)
+            return int(page.inner_text('[data-testid=total-cycles]'))
+
+        cycles_past(3)
+        page.click('[data-testid=hold]')
+        _answer(page, 'hold: done')
+        page.wait_for_function('document.querySelector("[data-testid=proc-state]")'
+                               '.textContent === "held"', timeout=WAIT_MS)
+        held = int(status_value(procs, c.PROCEDURE_STATUS, 'total_cycles'))
+        steps = status_value(procs, c.PLANT_STATUS, 'steps')
+        wait_value(procs, c.PLANT_STATUS, 'steps', steps + 1000)     # 1 s of loop, held
+        assert int(status_value(procs, c.PROCEDURE_STATUS, 'total_cycles')) == held
+        page.click('[data-testid=resume]')
+        _answer(page, 'resume: done')
+        assert cycles_past(held + 2) > held + 2
+        assert page.errors == []
+        procs.stop(['station', 'procedure', 'recorder', 'controller', 'plant'])
