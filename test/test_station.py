@@ -7,6 +7,7 @@ client (a client we did not write), with a recording desk in place of the ROS no
 """
 
 import asyncio
+import base64
 import json
 import math
 import socket
@@ -29,7 +30,7 @@ def test_the_scope_envelope_keeps_a_peak_shorter_than_a_slot():
     for k in range(5000):                         # 5 s at 1 kHz, a 1 ms spike at 2.5005 s
         s.add(k * 1e-3, {'position': 1.0 if k == 2500 else 0.0})
     v = s.view(5.0, 50)                           # 100 samples a slot
-    hi = np.array(v['position'][1], dtype=float)
+    hi = v['position'][1]
     assert len(v['t']) == 50 and hi.max() == 1.0 and (hi == 1.0).sum() == 1
     assert v['t'][0] == pytest.approx(-5.0) and v['end'] == pytest.approx(4.999)
 
@@ -40,8 +41,7 @@ def test_the_scope_is_a_ring_and_drops_what_goes_back_in_time():
         s.add(k * 1e-3, {'position': float(k)})
     assert len(s) == 100
     v = s.view(60.0, 10)                          # more than it holds: only what it has
-    lo = [x for x in v['position'][0] if x is not None]
-    assert min(lo) == 900.0 and max(v['position'][1], key=lambda x: x or 0) == 999.0
+    assert np.nanmin(v['position'][0]) == 900.0 and np.nanmax(v['position'][1]) == 999.0
     assert not s.add(0.5, {'position': 1.0}) and s.out_of_order == 1
     assert not s.add(math.nan, {'position': 1.0}) and s.out_of_order == 2
 
@@ -51,12 +51,24 @@ def test_the_scope_shows_a_gap_for_nan_and_empty_slots_and_rejects_a_bad_view():
     s.add(0.0, {'position': 1.0, 'force': math.nan})
     s.add(1.0, {'position': 2.0})
     v = s.view(1.0, 4)
-    assert v['force'] == [[None] * 4, [None] * 4]
-    assert v['position'][1][1:3] == [None, None]       # nothing in the middle slots
+    assert np.isnan(v['force'][0]).all() and np.isnan(v['force'][1]).all()
+    assert np.isnan(v['position'][1][1:3]).all()       # nothing in the middle slots
     for span, buckets in ((0.0, 4), (math.inf, 4), (1.0, 0)):
         with pytest.raises(ValueError):
             s.view(span, buckets)
     assert Scope(10).view(1.0, 4)['end'] is None
+
+
+def test_a_page_gets_the_scope_packed_as_float32_rows_that_decode_to_the_view():
+    s = Scope(1000, ('position', 'force'))
+    for k in range(500):
+        s.add(k * 1e-3, {'position': math.sin(k / 50), 'force': math.nan if k < 250 else k})
+    v, p = s.view(0.5, 20), s.packed(0.5, 20)
+    rows = np.frombuffer(base64.b64decode(p['data']), '<f4').reshape(len(p['rows']), p['n'])
+    assert p['rows'] == ['t', 'position.min', 'position.max', 'force.min', 'force.max']
+    assert np.allclose(rows[2], v['position'][1], rtol=1e-6, equal_nan=True)
+    assert np.allclose(rows[3], v['force'][0], rtol=1e-6, equal_nan=True)
+    assert np.isnan(rows[3][:10]).all() and p['end'] == pytest.approx(0.499)
 
 
 # -- meters ------------------------------------------------------------------------------------
@@ -149,17 +161,26 @@ def test_the_board_keeps_a_bounded_log_and_trend():
 # -- the station: scope and meters from states ------------------------------------------------
 def test_the_station_scope_takes_states_and_restarts_with_a_new_run():
     st = Station(scope_samples=1000, buckets=10)
-    st.take_reference(Reference(0, 0.01, 0.0))
+    st.take_reference(Reference(10**9, 0.01, 0.0))
     for k in range(100):
         st.take_state(AxisState(10**9 + k * 10**6, 0.009, 0.0, force=100.0, i=0.001))
     f = st.frame(0.0, 0.1)
     assert f['meters']['error']['value'] == pytest.approx(0.001)
     assert f['force_source'] == 'hydraulic' and f['states'] == 100
+    assert f['meters']['reference']['value'] == pytest.approx(0.01)
+    # a reference 4 ms old is carried to the state's stamp with its velocity; 60 ms old is not
+    st.take_reference(Reference(10**9, 0.01, 0.5))
+    st.take_state(AxisState(10**9 + 4 * 10**6, 0.012, 0.0))
+    assert st.meters['reference'].value == pytest.approx(0.012)
+    assert st.meters['error'].value == pytest.approx(0.0, abs=1e-12)
+    st.take_state(AxisState(10**9 + 60 * 10**6, 0.012, 0.0))
+    assert st.meters['reference'].value == pytest.approx(0.01)
     st.take_state(AxisState(5 * 10**6, 0.0, 0.0, load=50.0))       # stamps start again
     assert len(st.scope) == 1 and st.force_source == 'load cell'
     with pytest.raises(ValueError):
         st.frame(0.0, 3.0)
     json.dumps(st.frame(0.0, TIME_BASES[0]), allow_nan=False)
+    assert 'board' not in st.frame(0.0, 1.0, board=False)
 
 
 # -- the web server ----------------------------------------------------------------------------
@@ -171,8 +192,8 @@ class FakeDesk:
         self.answer = answer
         self.acted, self.logged, self.pages = [], [], 0
 
-    def frame(self, span):
-        return self.station.frame(0.0, span)
+    def frame(self, span, board=True):
+        return self.station.frame(0.0, span, board)
 
     async def act(self, action):
         self.acted.append(action)
@@ -274,6 +295,10 @@ def test_a_page_gets_frames_at_its_rate_and_changes_its_time_base():
             async with aiohttp.ClientSession() as s:
                 async with s.ws_connect(f'http://127.0.0.1:{port}/ws?span=1') as ws:
                     first = json.loads((await ws.receive()).data)
+                    # the board 5 times a second: at 50 frames a second, every tenth frame
+                    boards = ['board' in json.loads((await ws.receive()).data)
+                              for _ in range(20)]
+                    assert [k for k, b in enumerate(boards) if b] == [9, 19]
                     await ws.send_str(json.dumps({'span': 0.1}))
                     await ws.send_str('not json')           # ignored, the page goes on
                     for _ in range(50):
@@ -284,7 +309,7 @@ def test_a_page_gets_frames_at_its_rate_and_changes_its_time_base():
                     return first, f, pages
         first, last, pages = asyncio.run(go())
         assert first['span'] == 1.0 and last['span'] == 0.1 and pages == 1
-        assert first['may_act']['allowed'] and first['lost'].startswith('waiting')
+        assert first['may_act']['allowed'] and first['board']['lost'].startswith('waiting')
         for _ in range(100):                              # the closed page is counted out
             if desk.pages == 0:
                 break

@@ -6,8 +6,9 @@ loop waits for every node, so what the page sees does not depend on the machine'
 the scope and meters update; a tripped limit shows, Reset is refused with its reason while
 the piston is beyond the limit and clears the latch once the limit is raised; Disable and
 Enable (each confirmed in a dialog) turn the hydraulics off and ramp them on; a procedure's
-Start, Hold and Resume. Every action is in the bag (``station/events``, read by rosbags)
-with where it came from. Every wait is on the page's content, a status or the bag.
+Start, Hold and Resume; a controller that goes away shows as a lost graph; ``bench.py
+--station``. Every action is in the bag (``station/events``, read by rosbags) with where it
+came from. Every wait is on the page's content, a status or the bag.
 """
 
 from pathlib import Path
@@ -170,5 +171,45 @@ def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
         page.click('[data-testid=resume]')
         _answer(page, 'resume: done')
         assert cycles_past(held + 2) > held + 2
+        # the controller goes away: the page says the graph is lost and disables its buttons
+        procs.stop(['controller'])
+        page.wait_for_function('document.getElementById("link").textContent.includes('
+                               '"the ROS graph is lost")', timeout=WAIT_MS)
+        assert page.is_disabled('[data-testid=reset]') and page.is_disabled('[data-testid=hold]')
         assert page.errors == []
-        procs.stop(['station', 'procedure', 'recorder', 'controller', 'plant'])
+        procs.stop(['station', 'procedure', 'recorder', 'plant'])
+
+
+def test_bench_py_starts_the_station_beside_the_bench_and_stops_it_cleanly(
+        dom, tmp_path, browser):
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    from ros_ehs.nodes.processes import launch_script
+    cmd = [sys.executable, str(launch_script('bench.py')), '--mode', 'lockstep', '--duration',
+           '600', '--out', str(tmp_path / 'bag'), '--log-dir', str(tmp_path / 'logs'),
+           '--no-cpu-affinity', '--station', '0']
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                         env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
+    try:
+        said = []
+        for line in p.stdout:                     # its own words: where the page is
+            said.append(line)
+            m = re.match(r'bench: station on (http://127\.0\.0\.1:\d+/)', line)
+            if m or 'loop running' in line:
+                break
+        assert m, ''.join(said)
+        page = _page(browser)
+        page.goto(m.group(1))
+        page.wait_for_function('window.station.last && window.station.last.scope.end > 0.5 '
+                               '&& window.station.last.controller', timeout=WAIT_MS)
+        assert page.inner_text('[data-testid=link]') == 'connected'
+        p.send_signal(signal.SIGINT)
+        out, _ = p.communicate(timeout=BOUND)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, ''.join(said) + out
+    assert 'bench: done' in out, out

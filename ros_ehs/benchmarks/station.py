@@ -20,7 +20,8 @@ rounds without and with the station in the order without, with, with, without (s
 of the machine's load weighs on both alike). With it: the station node on the reference's
 CPU and one page open in headless Chromium (Debian's, driven by Playwright) at the default
 5 s time base. Prints each round's fresh-cycle fraction and watchdog trips, the station's CPU
-share and the frames the page received a second; the last line is one JSON object with
+share, the browser's (every Chromium process) and the frames the page received a second;
+``--rt-priority`` runs plant and controller under SCHED_FIFO. The last line is one JSON object with
 ``fresh_with``, ``fresh_without``, ``trips_with``, ``trips_without``, ``station_cpu``
 (fraction of a core, the worst round) and ``updates_per_s`` (what the page received, the
 slowest round), and the spread of the rounds without it.
@@ -50,10 +51,24 @@ def _cpu(pid: int) -> float:
     return t.user + t.system
 
 
-def _round(dom: int, seconds: float, browser, with_station: bool) -> dict:
+def _browser_cpu() -> float:
+    """Return the CPU seconds of every Chromium process (browser, renderer, GPU, ...)."""
+    total = 0.0
+    for p in psutil.process_iter(['exe']):
+        try:
+            if (p.info['exe'] or '').startswith('/usr/lib/chromium/'):
+                t = p.cpu_times()
+                total += t.user + t.system
+        except psutil.Error:
+            pass
+    return total
+
+
+def _round(dom: int, seconds: float, browser, with_station: bool, rt_priority: int) -> dict:
+    loop = {'rt_priority': rt_priority} if rt_priority else {}
     with NodeProcesses(dom) as procs:
-        procs.start_loop('realtime')
-        station_cpu = updates = 0.0
+        procs.start_loop('realtime', plant=loop, controller=loop)
+        station_cpu = updates = browser_cpu = 0.0
         if with_station:
             ref_cpu = (loop_placement(True) or (-1, -1))[1]
             procs.start('station', {'port': 0, 'cpu_affinity': ref_cpu})
@@ -65,12 +80,14 @@ def _round(dom: int, seconds: float, browser, with_station: bool) -> dict:
             page.goto(procs.status(contract.STATION_STATUS).values['url'])
             page.wait_for_function('window.station.frames > 0', timeout=60_000)
             c0, f0 = _cpu(procs['station'].pid), page.evaluate('window.station.frames')
+            b0 = _browser_cpu()
         t0 = time.monotonic()
         time.sleep(seconds)
         if with_station:
             dt = time.monotonic() - t0
             station_cpu = (_cpu(procs['station'].pid) - c0) / dt
             updates = (page.evaluate('window.station.frames') - f0) / dt
+            browser_cpu = (_browser_cpu() - b0) / dt
             page.close()
             procs.stop(['station'])
         procs.stop(['plant', 'controller', 'reference'])     # the plant first: no stale tail
@@ -78,7 +95,7 @@ def _round(dom: int, seconds: float, browser, with_station: bool) -> dict:
     return {'with_station': with_station, 'cycles': f['cycles'],
             'fresh_cycle_fraction': f['fresh_cycle_fraction'],
             'watchdog_trips': f['watchdog_trips'], 'station_cpu': round(station_cpu, 3),
-            'updates_per_s': round(updates, 1)}
+            'browser_cpu': round(browser_cpu, 3), 'updates_per_s': round(updates, 1)}
 
 
 def main(argv=None) -> int:
@@ -87,6 +104,8 @@ def main(argv=None) -> int:
     ap.add_argument('--seconds', type=positive, default=30.0, help='seconds per round')
     ap.add_argument('--rounds', type=count, default=4,
                     help='rounds: without, with, with, without the station, ...')
+    ap.add_argument('--rt-priority', type=int, default=0,
+                    help='SCHED_FIFO priority of plant and controller (0: none)')
     a = ap.parse_args(argv)
     from playwright.sync_api import sync_playwright
     rounds = []
@@ -95,15 +114,17 @@ def main(argv=None) -> int:
                                      headless=True)
         try:
             for r in range(a.rounds):
-                res = _round(dom, a.seconds, browser, with_station=r % 4 in (1, 2))  # ABBA
+                res = _round(dom, a.seconds, browser, r % 4 in (1, 2), a.rt_priority)  # ABBA
                 rounds.append(res)
                 print(f'round {r + 1}: station {"on " if res["with_station"] else "off"}  '
                       f'fresh {res["fresh_cycle_fraction"]:.5f}  watchdog trips '
-                      f'{res["watchdog_trips"]}  station CPU {res["station_cpu"]:.3f}  page '
-                      f'updates {res["updates_per_s"]:.1f}/s', flush=True)
+                      f'{res["watchdog_trips"]}  station CPU {res["station_cpu"]:.3f}  browser '
+                      f'CPU {res["browser_cpu"]:.3f}  page updates {res["updates_per_s"]:.1f}/s',
+                      flush=True)
         finally:
             browser.close()
-    figures = {'seconds': a.seconds, 'rounds': a.rounds, 'per_round': rounds}
+    figures = {'seconds': a.seconds, 'rounds': a.rounds, 'rt_priority': a.rt_priority,
+               'per_round': rounds}
     for kind, on in (('with', True), ('without', False)):
         rs = [r for r in rounds if r['with_station'] == on]
         n = sum(r['cycles'] for r in rs)
@@ -115,6 +136,7 @@ def main(argv=None) -> int:
     with_ = [r for r in rounds if r['with_station']]
     figures['station_cpu'] = max((r['station_cpu'] for r in with_), default=None)
     figures['updates_per_s'] = min((r['updates_per_s'] for r in with_), default=None)
+    figures['browser_cpu'] = max((r['browser_cpu'] for r in with_), default=None)
     return report(figures)
 
 

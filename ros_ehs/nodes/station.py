@@ -152,9 +152,9 @@ class StationNode(Node):
             self.station.take_estimate(time.monotonic(), e)
 
     # -- the web server's side (its own thread) ----------------------------------------------
-    def frame(self, span: float) -> dict:
+    def frame(self, span: float, board: bool = True) -> dict:
         """Return one page frame."""
-        body = self.station.frame(time.monotonic(), span)
+        body = self.station.frame(time.monotonic(), span, board)
         body['station'] = {'url': self.url, 'pages': self.counts['pages']}
         return body
 

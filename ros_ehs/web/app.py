@@ -19,7 +19,9 @@ Routes:
 * ``GET /``: the page (``static/index.html``); ``/static/...`` its scripts, the charting
   library among them (uPlot, shipped in the package: a rig's network is offline);
 * ``GET /ws``: a WebSocket; the server sends a frame (:meth:`Desk.frame`) ``push_rate``
-  times a second; the page sends ``{"span": s}`` to change its time base;
+  times a second, the board with it :data:`BOARD_HZ` times a second (the first frame always);
+  the page sends ``{"span": s}`` to change its time base. Uncompressed: the frames are mostly
+  a base64 block, and compressing them cost the station more than sending them;
 * ``GET /api/frame?span=s``: one frame, for a script or a test;
 * ``POST /api/meters/reset``: the meters' min/max and cycles forgotten (the station's own
   state, nothing on the axis; the access rule applies);
@@ -49,7 +51,7 @@ from aiohttp import web, WSMsgType
 from ros_ehs.core.station.access import Access
 from ros_ehs.core.station.scope import TIME_BASES
 
-__all__ = ['ACTIONS', 'CONFIRM', 'Desk', 'make_app', 'STATIC', 'StationServer']
+__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'STATIC', 'StationServer']
 
 STATIC = Path(__file__).resolve().with_name('static')
 #: what a page may ask: the controller's and the procedure's services
@@ -57,13 +59,15 @@ ACTIONS = ('reset', 'enable', 'disable', 'start', 'hold', 'resume', 'stop')
 #: actions that need ``confirm`` in the request (the page asks the operator first)
 CONFIRM = ('enable', 'disable')
 DEFAULT_SPAN = 5.0
+#: how often a page gets the board (statuses, detectors, events) [Hz]: read by eye
+BOARD_HZ = 5.0
 
 
 class Desk(Protocol):
     """What the web server needs from the station node."""
 
-    def frame(self, span: float) -> dict:
-        """Return one frame for time base ``span`` [s]."""
+    def frame(self, span: float, board: bool = True) -> dict:
+        """Return one frame for time base ``span`` [s] (with the board when ``board``)."""
 
     async def act(self, action: str) -> tuple[bool, str]:
         """Do ``action`` through its service; (done, the answer or why not)."""
@@ -175,7 +179,7 @@ def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Applica
 
     @routes.get('/ws')
     async def websocket(request: web.Request) -> web.StreamResponse:
-        ws = web.WebSocketResponse(heartbeat=10.0)
+        ws = web.WebSocketResponse(heartbeat=10.0, compress=False)
         await ws.prepare(request)
         span = _span(request.query.get('span'))
         may = access.decide(request.remote, request.query.get('token'))._asdict()
@@ -194,11 +198,14 @@ def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Applica
         listener = asyncio.ensure_future(listen())
         try:
             period = 1.0 / push_rate
+            every = max(1, round(push_rate / BOARD_HZ))
             loop = asyncio.get_running_loop()
             next_t = loop.time()
+            k = 0
             while not ws.closed and not listener.done():
-                body = desk.frame(span)
+                body = desk.frame(span, board=k % every == 0)
                 body['may_act'] = may
+                k += 1
                 await ws.send_str(json.dumps(body, allow_nan=False))
                 next_t += period
                 await asyncio.sleep(max(0.0, next_t - loop.time()))

@@ -15,17 +15,18 @@
 The station's scope: the loop's signals kept at full rate for a while, shown decimated.
 
 :class:`Scope` keeps the newest ``capacity`` samples of its channels in a ring (a week-long
-test adds nothing to its memory) and answers :meth:`Scope.view` with a min/max envelope:
-the time base cut in ``buckets`` equal slots, each slot's first time and the lowest and
-highest value of each channel in it. A peak shorter than a slot is still drawn (a plain
-every-n-th decimation would drop it), and what the page receives does not grow with the
-loop's rate. Edge-case policy: a sample older than the newest is dropped and counted
+test adds nothing to its memory) and answers :meth:`Scope.view` (:meth:`Scope.packed` the same
+for a page) with a min/max envelope: the time base cut in ``buckets`` equal slots, each slot's
+first time and the lowest and highest value of each channel in it. A peak shorter than a
+slot is still drawn (a plain every-n-th decimation would drop it), and what the page receives
+does not grow with the loop's rate. Edge-case policy: a sample older than the newest is dropped and counted
 (``out_of_order``: the time axis never goes back); a non-finite value is kept as NaN (a
 gap in that channel only); an empty slot is NaN in every channel (a gap in the trace).
 """
 
 from __future__ import annotations
 
+import base64
 import math
 from typing import Mapping, Sequence
 
@@ -94,23 +95,24 @@ class Scope:
         """
         Return the newest ``span`` seconds as an envelope of ``buckets`` slots.
 
-        ``{'t': [slot start, s], 'end': newest time, '<channel>': [[min...], [max...]]}``;
-        times are relative to the newest sample (so <= 0), NaN as None (JSON null).
+        ``{'end': newest time [s] (None when empty), 't': slot starts [s] relative to the
+        newest sample (so <= 0), '<channel>': (min, max)}``, arrays of ``buckets`` (NaN: no
+        finite sample in the slot).
         """
         if not (math.isfinite(span) and span > 0):
             raise ValueError(f'`span` = {span!r} s must be finite and > 0')
         if not (isinstance(buckets, int) and buckets >= 1):
             raise ValueError(f'`buckets` = {buckets!r} must be an int >= 1')
-        out: dict = {'end': None, 't': []}
+        nan = np.full(buckets, np.nan)
+        out: dict = {'end': None, 't': -span + span * np.arange(buckets) / buckets}
         for name in self.channels:
-            out[name] = [[], []]
+            out[name] = (nan, nan)
         if not self._n:
             return out
         t, v = self._ordered()
         end = float(t[-1])
         lo = np.searchsorted(t, end - span, side='left')
         t, v = t[lo:], v[lo:]
-        edges = end - span + span * np.arange(buckets) / buckets
         slot = np.clip(((t - (end - span)) / span * buckets).astype(int), 0, buckets - 1)
         vmin = np.full((buckets, v.shape[1]), np.inf)
         vmax = np.full((buckets, v.shape[1]), -np.inf)
@@ -120,12 +122,25 @@ class Scope:
         vmin[~np.isfinite(vmin)] = np.nan
         vmax[~np.isfinite(vmax)] = np.nan
         out['end'] = end
-        out['t'] = _json((edges - end).round(6))
         for j, name in enumerate(self.channels):
-            out[name] = [_json(vmin[:, j]), _json(vmax[:, j])]
+            out[name] = (vmin[:, j], vmax[:, j])
         return out
 
+    def packed(self, span: float, buckets: int) -> dict:
+        """
+        Return :meth:`view` as a page receives it: one base64 block of float32 rows.
 
-def _json(a: np.ndarray) -> list:
-    """Return ``a`` as a list with NaN as None (JSON has no NaN)."""
-    return [None if x != x else float(x) for x in a.tolist()]
+        ``{'end', 'rows': ['t', '<channel>.min', '<channel>.max', ...], 'n': buckets,
+        'data': base64 of the rows, little-endian float32, row after row}``. Encoding 11 rows
+        of 400 numbers this way costs microseconds; as JSON numbers it cost the station a
+        fifth of a core at 25 frames a second.
+        """
+        v = self.view(span, buckets)
+        rows = [v['t']]
+        names = ['t']
+        for name in self.channels:
+            rows += list(v[name])
+            names += [f'{name}.min', f'{name}.max']
+        data = np.asarray(rows, dtype='<f4').tobytes()
+        return {'end': v['end'], 'rows': names, 'n': buckets,
+                'data': base64.b64encode(data).decode('ascii')}

@@ -20,8 +20,10 @@ and answers :meth:`Station.frame`, one page update: the scope's envelope for the
 base, every meter, the board. The node's executor writes and the web server's thread reads:
 one lock guards both, held for a copy, never for a wait.
 
-The scope's error is the newest reference minus the state's position (the controller's own
-error interpolates the reference to the state's stamp: this one is for the eye); its force is
+The scope's reference and error take the newest reference carried to the state's stamp with
+its velocity (first-order hold, as the controller extrapolates a reference that comes slower
+than the states: a 250 Hz reference drawn as it is showed a 100 um sawtooth of error that the
+loop does not have), when it is at most ``HOLD_NS`` older than the state; its force is
 the load cell where the state has one, else the piston's hydraulic force
 (``force_source`` says which).
 """
@@ -37,7 +39,10 @@ from ros_ehs.core.station.meters import Meter
 from ros_ehs.core.station.scope import CHANNELS, Scope, TIME_BASES
 from ros_ehs_msgs_py.values import AxisState, ParameterEstimate, Reference
 
-__all__ = ['FLOORS', 'Station']
+__all__ = ['FLOORS', 'HOLD_NS', 'Station']
+
+#: a reference older than this [ns] is not carried to a state's stamp: drawn as it is
+HOLD_NS = 50_000_000
 
 #: each meter's band floor [SI]: above a bench's noise peak to peak (5 um: 8 sigma is 40 um), so
 #: a held axis makes no cycles
@@ -58,7 +63,7 @@ class Station:
         self.force_source = 'none'
         self.states = 0
         self.frames = 0
-        self._ref = math.nan
+        self._ref = Reference(0, math.nan, math.nan)
         self._lock = threading.Lock()
         self._t0: int | None = None
 
@@ -66,7 +71,7 @@ class Station:
     def take_reference(self, r: Reference) -> None:
         """Take the newest reference."""
         with self._lock:
-            self._ref = r.z_ref
+            self._ref = r
 
     def take_state(self, s: AxisState) -> None:
         """Take one state: a scope sample and every meter."""
@@ -75,7 +80,11 @@ class Station:
             if self._t0 is None or s.stamp_ns < self._t0:
                 self._t0 = s.stamp_ns             # a new run (stamps start again)
                 self.scope.clear()
-            values = {'position': s.z, 'reference': self._ref, 'error': self._ref - s.z,
+            r = self._ref
+            dt = s.stamp_ns - r.stamp_ns
+            ref = r.z_ref + r.v_ref * dt * 1e-9 if 0 <= dt <= HOLD_NS and \
+                math.isfinite(r.v_ref) else r.z_ref
+            values = {'position': s.z, 'reference': ref, 'error': ref - s.z,
                       'force': force, 'current': s.i}
             self.scope.add((s.stamp_ns - self._t0) * 1e-9, values)
             for name, m in self.meters.items():
@@ -109,13 +118,21 @@ class Station:
             self.board.take_estimate(now, e)
 
     # -- the page ----------------------------------------------------------------------------
-    def frame(self, now: float, span: float) -> dict:
-        """Return one page update for time base ``span`` [s] (one of :data:`TIME_BASES`)."""
+    def frame(self, now: float, span: float, board: bool = True) -> dict:
+        """
+        Return one page update for time base ``span`` [s] (one of :data:`TIME_BASES`).
+
+        The scope (:meth:`Scope.packed`) and the meters always; the board (statuses,
+        detectors, events, estimates) when ``board`` (a page takes it a few times a second).
+        """
         if span not in TIME_BASES:
             raise ValueError(f'time base {span!r} s is not one of {TIME_BASES}')
         with self._lock:
             self.frames += 1
-            return {'scope': self.scope.view(span, self.buckets), 'span': span,
-                    'units': dict(CHANNELS), 'force_source': self.force_source,
-                    'meters': {k: m.as_dict() for k, m in self.meters.items()},
-                    'states': self.states, **self.board.snapshot(now)}
+            out = {'scope': self.scope.packed(span, self.buckets), 'span': span,
+                   'units': dict(CHANNELS), 'force_source': self.force_source,
+                   'meters': {k: m.as_dict() for k, m in self.meters.items()},
+                   'states': self.states}
+            if board:
+                out['board'] = self.board.snapshot(now)
+            return out

@@ -13,6 +13,11 @@
 
   const esc = (t) => String(t).replace(/[&<>"]/g,
     (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;' })[c]);
+  // write an element's HTML only when it changed: a frame that changes nothing costs no layout
+  function put(id, html) {
+    const el = $(id);
+    if (el.dataset.html !== html) { el.innerHTML = html; el.dataset.html = html; }
+  }
   function fmt(x, digits) {
     if (x === null || x === undefined || Number.isNaN(x)) return '-';
     return Number(x).toPrecision(digits || 4);
@@ -46,13 +51,23 @@
                   chart($('chart-f'), ['force', 'current'], 220)];
   let trend = null;
 
+  // the scope comes as one base64 block of float32 rows (t, then each channel's min and max)
+  function unpack(scope) {
+    const bytes = Uint8Array.from(atob(scope.data), (ch) => ch.charCodeAt(0));
+    const all = new Float32Array(bytes.buffer);
+    const rows = {};
+    scope.rows.forEach((name, k) => { rows[name] = all.subarray(k * scope.n, (k + 1) * scope.n); });
+    return rows;
+  }
+
   function drawScope(scope) {
+    const rows = unpack(scope);
+    const scaled = (a, s) => Array.from(a, (v) => (Number.isNaN(v) ? null : v * s));
     for (const c of charts) {
-      const data = [scope.t];
+      const data = [Array.from(rows.t)];
       for (const ch of c.channels) {
-        const s = SCALE[ch];
-        data.push(scope[ch][1].map((v) => (v === null ? null : v * s)));
-        data.push(scope[ch][0].map((v) => (v === null ? null : v * s)));
+        data.push(scaled(rows[`${ch}.max`], SCALE[ch]));
+        data.push(scaled(rows[`${ch}.min`], SCALE[ch]));
       }
       c.plot.setData(data);
     }
@@ -66,7 +81,7 @@
       const label = name === 'force' ? `force (${f.force_source})` : name;
       return `<tr><td>${label} [${UNIT[name]}]</td>${cells.join('')}</tr>`;
     });
-    $('meters').innerHTML = rows.join('');
+    put('meters', rows.join(''));
   }
 
   function drawSafety(f) {
@@ -76,26 +91,26 @@
     $('ramp').value = Number(ctl.ramp || 0);
     $('mode').textContent = ctl.control_mode ? `${ctl.control_mode} (${ctl.mode})` : '-';
     $('interlock').textContent = ctl.interlock || '-';
-    $('detectors').innerHTML = f.detectors.map((d) => {
+    put('detectors', f.detectors.map((d) => {
       const cls = d.latched ? 'latched' : '';
       const lim = d.limit === null ? '-' : `${fmt(d.limit)} ${d.unit}`;
       return `<tr class="${cls}" data-detector="${d.name}"><td>${d.name}</td><td>${lim}</td>` +
              `<td>${d.action}</td><td>${d.latched ? 'TRIPPED' : 'clear'}</td>` +
              `<td>${d.trips}</td></tr>`;
-    }).join('');
+    }).join(''));
   }
 
   function drawProcedure(f) {
     const p = f.procedure;
-    if (!p) { $('proc').textContent = 'no procedure node heard'; return; }
+    if (!p) { put('proc', 'no procedure node heard'); return; }
     const v = p.values;
     const ttg = Number(v.time_to_go_s);
-    $('proc').innerHTML = `<div>state <b data-testid="proc-state">${esc(v.state || p.message)}</b>` +
+    put('proc', `<div>state <b data-testid="proc-state">${esc(v.state || p.message)}</b>` +
       ` &middot; step ${esc(v.step_index || '-')} <b>${esc(v.step || '')}</b></div>` +
       `<div>cycles: step <b data-testid="step-cycles">${v.step_cycles || 0}</b>, total ` +
       `<b data-testid="total-cycles">${v.total_cycles || 0}</b> &middot; time to go ` +
       `${Number.isFinite(ttg) ? ttg.toFixed(0) + ' s' : '-'}</div>` +
-      (v.reason ? `<div class="note">${esc(v.reason)}</div>` : '');
+      (v.reason ? `<div class="note">${esc(v.reason)}</div>` : ''));
   }
 
   function drawEstimate(f) {
@@ -103,9 +118,9 @@
     if (!e) return;
     const rows = Object.entries(e.params).map(([k, p]) =>
       `<tr><td>${k}</td><td>${fmt(p.value)}</td><td>&plusmn; ${fmt(p.stderr, 2)}</td></tr>`);
-    $('estimate').innerHTML = `<div>${e.adequate ? 'adequate' : 'NOT ADEQUATE'}` +
+    put('estimate', `<div>${e.adequate ? 'adequate' : 'NOT ADEQUATE'}` +
       `${e.pushed ? ', pushed to the controller' : ''}: <span class="note">${esc(e.message)}</span>` +
-      `</div><table>${rows.join('')}</table>`;
+      `</div><table>${rows.join('')}</table>`);
     const names = Object.keys(f.trend);
     if (!names.length) return;
     if (!trend || trend.names.join() !== names.join()) {
@@ -127,9 +142,9 @@
 
   function drawEvents(f) {
     $('events-total').textContent = `${f.events_total} in all`;
-    $('events').innerHTML = f.events.slice().reverse().slice(0, 100).map((e) =>
+    put('events', f.events.slice().reverse().slice(0, 100).map((e) =>
       `<li class="l${e.level}">${new Date(e.at * 1000).toLocaleTimeString()} ` +
-      `<b>${esc(e.source)} ${esc(e.kind)}</b> ${esc(e.message)}</li>`).join('');
+      `<b>${esc(e.source)} ${esc(e.kind)}</b> ${esc(e.message)}</li>`).join(''));
   }
 
   function drawHeader(f) {
@@ -150,11 +165,20 @@
     });
   }
 
-  function onFrame(f) {
+  // the scope redraws every frame; the numbers at most TEXT_HZ times a second (a meter read by
+  // eye needs no more, and each table rewrite costs the browser a layout)
+  const TEXT_HZ = 5;
+  let lastText = 0;
+  function onFrame(frame) {
     state.frames += 1;
+    if (frame.board) state.board = frame.board;      // the board comes a few times a second
+    const f = Object.assign({}, state.board, frame);
     state.last = f;
-    drawHeader(f);
     if (!state.paused) drawScope(f.scope);
+    const now = performance.now();
+    if (now - lastText < 1000 / TEXT_HZ) return;
+    lastText = now;
+    drawHeader(f);
     drawMeters(f);
     drawSafety(f);
     drawProcedure(f);
