@@ -19,9 +19,10 @@ test adds nothing to its memory) and answers :meth:`Scope.view` (:meth:`Scope.pa
 for a page) with a min/max envelope: the time base cut in ``buckets`` equal slots, each slot's
 first time and the lowest and highest value of each channel in it. A peak shorter than a
 slot is still drawn (a plain every-n-th decimation would drop it), and what the page receives
-does not grow with the loop's rate. Edge-case policy: a sample older than the newest is dropped and counted
-(``out_of_order``: the time axis never goes back); a non-finite value is kept as NaN (a
-gap in that channel only); an empty slot is NaN in every channel (a gap in the trace).
+does not grow with the loop's rate. Edge-case policy: a sample older than the newest is
+dropped and counted (``out_of_order``: the time axis never goes back); a non-finite value is
+kept as NaN (a gap in that channel only); an empty slot is NaN in every channel (a gap in the
+trace).
 """
 
 from __future__ import annotations
