@@ -146,6 +146,27 @@ def test_a_cyclic_step_counts_its_cycles_exactly_and_ends_at_its_count():
     assert ax.refs[-1].z_ref == 0.0
 
 
+def test_a_state_lost_at_a_cycles_start_does_not_uncount_the_cycle():
+    """
+    A real-time loop loses a state now and then (a late period, a dropped message).
+
+    A lost state at a cycle boundary once left 4 of 400 applied cycles uncounted on a bench
+    (the cycle's first state came 2 ms after its start, and the cycle counted as begun
+    mid-way): a cycle is whole when the step ran from its start, whatever states came.
+    """
+    p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.02}, CYCLIC)
+    r, ax = started(p)
+    lost = {T0 + (100 + 100 * k) * MS + d * MS for k in range(1, 20, 3) for d in (0, 1, 2)}
+    while r.state != 'finished':
+        ax.stamp += MS
+        ref = r.sample(ax.stamp)
+        if ax.stamp not in lost:                # every third cycle starts without its states
+            r.measure(ax.stamp, ref.z_ref, K * ref.z_ref)
+        assert ax.stamp < T0 + 10**10
+    assert r.result == 'completed' and r.counts == [0, 20] and r.total == 20
+    assert [c.count for c in r.cycles] == list(range(1, 21))
+
+
 def test_block_loading_counts_each_blocks_cycles_at_its_levels():
     blocks = [[0.003, 0.001, 3], [0.004, 0.0, 2]]
     p = proc({'name': 'blocks', 'type': 'cyclic', 'waveform': 'triangle', 'blocks': blocks,

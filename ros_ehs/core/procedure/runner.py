@@ -602,7 +602,9 @@ class ProcedureRunner:
             cyc = seg.cyc = {
                 'k': k, 'lead': seg.lead > 0 and tau < w.t_off + seg.lead,
                 'cmd': [cmd, cmd], 'z': [z, z], 'f': [load, load],
-                'first': abs(tau - w.cycle_start(k)) <= 1.5 * self.dt_ns * 1e-9,
+                # begun within this segment (not cut by its start): a whole cycle, whether or
+                # not a state came at its very start (a real-time loop loses one now and then)
+                'first': w.cycle_start(k) >= w.t_off - 0.5 * self.dt_ns * 1e-9,
                 'capture': ({'count': cap, 't': [], 'cmd': [], 'z': [], 'f': []}
                             if step.capture == 'log' and capture_counts(cap) else None)}
         for key, v in (('cmd', cmd), ('z', z), ('f', load)):
