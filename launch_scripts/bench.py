@@ -310,7 +310,11 @@ def main(argv=None) -> int:
                 print(f"bench: the station did not start (its log: {logs / 'station.log'})",
                       file=sys.stderr)
             else:
-                print(f"bench: station on {st.values['url']}", flush=True)
+                url = st.values['url']
+                pin = ('' if procs.placement is None else
+                       f' (a browser on this machine: `taskset -c {procs.placement[1]} chromium '
+                       f"{url}` keeps it off the loop's CPU; docs/station.md)")
+                print(f'bench: station on {url}{pin}', flush=True)
         where = ('' if procs.placement is None else
                  '; plant and controller on CPU {}, reference on CPU {}'.format(
                      *procs.placement))

@@ -21,16 +21,20 @@ of the machine's load weighs on both alike). With it: the station node on the re
 CPU and one page open in headless Chromium (Debian's, driven by Playwright) at the default
 5 s time base. Prints each round's fresh-cycle fraction and watchdog trips, the station's CPU
 share, the browser's (every Chromium process) and the frames the page received a second;
-``--rt-priority`` runs plant and controller under SCHED_FIFO. The last line is one JSON object with
-``fresh_with``, ``fresh_without``, ``trips_with``, ``trips_without``, ``station_cpu``
-(fraction of a core, the worst round) and ``updates_per_s`` (what the page received, the
-slowest round), and the spread of the rounds without it.
+``--rt-priority`` runs plant and controller under SCHED_FIFO; ``--no-page`` runs the station
+without a page on this machine (as when it is open on another); ``--browser-cpu N`` starts
+Chromium pinned to CPU N (taskset), away from the loop's CPU. The last line is one JSON
+object with ``fresh_with``, ``fresh_without``, ``trips_with``, ``trips_without``,
+``station_cpu`` (fraction of a core, the worst round), ``browser_cpu`` and ``updates_per_s``
+(what the page received, the slowest round), and the spread of the rounds without it.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import tempfile
 import time
 
 from domain_coordinator import domain_id
@@ -64,7 +68,13 @@ def _browser_cpu() -> float:
     return total
 
 
-def _round(dom: int, seconds: float, browser, with_station: bool, rt_priority: int) -> dict:
+def _frames(page) -> int:
+    """Return the frames the page has received (0 without a page)."""
+    return page.evaluate('window.station.frames') if page is not None else 0
+
+
+def _round(dom: int, seconds: float, browser, with_station: bool, rt_priority: int,
+           page_open: bool) -> dict:
     loop = {'rt_priority': rt_priority} if rt_priority else {}
     with NodeProcesses(dom) as procs:
         procs.start_loop('realtime', plant=loop, controller=loop)
@@ -76,19 +86,21 @@ def _round(dom: int, seconds: float, browser, with_station: bool, rt_priority: i
                                      60):
                 raise RuntimeError('the station did not start:\n'
                                    + procs['station'].output()[-3000:])
-            page = browser.new_page()
-            page.goto(procs.status(contract.STATION_STATUS).values['url'])
-            page.wait_for_function('window.station.frames > 0', timeout=60_000)
-            c0, f0 = _cpu(procs['station'].pid), page.evaluate('window.station.frames')
+            page = browser.new_page() if page_open else None
+            if page is not None:
+                page.goto(procs.status(contract.STATION_STATUS).values['url'])
+                page.wait_for_function('window.station.frames > 0', timeout=60_000)
+            c0, f0 = _cpu(procs['station'].pid), _frames(page)
             b0 = _browser_cpu()
         t0 = time.monotonic()
         time.sleep(seconds)
         if with_station:
             dt = time.monotonic() - t0
             station_cpu = (_cpu(procs['station'].pid) - c0) / dt
-            updates = (page.evaluate('window.station.frames') - f0) / dt
+            updates = (_frames(page) - f0) / dt
             browser_cpu = (_browser_cpu() - b0) / dt
-            page.close()
+            if page is not None:
+                page.close()
             procs.stop(['station'])
         procs.stop(['plant', 'controller', 'reference'])     # the plant first: no stale tail
         f = procs['plant'].figures()
@@ -106,15 +118,26 @@ def main(argv=None) -> int:
                     help='rounds: without, with, with, without the station, ...')
     ap.add_argument('--rt-priority', type=int, default=0,
                     help='SCHED_FIFO priority of plant and controller (0: none)')
+    ap.add_argument('--browser-cpu', type=int, default=None, metavar='CPU',
+                    help='start Chromium pinned to this CPU (taskset), away from the loop')
+    ap.add_argument('--page', action=argparse.BooleanOptionalAction, default=True,
+                    help='open the page in headless Chromium (--no-page: the station alone, '
+                         'as when the page is open on another machine)')
     a = ap.parse_args(argv)
     from playwright.sync_api import sync_playwright
     rounds = []
-    with domain_id() as dom, sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS,
-                                     headless=True)
+    with domain_id() as dom, sync_playwright() as pw, tempfile.TemporaryDirectory() as tmp:
+        exe = CHROMIUM
+        if a.browser_cpu is not None:           # as an operator pins it: taskset -c N chromium
+            exe = os.path.join(tmp, 'chromium')
+            with open(exe, 'w') as f:
+                f.write(f'#!/bin/sh\nexec taskset -c {a.browser_cpu} {CHROMIUM} "$@"\n')
+            os.chmod(exe, 0o755)
+        browser = pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS, headless=True)
         try:
             for r in range(a.rounds):
-                res = _round(dom, a.seconds, browser, r % 4 in (1, 2), a.rt_priority)  # ABBA
+                res = _round(dom, a.seconds, browser, r % 4 in (1, 2), a.rt_priority,  # ABBA
+                             a.page)
                 rounds.append(res)
                 print(f'round {r + 1}: station {"on " if res["with_station"] else "off"}  '
                       f'fresh {res["fresh_cycle_fraction"]:.5f}  watchdog trips '
@@ -124,6 +147,7 @@ def main(argv=None) -> int:
         finally:
             browser.close()
     figures = {'seconds': a.seconds, 'rounds': a.rounds, 'rt_priority': a.rt_priority,
+               'page': a.page, 'browser_cpu_pinned': a.browser_cpu,
                'per_round': rounds}
     for kind, on in (('with', True), ('without', False)):
         rs = [r for r in rounds if r['with_station'] == on]

@@ -30,9 +30,11 @@
     const scales = {};
     channels.forEach((c, k) => {
       const hi = series.length;
+      // no points: 400 slots are a line (uPlot draws a marker at each point of a sparse series)
       series.push({ label: `${c} max [${UNIT[c]}]`, stroke: COLOR[c], scale: UNIT[c],
-                    spanGaps: false });
-      series.push({ label: `${c} min`, stroke: COLOR[c], scale: UNIT[c], spanGaps: false });
+                    spanGaps: false, points: { show: false } });
+      series.push({ label: `${c} min`, stroke: COLOR[c], scale: UNIT[c], spanGaps: false,
+                    points: { show: false } });
       bands.push({ series: [hi, hi + 1], fill: COLOR[c] + '33' });
       if (!scales[UNIT[c]]) {
         scales[UNIT[c]] = {};
