@@ -13,5 +13,5 @@ fi
 echo "[browser] installing Debian's chromium"
 export DEBIAN_FRONTEND=noninteractive
 apt-get update -q >/dev/null
-apt-get install -y -q --no-install-recommends chromium >/dev/null
+apt-get install -y -q chromium >/dev/null
 echo "[browser] $(/usr/bin/chromium --version)"
