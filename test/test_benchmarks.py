@@ -38,7 +38,11 @@ from ros_ehs.benchmarks.__main__ import BENCHMARKS
     ('record', ['--rates', '20000,x'], "argument --rates: must be a finite number > 0, not 'x'"),
     ('record', ['--rates', '-5'], "argument --rates: must be a finite number > 0, not '-5'"),
     ('record', ['--seconds', 'inf'], "argument --seconds: must be a finite number > 0, not 'inf'"),
-    ('record', ['--compressions', 'gzip'], '--compressions takes none, zstd or lz4')])
+    ('record', ['--compressions', 'gzip'], '--compressions takes none, zstd or lz4'),
+    ('verdict', ['--rigs', '0'], "argument --rigs: must be a whole number >= 1, not '0'"),
+    ('station', ['--seconds', 'nan'], 'argument --seconds: must be a finite number > 0'),
+    ('station', ['--rt-priority', '120'], 'argument --rt-priority: parameter `rt_priority`'),
+    ('station', ['--browser-cpu', '99'], 'argument --browser-cpu: must be a CPU of this')])
 def test_the_benchmarks_refuse_bad_numbers_by_name(bench, args, says):
     import subprocess
     import sys

@@ -16,6 +16,11 @@
 import argparse
 import json
 import math
+import os
+from typing import Any, Callable
+
+from ros_ehs.core.errors import ParameterError
+from ros_ehs.core.settings import parse_value, Setting
 
 
 def positive(text: str) -> float:
@@ -37,6 +42,30 @@ def count(text: str) -> int:
         v = 0
     if v < 1:
         raise argparse.ArgumentTypeError(f'must be a whole number >= 1, not {text!r}')
+    return v
+
+
+def setting(spec: Setting) -> Callable[[str], Any]:
+    """Return an argparse ``type`` that takes a value of ``spec`` (its range and kind)."""
+    def parse(text: str) -> Any:
+        try:
+            return spec.check(parse_value(text))
+        except (ParameterError, ValueError) as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+    parse.__name__ = spec.name
+    return parse
+
+
+def cpu(text: str) -> int:
+    """Parse the index of one of this machine's CPUs (an argparse ``type``)."""
+    n = os.cpu_count() or 1
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if not 0 <= v < n:
+        raise argparse.ArgumentTypeError(f'must be a CPU of this machine (0 to {n - 1}), '
+                                         f'not {text!r}')
     return v
 
 

@@ -39,7 +39,8 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import count, positive, report
+from ros_ehs.benchmarks import count, cpu, positive, report, setting
+from ros_ehs.core.options import RT_PRIORITY
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
 
@@ -116,9 +117,9 @@ def main(argv=None) -> int:
     ap.add_argument('--seconds', type=positive, default=30.0, help='seconds per round')
     ap.add_argument('--rounds', type=count, default=4,
                     help='rounds: without, with, with, without the station, ...')
-    ap.add_argument('--rt-priority', type=int, default=0,
+    ap.add_argument('--rt-priority', type=setting(RT_PRIORITY), default=0,
                     help='SCHED_FIFO priority of plant and controller (0: none)')
-    ap.add_argument('--browser-cpu', type=int, default=None, metavar='CPU',
+    ap.add_argument('--browser-cpu', type=cpu, default=None, metavar='CPU',
                     help='start Chromium pinned to this CPU (taskset), away from the loop')
     ap.add_argument('--page', action=argparse.BooleanOptionalAction, default=True,
                     help='open the page in headless Chromium (--no-page: the station alone, '
