@@ -135,7 +135,8 @@ class StationNode(Node):
         if e is not None:
             self.station.take_event(time.time(), 'controller', e.kind, contract.event_level(e),
                                     e.message, detector=e.detector, action=e.action,
-                                    value=e.value, limit=e.limit, unit=e.unit)
+                                    value=e.value, limit=e.limit, unit=e.unit,
+                                    stamp_ns=e.stamp_ns)
 
     def _on_procedure_event(self, msg: DiagnosticArray) -> None:
         e = read_msg(self, contract.procedure_event_from_msg, msg, 'procedure event')
@@ -144,7 +145,7 @@ class StationNode(Node):
             self.station.take_event(time.time(), 'procedure', e['kind'],
                                     level[0] if isinstance(level, bytes) else int(level),
                                     e['message'], step=e['step'],
-                                    total_cycles=e['total_cycles'])
+                                    total_cycles=e['total_cycles'], stamp_ns=e['stamp_ns'])
 
     def _on_estimate(self, msg: DiagnosticArray) -> None:
         e = read_msg(self, contract.estimate_from_msg, msg, 'parameter estimate')

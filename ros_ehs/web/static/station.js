@@ -142,10 +142,19 @@
     })));
   }
 
+  // an event's own stamp: wall time in real time; in lock-step the loop's simulated seconds
+  // (a stamp before 1973), with the time the station heard it
+  function when(e) {
+    const heard = new Date(e.at * 1000).toLocaleTimeString();
+    if (e.stamp_ns === undefined || e.stamp_ns === null) return heard;
+    if (e.stamp_ns > 1e17) return new Date(e.stamp_ns / 1e6).toLocaleTimeString();
+    return `${heard} (loop ${(e.stamp_ns / 1e9).toFixed(3)} s)`;
+  }
+
   function drawEvents(f) {
     $('events-total').textContent = `${f.events_total} in all`;
     put('events', f.events.slice().reverse().slice(0, 100).map((e) =>
-      `<li class="l${e.level}">${new Date(e.at * 1000).toLocaleTimeString()} ` +
+      `<li class="l${e.level}">${when(e)} ` +
       `<b>${esc(e.source)} ${esc(e.kind)}</b> ${esc(e.message)}</li>`).join(''));
   }
 
