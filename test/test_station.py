@@ -87,6 +87,19 @@ def test_a_meter_finds_each_cycles_peak_and_valley_above_the_noise():
     assert held.cycles == 0 and math.isnan(held.peak)
 
 
+def test_the_noise_on_a_large_cycle_makes_no_cycles_of_its_own():
+    """A 4 kN sine of hydraulic force with 300 N of noise: 10 cycles in 2 s, no more."""
+    rng = np.random.default_rng(1)
+    m = Meter(floor=50.0)                     # the station's force floor [N]
+    t = np.arange(0, 3.0, 1e-3)
+    for k, x in enumerate(4000 * np.sin(2 * np.pi * 5 * t) + 300 * rng.standard_normal(t.size)):
+        if k == 1000:
+            m.reset()                         # the meter's range stays: it is the signal's
+        m.add(float(x))
+    assert m.as_dict()['cycles'] == 10
+    assert m.peak == pytest.approx(4000, abs=1200) and m.valley == pytest.approx(-4000, abs=1200)
+
+
 def test_a_meter_ignores_non_finite_values_and_reset_keeps_the_value():
     m = Meter(floor=1.0)
     for x in (0.0, 5.0, math.nan, math.inf, -5.0, 5.0):
