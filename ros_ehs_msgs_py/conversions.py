@@ -417,15 +417,18 @@ def estimate_from_msg(msg: Any) -> ParameterEstimate:
         raise ValueError(f'parameter_estimates: a value is not a number: {err}') from None
 
 
+def _level_of(status: Any) -> int:
+    """Return a DiagnosticStatus's level as an int (rclpy gives a byte, dicts an int)."""
+    level = _get(status, 'level')
+    return level[0] if isinstance(level, (bytes, bytearray)) else int(level)
+
+
 def statuses_from_msg(msg: Any) -> list[NodeStatus]:
     """Return every status of a ``diagnostics`` DiagnosticArray as :class:`NodeStatus`."""
     t = stamp_ns(_get(msg, 'header'))
     out = []
     for st in _get(msg, 'status'):
-        level = _get(st, 'level')
-        out.append(NodeStatus(t, _get(st, 'name'),
-                              level[0] if isinstance(level, (bytes, bytearray)) else int(level),
-                              _get(st, 'message'),
+        out.append(NodeStatus(t, _get(st, 'name'), _level_of(st), _get(st, 'message'),
                               {_get(kv, 'key'): _get(kv, 'value') for kv in _get(st, 'values')}))
     return out
 
@@ -496,4 +499,5 @@ def procedure_event_from_msg(msg: Any) -> dict[str, Any]:
     st, vals = _status_values(msg, 'procedure/events', _PROCEDURE_EVENT_KEYS)
     return {'kind': vals['kind'], 'what': vals['what'], 'value': float(vals['value']),
             'total_cycles': int(vals['total_cycles']), 'step': int(vals['step']),
-            'stamp_ns': int(vals['stamp_ns']), 'message': _get(st, 'message')}
+            'stamp_ns': int(vals['stamp_ns']), 'message': _get(st, 'message'),
+            'level': _level_of(st)}

@@ -21,6 +21,7 @@ from ros_ehs.core.station.meters import Meter
 from ros_ehs.core.station.scope import Scope, TIME_BASES
 from ros_ehs.core.station.station import Station
 from ros_ehs.web.app import make_app, StationServer
+import ros_ehs_msgs_py as c
 from ros_ehs_msgs_py.values import AxisState, ParameterEstimate, Reference
 
 
@@ -129,30 +130,44 @@ def test_access_lets_this_machine_act_and_others_only_with_the_token():
 
 
 # -- board -------------------------------------------------------------------------------------
-def _controller_values(**extra):
+def _controller_status(**extra):
+    """Return the controller's status, serialized by rosbags and read by the contract."""
+    from rosbags.typesys import get_typestore, Stores
     v = {'tripped': 'limit_position_max', 'trips_limit_position_max': '1', 'enabled': 'True',
-         'limit_position_max.limit': '0.03', 'limit_position_max.action': 'hold'}
+         'limit_position_max.limit': '0.03', 'limit_position_max.action': 'hold',
+         'trips_limit_velocity': 'garbled'}
     v.update(extra)
-    return v
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    msg = T['diagnostic_msgs/msg/DiagnosticArray'](
+        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
+            sec=1, nanosec=0), frame_id=''),
+        status=[T['diagnostic_msgs/msg/DiagnosticStatus'](
+            level=2, name=c.CONTROLLER_STATUS, message='interlock hold', hardware_id='axis',
+            values=[T['diagnostic_msgs/msg/KeyValue'](key=k, value=x) for k, x in v.items()])])
+    raw = ts.serialize_cdr(msg, 'diagnostic_msgs/msg/DiagnosticArray')
+    back = ts.deserialize_cdr(raw, 'diagnostic_msgs/msg/DiagnosticArray')
+    return c.statuses_from_msg(back)[0]
 
 
 def test_the_board_says_the_graph_is_lost_when_the_controller_is_not_heard():
     b = Board(lost_after=3.0)
     assert 'waiting for the controller' in b.lost(0.0)
-    b.take_status('controller', 10.0, 2, 'interlock hold', _controller_values())
+    b.take_status('controller', 10.0, _controller_status())
     assert b.lost(12.9) is None
     assert 'for 3.5 s' in b.lost(13.5)
     with pytest.raises(ValueError):
-        b.take_status('somebody', 0.0, 0, '', {})
+        b.take_status('somebody', 0.0, _controller_status())
 
 
 def test_the_board_lists_every_detector_with_its_limit_action_and_latch():
     b = Board()
-    b.take_status('controller', 0.0, 2, 'interlock hold', _controller_values())
+    b.take_status('controller', 0.0, _controller_status())
     d = {x['name']: x for x in b.detectors()}
     assert d['limit_position_max'] == {'name': 'limit_position_max', 'limit': 0.03, 'unit': 'm',
                                        'action': 'hold', 'latched': True, 'trips': 1}
     assert not d['limit_velocity']['latched'] and d['limit_velocity']['limit'] is None
+    assert d['limit_velocity']['trips'] == 0              # a garbled count is not a crash
     snap = b.snapshot(1.0)
     assert 'limit_position_max.limit' not in snap['controller']['values']   # in the table only
     json.dumps(snap, allow_nan=False)
@@ -365,3 +380,25 @@ def test_a_station_on_a_port_in_use_says_so():
             StationServer(make_app(desk, Access(), 25.0), '127.0.0.1', port).start()
     finally:
         server.stop()
+
+
+def test_a_procedure_event_reads_back_with_its_level_through_rosbags():
+    """The station's event log takes the level from the contract's decoder, any message kind."""
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    msg = c.fill_procedure_event(c.empty_msg('diagnostic_msgs/msg/DiagnosticArray'), 5, 1,
+                                 'held', 'cycles', 3.0, 3, 1, 'held at cycle 3')
+    st = msg['status'][0]
+    arr = T['diagnostic_msgs/msg/DiagnosticArray'](
+        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
+            sec=0, nanosec=5), frame_id=''),
+        status=[T['diagnostic_msgs/msg/DiagnosticStatus'](
+            level=st['level'][0], name=st['name'], message=st['message'], hardware_id='axis',
+            values=[T['diagnostic_msgs/msg/KeyValue'](key=kv['key'], value=kv['value'])
+                    for kv in st['values']])])
+    back = ts.deserialize_cdr(ts.serialize_cdr(arr, 'diagnostic_msgs/msg/DiagnosticArray'),
+                              'diagnostic_msgs/msg/DiagnosticArray')
+    e = c.procedure_event_from_msg(back)
+    assert (e['kind'], e['level'], e['total_cycles'], e['stamp_ns']) == ('held', 1, 3, 5)
+    assert c.procedure_event_from_msg(msg)['level'] == 1           # a dict message too

@@ -109,26 +109,29 @@ class StationNode(Node):
              ' (other machines watch only: no token)')))
 
     # -- messages in -------------------------------------------------------------------------
-    def _on_state(self, data: bytes) -> None:
-        s = read_msg(self, self._read_state, data, 'state')
-        if s is None:
+    def _decoded(self, convert, data: bytes, what: str):
+        """Return ``convert(data)``, or None for a malformed message (counted)."""
+        v = read_msg(self, convert, data, what)
+        if v is None:
             self.counts['malformed'] += 1
-            return
-        self.station.take_state(s)
+        return v
+
+    def _on_state(self, data: bytes) -> None:
+        s = self._decoded(self._read_state, data, 'state')
+        if s is not None:
+            self.station.take_state(s)
 
     def _on_reference(self, data: bytes) -> None:
-        r = read_msg(self, contract.reference_from_cdr, data, 'reference')
-        if r is None:
-            self.counts['malformed'] += 1
-            return
-        self.station.take_reference(r)
+        r = self._decoded(contract.reference_from_cdr, data, 'reference')
+        if r is not None:
+            self.station.take_reference(r)
 
     def _on_status(self, msg: DiagnosticArray) -> None:
         now = time.monotonic()
         for st in contract.statuses_from_msg(msg):
             source = _SOURCES.get(st.name)
             if source is not None:
-                self.station.take_status(source, now, st.level, st.message, st.values)
+                self.station.take_status(source, now, st)
 
     def _on_safety_event(self, msg: DiagnosticArray) -> None:
         e = read_msg(self, contract.event_from_msg, msg, 'event')
@@ -141,9 +144,7 @@ class StationNode(Node):
     def _on_procedure_event(self, msg: DiagnosticArray) -> None:
         e = read_msg(self, contract.procedure_event_from_msg, msg, 'procedure event')
         if e is not None:
-            level = msg.status[0].level
-            self.station.take_event(time.time(), 'procedure', e['kind'],
-                                    level[0] if isinstance(level, bytes) else int(level),
+            self.station.take_event(time.time(), 'procedure', e['kind'], e['level'],
                                     e['message'], step=e['step'],
                                     total_cycles=e['total_cycles'], stamp_ns=e['stamp_ns'])
 

@@ -30,10 +30,10 @@ from __future__ import annotations
 
 from collections import deque
 import math
-from typing import Any, Mapping
+from typing import Any
 
 from ros_ehs.core.control.safety import DETECTORS, UNITS
-from ros_ehs_msgs_py.values import ParameterEstimate
+from ros_ehs_msgs_py.values import NodeStatus, ParameterEstimate
 
 __all__ = ['Board', 'SOURCES']
 
@@ -46,6 +46,12 @@ def _num(text: Any) -> float:
         return float(text)
     except (TypeError, ValueError):
         return math.nan
+
+
+def _count(text: Any) -> int:
+    """Return a count read from a status value (0 when missing or not a whole number)."""
+    x = _num(text)
+    return int(x) if math.isfinite(x) else 0
 
 
 def _clean(v: Any) -> Any:
@@ -63,7 +69,7 @@ class Board:
             raise ValueError(f'`lost_after` = {lost_after!r} s must be finite and > 0')
         self.lost_after = float(lost_after)
         self.heard: dict[str, float] = {}
-        self.status: dict[str, tuple[int, str, dict[str, str]]] = {}
+        self.status: dict[str, NodeStatus] = {}
         self.events: deque[dict] = deque(maxlen=events)
         self.events_total = 0
         self.estimates: dict[str, deque[tuple[float, float]]] = {}
@@ -71,13 +77,12 @@ class Board:
         self._trend = trend
 
     # -- input -------------------------------------------------------------------------------
-    def take_status(self, source: str, now: float, level: int, message: str,
-                    values: Mapping[str, str]) -> None:
+    def take_status(self, source: str, now: float, status: NodeStatus) -> None:
         """Take a node's diagnostics status (``source`` one of :data:`SOURCES`)."""
         if source not in SOURCES:
             raise ValueError(f'`source` = {source!r} is not one of {SOURCES}')
         self.heard[source] = now
-        self.status[source] = (int(level), str(message), dict(values))
+        self.status[source] = status
 
     def take_event(self, now_wall: float, source: str, kind: str, level: int, message: str,
                    **extra: Any) -> None:
@@ -109,11 +114,12 @@ class Board:
 
     def detectors(self) -> list[dict]:
         """Return every detector: limit, unit, action, latched, trips (from the controller)."""
-        values = self.status.get('controller', (0, '', {}))[2]
-        tripped = set(filter(None, values.get('tripped', '').split(',')))
+        st = self.status.get('controller')
+        values = st.values if st is not None else {}
+        tripped = st.listed('tripped') if st is not None else set()
         return [{'name': d, 'limit': _clean(_num(values.get(f'{d}.limit'))), 'unit': UNITS[d],
                  'action': values.get(f'{d}.action', ''), 'latched': d in tripped,
-                 'trips': int(_num(values.get(f'trips_{d}', 0)) or 0)} for d in DETECTORS]
+                 'trips': _count(values.get(f'trips_{d}'))} for d in DETECTORS]
 
     def snapshot(self, now: float) -> dict:
         """Return what the page shows now (JSON-able)."""
@@ -126,8 +132,8 @@ class Board:
         for source in ('controller', 'plant', 'procedure'):
             st = self.status.get(source)
             out[source] = None if st is None else {
-                'level': st[0], 'message': st[1],
-                'values': {k: v for k, v in st[2].items() if '.' not in k}}
+                'level': st.level, 'message': st.message,
+                'values': {k: v for k, v in st.values.items() if '.' not in k}}
         out['estimate'] = self.estimate
         out['trend'] = {k: [[round(t - now, 3), x] for t, x in d]
                         for k, d in self.estimates.items()}

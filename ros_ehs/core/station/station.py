@@ -32,12 +32,12 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import Any, Mapping
+from typing import Any
 
 from ros_ehs.core.station.board import Board
 from ros_ehs.core.station.meters import Meter
 from ros_ehs.core.station.scope import CHANNELS, Scope, TIME_BASES
-from ros_ehs_msgs_py.values import AxisState, ParameterEstimate, Reference
+from ros_ehs_msgs_py.values import AxisState, NodeStatus, ParameterEstimate, Reference
 
 __all__ = ['FLOORS', 'HOLD_NS', 'Station']
 
@@ -100,11 +100,10 @@ class Station:
                 m.reset()
 
     # -- the nodes' word ---------------------------------------------------------------------
-    def take_status(self, source: str, now: float, level: int, message: str,
-                    values: Mapping[str, str]) -> None:
+    def take_status(self, source: str, now: float, status: NodeStatus) -> None:
         """Take a node's status (see :meth:`Board.take_status`)."""
         with self._lock:
-            self.board.take_status(source, now, level, message, values)
+            self.board.take_status(source, now, status)
 
     def take_event(self, now_wall: float, source: str, kind: str, level: int, message: str,
                    **extra: Any) -> None:
