@@ -357,6 +357,24 @@ def test_a_bad_time_base_is_refused_naming_the_choices():
                     return r.status, await r.text()
         status, text = asyncio.run(go())
         assert status == 400 and '3' in text and '0.1' in text
+
+        async def ws_bad():                    # refused before the upgrade, as plain HTTP
+            async with aiohttp.ClientSession() as s:
+                with pytest.raises(aiohttp.WSServerHandshakeError) as err:
+                    await s.ws_connect(f'http://127.0.0.1:{port}/ws?span=3')
+                return err.value.status
+        assert asyncio.run(ws_bad()) == 400
+        # the meters' reset passes the same gate as an action: JSON from this page only
+        assert _post(f'http://127.0.0.1:{port}/api/meters/reset', {}) == (
+            200, {'ok': True, 'message': 'meters reset'})
+
+        async def form():
+            async with aiohttp.ClientSession() as s:
+                async with s.post(f'http://127.0.0.1:{port}/api/meters/reset',
+                                  data='x=1') as r:
+                    return r.status, await r.json()
+        status, body = asyncio.run(form())
+        assert status == 403 and 'JSON' in body['message']
     finally:
         server.stop()
 

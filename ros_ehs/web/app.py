@@ -102,6 +102,26 @@ def _same_origin(request: web.Request) -> bool:
     return origin is None or origin in (f'{request.scheme}://{request.host}',)
 
 
+async def _gate(request: web.Request, access: Access) -> tuple[dict, str]:
+    """
+    Return a request's JSON body and why it may not act ('' when it may).
+
+    A JSON object, from this page's own origin, allowed by the access rule (its ``token``).
+    """
+    if request.content_type != 'application/json':
+        return {}, 'an action must be a JSON request'
+    if not _same_origin(request):
+        return {}, f'refused: a page from {request.headers.get("Origin")} may not act here'
+    try:
+        body = await request.json()
+    except ValueError:
+        return {}, 'the request is not valid JSON'
+    if not isinstance(body, dict):
+        return {}, 'the request must be a JSON object'
+    decision = access.decide(request.remote, body.get('token'))
+    return body, '' if decision.allowed else decision.why
+
+
 def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Application:
     """Return the station's aiohttp application."""
     if not (math.isfinite(push_rate) and push_rate > 0):
@@ -130,25 +150,9 @@ def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Applica
             return web.json_response({'ok': False, 'message': f'unknown action {name!r}; '
                                       f'actions: {list(ACTIONS)}'}, status=404)
         origin = _origin(request)
-        why = ''
-        body: dict = {}
-        if request.content_type != 'application/json':
-            why = 'an action must be a JSON request'
-        elif not _same_origin(request):
-            why = f'refused: a page from {request.headers.get("Origin")} may not act here'
-        else:
-            try:
-                body = await request.json()
-            except ValueError:
-                why = 'the request is not valid JSON'
-            if not why and not isinstance(body, dict):
-                why = 'the request must be a JSON object'
-        if not why:
-            decision = access.decide(request.remote, body.get('token'))
-            if not decision.allowed:
-                why = decision.why
-            elif name in CONFIRM and body.get('confirm') is not True:
-                why = f'{name}: hydraulics change only with "confirm": true (the page asks first)'
+        body, why = await _gate(request, access)
+        if not why and name in CONFIRM and body.get('confirm') is not True:
+            why = f'{name}: hydraulics change only with "confirm": true (the page asks first)'
         if why:
             desk.log_action(name, origin, 'refused', why)
             return web.json_response({'ok': False, 'message': why}, status=403)
@@ -163,25 +167,17 @@ def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Applica
 
     @routes.post('/api/meters/reset')
     async def meters_reset(request: web.Request) -> web.Response:
-        if request.content_type != 'application/json' or not _same_origin(request):
-            return web.json_response({'ok': False, 'message': 'refused: not a JSON request '
-                                      'from this page'}, status=403)
-        try:
-            body = await request.json()
-        except ValueError:
-            body = {}
-        decision = access.decide(request.remote, body.get('token') if isinstance(body, dict)
-                                 else None)
-        if not decision.allowed:
-            return web.json_response({'ok': False, 'message': decision.why}, status=403)
+        _, why = await _gate(request, access)
+        if why:
+            return web.json_response({'ok': False, 'message': why}, status=403)
         desk.reset_meters()
         return web.json_response({'ok': True, 'message': 'meters reset'})
 
     @routes.get('/ws')
     async def websocket(request: web.Request) -> web.StreamResponse:
+        span = _span(request.query.get('span'))      # a bad time base: 400, before the upgrade
         ws = web.WebSocketResponse(heartbeat=10.0, compress=False)
         await ws.prepare(request)
-        span = _span(request.query.get('span'))
         may = access.decide(request.remote, request.query.get('token'))._asdict()
         desk.page_count(1)
 
