@@ -22,7 +22,7 @@ import pytest
 from ros_ehs.core.params import preset
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import BOUND
+from waits import BOUND, rosbags_read
 
 pytestmark = pytest.mark.ros
 
@@ -35,13 +35,7 @@ LIVE = {'live': True, 'push': True, 'window': 6.0, 'period': 3.0, 'push_period':
 
 def _estimates(bag):
     """Return the bag's parameter estimates, decoded by rosbags (not our reader)."""
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import get_typestore, Stores
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    with Reader(bag) as r:
-        conns = [x for x in r.connections if x.topic == '/parameter_estimates']
-        return [c.estimate_from_msg(ts.deserialize_cdr(raw, conn.msgtype))
-                for conn, _, raw in r.messages(conns)]
+    return rosbags_read(bag, '/parameter_estimates', c.estimate_from_msg)
 
 
 def _controller_values(ros, names):

@@ -17,7 +17,7 @@ import shutil
 import pytest
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import BOUND, call_service, status_value, wait_value
+from waits import BOUND, call_service, rosbags_read, status_value, wait_value
 
 pytestmark = pytest.mark.ros
 FAST = {'diagnostics_period': 0.05}
@@ -66,13 +66,7 @@ def _answer(page, *words):
 
 
 def _station_events(bag):
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import get_typestore, Stores
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    with Reader(bag) as r:
-        conns = [x for x in r.connections if x.topic == '/station/events']
-        return [c.station_event_from_msg(ts.deserialize_cdr(raw, conn.msgtype))
-                for conn, _, raw in r.messages(conns)]
+    return rosbags_read(bag, '/station/events', c.station_event_from_msg)
 
 
 def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path, ros, browser):

@@ -45,6 +45,17 @@ def bag_counts(bag) -> dict:
         return {}
 
 
+def rosbags_read(bag, topic: str, convert) -> list:
+    """Return ``convert(msg)`` of each message on ``topic``, decoded by rosbags (not ours)."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as r:
+        conns = [x for x in r.connections if x.topic == topic]
+        return [convert(ts.deserialize_cdr(raw, conn.msgtype))
+                for conn, _, raw in r.messages(conns)]
+
+
 def wait_for_bag(bag, least: dict, timeout: float = BOUND) -> dict:
     """
     Wait until the bag being recorded holds ``least`` = {topic: count} messages on disk.
