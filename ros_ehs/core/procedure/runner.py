@@ -604,7 +604,7 @@ class ProcedureRunner:
                 'cmd': [cmd, cmd], 'z': [z, z], 'f': [load, load],
                 # begun within this segment (not cut by its start): a whole cycle, whether or
                 # not a state came at its very start (a real-time loop loses one now and then)
-                'first': w.cycle_start(k) >= w.t_off - 0.5 * self.dt_ns * 1e-9,
+                'begun_here': w.cycle_start(k) >= w.t_off - 0.5 * self.dt_ns * 1e-9,
                 'capture': ({'count': cap, 't': [], 'cmd': [], 'z': [], 'f': []}
                             if step.capture == 'log' and capture_counts(cap) else None)}
         for key, v in (('cmd', cmd), ('z', z), ('f', load)):
@@ -620,7 +620,7 @@ class ProcedureRunner:
     def _close_cycle(self, seg: _Segment, cyc: dict, stamp: int, whole: bool) -> None:
         """Count, record and judge a cycle a state has ended."""
         k = seg.step
-        if not (whole and cyc['first']):
+        if not (whole and cyc['begun_here']):
             return                     # not a whole cycle (cut, or begun mid-way): not counted
         self.counts[k] += 1
         self.total += 1
