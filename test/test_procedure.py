@@ -167,6 +167,27 @@ def test_a_state_lost_at_a_cycles_start_does_not_uncount_the_cycle():
     assert [c.count for c in r.cycles] == list(range(1, 21))
 
 
+def test_a_non_finite_reading_makes_that_cycles_extremes_nan_not_a_number():
+    # a NaN position or an infinite load within a cycle: its record says unknown, not a peak
+    p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.02}, CYCLIC)
+    r, ax = started(p)
+    bad_z, bad_f = T0 + 350 * MS, T0 + 560 * MS          # in cycles 3 and 5
+    while r.state != 'finished':
+        ax.stamp += MS
+        ref = r.sample(ax.stamp)
+        z = math.nan if ax.stamp == bad_z else ref.z_ref
+        f = -math.inf if ax.stamp == bad_f else K * ref.z_ref
+        r.measure(ax.stamp, z, f)
+        assert ax.stamp < T0 + 10**10
+    assert r.total == 20
+    by = {c.count: c for c in r.cycles}
+    assert math.isnan(by[3].z_hi) and math.isnan(by[3].z_lo) and math.isfinite(by[3].f_hi)
+    assert math.isnan(by[5].f_hi) and math.isnan(by[5].f_lo) and math.isfinite(by[5].z_lo)
+    assert by[4].z_hi == pytest.approx(0.003, abs=1e-9) and by[4].f_lo == pytest.approx(
+        K * 0.001, rel=1e-6)
+    assert all(math.isfinite(c.cmd_hi) and math.isfinite(c.cmd_lo) for c in r.cycles)
+
+
 def test_block_loading_counts_each_blocks_cycles_at_its_levels():
     blocks = [[0.003, 0.001, 3], [0.004, 0.0, 2]]
     p = proc({'name': 'blocks', 'type': 'cyclic', 'waveform': 'triangle', 'blocks': blocks,

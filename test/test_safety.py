@@ -4,6 +4,7 @@ The safety layer in process: ros_ehs.core.control.safety and ros_ehs.core.contro
 Each detector at its limit, each action, the latch and its reset, ramp-on, NaN in every input.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -450,6 +451,36 @@ def test_the_break_needs_the_drop_and_the_travel_beyond_theirs_within_its_window
         ev = _feed_load(sup, k, f, z=z)[1]
     assert ev == []                                            # a NaN restarts the window
 
+
+@pytest.mark.parametrize('seed', range(20))
+def test_the_break_trips_exactly_where_a_search_of_the_whole_window_does(seed):
+    # the detector skips its window when the window's extremes rule a break out; on random
+    # tension, compression and sign changes its verdict at every period is the plain search's
+    rng = np.random.default_rng(seed)
+    bd, bt, n = 800.0, 1e-4, 5
+    off = SafetyConfig(ramp_time=0.0, break_drop=bd, break_travel=bt, break_window=n * 1e-3,
+                       actions={**SafetyConfig().actions, 'specimen_break': 'off'})
+    on = dataclasses.replace(off, actions={**off.actions, 'specimen_break': 'indicate'})
+    loads = np.cumsum(rng.normal(0.0, 400.0, 300)) + rng.choice([-3e3, 0.0, 3e3])
+    zs = np.cumsum(rng.normal(0.0, 4e-5, 300))
+    loads[rng.random(300) < 0.02] = math.nan
+    seen = {True: 0, False: 0}
+    since = 0                                   # the window restarts after a NaN
+    for k, (f, z) in enumerate(zip(loads.tolist(), zs.tolist())):
+        if not math.isfinite(f):
+            since = k + 1
+            continue
+        win = [(f0, z0) for f0, z0 in zip(loads[max(since, k - n):k].tolist(),
+                                           zs[max(since, k - n):k].tolist())]
+        want = any(abs(f0) - abs(f) > bd and math.copysign(1.0, f0) * (z - z0) > bt
+                   for f0, z0 in win)
+        sup = Supervisor(off, 1e-3)             # the window's readings, then this one judged
+        for j in range(max(since, k - n), k):
+            _feed_load(sup, j, loads[j], z=zs[j])
+        sup.set_config(on)
+        assert bool(_feed_load(sup, k, f, z=z)[1]) == want, k
+        seen[want] += 1
+    assert seen[True] and seen[False], seen
 
 def test_load_feedback_trips_only_where_the_load_is_needed_and_running():
     sup = _sup()

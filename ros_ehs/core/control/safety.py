@@ -279,6 +279,8 @@ class Supervisor:
         self.counts = dict.fromkeys(DETECTORS, 0)
         self._window: deque[tuple[int, float, float]] = deque()   # the break window: (n, F, z)
         self._win_max: deque[tuple[int, float]] = deque()         # its maxima of |F|, falling
+        self._win_zlo: deque[tuple[int, float]] = deque()    # minima of z where F >= 0, rising
+        self._win_zhi: deque[tuple[int, float]] = deque()    # maxima of z where F < 0, falling
         self._win_seq = 0
         self._restart()
 
@@ -388,23 +390,23 @@ class Supervisor:
             self._check('feedback', True, stamp_ns, float(self._same), 'position frozen for '
                         f'{self._same} periods at {z:.6g} m while |i| >= '
                         f'{cfg.frozen_current:g} A', events)
+        # each detector is judged here and latched by _check only when it is beyond its limit
+        # (a call per detector and period cost a tenth of the virtual test's time)
         if finite:
-            self._check('limit_position_max', z > cfg.limit_position_max, stamp_ns, z, '',
-                        events)
-            self._check('limit_position_min', z < cfg.limit_position_min, stamp_ns, z, '',
-                        events)
-        if math.isfinite(z_dot):
-            self._check('limit_velocity', abs(z_dot) > cfg.limit_velocity, stamp_ns, z_dot, '',
-                        events)
-        if math.isfinite(force):
-            self._check('limit_force', abs(force) > cfg.limit_force, stamp_ns, force, '',
-                        events)
+            if z > cfg.limit_position_max:
+                self._check('limit_position_max', True, stamp_ns, z, '', events)
+            if z < cfg.limit_position_min:
+                self._check('limit_position_min', True, stamp_ns, z, '', events)
+        if abs(z_dot) > cfg.limit_velocity and math.isfinite(z_dot):
+            self._check('limit_velocity', True, stamp_ns, z_dot, '', events)
+        if abs(force) > cfg.limit_force and math.isfinite(force):
+            self._check('limit_force', True, stamp_ns, force, '', events)
         self._check_specimen(stamp_ns, z, load, needs_load, powered, events)
         # saturation: the previous command at its limit for longer than the time
         sat = self.latches['saturation']
         sat.count = sat.count + 1 if (saturated and powered) else 0
-        self._check('saturation', sat.count * dt > cfg.limit_saturation_time, stamp_ns,
-                    sat.count * dt, '', events)
+        if sat.count and sat.count * dt > cfg.limit_saturation_time:
+            self._check('saturation', True, stamp_ns, sat.count * dt, '', events)
         self._last_z = z if finite else self._last_z
         self._last_stamp = stamp_ns
         demand = self._demand(stamp_ns, z, z_traj, v_traj)
@@ -414,9 +416,9 @@ class Supervisor:
         bad = math.isfinite(e) and abs(e) > cfg.limit_error and demand.mode != 'waiting' and \
             (track_position or demand.mode in ('hold', 'stop')) and not limited
         err.count = err.count + 1 if bad else 0
-        if self._check('limit_error', bad and err.count * dt > cfg.limit_error_time, stamp_ns,
-                       e, f'|z_ref - z| = {abs(e):.6g} m above {cfg.limit_error:g} m for '
-                       f'{err.count * dt:.6g} s', events):
+        if bad and err.count * dt > cfg.limit_error_time and self._check(
+                'limit_error', True, stamp_ns, e, f'|z_ref - z| = {abs(e):.6g} m above '
+                f'{cfg.limit_error:g} m for {err.count * dt:.6g} s', events):
             demand = self._demand(stamp_ns, z, z_traj, v_traj)
         return demand, events
 
@@ -426,26 +428,35 @@ class Supervisor:
         cfg = self.config
         if math.isfinite(z):
             d = z - cfg.z_L
-            self._check('limit_specimen_max', d > cfg.limit_specimen_max, stamp_ns, d, '',
-                        events)
-            self._check('limit_specimen_min', d < cfg.limit_specimen_min, stamp_ns, d, '',
-                        events)
+            if d > cfg.limit_specimen_max:
+                self._check('limit_specimen_max', True, stamp_ns, d, '', events)
+            if d < cfg.limit_specimen_min:
+                self._check('limit_specimen_min', True, stamp_ns, d, '', events)
         win = self._window
         if not (math.isfinite(load) and math.isfinite(z)):
             win.clear()
             self._win_max.clear()
+            self._win_zlo.clear()
+            self._win_zhi.clear()
             if needs_load and powered and self._mode in ('run',):
                 self._check('load_feedback', True, stamp_ns, load,
                             'load_feedback: no valid load cell reading (non-finite, missing or '
                             'stale) under force control or specimen protect', events)
             return
-        self._check('limit_load_max', load > cfg.limit_load_max, stamp_ns, load, '', events)
-        self._check('limit_load_min', load < cfg.limit_load_min, stamp_ns, load, '', events)
+        if load > cfg.limit_load_max:
+            self._check('limit_load_max', True, stamp_ns, load, '', events)
+        if load < cfg.limit_load_min:
+            self._check('limit_load_min', True, stamp_ns, load, '', events)
         # the break: against each reading in the window, the drop of |F| and the travel the
         # way that loaded it (sign of that reading's force); only when the window's largest
         # |F| is more than the drop above this one (the window's maxima kept in order)
-        top = self._win_max
-        if top and top[0][1] - abs(load) > cfg.break_drop:
+        # (and only when some reading lies more than the travel the way its force loads: the
+        # lowest z of the tensile readings, the highest of the compressive ones; the loop over
+        # the window ran on every unloading period before)
+        top, zlo, zhi = self._win_max, self._win_zlo, self._win_zhi
+        bt = cfg.break_travel
+        if top and top[0][1] - abs(load) > cfg.break_drop and (
+                (zlo and z - zlo[0][1] > bt) or (zhi and -(z - zhi[0][1]) > bt)):
             for _, f0, z0 in win:
                 drop = abs(f0) - abs(load)
                 travel = math.copysign(1.0, f0) * (z - z0)
@@ -461,11 +472,23 @@ class Supervisor:
         while top and top[-1][1] <= a:
             top.pop()
         top.append((self._win_seq, a))
+        if load >= 0.0:
+            while zlo and zlo[-1][1] >= z:
+                zlo.pop()
+            zlo.append((self._win_seq, z))
+        else:
+            while zhi and zhi[-1][1] <= z:
+                zhi.pop()
+            zhi.append((self._win_seq, z))
         n = max(1, int(math.ceil(cfg.break_window / self.dt - 1e-9)))
         while len(win) > n:
             old = win.popleft()[0]
             if top and top[0][0] == old:
                 top.popleft()
+            if zlo and zlo[0][0] == old:
+                zlo.popleft()
+            if zhi and zhi[0][0] == old:
+                zhi.popleft()
 
     def judge_force_error(self, stamp_ns: int, e: float, dt: float | None = None
                           ) -> list[Event]:
@@ -481,9 +504,10 @@ class Supervisor:
         bad = math.isfinite(e) and abs(e) > cfg.limit_force_error
         lat.count = lat.count + 1 if bad else 0
         t = lat.count * (self.dt if dt is None else dt)
-        self._check('limit_force_error', bad and t > cfg.limit_error_time, stamp_ns, e,
-                    f'|F_ref - F| = {abs(e):.6g} N above {cfg.limit_force_error:g} N for '
-                    f'{t:.6g} s', events)
+        if bad and t > cfg.limit_error_time:
+            self._check('limit_force_error', True, stamp_ns, e,
+                        f'|F_ref - F| = {abs(e):.6g} N above {cfg.limit_force_error:g} N for '
+                        f'{t:.6g} s', events)
         return events
 
     def _check(self, det: str, cond: bool, stamp_ns: int, value: float, why: str,
@@ -641,6 +665,8 @@ class Supervisor:
         self._same = 0
         self._window.clear()
         self._win_max.clear()
+        self._win_zlo.clear()
+        self._win_zhi.clear()
         was = self._mode
         self._mode = 'run'
         if was != 'run' or cleared:

@@ -188,7 +188,7 @@ class AxisController:
             i = self.force.step(stamp_ns, load, f_traj, z)
             new = sup.judge_force_error(stamp_ns, self.force.error)
             events.extend(new)
-            if any(e.action in _ACTING for e in new):       # held in displacement from now
+            if new and any(e.action in _ACTING for e in new):   # held in displacement from now
                 d = self.demand = sup.demand_for(stamp_ns, z, z_traj, v_traj)
                 self._handover('displacement', stamp_ns, z, load, False)
                 i = self._displacement(d, z, force, load, f_traj)

@@ -607,9 +607,14 @@ class ProcedureRunner:
                 'begun_here': w.cycle_start(k) >= w.t_off - 0.5 * self.dt_ns * 1e-9,
                 'capture': ({'count': cap, 't': [], 'cmd': [], 'z': [], 'f': []}
                             if step.capture == 'log' and capture_counts(cap) else None)}
-        for key, v in (('cmd', cmd), ('z', z), ('f', load)):
-            lo, hi = cyc[key]
-            cyc[key] = [min(lo, v), max(hi, v)] if math.isfinite(v) else [math.nan, math.nan]
+        for ext, v in ((cyc['cmd'], cmd), (cyc['z'], z), (cyc['f'], load)):
+            # [lo, hi] in place; a non-finite value makes both NaN, and NaN stays
+            if v - v != 0.0:                    # NaN or infinite
+                ext[0] = ext[1] = math.nan
+            elif v < ext[0]:
+                ext[0] = v
+            elif v > ext[1]:
+                ext[1] = v
         cap = cyc['capture']
         if cap is not None:
             cap['t'].append(stamp)
