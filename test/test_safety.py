@@ -470,17 +470,18 @@ def test_the_break_trips_exactly_where_a_search_of_the_whole_window_does(seed):
         if not math.isfinite(f):
             since = k + 1
             continue
-        win = [(f0, z0) for f0, z0 in zip(loads[max(since, k - n):k].tolist(),
-                                           zs[max(since, k - n):k].tolist())]
+        j0 = max(since, k - n)
+        win = list(zip(loads[j0:k].tolist(), zs[j0:k].tolist()))
         want = any(abs(f0) - abs(f) > bd and math.copysign(1.0, f0) * (z - z0) > bt
                    for f0, z0 in win)
         sup = Supervisor(off, 1e-3)             # the window's readings, then this one judged
-        for j in range(max(since, k - n), k):
+        for j in range(j0, k):
             _feed_load(sup, j, loads[j], z=zs[j])
         sup.set_config(on)
         assert bool(_feed_load(sup, k, f, z=z)[1]) == want, k
         seen[want] += 1
     assert seen[True] and seen[False], seen
+
 
 def test_load_feedback_trips_only_where_the_load_is_needed_and_running():
     sup = _sup()
