@@ -152,7 +152,7 @@ NODE_TOPICS = {
     'controller': NodeTopics((COMMAND, DIAGNOSTICS, EVENTS), (STATE, REFERENCE)),
     'reference': NodeTopics((REFERENCE, DIAGNOSTICS), ()),
     'procedure': NodeTopics((REFERENCE, DIAGNOSTICS, PROCEDURE_EVENTS, CYCLES, CAPTURES),
-                            (STATE, EVENTS)),
+                            (STATE, EVENTS, ESTIMATES)),
     'station': NodeTopics((DIAGNOSTICS, STATION_EVENTS),
                           (STATE, REFERENCE, DIAGNOSTICS, EVENTS, PROCEDURE_EVENTS, ESTIMATES)),
 }
@@ -166,7 +166,7 @@ LOCKSTEP_NODE_TOPICS = {
     'controller': NodeTopics((COMMAND, DIAGNOSTICS, EVENTS), (STATE, REFERENCE_TRAJECTORY)),
     'reference': NodeTopics((REFERENCE, REFERENCE_TRAJECTORY, DIAGNOSTICS), (CLOCK,)),
     'procedure': NodeTopics((REFERENCE, REFERENCE_TRAJECTORY, DIAGNOSTICS, PROCEDURE_EVENTS,
-                             CYCLES, CAPTURES), (CLOCK, STATE, EVENTS)),
+                             CYCLES, CAPTURES), (CLOCK, STATE, EVENTS, ESTIMATES)),
 }
 
 

@@ -431,6 +431,62 @@ def test_underpeak_judges_the_controlled_range_against_the_specified():
     assert 'underpeak' in d.cycle(Cycle(2, 0, 0, 0, 0, 0, 0, 9.0e3, 1.0e3), (1.0e4, 1.0e3))
 
 
+def test_fitted_stiffness_drop_judges_adequate_fits_beyond_their_standard_errors():
+    d = FailureDetector('fitted_stiffness_drop', {'drop': 0.1, 'sigmas': 2.0, 'settling': 3,
+                                                  'reference': 2, 'persist': 2}, 'force')
+    assert not any(d.cycle(cyc(n)) for n in range(1, 20))       # cycles only count
+    d2 = FailureDetector('fitted_stiffness_drop', d.values, 'force')
+    for n in (1, 2, 3):
+        d2.cycle(cyc(n))
+        assert not d2.estimate(0.5 * K, 1.0, True, n)             # settling: not judged
+    assert d2.reference is None
+    d2.cycle(cyc(4))
+    assert not d2.estimate(0.5 * K, 1.0, False, 4)                # not adequate: not judged
+    assert not d2.estimate(math.nan, 1.0, True, 4) and not d2.estimate(K, math.inf, True, 4)
+    assert not d2.estimate(1.0 * K, 0.01 * K, True, 4)            # the reference: two fits
+    assert not d2.estimate(1.1 * K, 0.01 * K, True, 5)
+    assert d2.reference['stiffness'] == pytest.approx(1.05 * K) and d2.reference['at'] == 5
+    limit = 0.9 * 1.05 * K
+    # under the limit, but within two standard errors of it: a fit too uncertain to tell
+    assert not d2.estimate(limit - 0.01 * K, 0.01 * K, True, 6)
+    assert d2._beyond == 0
+    assert not d2.estimate(limit - 0.03 * K, 0.01 * K, True, 7)   # beyond: one estimate
+    assert not d2.estimate(limit - 0.03 * K, 0.01 * K, False, 8)  # not adequate: no break
+    assert not d2.estimate(K, 0.01 * K, True, 9)                  # the run is broken
+    assert not d2.estimate(limit - 0.03 * K, 0.01 * K, True, 10)
+    why = d2.estimate(limit - 0.05 * K, 0.01 * K, True, 11)
+    assert 'fitted_stiffness_drop' in why and 'k_L' in why and d2.tripped_at == 11
+    assert not d2.estimate(0.1 * K, 0.0, True, 12)                # tripped once
+    again = FailureDetector('fitted_stiffness_drop', d2.values, 'force')
+    again.restore(d2.state())
+    assert again.reference == d2.reference and again.judged == d2.judged
+    # the cycle detectors take no estimate
+    s = FailureDetector('stiffness_drop', {'drop': 0.1, 'settling': 0, 'reference': 1,
+                                           'persist': 1}, 'force')
+    assert not s.estimate(0.1 * K, 0.0, True, 1)
+
+
+@pytest.mark.parametrize('observe', [False, True])
+def test_a_fitted_stiffness_drop_fails_the_running_test_at_the_count_it_came(observe):
+    step = {**CYCLIC, 'count': 0, 'end': [{'fitted_stiffness_drop': {
+        'settling': 2, 'reference': 1, 'persist': 1}}]}
+    r, ax = started(proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.02}, step),
+                    observe=observe)
+    r.estimate(ax.stamp, K, 0.01 * K, True)                # the ramp: not a cyclic step
+    ax.run(until=lambda r: r.total >= 3)
+    r.estimate(ax.stamp, K, 0.01 * K, True)                # the reference
+    ax.run(until=lambda r: r.total >= 5)
+    r.estimate(ax.stamp, 0.7 * K, 0.01 * K, True)
+    assert r.tripped == {'fitted_stiffness_drop': 5}
+    if observe:
+        assert r.state == 'running' and not r.result
+        assert r.events[-1][:2] == ('detector', 'fitted_stiffness_drop'), r.events[-1]
+        return
+    assert r.result == 'failed' and r.failed_at == 5 and 'k_L' in r.reason
+    ax.run(until=finished)
+    assert r.total == 5 and ax.refs[-1].z_ref == 0.0       # to the stop level
+
+
 # -- the virtual test ------------------------------------------------------------------------
 FATIGUE = {'name': 'coupon', 'control_mode': 'force', 'run_out': 5000, 'steps': [
     {'name': 'preload', 'type': 'ramp', 'to': 5500.0, 'rate': 2.0e4},
@@ -462,6 +518,39 @@ def test_a_virtual_test_trips_its_detectors_where_the_specimen_model_meets_them(
         model = model_trip_cycle(sp, e.kind, e.values, peak, valley)
         why = (e.kind, r.tripped, model)
         assert abs(r.tripped[e.kind] - model) <= max(1.0, 0.01 * model), why
+
+
+def test_live_fits_of_the_degrading_specimen_trip_the_fitted_stiffness_drop():
+    """
+    The chain on the rig, in process: the loop's sensors, live refits of k_L, the detector.
+
+    A LiveIdentifier refits the last half second of the running test (noisy position,
+    velocity, pressures and load cell) every half second; its adequate estimates follow the
+    specimen as it softens, and ``fitted_stiffness_drop`` trips after the cycle-based
+    ``stiffness_drop`` (a window averages the last half second, two estimates must agree) and
+    before the fracture. (With a load cell of 20 N noise the verdict calls every window of
+    this stiff specimen not adequate, and the detector waits: docs/procedures.md.)
+    """
+    from ros_ehs.core.identify.live import LiveIdentifier
+    from ros_ehs.core.sim.virtual_test import LiveFits
+    p = preset('fatigue_actuator', k_L=1.0e7, ramp_time=0.2, specimen_life=400.0,
+               specimen_life_range=9000.0, load_cell_noise=60.0)
+    doc = {**FATIGUE, 'steps': FATIGUE['steps'][:2] + [
+        {**FATIGUE['steps'][2], 'end': [{'stiffness_drop': {'drop': 0.1}},
+                                        {'fitted_stiffness_drop': {'drop': 0.1}}]}]}
+    fits = LiveIdentifier(p, free=['k_L'], pushable=[], model='simplified', sigmas=3.0,
+                          rel_change=0.02, push_period=0.0)
+    r = run_procedure(parse_procedure(doc), p, keep_cycles=1000, noise=(5e-6, 1e-3, 2e4),
+                      live=LiveFits(fits, window=0.5, period=0.5))
+    assert r.result == 'failed' and r.fractured_at is not None
+    tripped = r.tripped
+    assert tripped['stiffness_drop'] < tripped['fitted_stiffness_drop'] < r.fractured_at, \
+        (tripped, r.fractured_at)
+    ok = [e for _, e, _ in r.estimates if e is not None and e.adequate]
+    assert len(ok) >= 50 and len(r.estimates) >= 70, [why for *_, why in r.estimates]
+    k = [e.values['k_L'] for e in ok]
+    assert k[0] == pytest.approx(1.0e7, rel=0.02) and k[-1] < 0.9 * k[0]
+    assert all(0 < e.stderr['k_L'] < 0.01 * e.values['k_L'] for e in ok)
 
 
 def test_a_virtual_tests_memory_is_a_ring_of_cycles():
@@ -511,7 +600,10 @@ def test_ehs_sim_procedure_prints_what_the_rig_would_do(tmp_path, capsys):
     import yaml
     from ros_ehs.tools.cli import main
     f = tmp_path / 'coupon.yaml'
-    f.write_text(yaml.safe_dump(FATIGUE))
+    doc = {**FATIGUE, 'steps': FATIGUE['steps'][:2] + [
+        {**FATIGUE['steps'][2], 'end': FATIGUE['steps'][2]['end'] + [
+            {'fitted_stiffness_drop': {}}]}]}
+    f.write_text(yaml.safe_dump(doc))
     out = tmp_path / 'cycles.csv'
     rc = main(['procedure', str(f), '--preset', 'fatigue_actuator', '--set', 'k_L=1e7',
                '--set', 'specimen_life=60', '--set', 'specimen_life_range=9000',
@@ -520,6 +612,7 @@ def test_ehs_sim_procedure_prints_what_the_rig_would_do(tmp_path, capsys):
     assert rc == 0, text
     assert 'result: failed (the controller detected the specimen break' in text
     assert 'the specimen fractured at cycle' in text and 'x real time' in text
+    assert 'fitted_stiffness_drop: not judged in a virtual test' in text
     rows = np.loadtxt(out, delimiter=',', skiprows=1)
     assert rows.shape[1] == 8 and rows[-1, 0] == rows.shape[0]
     f.write_text('steps: []\n')

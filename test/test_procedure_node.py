@@ -171,3 +171,58 @@ def test_a_step_in_force_switches_the_controller_and_loads_the_specimen(dom, tmp
     b = open_bag(bag)
     loads = [c.load_from_cdr(m.data).force for m in b.messages(['/load_cell'])]
     assert max(loads) == pytest.approx(3000.0, rel=0.03)      # loaded to the step's level
+
+
+def _estimate(k_L, stderr, adequate=True):
+    """Return a refit as an identify node sends it, built field by field (not our encoder)."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    st = DiagnosticStatus(level=DiagnosticStatus.OK if adequate else DiagnosticStatus.WARN,
+                          name='ros_ehs/identify/estimate', message='a test refit',
+                          hardware_id='axis')
+    pairs = {'k_L': repr(k_L), 'k_L.stderr': repr(stderr), 'd_c': '0.0005',
+             'd_c.stderr': '1e-06', 'adequate': 'true' if adequate else 'false',
+             'pushed': 'false', 'reason': 'not pushed', 'window_s': '10.0', 'wall_s': '1.0',
+             'iterations': '12'}
+    st.values = [KeyValue(key=k, value=v) for k, v in pairs.items()]
+    msg = DiagnosticArray(status=[st])
+    msg.header.stamp.sec = 1
+    return msg
+
+
+def test_a_live_fit_of_a_softer_specimen_fails_the_test(dom, tmp_path, ros):
+    """
+    ``fitted_stiffness_drop``: the node judges each refit on ``parameter_estimates``.
+
+    The estimates come from this test's own publisher (the identify node's refits take
+    minutes; its rules are tested in test_live_identify): the reference once the step has
+    settled, then a specimen 30 % softer, beyond its standard errors: the test fails, held at
+    its stop level, and the bag says why.
+    """
+    import yaml
+    from diagnostic_msgs.msg import DiagnosticArray
+    from ros_ehs.nodes.ros_common import qos_profile
+    proc = tmp_path / 'fitted.yaml'
+    proc.write_text(yaml.safe_dump({'name': 'fitted stiffness', 'steps': [
+        {'name': 'to mean', 'type': 'ramp', 'to': 0.002, 'rate': 0.01},
+        {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.002,
+         'amplitude': 0.001, 'frequency': 5.0, 'count': 1000,
+         'end': [{'fitted_stiffness_drop': {'settling': 2, 'reference': 1, 'persist': 1}}]}]}))
+    bag = tmp_path / 'bag'
+    pub = ros.create_publisher(DiagnosticArray, '/' + c.ESTIMATES.name,
+                               qos_profile(c.ESTIMATES.qos))
+    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+        _loop(procs, bag, {'file': str(proc), 'autostart': True}, seconds=300.0)
+        # settled: 2 cycles judged (the step's first cycle leads in from the ramp, unjudged)
+        _status(procs, lambda v: int(v['total_cycles']) >= 4)
+        pub.publish(_estimate(1.0e6, 1.0e3, adequate=False))       # not adequate: not judged
+        pub.publish(_estimate(1.0e6, 1.0e3))
+        st = _status(procs, lambda v: int(v['fitted_stiffness_drop.reference_at']) >= 4)
+        assert st['state'] == 'running', st
+        pub.publish(_estimate(0.7e6, 1.0e3))
+        st = _status(procs, lambda v: v['state'] == 'finished')
+        procs.stop(['procedure', 'plant', 'controller', 'recorder'])
+    assert st['result'] == 'failed' and 'fitted_stiffness_drop' in st['reason'], st
+    assert 4 <= int(st['failed_at']) < 1000, st
+    events = read_procedure_events(bag)
+    failure = [e for e in events if e['kind'] == 'failure']
+    assert len(failure) == 1 and 'k_L 700000' in failure[0]['message'], failure

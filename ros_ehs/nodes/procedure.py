@@ -182,6 +182,11 @@ class ProcedureNode(Node):
                                  qos_profile(contract.STATE.qos_in(self.sim_time)), raw=True)
         self.create_subscription(DiagnosticArray, contract.EVENTS.name, self._on_event,
                                  qos_profile(contract.EVENTS.qos))
+        self.create_subscription(DiagnosticArray, contract.ESTIMATES.name, self._on_estimate,
+                                 qos_profile(contract.ESTIMATES.qos))
+        self._fits_k_L = any(e.kind == 'fitted_stiffness_drop' for s in self.procedure.steps
+                             for e in s.end)
+        self._said_no_k_L = False
         for name in ('start', 'hold', 'resume', 'stop'):
             self.create_service(Trigger, f'~/{name}', functools.partial(self._on_request,
                                                                         name))
@@ -233,6 +238,23 @@ class ProcedureNode(Node):
         except ValueError:
             return
         self.runner.event(e.kind, e.detector, e.action, e.stamp_ns)
+        self._after()
+
+    def _on_estimate(self, msg: DiagnosticArray) -> None:
+        try:
+            e = contract.estimate_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warning(f'parameter_estimates: {err}', once=True)
+            return
+        if 'k_L' not in e.values:
+            if self._fits_k_L and not self._said_no_k_L:
+                self._said_no_k_L = True
+                self.get_logger().warning(
+                    'parameter_estimates: the live fit has no k_L, so fitted_stiffness_drop '
+                    'cannot judge it (the identify node fits k_L when its `free` holds it)')
+            return
+        self.runner.estimate(e.stamp_ns, e.values['k_L'], e.stderr.get('k_L', math.nan),
+                             e.adequate)
         self._after()
 
     def _on_clock(self, data: bytes) -> None:

@@ -30,6 +30,16 @@ each cycle with it; it trips when ``persist`` consecutive cycles are beyond its 
 * ``underpeak``: the controlled signal's range under ``fraction`` of the specified range (no
   reference: the procedure specifies it).
 
+``fitted_stiffness_drop`` judges what live identification fits instead (:meth:`estimate`):
+the specimen stiffness ``k_L`` of each adequate estimate (the verdict's: an estimate it calls
+not adequate is not judged) once ``settling`` cycles of the step have passed; the mean of the
+first ``reference`` of them is its reference; it trips when ``persist`` consecutive
+estimates are under ``(1 - drop)`` times the reference by more than ``sigmas`` of their
+standard errors (``k + sigmas se < (1 - drop) k_ref``), so a fit too uncertain to tell
+waits for the next. It sees a crack that softens the specimen from the whole model of the
+loop, load cell and pressures alike, where ``stiffness_drop`` sees it from two numbers a
+cycle; it answers once a refit period.
+
 A cycle with a non-finite extreme is not judged and breaks a run of ``persist``. A detector's
 reference survives a restart: :meth:`FailureDetector.state` and :meth:`FailureDetector.restore`.
 """
@@ -79,7 +89,8 @@ class FailureDetector:
     """
 
     def __init__(self, kind: str, values: Mapping[str, Any], mode: str) -> None:
-        if kind not in ('stiffness_drop', 'peak_valley_change', 'underpeak'):
+        if kind not in ('stiffness_drop', 'peak_valley_change', 'underpeak',
+                        'fitted_stiffness_drop'):
             raise InputError(f'`kind` = {kind!r} is not a failure detector')
         self.kind = kind
         self.values = dict(values)
@@ -116,6 +127,8 @@ class FailureDetector:
         if self.tripped_at is not None:
             return ''
         self.judged += 1
+        if self.kind == 'fitted_stiffness_drop':
+            return ''                  # judged on each estimate (counted here for settling)
         v = self.values
         if not c.finite():
             self._beyond = 0
@@ -164,4 +177,39 @@ class FailureDetector:
         if self._beyond >= v['persist']:
             self.tripped_at = c.count
             return why + f' for {self._beyond} cycle(s), at cycle {c.count}'
+        return ''
+
+    def estimate(self, k: float, stderr: float, adequate: bool, count: int) -> str:
+        """
+        Judge a live fit's specimen stiffness ``k`` [N/m] and its standard error ``stderr``.
+
+        ``adequate``: the fit's verdict; ``count``: the test's cycle count now. Return why the
+        specimen has failed ('' while it has not, and for every other kind).
+        """
+        if self.kind != 'fitted_stiffness_drop' or self.tripped_at is not None:
+            return ''
+        v = self.values
+        if not (adequate and math.isfinite(k) and k > 0 and math.isfinite(stderr)
+                and stderr >= 0) or self.judged <= v['settling']:
+            return ''                  # not a fit to judge by: it neither counts nor clears
+        if self.reference is None:
+            self._acc.append((k, stderr, 0.0))
+            if len(self._acc) >= v['reference']:
+                n = len(self._acc)
+                self.reference = {'stiffness': sum(a[0] for a in self._acc) / n,
+                                  'stderr': math.sqrt(sum(a[1] ** 2 for a in self._acc)) / n,
+                                  'at': count}
+                self._acc = []
+            return ''
+        k_ref = self.reference['stiffness']
+        limit = (1.0 - v['drop']) * k_ref
+        self.last_value = 1.0 - k / k_ref
+        bad = k + v['sigmas'] * stderr < limit
+        self._beyond = self._beyond + 1 if bad else 0
+        if self._beyond >= v['persist']:
+            self.tripped_at = count
+            return (f'fitted_stiffness_drop: the fitted k_L {k:.6g} +- {stderr:.3g} N/m is '
+                    f'{self.last_value * 100:.3g} % under its reference {k_ref:.6g} N/m '
+                    f'(limit {v["drop"] * 100:g} %, by {v["sigmas"]:g} standard errors) for '
+                    f'{self._beyond} estimate(s), at cycle {count}')
         return ''

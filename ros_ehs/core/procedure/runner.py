@@ -446,6 +446,21 @@ class ProcedureRunner:
             if self.state != 'stopping':
                 self._freeze(stamp_ns, 'interrupted', f'interlock: {detector} ({action})')
 
+    def estimate(self, stamp_ns: int, k_L: float, stderr: float, adequate: bool) -> None:
+        """
+        Take a live fit's specimen stiffness ``k_L`` [N/m], its standard error and verdict.
+
+        The running cyclic step's ``fitted_stiffness_drop`` detectors judge it (at the count
+        now); a trip fails the test as a cycle's detector does. Outside a running step it is
+        not judged.
+        """
+        if self.state != 'running':
+            return
+        for d in self._detectors.get(self.step_index, []):
+            why = d.estimate(k_L, stderr, adequate, self.total)
+            if why and self._failed(d, why, stamp_ns):
+                return
+
     def mode_switched(self, ok: bool, why: str, stamp_ns: int) -> None:
         """Take the controller's answer to :attr:`request_mode`."""
         if self.state != 'switching':
@@ -640,15 +655,7 @@ class ProcedureRunner:
             spec = seg.wave.specified(cyc['k'])
             for d in self._detectors.get(k, []):
                 why = d.cycle(c, spec)
-                if why:
-                    self.tripped.setdefault(d.kind, self.total)
-                    if self.observe:
-                        self._note_event('detector', d.kind, float(self.total), why)
-                        continue
-                    self.failed_at = self.total
-                    self.result, self.reason = 'failed', why
-                    self._note_event('failure', d.kind, float(self.total), why)
-                    self._to_stop(stamp + self.latency_ns)
+                if why and self._failed(d, why, stamp):
                     return
         run_out = self.procedure.run_out
         if run_out and self.total >= run_out and self.state == 'running':
@@ -656,6 +663,18 @@ class ProcedureRunner:
                                                    'failure')
             self._note_event('run_out', '', float(self.total), self.reason)
             self._to_stop(stamp + self.latency_ns)
+
+    def _failed(self, d: FailureDetector, why: str, stamp: int) -> bool:
+        """Note a failure detector's trip; end the test unless observing (True if it ended)."""
+        self.tripped.setdefault(d.kind, self.total)
+        if self.observe:
+            self._note_event('detector', d.kind, float(self.total), why)
+            return False
+        self.failed_at = self.total
+        self.result, self.reason = 'failed', why
+        self._note_event('failure', d.kind, float(self.total), why)
+        self._to_stop(stamp + self.latency_ns)
+        return True
 
     def _check_time_and_level(self, stamp: int, z: float, load: float) -> None:
         step = self.steps[self.step_index]
@@ -774,13 +793,23 @@ class ProcedureRunner:
         return total
 
     def status(self) -> dict[str, Any]:
-        """Return the status values: state, step, counts, time to go, result."""
+        """
+        Return the status values: state, step, counts, time to go, result.
+
+        And for each failure detector of the step, ``<kind>.value`` (its newest judged value:
+        the drop, the move or the range's fraction) and ``<kind>.reference_at`` (the cycle
+        its reference was complete at, -1 while it has none).
+        """
         k = self.step_index
-        return {'state': self.state, 'step': self.steps[k].name, 'step_index': k,
-                'step_cycles': self.counts[k], 'total_cycles': self.total,
-                'time_to_go_s': self.time_to_go(), 'result': self.result,
-                'reason': self.reason, 'failed_at': self.failed_at
-                if self.failed_at is not None else -1, 'stamp_ns': self._last_ns}
+        out = {'state': self.state, 'step': self.steps[k].name, 'step_index': k,
+               'step_cycles': self.counts[k], 'total_cycles': self.total,
+               'time_to_go_s': self.time_to_go(), 'result': self.result,
+               'reason': self.reason, 'failed_at': self.failed_at
+               if self.failed_at is not None else -1, 'stamp_ns': self._last_ns}
+        for d in self._detectors.get(k, []):
+            out[f'{d.kind}.value'] = d.last_value
+            out[f'{d.kind}.reference_at'] = d.reference['at'] if d.reference else -1
+        return out
 
     # -- checkpoint ------------------------------------------------------------------------
     def checkpoint(self) -> dict[str, Any]:

@@ -43,8 +43,10 @@ drive``). Levels are in the step's control mode's unit: m in displacement, N in 
 End conditions (``end``, any of them ends the step; a ``count`` and a ``time`` are end
 conditions too): ``time`` [s]; ``level`` (``signal`` position or load crossing ``above`` or
 ``below`` a value); and the failure detectors of :mod:`ros_ehs.core.procedure.detectors`:
-``stiffness_drop``, ``peak_valley_change``, ``underpeak``. A failure detector that trips
-ends the test (the specimen has failed); the others end the step.
+``stiffness_drop``, ``peak_valley_change``, ``underpeak`` (each cycle's extremes) and
+``fitted_stiffness_drop`` (the specimen stiffness ``k_L`` live identification fits, with its
+standard error). A failure detector that trips ends the test (the specimen has failed); the
+others end the step.
 
 Every key is declared once, with its unit, range and meaning (:data:`STEP_KEYS`,
 :data:`END_KEYS`, :data:`TEST_KEYS`); :func:`parse_procedure` checks a whole file before
@@ -71,7 +73,7 @@ COMPENSATIONS = ('auto', 'apc', 'pvc', 'none')
 #: full cycles kept: at log-spaced counts (1, 2, 5, 10, 20, 50, ...), or none
 CAPTURES = ('log', 'none')
 #: the failure detectors (they end the test)
-DETECTORS = ('stiffness_drop', 'peak_valley_change', 'underpeak')
+DETECTORS = ('stiffness_drop', 'peak_valley_change', 'underpeak', 'fitted_stiffness_drop')
 MODES = ('displacement', 'force')
 #: a displacement level stays within this [m]
 POSITION_RANGE = 2.0
@@ -165,6 +167,15 @@ END_KEYS: dict[str, tuple[Setting, ...]] = {
            'opens, a fracture)'),
         _S('settling', '1', 20, 0, 10**9, 'cycles before it is judged'),
         _S('persist', '1', 1, 1, 10**6, 'consecutive cycles under it')),
+    'fitted_stiffness_drop': (
+        _S('drop', '1', 0.1, 1.0e-3, 0.99, 'the specimen has failed when the specimen '
+           'stiffness k_L that live identification fits has fallen this fraction under its '
+           'reference (the identify node must fit k_L: its `free` holds it)'),
+        _S('sigmas', '1', 2.0, 0.0, 10.0, 'and is under that limit by this many of its '
+           'standard errors (a fit too uncertain to tell does not trip it)'),
+        _S('settling', '1', 20, 0, 10**9, "the step's cycles before an estimate counts"),
+        _S('reference', '1', 2, 1, 1000, 'adequate estimates averaged for the reference'),
+        _S('persist', '1', 2, 1, 1000, 'consecutive adequate estimates beyond it')),
 }
 
 

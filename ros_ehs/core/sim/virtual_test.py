@@ -34,7 +34,8 @@ import time
 
 import numpy as np
 from ros_ehs.core.control.loop import ControlLoop
-from ros_ehs.core.errors import InputError
+from ros_ehs.core.errors import DataError, InputError
+from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import Params
 from ros_ehs.core.procedure.detectors import Cycle
@@ -42,7 +43,7 @@ from ros_ehs.core.procedure.runner import ProcedureRunner
 from ros_ehs.core.procedure.spec import Procedure
 from ros_ehs.core.sim.axis import SimulatedAxis
 
-__all__ = ['VirtualTest', 'model_trip_cycle', 'run_procedure']
+__all__ = ['LiveFits', 'VirtualTest', 'model_trip_cycle', 'run_procedure']
 
 
 @dataclass
@@ -60,6 +61,8 @@ class VirtualTest:
     cycles: np.ndarray | None = None   #: the last cycles' records (count, extremes...)
     checkpoints: int = 0
     checkpoint_s: float = 0.0          #: the time the checkpoints took in all [s]
+    #: live refits (``live``): (stamp [ns], the ParameterEstimate or None, its verdict or error)
+    estimates: list = field(default_factory=list)
 
     @property
     def speed(self) -> float:
@@ -67,21 +70,44 @@ class VirtualTest:
         return self.sim_s / self.wall_s if self.wall_s > 0 else math.inf
 
 
+@dataclass(frozen=True)
+class LiveFits:
+    """
+    Live identification in a virtual test.
+
+    ``identifier`` refits the last ``window`` seconds every ``period`` seconds of simulated
+    time, as the identify node does on the rig.
+    """
+
+    identifier: LiveIdentifier
+    window: float = 2.0
+    period: float = 2.0
+
+
 def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplified',
                   controller_params: Params | None = None, rate_hz: float = 1000.0,
                   max_seconds: float = 1.0e7, observe: bool = True, keep_cycles: int = 100_000,
-                  latency: float = 0.002, checkpoint=None) -> VirtualTest:
+                  latency: float = 0.002, checkpoint=None, live: LiveFits | None = None,
+                  noise: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> VirtualTest:
     """
     Run ``procedure`` on the model of ``params`` (its specimen too) until it finishes.
 
     ``controller_params``: the controller's (default: the same); ``max_seconds`` of simulated
     time at most; ``keep_cycles``: the newest cycle records kept (a ring: memory stays flat);
-    ``checkpoint(dict)``: called with each checkpoint the runner makes (what the node writes).
+    ``checkpoint(dict)``: called with each checkpoint the runner makes (what the node writes);
+    ``live``: refit the running loop (its sensors: position, velocity, current, pressures,
+    load cell) and give each estimate's ``k_L`` to the runner, which is what a
+    ``fitted_stiffness_drop`` detector judges (its estimates are in ``estimates``; each
+    refit costs wall time the ``speed`` counts); ``noise``: the sensors' white noise (1
+    sigma: position [m], velocity [m/s], pressures [Pa]; the load cell's is the parameter
+    ``load_cell_noise``).
     """
     if not isinstance(procedure, Procedure):
         raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
+    if live is not None and not isinstance(live, LiveFits):
+        raise InputError(f'`live` must be LiveFits, got {type(live).__name__}')
     cp = controller_params or params
-    axis = SimulatedAxis(params, model, rate_hz=rate_hz, lockstep=True)
+    axis = SimulatedAxis(params, model, rate_hz=rate_hz, lockstep=True, noise=noise)
     loop = ControlLoop(cp.replace(control_mode=procedure.steps[0].control_mode),
                        rate_hz=rate_hz, lockstep=True)
     runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz, observe=observe)
@@ -91,6 +117,11 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     fractured = None
     checkpoints, cp_s = 0, 0.0
     n = int(max_seconds * rate_hz)
+    window = None
+    estimates: list = []
+    if live is not None:
+        window = SampleWindow(live.window, int(live.window * rate_hz) + 10)
+        every = max(1, int(round(live.period * rate_hz)))
     wall0 = time.perf_counter()
     started = False
     k = 0
@@ -111,6 +142,8 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             events.append(('controller', e.kind, e.detector, e.message))
             runner.event(e.kind, e.detector, e.action, st.stamp_ns)
         runner.measure(st.stamp_ns, st.z, s.load)
+        if window is not None:
+            _live_step(live, window, every, k, s, reply.current, runner, estimates)
         if runner.request_mode is not None:
             ok, why, ev = loop.set_mode(runner.request_mode)
             events.append(('controller', ev.kind, ev.detector, ev.message))
@@ -143,7 +176,29 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
         table = table[:n_kept]
     return VirtualTest(runner.result or runner.state, runner.reason, runner.total,
                        (k + 1) / rate_hz, wall, dict(runner.tripped), fractured, events, table,
-                       checkpoints, cp_s)
+                       checkpoints, cp_s, estimates)
+
+
+def _live_step(live: LiveFits, window: SampleWindow, every: int, k: int, s, current: float,
+               runner: ProcedureRunner, estimates: list) -> None:
+    """Feed the window one period; refit it every ``every`` periods once it is full."""
+    st = s.state
+    window.add_state(st.stamp_ns, st.z, st.z_dot, st.i)
+    window.add_command(st.stamp_ns, current)
+    window.add_pressure(0, st.stamp_ns, s.p_cp)
+    window.add_pressure(1, st.stamp_ns, s.p_ct)
+    window.add_load(st.stamp_ns, s.load)
+    if k % every or window.span() < live.window - 1.5 / every or runner.state != 'running':
+        return
+    try:
+        est, _ = live.identifier.refit(window.experiments(), st.stamp_ns, live.window)
+    except (DataError, InputError) as err:        # a window that cannot be fitted: the next
+        estimates.append((st.stamp_ns, None, str(err)))
+        return
+    estimates.append((st.stamp_ns, est, est.verdict))
+    if 'k_L' in est.values:
+        runner.estimate(st.stamp_ns, est.values['k_L'], est.stderr.get('k_L', math.nan),
+                        est.adequate)
 
 
 def _row(c: Cycle) -> tuple:
