@@ -23,6 +23,7 @@ player, identify and the controller on the driver three times), whatever its exe
 the controller's last command is 0 A, sent once.
 """
 
+import os
 from pathlib import Path
 import signal
 import sys
@@ -81,6 +82,10 @@ def test_the_player_and_a_refitting_identify_node_stop_at_once(dom, tmp_path):
                                      > 500 * (k + 1) and (k == 0 or int(st.values['refits'])
                                                           + (st.values['busy'] == 'True')),
                                      BOUND), procs[f'identify{k}'].output()[-3000:]
+            # by default the one refit thread runs at SCHED_IDLE, the rest of the node not
+            pid = procs[f'identify{k}'].pid
+            policies = [os.sched_getscheduler(int(t)) for t in os.listdir(f'/proc/{pid}/task')]
+            assert policies.count(os.SCHED_IDLE) == 1 and len(policies) > 1, policies
             _stopped(procs, f'identify{k}', signal.SIGTERM)
             _stopped(procs, f'player{k}', signal.SIGINT)
 

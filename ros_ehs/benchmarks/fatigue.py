@@ -30,6 +30,10 @@ Fatigue benchmark: a test to failure, the virtual test's speed, resume after kil
 * ``memory_mb``: the peak of what a virtual test allocated (tracemalloc), at
   ``--speed-cycles`` and at four times as many cycles (flat: the cycle table is a fixed-size
   ring, the corrections keep their newest 100 to 200 cycles).
+* ``memory_long``: a run-out test of ``--long-cycles`` cycles (default 10^6; small 50 Hz
+  displacement cycles, so that it takes minutes): the process's resident memory at ten
+  counts along it (``at``, ``rss_mb``) and its ``growth_mb`` from the first to the last.
+  Target: flat.
 * ``resume``: ``--kills`` lock-step tests over DDS (plant, controller, procedure node,
   recorder; a 20-cycle displacement test at 5 Hz), each killed (SIGKILL) at a random cycle:
   the procedure node alone, or every process at once (a power cut: the bag is cut too), then
@@ -73,6 +77,10 @@ RESUME = {'name': 'resume test', 'steps': [
     {'name': 'to mean', 'type': 'ramp', 'to': 0.002, 'rate': 0.01},
     {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.002, 'amplitude': 0.001,
      'frequency': 5.0, 'count': RESUME_CYCLES}]}
+#: the long run: small 50 Hz cycles, so that 10^6 of them take 2*10^4 s of simulated time
+LONG = {'name': 'long run', 'steps': [
+    {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.0, 'amplitude': 1.0e-4,
+     'frequency': 50.0}]}
 BOUND = 180.0
 
 
@@ -130,6 +138,30 @@ def _memory(cycles: int) -> list:
         out.append(round(tracemalloc.get_traced_memory()[1] / 2**20, 3))
         tracemalloc.stop()
     return out
+
+
+def _long_run(cycles: int, samples: int = 10) -> dict:
+    """Run a ``cycles``-cycle virtual test; its resident memory at ``samples`` counts."""
+    import os
+    from ros_ehs.core.procedure.spec import parse_procedure
+    from ros_ehs.core.sim.virtual_test import run_procedure
+    page = os.sysconf('SC_PAGE_SIZE')
+    every = max(1, cycles // samples)
+    at, rss = [], []
+
+    def sample(cp: dict) -> None:
+        n = int(cp['total'])
+        if n % every == 0 and (not at or at[-1] != n):
+            with open('/proc/self/statm') as f:
+                rss.append(round(int(f.read().split()[1]) * page / 2**20, 1))
+            at.append(n)
+
+    doc = {**LONG, 'run_out': cycles}
+    r = run_procedure(parse_procedure(doc), _rig(), keep_cycles=1000, checkpoint=sample)
+    assert r.result == 'run_out' and r.total_cycles == cycles, (r.result, r.reason)
+    return {'cycles': cycles, 'at': at, 'rss_mb': rss,
+            'growth_mb': round(rss[-1] - rss[0], 1) if rss else None,
+            'speed': round(r.speed, 1), 'events': len(r.events)}
 
 
 def _checkpoint_ms() -> float:
@@ -296,6 +328,8 @@ def main(argv=None) -> int:
     ap.add_argument('--life', type=count, default=2000, help="the specimen's life at 9 kN "
                     '[cycles]')
     ap.add_argument('--speed-cycles', type=count, default=300, help='the speed runs [cycles]')
+    ap.add_argument('--long-cycles', type=count, default=10**6, help='the long run, its '
+                    'memory sampled ten times [cycles]')
     ap.add_argument('--kills', type=int, default=10, help='resume runs over DDS (0: none)')
     ap.add_argument('--seed', type=int, default=1, help='of the kill moments')
     a = ap.parse_args(argv)
@@ -305,6 +339,7 @@ def main(argv=None) -> int:
                             'full': _speed(a.speed_cycles, 'full')}
     fig['memory_mb'] = {'cycles': [a.speed_cycles, 4 * a.speed_cycles],
                         'peak': _memory(a.speed_cycles)}
+    fig['memory_long'] = _long_run(a.long_cycles)
     from ros_ehs_msgs_py import CYCLE_RECORD
     table = {'record': CYCLE_RECORD.size}
     if a.kills > 0:

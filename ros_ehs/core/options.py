@@ -294,6 +294,10 @@ IDENTIFY = (
             "controller's value"),
     Setting('max_rate', 'Hz', 4000.0, 10.0, 100000.0, 'live: the fastest state rate to buffer '
             'for'),
+    Setting('refit_priority', '', 'idle', meaning='live: the refit thread runs at SCHED_IDLE '
+            "(idle: only CPU time nobody else wants, the rig's setting), nice 19 (nice: a "
+            'small share on a busy machine), or as the node (normal)',
+            choices=('idle', 'nice', 'normal')),
     DIAGNOSTICS_PERIOD,
     CPU_AFFINITY,
 )
@@ -363,7 +367,8 @@ NODE_PARAMS = {'plant': PLANT_SPECS, 'controller': CONTROLLER_SPECS}
 # -- ehs_sim ----------------------------------------------------------------------------------
 #: what only the identify node does: push to a running controller, refit live, placement
 _NODE_ONLY = ('push', 'controller', 'push_timeout', 'live', 'window', 'period', 'push_period',
-              'sigmas', 'rel_change', 'max_rate', 'diagnostics_period', 'cpu_affinity')
+              'sigmas', 'rel_change', 'max_rate', 'refit_priority', 'diagnostics_period',
+              'cpu_affinity')
 _OUT = ('out', '')
 _PRESET = ('preset', '', 'table1_estimated')
 _DURATION = Setting('duration', 's', 3.0, 1.0e-3, 1.0e6, 'simulated time')

@@ -24,17 +24,18 @@ valve values its feedforward uses) on the running controller ``controller`` thro
 and logs what the controller accepted or why it refused. The node exits when done: 0 on
 success, 1 if the fit or the push failed, 2 for bad input (missing bag, foreign topics...).
 
-**Live mode** (``live: true``, :mod:`ros_ehs.core.identify.live`): no bags; the node listens to the
-running loop (``state``, the pressures and, where the state does not carry the applied
+**Live mode** (``live: true``, :mod:`ros_ehs.core.identify.live`): no bags; the node listens to
+the running loop (``state``, the pressures and, where the state does not carry the applied
 current, the commands: our contract, or a rig's topics and joint from the same options or
 ``topic_map``), keeps the last ``window`` seconds and every ``period`` seconds of the state
-clock refits them on one low-priority thread (SCHED_IDLE, one Jacobian thread; place the node
-with ``cpu_affinity`` on the CPU the loop does not use), warm from its last adequate
-estimate. Each refit is published on ``parameter_estimates`` (values, standard errors,
-verdict, whether and why it was pushed: the recorder keeps it) and logged in one line. With
-``push: true`` an adequate fit whose values are all inside their bounds and change by more
-than ``sigmas`` standard errors and ``rel_change`` is set on the controller, at most once per
-``push_period``; a refusal is logged with the controller's reason. It runs until stopped.
+clock refits them on one low-priority thread (``refit_priority``: SCHED_IDLE by default, one
+Jacobian thread; place the node with ``cpu_affinity`` on the CPU the loop does not use), warm
+from its last adequate estimate. Each refit is published on ``parameter_estimates`` (values,
+standard errors, verdict, whether and why it was pushed: the recorder keeps it) and logged in
+one line. With ``push: true`` an adequate fit whose values are all inside their bounds and
+change by more than ``sigmas`` standard errors and ``rel_change`` is set on the controller, at
+most once per ``push_period``; a refusal is logged with the controller's reason. It runs until
+stopped.
 """
 
 from __future__ import annotations
@@ -268,11 +269,15 @@ class IdentifyNode(Node):
             self._todo.set()
 
     def _refits(self) -> None:
-        """Run the refits: idle priority, so they take only CPU time nobody else wants."""
+        """Run the refits at ``refit_priority`` (idle: only CPU time nobody else wants)."""
+        prio = self.opt['refit_priority']
         try:
-            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+            if prio == 'idle':
+                os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
         except (OSError, AttributeError):
-            os.nice(19)
+            prio = 'nice'
+        if prio == 'nice':
+            os.nice(19)        # this thread only: Linux keeps the nice value per thread
         while True:
             self._todo.wait()
             self._todo.clear()
