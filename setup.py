@@ -9,7 +9,8 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*', 'bags', 'launch_scripts']),
     # the station's page and its vendored scripts (rig networks are offline: no CDN)
-    package_data={'ros_ehs.web': ['static/*.*', 'static/vendor/*']},
+    package_data={'ros_ehs.web': ['static/*.*', 'static/vendor/*'],
+                  'ros_ehs.nodes': ['fastdds.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -20,6 +20,10 @@ import time
 
 from domain_coordinator import domain_id
 import pytest
+from ros_ehs.nodes.fastdds_profile import use_profile
+
+#: this process's participants (the `ros` fixture's, the status watch's) on the nodes' profile
+use_profile()
 
 
 @pytest.fixture

@@ -133,10 +133,10 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
         wait_value(procs, c.PLANT_STATUS, 'steps', min(n, steps + 300))   # the loop runs on
         rec.send_signal(signal.SIGCONT)
         lockstep_complete(procs)
-        # what the pause made the recorder miss is repaired at the writers' next heartbeat,
-        # up to 3 s later (Fast DDS's period): a recorder stopped before that, without its
-        # 3.5 s lock-step drain, lost 120-150 of the 201 /clock and /reference
-        # (docs/recording.md); it is stopped first, while the writers still run
+        # what the pause made the recorder miss is repaired at the writers' next heartbeat
+        # (0.1 s on the nodes' Fast DDS profile; 3 s on Fast DDS's own, where a recorder
+        # stopped before it lost 120-150 of the 201 /clock and /reference): its lock-step
+        # drain outlasts it (docs/recording.md); it is stopped first, while the writers run
         wait_for_bag(bag, {'/state': n + 1})
         codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
     assert codes == {'recorder': 0, 'reference': 0, 'controller': 0, 'plant': 0}

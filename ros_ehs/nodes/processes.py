@@ -40,6 +40,7 @@ import time
 from typing import Any, Callable, Iterable
 
 from ros_ehs.core.errors import EhsError
+from ros_ehs.nodes.fastdds_profile import use_profile
 from ros_ehs.nodes.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
@@ -180,8 +181,9 @@ class NodeProcesses:
 
     ``domain_id`` defaults to the environment's ``ROS_DOMAIN_ID``; ``log_dir`` to a new
     temporary directory. Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE``
-    LOCALHOST unless set). ``clean_shm``: first remove the shared-memory ports and segments
-    that processes which did not exit cleanly left in ``/dev/shm``
+    LOCALHOST unless set), on the package's Fast DDS profile unless the environment names one
+    (:mod:`ros_ehs.nodes.fastdds_profile`). ``clean_shm``: first remove the shared-memory
+    ports and segments that processes which did not exit cleanly left in ``/dev/shm``
     (:func:`ros_ehs.nodes.fastdds_shm.clean_zombies`; what was done is in ``self.shm_cleanup``).
     """
 
@@ -194,6 +196,7 @@ class NodeProcesses:
         if domain_id is not None:
             self.env['ROS_DOMAIN_ID'] = str(int(domain_id))
         self.env.update(env or {})
+        use_profile(self.env)          # the package's Fast DDS profile, unless one is named
         self.log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix='ehs_logs_'))
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, NodeProcess] = {}

@@ -57,6 +57,7 @@ from rclpy.task import Future
 from ros_ehs.core.errors import BagError
 from ros_ehs.core.options import RECORDER
 from ros_ehs.data.bag.writer import BagWriter, free_bytes
+from ros_ehs.nodes.fastdds_profile import heartbeat_period
 from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, msg_class, OK, qos_profile, qos_spec,
                                       run, steady_clock)
@@ -79,9 +80,10 @@ class RecorderNode(Node):
     #: after SIGINT, keep taking in the messages DDS has already queued for this long [s]
     drain_period = 0.3
     #: the same under use_sim_time (lock-step, reliable loop topics): what a stall of this
-    #: process made it miss is resent at each writer's next heartbeat, up to 3 s later
-    #: (Fast DDS's period); the writers are still running when NodeProcesses.stop stops us first
-    LOCKSTEP_DRAIN = 3.5
+    #: process made it miss is resent at each writer's next heartbeat, up to a heartbeat
+    #: period later (the Fast DDS profile's: 0.1 s in the package's, 3 s in Fast DDS's own),
+    #: and this much more; the writers are still running when NodeProcesses.stop stops us first
+    LOCKSTEP_MARGIN = 0.5
 
     def __init__(self, **kwargs) -> None:
         super().__init__('recorder', **kwargs)
@@ -89,7 +91,7 @@ class RecorderNode(Node):
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
         self._clock = self.get_clock()
         if self._sim_time:
-            self.drain_period = self.LOCKSTEP_DRAIN
+            self.drain_period = heartbeat_period() + self.LOCKSTEP_MARGIN
         out = Path(self.opt['out'] or default_bag_path())
         free = free_bytes(out)
         if 0 <= free < int(self.opt['min_free_space']):

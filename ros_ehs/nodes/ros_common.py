@@ -47,6 +47,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from ros_ehs.core.errors import EhsError
+from ros_ehs.nodes.fastdds_profile import use_profile
 from ros_ehs.nodes.parameters import check_names
 from ros_ehs.nodes.scheduling import set_cpu_affinity, set_realtime
 import ros_ehs_msgs_py as contract
@@ -224,6 +225,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     # Our own SIGINT/SIGTERM handling: leave the spin loop first, then close the node (a bag
     # gets its summary), then shut rclpy down. With rclpy's handler the context dies while
     # callbacks still publish.
+    use_profile()              # the package's Fast DDS profile, unless one is named
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda signum, frame: stop.set())
