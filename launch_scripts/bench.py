@@ -34,8 +34,9 @@ It runs for ``--duration`` seconds (real time: wall seconds after the loop close
 sim seconds, as fast as DDS goes) or until Ctrl-C, then stops every child cleanly: the
 recorder first (so the bag closes with the loop intact), then reference, plant, controller.
 With ``--rt-priority`` the nodes get the Fast DDS profile ``fastdds_rt.xml`` beside this
-script (unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` is set already): under SCHED_FIFO a node
-joining the network could block the plant's publish for 333 ms (docs/nodes.md).
+script (unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` names a profile other than the
+package's): under SCHED_FIFO a node joining the network could block the plant's publish for
+333 ms (docs/nodes.md).
 The bag goes to ``--out`` (default ``bags/ehs_<UTC time>``), the node logs to
 ``out/logs/<bag name>/``. ``--params-file`` is passed to every node (a ``/**`` section
 reaches them all, ``plant:`` only the plant). Exit code 0 when every node ran and stopped
@@ -67,6 +68,7 @@ from ros_ehs.core.errors import EhsError  # noqa: E402
 from ros_ehs.core.options import NODE_OPTIONS, NODE_PARAMS  # noqa: E402
 from ros_ehs.core.settings import parse_assignment  # noqa: E402
 from ros_ehs.data.synthetic_bag import SensorNoise  # noqa: E402
+from ros_ehs.nodes.fastdds_profile import PROFILE  # noqa: E402
 from ros_ehs.nodes.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 import ros_ehs_msgs_py as contract  # noqa: E402
@@ -254,7 +256,9 @@ def main(argv=None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     pf = a.params_file
     env = {}
-    if a.rt_priority and not os.environ.get(FASTDDS_PROFILE_ENV):
+    # the real-time profile, unless a profile of the user's own is named (the package's
+    # default one is not: the real-time profile holds its settings too)
+    if a.rt_priority and os.environ.get(FASTDDS_PROFILE_ENV, '') in ('', str(PROFILE)):
         env[FASTDDS_PROFILE_ENV] = str(RT_PROFILE)
         print(f'bench: Fast DDS profile {RT_PROFILE} (shared-memory healthy check 30 ms)',
               flush=True)
