@@ -44,6 +44,7 @@ import functools
 import math
 import os
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
@@ -80,6 +81,10 @@ def pushable(names) -> list[str]:
     return [n for n in names if n in declared]
 
 
+#: how long a stop waits for the refit thread's call into ROS under way [s]
+STOP_IO = 2.0
+
+
 class IdentifyNode(Node):
     """Identification job as a node (see the module docstring)."""
 
@@ -88,6 +93,11 @@ class IdentifyNode(Node):
         self.opt = declare_settings(self, OPTIONS)
         self.cpu_affinity = int(self.opt['cpu_affinity'])
         self.result = None
+        # the refit thread's calls into ROS (log, publish, the controller's services) hold
+        # _io and are made only while not _closing: stop() sets it and waits for one under
+        # way, so none comes after the node is destroyed (one did: a SIGSEGV at exit)
+        self._io = threading.Lock()
+        self._closing = threading.Event()
         if self.opt['live']:
             self.done = None        # runs until stopped
             self._start_live()
@@ -278,15 +288,31 @@ class IdentifyNode(Node):
             prio = 'nice'
         if prio == 'nice':
             os.nice(19)        # this thread only: Linux keeps the nice value per thread
-        while True:
+        while not self._closing.is_set():
             self._todo.wait()
             self._todo.clear()
             try:
                 self._refit_once()
             except Exception as err:      # a refit must never end the live node
-                self.get_logger().error(f'live: refit failed: {type(err).__name__}: {err}')
+                with self._io:
+                    if not self._closing.is_set():
+                        self.get_logger().error(f'live: refit failed: '
+                                                f'{type(err).__name__}: {err}')
             finally:
                 self.schedule.done()
+
+    @property
+    def busy(self) -> bool:
+        """Say if a live refit is under way (the process then exits without a teardown)."""
+        return bool(self.opt['live'] and self.schedule.busy)
+
+    def stop(self) -> None:
+        """Stop talking to ROS from the refit thread (a refit under way is not published)."""
+        self._closing.set()
+        if self.opt['live']:
+            self._todo.set()              # a waiting refit thread leaves its loop
+        if self._io.acquire(timeout=STOP_IO):      # a call under way ends first
+            self._io.release()
 
     def _refit_once(self) -> None:
         log = self.get_logger()
@@ -300,31 +326,44 @@ class IdentifyNode(Node):
             est = contract.ParameterEstimate(stamp, {}, {}, False, f'no fit: {why}',
                                              reason=f'no fit: {why}',
                                              window_s=float(self.opt['window']))
-            self._publish(est)
-            log.warning(f'live: no fit: {why}', throttle_duration_sec=30.0)
+            with self._io:
+                if not self._closing.is_set():
+                    self._publish(est)
+                    log.warning(f'live: no fit: {why}', throttle_duration_sec=30.0)
             return
         if self._client is not None and self.live.controller is None:
-            self._ask_controller()
+            with self._io:
+                if not self._closing.is_set():
+                    self._ask_controller()
         est, _ = self.live.refit(exps, stamp, float(self.opt['window']))
         vals = ', '.join(f'{n}={est.values[n]:.5g}' for n in self.live.free)
         verdict = 'adequate' if est.adequate else 'NOT adequate'
-        log.info(f'live refit at {stamp * 1e-9:.3f} s: {verdict}, {est.iterations} '
-                 f'iterations, {est.wall_s:.2f} s; {vals}; '
-                 f'{"push" if est.pushed else "no push"}: {est.reason}')
-        if est.pushed and self._client is not None:
-            est = est._replace(pushed=self._push_live(est))
-        else:
-            est = est._replace(pushed=False)
-        self._publish(est)
+        with self._io:
+            if self._closing.is_set():
+                return
+            log.info(f'live refit at {stamp * 1e-9:.3f} s: {verdict}, {est.iterations} '
+                     f'iterations, {est.wall_s:.2f} s; {vals}; '
+                     f'{"push" if est.pushed else "no push"}: {est.reason}')
+            if est.pushed and self._client is not None:
+                est = est._replace(pushed=self._push_live(est))
+            else:
+                est = est._replace(pushed=False)
+            if not self._closing.is_set():
+                self._publish(est)
 
     def _publish(self, est) -> None:
         msg = contract.fill_estimate(DiagnosticArray(), est, DiagnosticStatus(), KeyValue)
         self.pub_est.publish(msg)
 
     def _wait(self, fut, timeout: float):
+        """Return the future's result within ``timeout`` s (None: none, or the node stops)."""
         ev = threading.Event()
         fut.add_done_callback(lambda f: ev.set())
-        return fut.result() if ev.wait(timeout) else None
+        end = time.monotonic() + timeout
+        while not ev.wait(min(0.05, max(0.0, end - time.monotonic()))):
+            if self._closing.is_set() or time.monotonic() >= end:
+                return None
+        return fut.result()
 
     def _ask_controller(self) -> None:
         """Take the controller's current values of the pushed parameters (once)."""

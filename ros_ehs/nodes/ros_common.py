@@ -210,8 +210,10 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
 
     A node may define ``done`` (an rclpy Future: spin until it completes), ``stop()`` (called
     first when a signal comes: the controller sends its safe command there), ``drain_period``
-    (seconds to keep spinning after a signal, to take in what is queued) and ``close()``
-    (called once, after spinning, even after a signal). A configuration error (bad parameter,
+    (seconds to keep spinning after a signal, to take in what is queued), ``close()``
+    (called once, after spinning, even after a signal) and ``busy`` (True when a worker
+    thread of its own is still computing: the process then exits without the interpreter's
+    teardown, once everything is closed). A configuration error (bad parameter,
     missing bag) is printed as one line and gives exit code 2, never a traceback.
 
     **A bounded stop**: the executor spins on a thread of its own, and this (the main) thread
@@ -308,4 +310,10 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         rclpy.try_shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if node is not None and getattr(node, 'busy', False):
+            # a worker thread still in compiled code (a refit): the interpreter's teardown
+            # under it crashed once (SIGSEGV); everything is closed, so leave now
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(rc)
     return rc
