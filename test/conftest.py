@@ -13,6 +13,7 @@
 # limitations under the License.
 """Fixtures of the DDS tests: a ROS domain of the test's own, and an rclpy node on it."""
 
+import os
 import signal
 import subprocess
 import sys
@@ -21,9 +22,22 @@ import time
 from domain_coordinator import domain_id
 import pytest
 from ros_ehs.nodes.fastdds_profile import use_profile
+from ros_ehs.nodes.processes import LOOP_CPUS_ENV
 
 #: this process's participants (the `ros` fixture's, the status watch's) on the nodes' profile
 use_profile()
+
+
+def _place_loops() -> None:
+    """Give each xdist worker's benches a loop CPU of their own (they all took the first)."""
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')
+    cpus = sorted(os.sched_getaffinity(0))
+    if worker.startswith('gw') and len(cpus) >= 2 and not os.environ.get(LOOP_CPUS_ENV):
+        k = int(worker[2:]) % len(cpus)
+        os.environ[LOOP_CPUS_ENV] = f'{cpus[k]},{cpus[(k + 1) % len(cpus)]}'
+
+
+_place_loops()
 
 
 @pytest.fixture

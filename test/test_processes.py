@@ -44,8 +44,20 @@ def test_node_command_writes_doubles_as_doubles():
     ({0, 1}, False, None), ({4, 9}, True, (4, 9))])
 def test_loop_placement_takes_the_first_two_allowed_cpus(monkeypatch, allowed, pin, want):
     import ros_ehs.nodes.processes as processes
+    monkeypatch.delenv(processes.LOOP_CPUS_ENV, raising=False)
     monkeypatch.setattr(processes.os, 'sched_getaffinity', lambda pid: set(allowed))
     assert processes.loop_placement(pin) == want
+
+
+def test_loop_placement_takes_the_cpus_the_environment_names(monkeypatch):
+    import ros_ehs.nodes.processes as processes
+    monkeypatch.setattr(processes.os, 'sched_getaffinity', lambda pid: {0, 1, 2})
+    monkeypatch.setenv(processes.LOOP_CPUS_ENV, '2,0')
+    assert processes.loop_placement() == (2, 0) and processes.loop_placement(False) is None
+    for bad in ('1', '1,7', 'a,b', '0,1,2'):
+        monkeypatch.setenv(processes.LOOP_CPUS_ENV, bad)
+        with pytest.raises(ValueError, match=f'ROS_EHS_LOOP_CPUS = {bad!r}'):
+            processes.loop_placement()
 
 
 def _diagnostic_array(statuses):

@@ -44,8 +44,9 @@ from ros_ehs.nodes.fastdds_profile import use_profile
 from ros_ehs.nodes.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
-__all__ = ['NodeProcesses', 'StartupError', 'launch_script', 'loop_closed', 'loop_placement',
-           'NodeProcess', 'node_command', 'NODES', 'recording', 'reference_started']
+__all__ = ['LOOP_CPUS_ENV', 'NodeProcesses', 'StartupError', 'launch_script', 'loop_closed',
+           'loop_placement', 'NodeProcess', 'node_command', 'NODES', 'recording',
+           'reference_started']
 
 
 def launch_script(name: str) -> Path:
@@ -86,16 +87,33 @@ def _value(v: Any) -> str:
     return str(v)
 
 
+#: the environment variable that places the loop: ``LOOP_CPU,REFERENCE_CPU`` (e.g. ``1,0``)
+LOOP_CPUS_ENV = 'ROS_EHS_LOOP_CPUS'
+
+
 def loop_placement(pin: bool | None = None) -> tuple[int, int] | None:
     """
     Return the CPUs of a pinned loop, (plant and controller, reference), or None: unpinned.
 
-    The first two CPUs this process may use. ``pin`` None: only if it may use two or more
-    (on one CPU there is nothing to place); True: always (one CPU: all on it); False: never.
+    The first two CPUs this process may use, or the two that ``ROS_EHS_LOOP_CPUS`` names
+    (two benches side by side, as the test suite's workers run them, each on its own CPU:
+    both on the first one slowed both). ``pin`` None: only if this process may use two CPUs
+    or more (on one CPU there is nothing to place); True: always (one CPU: all on it);
+    False: never.
     """
     allowed = sorted(os.sched_getaffinity(0))
     if pin is False or (pin is None and len(allowed) < 2):
         return None
+    named = os.environ.get(LOOP_CPUS_ENV, '').strip()
+    if named:
+        try:
+            cpus = tuple(int(c) for c in named.split(','))
+        except ValueError:
+            cpus = ()
+        if len(cpus) != 2 or not set(cpus) <= set(allowed):
+            raise ValueError(f'{LOOP_CPUS_ENV} = {named!r}: expected two CPUs of this '
+                             f'process, LOOP,REFERENCE, of {allowed}')
+        return cpus
     return allowed[0], allowed[1 % len(allowed)]
 
 
