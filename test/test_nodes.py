@@ -735,9 +735,11 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
         'controller.log', 'plant.figures.json', 'plant.log', 'recorder.log', 'reference.log']
     f = json.loads((logs / 'plant.figures.json').read_text())
     assert f['steps'] == 1000 and f['finished'] and f['watchdog_trips'] == 0
-    # --cpu-affinity: plant and controller share CPU 0, the reference has CPU 1 (or each
-    # says why not, on a machine with one CPU)
-    for node, cpu in (('plant', 0), ('controller', 0), ('reference', 1)):
+    # --cpu-affinity: plant and controller share the loop's CPU, the reference has the other
+    # (the first two, or as ROS_EHS_LOOP_CPUS names them; or each says why not, on a machine
+    # with one CPU)
+    loop_cpu, ref_cpu = loop_placement(True)
+    for node, cpu in (('plant', loop_cpu), ('controller', loop_cpu), ('reference', ref_cpu)):
         text = (logs / f'{node}.log').read_text()
         assert f'threads on CPU {cpu}' in text or f'cpu_affinity {cpu} not applied' in text
         assert 'XMLPARSER' not in text          # the profile was read without a complaint
