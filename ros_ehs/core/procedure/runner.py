@@ -451,14 +451,17 @@ class ProcedureRunner:
         Take a live fit's specimen stiffness ``k_L`` [N/m], its standard error and verdict.
 
         The running cyclic step's ``fitted_stiffness_drop`` detectors judge it (at the count
-        now); a trip fails the test as a cycle's detector does. Outside a running step it is
-        not judged.
+        now); a trip fails the test as a cycle's detector does, from the newest state on (an
+        estimate's stamp is its window's end, seconds old: a stop ramp from there would have
+        jumped the command to where that ramp is now). Outside a running step it is not
+        judged.
         """
         if self.state != 'running':
             return
+        now = max(stamp_ns, self._last_ns)
         for d in self._detectors.get(self.step_index, []):
             why = d.estimate(k_L, stderr, adequate, self.total)
-            if why and self._failed(d, why, stamp_ns):
+            if why and self._failed(d, why, now):
                 return
 
     def mode_switched(self, ok: bool, why: str, stamp_ns: int) -> None:
