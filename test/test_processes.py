@@ -13,6 +13,7 @@
 # limitations under the License.
 """Process supervision without DDS: node commands, CPU placement."""
 
+from foreign import diagnostic_array
 import pytest
 from ros_ehs.nodes.processes import node_command
 
@@ -60,30 +61,15 @@ def test_loop_placement_takes_the_cpus_the_environment_names(monkeypatch):
             processes.loop_placement()
 
 
-def _diagnostic_array(statuses):
-    """Return a DiagnosticArray that rosbags serialized and read back (not our writer)."""
-    from rosbags.typesys import get_typestore, Stores
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    T = ts.types
-    msg = T['diagnostic_msgs/msg/DiagnosticArray'](
-        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
-            sec=5, nanosec=7), frame_id=''),
-        status=[T['diagnostic_msgs/msg/DiagnosticStatus'](
-            level=level, name=name, message=message, hardware_id='axis',
-            values=[T['diagnostic_msgs/msg/KeyValue'](key=k, value=v) for k, v in values])
-            for name, level, message, values in statuses])
-    kind = msg.__msgtype__
-    return ts.deserialize_cdr(ts.serialize_cdr(msg, kind), kind)
-
-
 def test_readiness_is_read_from_the_statuses_a_diagnostics_message_carries():
     import ros_ehs_msgs_py as c
     from ros_ehs.nodes.processes import loop_closed, recording, reference_started
-    msg = _diagnostic_array([
+    msg = diagnostic_array([
         (c.RECORDER_STATUS, 0, 'recording', [('recording', '/reference,/servo_current,/state'),
                                              ('matched', '/reference')]),
         (c.PLANT_STATUS, 1, 'waiting for the first command', []),
-        (c.REFERENCE_STATUS, 0, 'sine', [('started', 'True'), ('published', '3')])])
+        (c.REFERENCE_STATUS, 0, 'sine', [('started', 'True'), ('published', '3')])],
+        sec=5, nanosec=7)
     rec, plant, ref = c.statuses_from_msg(msg)
     assert rec == c.NodeStatus(5_000_000_007, c.RECORDER_STATUS, 0, 'recording',
                                {'recording': '/reference,/servo_current,/state',
@@ -94,7 +80,7 @@ def test_readiness_is_read_from_the_statuses_a_diagnostics_message_carries():
     assert not loop_closed(plant) and plant.level == 1
     assert loop_closed(plant._replace(level=0))
     assert reference_started(ref) and not reference_started(ref._replace(values={}))
-    assert c.statuses_from_msg(_diagnostic_array([])) == []
+    assert c.statuses_from_msg(diagnostic_array([])) == []
 
 
 @pytest.mark.ros

@@ -13,6 +13,7 @@ import math
 import socket
 
 import aiohttp
+from foreign import diagnostic_array
 import numpy as np
 import pytest
 from ros_ehs.core.station.access import Access
@@ -132,21 +133,12 @@ def test_access_lets_this_machine_act_and_others_only_with_the_token():
 # -- board -------------------------------------------------------------------------------------
 def _controller_status(**extra):
     """Return the controller's status, serialized by rosbags and read by the contract."""
-    from rosbags.typesys import get_typestore, Stores
     v = {'tripped': 'limit_position_max', 'trips_limit_position_max': '1', 'enabled': 'True',
          'limit_position_max.limit': '0.03', 'limit_position_max.action': 'hold',
          'trips_limit_velocity': 'garbled'}
     v.update(extra)
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    T = ts.types
-    msg = T['diagnostic_msgs/msg/DiagnosticArray'](
-        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
-            sec=1, nanosec=0), frame_id=''),
-        status=[T['diagnostic_msgs/msg/DiagnosticStatus'](
-            level=2, name=c.CONTROLLER_STATUS, message='interlock hold', hardware_id='axis',
-            values=[T['diagnostic_msgs/msg/KeyValue'](key=k, value=x) for k, x in v.items()])])
-    raw = ts.serialize_cdr(msg, 'diagnostic_msgs/msg/DiagnosticArray')
-    back = ts.deserialize_cdr(raw, 'diagnostic_msgs/msg/DiagnosticArray')
+    back = diagnostic_array([(c.CONTROLLER_STATUS, 2, 'interlock hold', list(v.items()))],
+                            sec=1)
     return c.statuses_from_msg(back)[0]
 
 
@@ -402,21 +394,11 @@ def test_a_station_on_a_port_in_use_says_so():
 
 def test_a_procedure_event_reads_back_with_its_level_through_rosbags():
     """The station's event log takes the level from the contract's decoder, any message kind."""
-    from rosbags.typesys import get_typestore, Stores
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    T = ts.types
     msg = c.fill_procedure_event(c.empty_msg('diagnostic_msgs/msg/DiagnosticArray'), 5, 1,
                                  'held', 'cycles', 3.0, 3, 1, 'held at cycle 3')
     st = msg['status'][0]
-    arr = T['diagnostic_msgs/msg/DiagnosticArray'](
-        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
-            sec=0, nanosec=5), frame_id=''),
-        status=[T['diagnostic_msgs/msg/DiagnosticStatus'](
-            level=st['level'][0], name=st['name'], message=st['message'], hardware_id='axis',
-            values=[T['diagnostic_msgs/msg/KeyValue'](key=kv['key'], value=kv['value'])
-                    for kv in st['values']])])
-    back = ts.deserialize_cdr(ts.serialize_cdr(arr, 'diagnostic_msgs/msg/DiagnosticArray'),
-                              'diagnostic_msgs/msg/DiagnosticArray')
+    back = diagnostic_array([(st['name'], st['level'][0], st['message'],
+                              [(kv['key'], kv['value']) for kv in st['values']])], nanosec=5)
     e = c.procedure_event_from_msg(back)
     assert (e['kind'], e['level'], e['total_cycles'], e['stamp_ns']) == ('held', 1, 3, 5)
     assert c.procedure_event_from_msg(msg)['level'] == 1           # a dict message too
