@@ -470,8 +470,9 @@ def test_fitted_stiffness_drop_judges_adequate_fits_beyond_their_standard_errors
 def test_a_fitted_stiffness_drop_fails_the_running_test_at_the_count_it_came(observe):
     step = {**CYCLIC, 'count': 0, 'end': [{'fitted_stiffness_drop': {
         'settling': 2, 'reference': 1, 'persist': 1}}]}
-    r, ax = started(proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.02}, step),
-                    observe=observe)
+    p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.02}, step)
+    assert p.ends_on('fitted_stiffness_drop') and not p.ends_on('stiffness_drop')
+    r, ax = started(p, observe=observe)
     r.estimate(ax.stamp, K, 0.01 * K, True)                # the ramp: not a cyclic step
     ax.run(until=lambda r: r.total >= 3)
     r.estimate(ax.stamp, K, 0.01 * K, True)                # the reference

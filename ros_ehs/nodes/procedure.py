@@ -184,8 +184,7 @@ class ProcedureNode(Node):
                                  qos_profile(contract.EVENTS.qos))
         self.create_subscription(DiagnosticArray, contract.ESTIMATES.name, self._on_estimate,
                                  qos_profile(contract.ESTIMATES.qos))
-        self._fits_k_L = any(e.kind == 'fitted_stiffness_drop' for s in self.procedure.steps
-                             for e in s.end)
+        self._fits_k_L = self.procedure.ends_on('fitted_stiffness_drop')
         self._said_no_k_L = False
         for name in ('start', 'hold', 'resume', 'stop'):
             self.create_service(Trigger, f'~/{name}', functools.partial(self._on_request,

@@ -236,7 +236,7 @@ def _cmd_procedure(args) -> int:
           f'simulated in {r.wall_s:.3g} s ({r.speed:.1f}x real time)')
     for kind, n in sorted(r.tripped.items()):
         print(f'  {kind} would trip at cycle {n}')
-    if any(e.kind == 'fitted_stiffness_drop' for s in proc.steps for e in s.end):
+    if proc.ends_on('fitted_stiffness_drop'):
         print('  fitted_stiffness_drop: not judged in a virtual test (it judges the live '
               "identification's fits on the rig)")
     if r.fractured_at is not None:

@@ -51,6 +51,7 @@ import math
 from typing import Any, Mapping
 
 from ros_ehs.core.errors import InputError
+from ros_ehs.core.procedure.spec import DETECTORS
 
 __all__ = ['Cycle', 'FailureDetector']
 
@@ -89,15 +90,14 @@ class FailureDetector:
     """
 
     def __init__(self, kind: str, values: Mapping[str, Any], mode: str) -> None:
-        if kind not in ('stiffness_drop', 'peak_valley_change', 'underpeak',
-                        'fitted_stiffness_drop'):
+        if kind not in DETECTORS:
             raise InputError(f'`kind` = {kind!r} is not a failure detector')
         self.kind = kind
         self.values = dict(values)
         self.mode = mode
         self.judged = 0          #: cycles seen since the step (re)started
         self.reference: dict[str, float] | None = None
-        self._acc: list[tuple[float, float, float]] = []
+        self._acc: list[tuple[float, ...]] = []     # the reference's cycles or estimates
         self._beyond = 0
         self.tripped_at: int | None = None     #: the cycle count it tripped on
         self.last_value = math.nan             #: the newest cycle's judged value
@@ -193,7 +193,7 @@ class FailureDetector:
                 and stderr >= 0) or self.judged <= v['settling']:
             return ''                  # not a fit to judge by: it neither counts nor clears
         if self.reference is None:
-            self._acc.append((k, stderr, 0.0))
+            self._acc.append((k, stderr))
             if len(self._acc) >= v['reference']:
                 n = len(self._acc)
                 self.reference = {'stiffness': sum(a[0] for a in self._acc) / n,

@@ -231,6 +231,10 @@ class Procedure:
     source: str = ''
     text: str = field(default='', repr=False)    #: the file's text (kept with the test)
 
+    def ends_on(self, kind: str) -> bool:
+        """Say if any step has an end condition of ``kind``."""
+        return any(e.kind == kind for s in self.steps for e in s.end)
+
 
 def _check(setting: Setting, value: Any, where: str) -> Any:
     try:
