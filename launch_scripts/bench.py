@@ -68,12 +68,11 @@ from ros_ehs.core.errors import EhsError  # noqa: E402
 from ros_ehs.core.options import NODE_OPTIONS, NODE_PARAMS  # noqa: E402
 from ros_ehs.core.settings import parse_assignment  # noqa: E402
 from ros_ehs.data.synthetic_bag import SensorNoise  # noqa: E402
-from ros_ehs.nodes.fastdds_profile import PROFILE  # noqa: E402
+from ros_ehs.nodes.fastdds_profile import ENV, PROFILE  # noqa: E402
 from ros_ehs.nodes.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
 import ros_ehs_msgs_py as contract  # noqa: E402
 
-FASTDDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 #: at most this many CPUs get a probe (one each); a larger machine gets none
 PROBE_MAX_CPUS = 4
 #: the Fast DDS profile a bench under SCHED_FIFO needs (see the file's comment)
@@ -258,8 +257,8 @@ def main(argv=None) -> int:
     env = {}
     # the real-time profile, unless a profile of the user's own is named (the package's
     # default one is not: the real-time profile holds its settings too)
-    if a.rt_priority and os.environ.get(FASTDDS_PROFILE_ENV, '') in ('', str(PROFILE)):
-        env[FASTDDS_PROFILE_ENV] = str(RT_PROFILE)
+    if a.rt_priority and os.environ.get(ENV, '') in ('', str(PROFILE)):
+        env[ENV] = str(RT_PROFILE)
         print(f'bench: Fast DDS profile {RT_PROFILE} (shared-memory healthy check 30 ms)',
               flush=True)
     with NodeProcesses(a.domain_id, logs, env=env) as procs:

@@ -45,6 +45,11 @@ def test_the_heartbeat_is_read_from_the_profile_in_effect(tmp_path):
         '<sec>1</sec><nanosec>500000000</nanosec></heartbeatPeriod></times></data_writer>'
         '</profiles>')
     assert heartbeat_period({ENV: str(mine)}) == pytest.approx(1.5)   # the default writer's
+    plain = tmp_path / 'plain.xml'                  # no namespace: Fast DDS reads it too
+    plain.write_text('<profiles><data_writer profile_name="d" is_default_profile="true">'
+                     '<times><heartbeatPeriod><nanosec>250000000</nanosec></heartbeatPeriod>'
+                     '</times></data_writer></profiles>')
+    assert heartbeat_period({ENV: str(plain)}) == pytest.approx(0.25)
 
 
 def _settings(path):

@@ -44,6 +44,7 @@ import numpy as np
 import psutil
 from ros_ehs.benchmarks import positive, report
 from ros_ehs.data.bag import BagWriter, open_bag
+from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, NodeProcesses
 import ros_ehs_msgs_py as contract
 import yaml
@@ -84,8 +85,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     lock = a.mode == 'lockstep'
     rt = {'rt_priority': a.rt_priority} if a.rt_priority else {}
-    env = ({'FASTRTPS_DEFAULT_PROFILES_FILE': str(RT_PROFILE)}
-           if rt and RT_PROFILE.is_file() else {})
+    env = {ENV: str(RT_PROFILE)} if rt and RT_PROFILE.is_file() else {}
     with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
         bag = Path(a.keep) if a.keep else Path(tmp) / 'soak'
         with NodeProcesses(dom, Path(tmp) / 'logs', env=env) as procs:

@@ -54,6 +54,7 @@ import time
 from domain_coordinator import domain_id
 from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.benchmarks.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
+from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, loop_placement, NodeProcesses
 
 BENCH = launch_script('bench.py')
@@ -135,7 +136,7 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
     cpus = loop_placement(True) if pin else None
     if cpus:      # ping and pong on one CPU, as bench.py --cpu-affinity places ours
         rt += ['--cpu', str(cpus[0])]
-    env = {'FASTRTPS_DEFAULT_PROFILES_FILE': str(RT_PROFILE)} if prio else {}
+    env = {ENV: str(RT_PROFILE)} if prio else {}
     with NodeProcesses(dom, env=env) as bare:
         for role in ('pong', 'ping'):
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role, *rt])

@@ -67,9 +67,7 @@ def heartbeat_period(env: dict | None = None) -> float:
     for w in root.iter():
         if not (w.tag.endswith('data_writer') and w.get('is_default_profile') == 'true'):
             continue
-        hb = w.find('{*}times/{*}heartbeatPeriod')
-        if hb is None:
-            hb = w.find('times/heartbeatPeriod')
+        hb = w.find('{*}times/{*}heartbeatPeriod')     # {*}: any namespace, or none
         if hb is None:
             continue
         parts = {c.tag.rsplit('}', 1)[-1]: (c.text or '').strip() for c in hb}

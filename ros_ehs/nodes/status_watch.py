@@ -32,6 +32,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
+from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.ros_common import qos_profile
 import ros_ehs_msgs_py as contract
 
@@ -41,7 +42,7 @@ __all__ = ['DDS_ENVIRONMENT', 'StatusWatch']
 #: watches do (the same discovery range and Fast DDS profile: a participant on other
 #: shared-memory timeouts can hold a writer that opens its port, docs/nodes.md)
 DDS_ENVIRONMENT = ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS', 'RMW_IMPLEMENTATION',
-                   'FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+                   ENV, 'FASTDDS_DEFAULT_PROFILES_FILE')
 
 
 class StatusWatch:
