@@ -302,9 +302,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
             if close is not None:
                 close()
             if stuck:        # the executor's thread holds the middleware: leave it there
-                sys.stdout.flush()
-                sys.stderr.flush()
-                os._exit(rc)
+                _leave(rc)
             _wait_acked(node)
             node.destroy_node()
         rclpy.try_shutdown()
@@ -313,7 +311,12 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         if node is not None and getattr(node, 'busy', False):
             # a worker thread still in compiled code (a refit): the interpreter's teardown
             # under it crashed once (SIGSEGV); everything is closed, so leave now
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(rc)
+            _leave(rc)
     return rc
+
+
+def _leave(rc: int) -> None:
+    """Exit with ``rc`` now, without the interpreter's teardown (the output flushed)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(rc)

@@ -117,11 +117,12 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     fractured = None
     checkpoints, cp_s = 0, 0.0
     n = int(max_seconds * rate_hz)
-    window = None
+    window, every, full = None, 1, 0.0
     estimates: list = []
     if live is not None:
         window = SampleWindow(live.window, int(live.window * rate_hz) + 10)
         every = max(1, int(round(live.period * rate_hz)))
+        full = live.window - 1.5 / rate_hz        # the window's span once it is full [s]
     wall0 = time.perf_counter()
     started = False
     k = 0
@@ -143,7 +144,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             runner.event(e.kind, e.detector, e.action, st.stamp_ns)
         runner.measure(st.stamp_ns, st.z, s.load)
         if window is not None:
-            _live_step(live, window, every, k, s, reply.current, runner, estimates)
+            _live_step(live, window, every, full, k, s, reply.current, runner, estimates)
         if runner.request_mode is not None:
             ok, why, ev = loop.set_mode(runner.request_mode)
             events.append(('controller', ev.kind, ev.detector, ev.message))
@@ -179,16 +180,16 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                        checkpoints, cp_s, estimates)
 
 
-def _live_step(live: LiveFits, window: SampleWindow, every: int, k: int, s, current: float,
-               runner: ProcedureRunner, estimates: list) -> None:
-    """Feed the window one period; refit it every ``every`` periods once it is full."""
+def _live_step(live: LiveFits, window: SampleWindow, every: int, full: float, k: int, s,
+               current: float, runner: ProcedureRunner, estimates: list) -> None:
+    """Feed the window one period; refit it every ``every`` periods once it spans ``full`` s."""
     st = s.state
     window.add_state(st.stamp_ns, st.z, st.z_dot, st.i)
     window.add_command(st.stamp_ns, current)
     window.add_pressure(0, st.stamp_ns, s.p_cp)
     window.add_pressure(1, st.stamp_ns, s.p_ct)
     window.add_load(st.stamp_ns, s.load)
-    if k % every or window.span() < live.window - 1.5 / every or runner.state != 'running':
+    if k % every or window.span() < full or runner.state != 'running':
         return
     try:
         est, _ = live.identifier.refit(window.experiments(), st.stamp_ns, live.window)
