@@ -348,3 +348,39 @@ def test_excitation_advice_validates_its_inputs(fits):
     assert set(ident['parameters']) == set(r.free) and ident['weak'] == []
     loose = identifiability(r, pinned=1e-9)        # a threshold nothing meets: all loose
     assert loose['weak'] == list(r.free)
+
+
+def test_a_derived_velocity_is_compared_through_the_derivative_that_derived_it():
+    """
+    Where the data's velocity was derived from the position, so is the model's.
+
+    Per replay segment, the model's velocity is the same derivative of its position (a replay's
+    position jumps where a segment restarts); within half the filter's width of a segment's
+    ends it is the measured one (no residual). A measured velocity meets the model's own.
+    """
+    from dataclasses import replace
+
+    from ros_ehs.core.identify.experiment import derivative_coefficients, experiment_from_arrays
+    from ros_ehs.core.identify.problem import Problem, SIGNALS
+    t = np.arange(2500) * 1e-3
+    w = 2 * np.pi
+    e = experiment_from_arrays('sine', t, 1e-3 * np.cos(w * t), 0.01 * np.sin(w * t),
+                               0.01 * w * np.cos(w * t))
+    base = preset('table1_estimated')
+    measured, derived = (Problem([x], base, ESTIMATED, 'simplified', SIGNALS, 1.0, None)
+                         for x in (e, replace(e, derived=('z_dot',))))
+    theta = np.array([base[n] for n in ESTIMATED]) / measured.scale
+    om, od = measured.simulate(theta)[0], derived.simulate(theta)[0]
+    iz, iv = measured.iz, measured.iv
+    np.testing.assert_array_equal(od[:, iz], om[:, iz])
+    c = derivative_coefficients(1e-3)
+    h = c.size // 2
+    segments = list(derived.exps[0].segments())
+    assert len(segments) == 3 and c.size == 5
+    for a, b in segments:
+        np.testing.assert_allclose(od[a + h:b - h, iv], np.convolve(om[a:b, iz], c, 'valid'),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(od[[a, a + 1, b - 2, b - 1], iv],
+                                      e.v[[a, a + 1, b - 2, b - 1]])
+    # the measured velocity's experiment: the model's own velocity, which the derivative is not
+    assert np.max(np.abs(om[h:-h, iv] - od[h:-h, iv])) > 1e-6

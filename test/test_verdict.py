@@ -18,6 +18,7 @@ End to end on a bag a ros2_control driver would record of a rig that is not the 
 written by rosbags.
 """
 
+import math
 import warnings
 
 import numpy as np
@@ -25,8 +26,9 @@ import pytest
 from ros_ehs.core.errors import DataError, IdentificationWarning
 from ros_ehs.core.identify import identify
 from ros_ehs.core.identify.experiment import experiment_from_arrays
-from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, PREDICTION_LIMIT,
-                                           SENSED_LIMIT, spread)
+from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, MIN_RATE_HZ,
+                                           PREDICTION_LIMIT, restart, SENSED_LIMIT,
+                                           SETTLE_ITERATIONS, SETTLED, settled, spread)
 from ros_ehs.core.params import preset
 
 FIVE = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')
@@ -120,12 +122,13 @@ def test_the_spread_counts_halves_that_agree_with_each_other_but_not_with_the_wh
 def test_halves_that_disagree_beyond_the_limit_and_their_errors_name_the_parameter():
     why, advice = adequacy(1, 100, 'reduced', '',
                            _check(disagreement={'F_cc': AGREEMENT + 0.01}), _metrics())
-    assert len(why) == 1 and 'give F_cc = 1 and 1.1, the whole 1.05: 9.0 % apart (limit 8 %)' \
-        in why[0]
+    assert len(why) == 1 and (f'give F_cc = 1 and 1.1, the whole 1.05: '
+                              f'{100 * AGREEMENT + 1:.1f} % apart (limit {100 * AGREEMENT:g} %)'
+                              in why[0]), why
     assert any('record the chamber pressures' in a for a in advice)   # friction, no pressures
     assert any('each half of the record shows F_cc' in a for a in advice)
     # with pressures recorded, the advice is more excitation only
-    _, advice = adequacy(1, 100, 'reduced', '', _check(disagreement={'F_cc': 0.09}),
+    _, advice = adequacy(1, 100, 'reduced', '', _check(disagreement={'F_cc': AGREEMENT + 0.01}),
                          _metrics(p_CP=1.0, p_CT=1.0))
     assert not any('pressures' in a for a in advice)
 
@@ -151,6 +154,50 @@ def test_an_invalid_set_and_a_stop_at_the_limit_are_not_adequate_without_a_check
     assert any('evaluation limit (max_nfev = 7)' in w for w in why)
     assert any('not a valid parameter set (F_cc above F_sc)' in w for w in why)
     assert any('max_nfev' in a for a in advice)
+
+
+def test_halves_that_both_leave_the_whole_for_one_side_say_where_to_refit_it():
+    whole = {'F_cc': 1000.0, 'F_sc': 2000.0, 'r_c': 1e-6}
+    apart = 1000.0 * (1 + 0.6 * AGREEMENT)
+    assert restart({**whole, 'F_cc': apart + 10}, {**whole, 'F_cc': apart - 10},
+                   whole) == pytest.approx({**whole, 'F_cc': apart})
+    # halves on either side of the whole, or near it, say nothing; nor does the null shape
+    assert restart({**whole, 'F_cc': 1100.0}, {**whole, 'F_cc': 900.0}, whole) is None
+    near = 1000.0 * (1 + 0.4 * AGREEMENT)
+    assert restart({**whole, 'F_cc': near}, {**whole, 'F_cc': near}, whole) is None
+    assert restart({**whole, 'r_c': 3e-6}, {**whole, 'r_c': 3e-6}, whole) is None
+
+
+def test_a_record_slower_than_the_verdicts_rate_is_not_adequate_and_says_to_record_faster():
+    why, advice = adequacy(1, 100, 'reduced', '', None, _metrics(), rate_hz=250.0)
+    assert any(f'recorded at 250 Hz, below {MIN_RATE_HZ:.0f} Hz' in w and 'F_sc' in w
+               for w in why), why
+    assert any(f'{MIN_RATE_HZ:.0f} Hz or faster' in a for a in advice), advice
+    # a driver's mean period a little off its nominal rate is that rate
+    assert adequacy(1, 100, 'reduced', '', None, _metrics(),
+                    rate_hz=0.999 * MIN_RATE_HZ) == ([], [])
+
+
+def _history(moves: dict, n: int = SETTLE_ITERATIONS + 1) -> list:
+    """Return ``n`` iterations of a history in which each value moves ``moves[name]`` in all."""
+    return [{'x': {k: 1.0 + v * j / (n - 1) for k, v in moves.items()}} for j in range(n)]
+
+
+def test_a_stop_at_the_limit_with_settled_values_is_converged():
+    se = {'F_cc': 10.0, 'r_c': 1e-7}
+    assert settled(_history({'F_cc': 0.9 * SETTLED * 10.0, 'r_c': 0.0}), se)
+    assert not settled(_history({'F_cc': 1.1 * SETTLED * 10.0, 'r_c': 0.0}), se)
+    # the moves of the last SETTLE_ITERATIONS count, not those before them
+    early = _history({'F_cc': 0.0, 'r_c': 0.0}, SETTLE_ITERATIONS + 1)
+    assert settled([{'x': {'F_cc': -50.0, 'r_c': 1.0}}] + early, se)
+    assert not settled(early[1:], se)                         # too few iterations to tell
+    # a value without a finite standard error must not move at all
+    assert settled(_history({'F_cc': 0.0, 'r_c': 0.0}), {'F_cc': math.inf, 'r_c': math.nan})
+    assert not settled(_history({'F_cc': 1e-9, 'r_c': 0.0}), {'F_cc': math.inf, 'r_c': 1.0})
+    why, _ = adequacy(0, 100, 'reduced', '', None, _metrics(), is_settled=True)
+    assert not any('evaluation limit' in w for w in why)
+    why, _ = adequacy(0, 100, 'reduced', '', None, _metrics())
+    assert any('evaluation limit (max_nfev = 100)' in w for w in why)
 
 
 # -- end to end ----------------------------------------------------------------------------------

@@ -30,7 +30,9 @@ identifier from the running loop):
   plant's joint ``servo_valve``), otherwise the command in force, averaged over the period,
   ``delay`` later than its stamp;
 * a missing velocity is derived from the position by a Savitzky-Golay derivative (quadratic,
-  about 5 ms wide) and its noise is the position's noise times that filter's gain;
+  about 5 ms wide, :func:`derivative_coefficients`) and its noise is the position's noise
+  times that filter's gain; a fit compares it with the model's position through the same
+  derivative (:class:`ros_ehs.core.identify.problem.Problem`), not with the model's velocity;
 * a load cell (a specimen's force), where recorded, is interpolated onto the grid as the
   pressures are.
 """
@@ -45,6 +47,7 @@ from ros_ehs.core.errors import DataError
 from ros_ehs.core.noise import noise_sigma
 
 __all__ = ['Experiment', 'MIN_SAMPLES', 'NoExcitation', 'Series', 'cut_experiment',
+           'derivative_coefficients',
            'experiment_from_arrays', 'experiments_from_series', 'on_grid', 'run_bounds',
            'sorted_by_time', 'split_runs']
 
@@ -237,6 +240,17 @@ class Series:
 def _savgol_width(dt: float) -> int:
     n = max(3, int(round(DERIVATIVE_WIDTH / dt)))
     return n + 1 - n % 2
+
+
+def derivative_coefficients(dt: float) -> np.ndarray:
+    """
+    Return the convolution coefficients that derive a missing velocity from positions ``dt`` apart.
+
+    ``np.convolve(z, c, 'valid')`` is the velocity at the middle sample of each window: the
+    derivative :func:`cut_experiment` applies to a run (away from its ends).
+    """
+    from scipy.signal import savgol_coeffs
+    return savgol_coeffs(_savgol_width(dt), 2, deriv=1, delta=dt, use='conv')
 
 
 def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
