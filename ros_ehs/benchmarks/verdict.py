@@ -28,8 +28,10 @@ A fit is **good** when all five of d_c, F_cc, F_sc, l_iac and c_c are within 5 %
 no model pins them down from such bags). A good fit called not adequate is a false alarm, a
 bad fit called adequate a miss. Prints each rig's fits and the confusion matrix per model;
 the last line is one JSON object with ``good_fits``, ``false_alarms``, ``bad_fits``,
-``misses``, the same per model, and under ``noise_verdict`` the same fits judged by the
-verdict this one replaced (every residual within 2x its sensor noise): the yardstick.
+``misses``, the same per model and per state rate (``per_rate``: from and below the
+verdict's :data:`ros_ehs.core.identify.verdict.MIN_RATE_HZ`), and under ``noise_verdict``
+the same fits judged by the verdict this one replaced (every residual within 2x its sensor
+noise): the yardstick.
 Targets: false alarms at most 5 % of the good fits, no miss, every simplified fit of a rig
 away from Table 1 that is bad caught.
 """
@@ -45,6 +47,7 @@ from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.core.control.waveforms import Chirp, Sine
 from ros_ehs.core.errors import IdentificationWarning
 from ros_ehs.core.identify import identify
+from ros_ehs.core.identify.verdict import MIN_RATE_HZ
 from ros_ehs.core.params import ESTIMATED, preset
 
 #: the parameters a fit is judged good or bad on
@@ -145,13 +148,19 @@ def main(argv=None) -> int:
     figures = confusion(fits)
     figures['per_model'] = {m: confusion([f for f in fits if f['model'] == m])
                             for m in MODELS}
+    # the records the verdict trusts for their rate, and those it flags for it
+    figures['per_rate'] = {
+        f'from_{MIN_RATE_HZ:.0f}_hz': confusion([f for f in fits if f['rate_hz'] >= MIN_RATE_HZ]),
+        f'below_{MIN_RATE_HZ:.0f}_hz': confusion([f for f in fits if f['rate_hz'] < MIN_RATE_HZ])}
     # the yardstick, same fits: the residual-against-noise verdict
     figures['noise_verdict'] = confusion(fits, 'noise_verdict')
     figures['rigs'] = a.rigs
     figures['seconds'] = a.seconds
     figures['fit_s_median'] = round(float(np.median([f['wall_s'] for f in fits])), 2)
     print('\nconfusion          good: adequate / not    bad: adequate / not')
-    for m, c in [*figures['per_model'].items(), ('all', figures),
+    for m, c in [*figures['per_model'].items(),
+                 *((k.replace('_', ' '), c) for k, c in figures['per_rate'].items()),
+                 ('all', figures),
                  ('noise (old)', figures['noise_verdict'])]:
         print(f'{m:12s}  {c["good_fits"] - c["false_alarms"]:12d} / {c["false_alarms"]:<6d}'
               f'   {c["misses"]:10d} / {c["bad_fits"] - c["misses"]}')
