@@ -27,7 +27,7 @@ from ros_ehs.core.errors import DataError, IdentificationWarning
 from ros_ehs.core.identify import identify
 from ros_ehs.core.identify.experiment import experiment_from_arrays
 from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, MIN_RATE_HZ,
-                                           PREDICTION_LIMIT, restart, SENSED_LIMIT,
+                                           PREDICTION_LIMIT, RESTART, restart, SENSED_LIMIT,
                                            SETTLE_ITERATIONS, SETTLED, settled, spread)
 from ros_ehs.core.params import preset
 
@@ -158,12 +158,12 @@ def test_an_invalid_set_and_a_stop_at_the_limit_are_not_adequate_without_a_check
 
 def test_halves_that_both_leave_the_whole_for_one_side_say_where_to_refit_it():
     whole = {'F_cc': 1000.0, 'F_sc': 2000.0, 'r_c': 1e-6}
-    apart = 1000.0 * (1 + 0.6 * AGREEMENT)
+    apart = 1000.0 * (1 + 1.2 * RESTART)
     assert restart({**whole, 'F_cc': apart + 10}, {**whole, 'F_cc': apart - 10},
                    whole) == pytest.approx({**whole, 'F_cc': apart})
     # halves on either side of the whole, or near it, say nothing; nor does the null shape
     assert restart({**whole, 'F_cc': 1100.0}, {**whole, 'F_cc': 900.0}, whole) is None
-    near = 1000.0 * (1 + 0.4 * AGREEMENT)
+    near = 1000.0 * (1 + 0.8 * RESTART)
     assert restart({**whole, 'F_cc': near}, {**whole, 'F_cc': near}, whole) is None
     assert restart({**whole, 'r_c': 3e-6}, {**whole, 'r_c': 3e-6}, whole) is None
 
