@@ -215,7 +215,8 @@ class StationNode(Node):
 
     def close(self) -> None:
         """Stop serving (called once by :func:`run`)."""
-        self.server.stop()
+        if not self.server.stop():
+            self.get_logger().warning('the web server did not stop within 5 s: left behind')
 
 
 def main(args=None) -> int:

@@ -46,13 +46,16 @@ import math
 from pathlib import Path
 import threading
 from typing import Protocol
+import weakref
 
-from aiohttp import web, WSMsgType
+from aiohttp import web, WSCloseCode, WSMsgType
 from ros_ehs.core.station.access import Access
 from ros_ehs.core.station.scope import TIME_BASES
 
 __all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'STATIC', 'StationServer']
 
+#: the open pages' WebSockets (each is closed when the station stops)
+PAGES = web.AppKey('pages', weakref.WeakSet)
 STATIC = Path(__file__).resolve().with_name('static')
 #: what a page may ask: the controller's and the procedure's services
 ACTIONS = ('reset', 'enable', 'disable', 'start', 'hold', 'resume', 'stop')
@@ -178,6 +181,7 @@ def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Applica
         span = _span(request.query.get('span'))      # a bad time base: 400, before the upgrade
         ws = web.WebSocketResponse(heartbeat=10.0, compress=False)
         await ws.prepare(request)
+        request.app[PAGES].add(ws)
         may = access.decide(request.remote, request.query.get('token'))._asdict()
         desk.page_count(1)
 
@@ -213,7 +217,15 @@ def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Applica
             desk.page_count(-1)
         return ws
 
+    async def close_pages(app: web.Application) -> None:
+        # aiohttp's graceful shutdown: an open page's handler would hold the cleanup until
+        # the runner's shutdown timeout; each page is told 1001 (going away) and reconnects
+        for ws in set(app[PAGES]):
+            await ws.close(code=WSCloseCode.GOING_AWAY, message=b'station stopping')
+
     app = web.Application()
+    app[PAGES] = weakref.WeakSet()
+    app.on_shutdown.append(close_pages)
     app.add_routes(routes)
     app.router.add_static('/static', STATIC, append_version=False)
     return app
@@ -258,8 +270,9 @@ class StationServer:
         self.loop.run_forever()
         self.loop.run_until_complete(self._runner.cleanup())
 
-    def stop(self, timeout: float = 5.0) -> None:
-        """Stop serving (open pages are closed)."""
+    def stop(self, timeout: float = 5.0) -> bool:
+        """Stop serving (open pages are closed); return False if it did not within ``timeout``."""
         if self._thread.is_alive():
             self.loop.call_soon_threadsafe(self.loop.stop)
             self._thread.join(timeout)
+        return not self._thread.is_alive()

@@ -226,17 +226,27 @@
     return r.json();
   }
 
+  // ask in the page's own dialog; resolve true on Confirm, false on Cancel or Escape
+  function confirmed(text) {
+    const d = $('confirm');
+    $('confirm-text').textContent = text;
+    d.returnValue = '';
+    return new Promise((resolve) => {
+      d.addEventListener('close', () => resolve(d.returnValue === 'ok'), { once: true });
+      d.showModal();
+    });
+  }
+
+  const ASK = {
+    enable: 'Turn the hydraulics ON? The axis ramps on from where it is.',
+    disable: 'Turn the hydraulics OFF? The valve gets 0 A.',
+    stop: 'Stop the test (to its safe point)?',
+  };
   document.querySelectorAll('button.act').forEach((b) => b.addEventListener('click', async () => {
     const action = b.dataset.action;
     const body = {};
-    if (action === 'enable' || action === 'disable') {
-      const what = action === 'enable' ? 'Turn the hydraulics ON? The axis ramps on from where' +
-        ' it is.' : 'Turn the hydraulics OFF? The valve gets 0 A.';
-      if (!window.confirm(what)) return;
-      body.confirm = true;
-    } else if (action === 'stop' && !window.confirm('Stop the test (to its safe point)?')) {
-      return;
-    }
+    if (ASK[action] && !(await confirmed(ASK[action]))) return;
+    if (action === 'enable' || action === 'disable') body.confirm = true;
     try {
       const r = await post(`/api/action/${action}`, body);
       answer(r.ok, `${action}: ${r.ok ? 'done' : 'refused'}: ${r.message}`);
