@@ -82,8 +82,8 @@ SHORT = {
              'rss_slope_mb_per_h'),
     'realtime': (['--seconds', '3'], 'rig'),
     'force': (['--frequencies', '20', '--cycles', '3', '--specimens', 'stiff'], 'protect'),
-    'fatigue': (['--life', '200', '--speed-cycles', '10', '--long-cycles', '200', '--kills',
-                 '2'], 'resume'),
+    'fatigue': (['--life', '200', '--speed-cycles', '10', '--speed-runs', '2', '--long-cycles',
+                 '200', '--kills', '2'], 'resume'),
     'verdict': (['--rigs', '1', '--seconds', '3', '--first', '12'], 'misses'),
     'station': (['--seconds', '2', '--rounds', '2'], 'updates_per_s'),
 }

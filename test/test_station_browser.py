@@ -69,10 +69,15 @@ def _confirmed(page, action, *words):
 
 def _answer(page, *words):
     """Wait until the page's answer line says every one of ``words``; return it."""
-    page.wait_for_function(
-        'words => { const a = document.getElementById("answer");'
-        ' return !a.hidden && words.every(w => a.textContent.includes(w)); }',
-        arg=list(words), timeout=WAIT_MS)
+    from playwright.sync_api import TimeoutError as PageTimeout
+    try:
+        page.wait_for_function(
+            'words => { const a = document.getElementById("answer");'
+            ' return !a.hidden && words.every(w => a.textContent.includes(w)); }',
+            arg=list(words), timeout=WAIT_MS)
+    except PageTimeout:
+        raise AssertionError(f'the answer is {page.inner_text("#answer")!r}, the link '
+                             f'{page.inner_text("#link")!r}, not {words}') from None
     return page.inner_text('#answer')
 
 
@@ -86,7 +91,7 @@ def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path
     bag = tmp_path / 'bag'
     with NodeProcesses(dom, tmp_path / 'logs') as procs:
         procs.start_loop('lockstep', bag=bag, plant={'duration': 600.0, **FAST},
-                         controller={'limit_position_max': 0.03,
+                         controller={'limit_position_max': 0.03, 'ramp_time': 0.2,
                                      'limit_position_max_action': 'hold', **FAST})
         page = _page(browser)
         page.goto(_station(procs))
@@ -158,7 +163,7 @@ def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
                          controller={'ramp_time': 0.05, **FAST},
                          procedure={'file': str(proc), 'autostart': False, **FAST})
         page = _page(browser)
-        page.goto(_station(procs, lost_after=1.0))
+        page.goto(_station(procs))
         page.wait_for_function('document.querySelector("[data-testid=proc-state]") && '
                                'document.querySelector("[data-testid=proc-state]")'
                                '.textContent === "idle"', timeout=WAIT_MS)

@@ -26,7 +26,10 @@ Fatigue benchmark: a test to failure, the virtual test's speed, resume after kil
   test's count when the controller's break detector ended it against the model's life at
   that range. Targets: within 1 %; the fracture ends the test within one cycle.
 * ``virtual_speed``: a run-out test of ``--speed-cycles`` cycles on the ``simplified`` and the
-  ``full`` model: simulated time over wall time. Targets: 50x and 10x.
+  ``full`` model: simulated time over wall time, the fastest of ``--speed-runs`` runs (the
+  rule of :mod:`timeit`: a stall of the machine only ever slows a run, and a 300-cycle run
+  lasts about half a second); every run's figure is in ``virtual_speed_runs``. Targets: 50x
+  and 10x.
 * ``memory_mb``: the peak of what a virtual test allocated (tracemalloc), at
   ``--speed-cycles`` and at four times as many cycles (flat: the cycle table is a fixed-size
   ring, the corrections keep their newest 100 to 200 cycles).
@@ -117,13 +120,18 @@ def _failure(life: float) -> dict:
     return out
 
 
-def _speed(cycles: int, model: str) -> float:
+def _speed(cycles: int, model: str, runs: int) -> list[float]:
+    """Return the speed (simulated over wall time) of ``runs`` run-out tests of ``cycles``."""
     from ros_ehs.core.procedure.spec import parse_procedure
     from ros_ehs.core.sim.virtual_test import run_procedure
     doc = {**FATIGUE, 'run_out': cycles}
-    r = run_procedure(parse_procedure(doc), _rig(), model=model, keep_cycles=1000)
-    assert r.result == 'run_out' and r.total_cycles == cycles, (r.result, r.reason)
-    return round(r.speed, 1)
+    p = _rig()
+    out = []
+    for _ in range(runs):
+        r = run_procedure(parse_procedure(doc), p, model=model, keep_cycles=1000)
+        assert r.result == 'run_out' and r.total_cycles == cycles, (r.result, r.reason)
+        out.append(round(r.speed, 1))
+    return out
 
 
 def _memory(cycles: int) -> list:
@@ -328,6 +336,8 @@ def main(argv=None) -> int:
     ap.add_argument('--life', type=count, default=2000, help="the specimen's life at 9 kN "
                     '[cycles]')
     ap.add_argument('--speed-cycles', type=count, default=300, help='the speed runs [cycles]')
+    ap.add_argument('--speed-runs', type=count, default=3, help='speed runs per model (the '
+                    'fastest is the figure)')
     ap.add_argument('--long-cycles', type=count, default=10**6, help='the long run, its '
                     'memory sampled ten times [cycles]')
     ap.add_argument('--kills', type=int, default=10, help='resume runs over DDS (0: none)')
@@ -335,8 +345,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     fig: dict = {}
     fig['cycles_to_failure'] = _failure(float(a.life))
-    fig['virtual_speed'] = {'simplified': _speed(a.speed_cycles, 'simplified'),
-                            'full': _speed(a.speed_cycles, 'full')}
+    runs = {m: _speed(a.speed_cycles, m, a.speed_runs) for m in ('simplified', 'full')}
+    fig['virtual_speed'] = {m: max(v) for m, v in runs.items()}
+    fig['virtual_speed_runs'] = runs
     fig['memory_mb'] = {'cycles': [a.speed_cycles, 4 * a.speed_cycles],
                         'peak': _memory(a.speed_cycles)}
     fig['memory_long'] = _long_run(a.long_cycles)
