@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from ros_ehs.core.errors import DataError, IdentificationWarning
 from ros_ehs.core.identify import identify
-from ros_ehs.core.identify.experiment import experiment_from_arrays
+from ros_ehs.core.identify.experiment import experiment_from_arrays, state_rate
 from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, MIN_RATE_HZ,
                                            PREDICTION_LIMIT, RESTART, restart, SENSED_LIMIT,
                                            SETTLE_ITERATIONS, SETTLED, settled, spread)
@@ -176,6 +176,11 @@ def test_a_record_slower_than_the_verdicts_rate_is_not_adequate_and_says_to_reco
     # a driver's mean period a little off its nominal rate is that rate
     assert adequacy(1, 100, 'reduced', '', None, _metrics(),
                     rate_hz=0.999 * MIN_RATE_HZ) == ([], [])
+    # the rate judged is the slowest run's: one slow run in a fast record is enough
+    s = np.sin(np.arange(600) / 30.0)
+    runs = [experiment_from_arrays(f'r{k}', np.arange(600) / rate, 0.01 * s, 0.02 * s, s)
+            for k, rate in enumerate((2000.0, 250.0))]
+    assert state_rate(runs) == pytest.approx(250.0)
 
 
 def _history(moves: dict, n: int = SETTLE_ITERATIONS + 1) -> list:

@@ -49,7 +49,7 @@ import warnings
 
 import numpy as np
 from ros_ehs.core.errors import IdentificationWarning, InputError, ParameterError
-from ros_ehs.core.identify.experiment import Experiment
+from ros_ehs.core.identify.experiment import Experiment, state_rate
 from ros_ehs.core.identify.problem import _fd_jacobian, CELL, FIT_H, LOAD, Problem, SIGNALS
 from ros_ehs.core.identify.uncertainty import BLOCK_S, standard_errors
 from ros_ehs.core.identify.verdict import (adequacy, fit_metrics, halves, halves_check,
@@ -410,9 +410,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         notes.append(f'the fitted set is not a valid parameter set: {e}')
     for note in notes:
         warnings.warn(note, IdentificationWarning, stacklevel=2)
-    rate = min(1.0 / e.dt for e in experiments)
     inadequacy, advice = adequacy(int(sol.status), max_nfev, model, invalid, None, metrics,
-                                  is_settled, rate)
+                                  is_settled, state_rate(experiments))
     result = IdentificationResult(
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
         sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),
@@ -498,7 +497,7 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
     result.halves = halves_check(parts, refits, result.x, problem_of)
     result.inadequacy, result.advice = adequacy(result.status, max_nfev, result.model, '',
                                                 result.halves, result.metrics, result.settled,
-                                                min(1.0 / e.dt for e in experiments))
+                                                state_rate(experiments))
     result.adequate = not result.inadequacy
     result.wall_s += time.perf_counter() - t0
     return result

@@ -49,7 +49,7 @@ from ros_ehs.core.noise import noise_sigma
 __all__ = ['Experiment', 'MIN_SAMPLES', 'NoExcitation', 'Series', 'cut_experiment',
            'derivative_coefficients',
            'experiment_from_arrays', 'experiments_from_series', 'on_grid', 'run_bounds',
-           'sorted_by_time', 'split_runs']
+           'sorted_by_time', 'split_runs', 'state_rate']
 
 #: Fewer state samples than this is "too little data" for a 7-parameter fit.
 MIN_SAMPLES = 500
@@ -190,6 +190,11 @@ def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experim
     pa = None if p_a is None else np.asarray(p_a, dtype=float)
     pb = None if p_b is None else np.asarray(p_b, dtype=float)
     return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], pa, pb)
+
+
+def state_rate(experiments) -> float:
+    """Return the slowest state rate of ``experiments`` [Hz] (the rate the verdict judges)."""
+    return min(1.0 / e.dt for e in experiments)
 
 
 def on_grid(ts: np.ndarray) -> np.ndarray:
