@@ -50,6 +50,7 @@ def _station(procs, **settings):
 
 def _page(browser):
     page = browser.new_page(viewport={'width': 1400, 'height': 1000})
+    page.set_default_timeout(WAIT_MS)       # a click is bounded as every other wait is
     errors = []
     page.on('pageerror', lambda e: errors.append(str(e)))
     # the page asks in its own dialog; a browser dialog (which stops the page) is an error
