@@ -46,7 +46,7 @@ from ros_ehs.core.station.station import Station
 from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import (diagnostics, OK, qos_profile, read_msg, run, steady_clock,
                                       WARN)
-from ros_ehs.web.app import make_app, StationServer
+from ros_ehs.web.app import make_app, StationServer, STOP_TIMEOUT
 import ros_ehs_msgs_py as contract
 from ros_ehs_msgs_py.qos import LOOP_QOS
 from sensor_msgs.msg import JointState
@@ -215,8 +215,9 @@ class StationNode(Node):
 
     def close(self) -> None:
         """Stop serving (called once by :func:`run`)."""
-        if not self.server.stop():
-            self.get_logger().warning('the web server did not stop within 5 s: left behind')
+        if not self.server.stop(STOP_TIMEOUT):
+            self.get_logger().warning(f'the web server did not stop within {STOP_TIMEOUT:g} s: '
+                                      'left behind')
 
 
 def main(args=None) -> int:

@@ -52,10 +52,13 @@ from aiohttp import web, WSCloseCode, WSMsgType
 from ros_ehs.core.station.access import Access
 from ros_ehs.core.station.scope import TIME_BASES
 
-__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'STATIC', 'StationServer']
+__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'STATIC', 'StationServer',
+           'STOP_TIMEOUT']
 
 #: the open pages' WebSockets (each is closed when the station stops)
 PAGES = web.AppKey('pages', weakref.WeakSet)
+#: seconds the station waits for its web server to stop
+STOP_TIMEOUT = 5.0
 STATIC = Path(__file__).resolve().with_name('static')
 #: what a page may ask: the controller's and the procedure's services
 ACTIONS = ('reset', 'enable', 'disable', 'start', 'hold', 'resume', 'stop')
@@ -270,7 +273,7 @@ class StationServer:
         self.loop.run_forever()
         self.loop.run_until_complete(self._runner.cleanup())
 
-    def stop(self, timeout: float = 5.0) -> bool:
+    def stop(self, timeout: float = STOP_TIMEOUT) -> bool:
         """Stop serving (open pages are closed); return False if it did not within ``timeout``."""
         if self._thread.is_alive():
             self.loop.call_soon_threadsafe(self.loop.stop)
