@@ -40,6 +40,8 @@ from ros_ehs.benchmarks.__main__ import BENCHMARKS
     ('record', ['--seconds', 'inf'], "argument --seconds: must be a finite number > 0, not 'inf'"),
     ('record', ['--compressions', 'gzip'], '--compressions takes none, zstd or lz4'),
     ('verdict', ['--rigs', '0'], "argument --rigs: must be a whole number >= 1, not '0'"),
+    ('fatigue', ['--speed-runs', '0'],
+     "argument --speed-runs: must be a whole number >= 1, not '0'"),
     ('station', ['--seconds', 'nan'], 'argument --seconds: must be a finite number > 0'),
     ('station', ['--rt-priority', '120'], 'argument --rt-priority: parameter `rt_priority`'),
     ('station', ['--browser-cpu', '99'], 'argument --browser-cpu: must be a CPU of this')])
