@@ -77,7 +77,7 @@ def test_the_controller_closes_the_loop_on_a_ros2_control_driver(dom, tmp_path):
     seconds = 4.0
     bag = tmp_path / 'rig'
     n = int(round(seconds * RATE))
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         figures = _run_on_driver(procs, bag, seconds)
         # the controller stops first: its last word goes into the bag too
         codes = procs.stop(['controller'])
@@ -118,7 +118,7 @@ def test_delta_p_on_a_ros2_control_driver_needs_its_effort_interface(dom, tmp_pa
     dp = {'dp_gain': 1.5e-7, 'dp_tau': 0.05}
     seconds = 3.0
     bag = tmp_path / 'rig'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         figures = _run_on_driver(procs, bag, seconds, dp, ['--effort'] if effort else [])
         assert procs.wait_status(c.CONTROLLER_STATUS, lambda st: int(st.values.get(
             'answered', 0)) >= seconds * RATE, BOUND)

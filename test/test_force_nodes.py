@@ -77,7 +77,7 @@ def _set(ros, name, value, node='/controller'):
 def test_a_mode_switch_on_a_running_loop_is_bumpless_and_a_refused_one_says_why(
         dom, tmp_path, ros):
     bag = tmp_path / 'bag'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag,
                          plant={'duration': 3.0, **SPECIMEN, **FAST},
                          controller={**GAINS, 'protect_force': 100.0, **FAST},
@@ -118,7 +118,7 @@ def test_a_mode_switch_on_a_running_loop_is_bumpless_and_a_refused_one_says_why(
 def test_a_break_under_force_control_ends_held_in_displacement(dom, tmp_path):
     bag = tmp_path / 'bag'
     life = {'specimen_life': 8.0, 'specimen_life_range': 9e3, 'specimen_compliance': 0.0}
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag,
                          plant={'duration': 4.0, **SPECIMEN, **life, **FAST},
                          controller={**GAINS, 'control_mode': 'force', **FAST},
@@ -219,7 +219,7 @@ print(json.dumps({'cycles': state['k'], 'load': axis.sample().load}), flush=True
 
 def test_force_control_on_a_rig_driver_that_publishes_its_own_wrench(dom, tmp_path):
     bag = tmp_path / 'bag'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start('recorder', {'out': str(bag), 'use_sim_time': True,
                                  'topics': ['/joint_states', '/fts_broadcaster/wrench',
                                             '/servo_valve_controller/commands', '/events']})

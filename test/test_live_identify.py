@@ -79,7 +79,7 @@ def _run(procs, bag, plant, ros, done):
 
 def test_live_fits_are_pushed_to_the_running_controller(dom, tmp_path, ros):
     bag = tmp_path / 'bag'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         # a push, and a refit after it (of a loop that has the pushed values: no change)
         values, out = _run(procs, bag, {}, ros, lambda est: any(e.pushed for e in est[:-1]))
     true = preset('table1_estimated')
@@ -98,7 +98,7 @@ def test_live_fits_are_pushed_to_the_running_controller(dom, tmp_path, ros):
 def test_a_rig_that_is_not_the_fitted_model_is_never_pushed(dom, tmp_path, ros):
     """The full 10-state plant, fitted with the simplified model: inadequate, never pushed."""
     bag = tmp_path / 'bag'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         values, out = _run(procs, bag, {'model': 'full'}, ros,
                            lambda est: sum(bool(e.values) for e in est) >= 2)
     assert values == pytest.approx(WRONG)       # untouched
@@ -113,7 +113,7 @@ def test_a_push_target_that_does_not_take_the_values_is_named_and_never_pushed(
         dom, tmp_path, ros):
     """The live node pointed at a node that does not declare the feedforward's values."""
     got = _listen(ros)
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=tmp_path / 'bag', plant={**NOISE, 'duration': 600.0},
                          reference={'cpu_affinity': -1})
         procs.start('identify', {**LIVE, 'controller': 'recorder', 'use_sim_time': True})

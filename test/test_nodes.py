@@ -33,7 +33,8 @@ from ros_ehs.core.sim.closed_loop import run_closed_loop
 from ros_ehs.data.bag import open_bag
 from ros_ehs.nodes.processes import loop_closed, loop_placement, node_command, NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import bag_counts, lockstep_complete, status_value, wait_for_bag, wait_value
+from waits import (bag_counts, BOUND, lockstep_complete, status_value, wait_for_bag,
+                   wait_value)
 import yaml
 
 pytestmark = pytest.mark.ros
@@ -84,7 +85,7 @@ def _corrected_lockstep(dom, tmp_path, duration: float, reference: dict, correct
     the controller's ramp_time) to 1e-9 m. Returns the reference node's log.
     """
     bag = tmp_path / 'corrected'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
                          reference=reference)
         lockstep_complete(procs)
@@ -118,7 +119,7 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
     duration = 2.0
     n = int(round(duration * 1000))
     bag = tmp_path / 'lockstep'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         # split into files of 150 kB as it records: the pause falls across splits; the
         # plant says how far it has stepped every 20 ms
         procs.start_loop('lockstep', bag=bag,
@@ -208,7 +209,7 @@ def _realtime_bench(procs, bag, reference=True):
 
 def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     bag = tmp_path / 'bench'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         _realtime_bench(procs, bag)
         _assert_placed(procs)
         wait_for_bag(bag, {'/state': 1000, '/servo_current': 900})
@@ -289,7 +290,7 @@ def test_a_sigkilled_recorder_keeps_everything_it_had_flushed(dom, tmp_path):
     ``record`` benchmark measures it, ``sigkill_lost_ms``.)
     """
     bag = tmp_path / 'killed'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         _realtime_bench(procs, bag)
         wait_for_bag(bag, {'/state': 1500})
         held = bag_counts(bag)              # on disk, as another reader sees it now
@@ -302,7 +303,7 @@ def test_a_sigkilled_recorder_keeps_everything_it_had_flushed(dom, tmp_path):
 # -- safety -------------------------------------------------------------------------------------
 def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_path):
     bag = tmp_path / 'wd'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         # the controller holds position; the plant says its watchdog's state every 50 ms
         procs.start_loop('realtime', bag=bag, reference=False,
                          plant={'diagnostics_period': 0.05})
@@ -486,10 +487,10 @@ def test_the_pressures_of_every_state_go_out_after_its_command_or_the_next_tick(
 def test_bad_messages_crash_nothing(dom, tmp_path, ros):
     from sensor_msgs.msg import JointState
     from ros_ehs.nodes.ros_common import qos_profile
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start('plant')
         procs.start('controller')
-        assert procs.wait_status(c.PLANT_STATUS, loop_closed, 60), procs['plant'].output()
+        assert procs.wait_status(c.PLANT_STATUS, loop_closed), procs['plant'].output()
         states = []
         ros.create_subscription(JointState, 'state', states.append,
                                 qos_profile(c.STATE.qos, depth=100))
@@ -545,7 +546,7 @@ def test_controller_parameters_from_file_and_live_with_reasons(dom, tmp_path, ro
     from rclpy.parameter_client import AsyncParameterClient
     pf = tmp_path / 'ctrl.yaml'
     pf.write_text('controller:\n  ros__parameters:\n    kp: 2\n    F_cc: 500.0\n')
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         bare = node_command('controller')[:-1]          # without --ros-args: the bare form
         procs.start('controller', cmd=bare + ['--params-file', str(pf)])
         cli = AsyncParameterClient(ros, 'controller')
@@ -577,7 +578,7 @@ def test_controller_parameters_from_file_and_live_with_reasons(dom, tmp_path, ro
 
 
 def test_bad_configuration_is_one_clear_line(dom, tmp_path):
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         p = procs.start('player', {'bag': str(tmp_path / 'nope')})
         assert p.popen.wait(60) == 2
         assert 'no bag at' in p.output() and 'Traceback' not in p.output()
@@ -604,7 +605,7 @@ def test_nodes_create_exactly_the_contract_topics(dom, tmp_path, ros, lockstep):
     modes = {'plant': {'mode': 'lockstep'}, 'controller': {'lockstep': True},
              'reference': {'use_sim_time': True},
              'procedure': {'use_sim_time': True, **proc}} if lockstep else {'procedure': proc}
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         for n in topics:
             procs.start(n, modes.get(n))
 
@@ -634,7 +635,7 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     ros.create_subscription(String, '/topic', got.append, 100)
     from ros_ehs.nodes.ros_common import qos_profile
     ros.create_subscription(Clock, '/clock', clocks.append, qos_profile(c.CLOCK_QOS, 100))
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         p = procs.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 4.0,
                                    'topics': ['/topic'], 'wait_subscribers': 1})
         ros.spin(until=lambda: p.popen.poll() is not None, timeout=60)
@@ -647,7 +648,7 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     assert t == sorted(t) and bag.start_ns <= t[0] and t[-1] <= bag.end_ns
     # looping: the bag starts over (and the player keeps running until stopped)
     got.clear()
-    with NodeProcesses(dom, tmp_path / 'logs2') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs2', bound=BOUND) as procs:
         p = procs.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 20.0,
                                    'topics': ['/topic'], 'loop': True,
                                    'wait_subscribers': 1})
@@ -658,7 +659,7 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     # a split rosbag2 bag plays as one bag, in file order
     meta = yaml.safe_load((FIXTURES / 'split_wbag' / 'metadata.yaml').read_text())[
         'rosbag2_bagfile_information']
-    with NodeProcesses(dom, tmp_path / 'logs3') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs3', bound=BOUND) as procs:
         p = procs.start('player', {'bag': str(FIXTURES / 'split_wbag'), 'clock': False,
                                    'start_delay': 0.0})
         assert p.popen.wait(60) == 0, p.output()
@@ -667,7 +668,7 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     assert {k: int(v) for k, v in played.items()} == {
         t['topic_metadata']['name']: t['message_count'] for t in meta['topics_with_message_count']}
     # a window of a bag: only what lies in it
-    with NodeProcesses(dom, tmp_path / 'logs4') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs4', bound=BOUND) as procs:
         p = procs.start('player', {'bag': str(ROOT / 'bags' / 'sample_sine_1hz'),
                                    'clock': False, 'start_delay': 0.0, 'rate': 20.0,
                                    'start': 2.0, 'end': 3.0, 'topics': ['/state']})
@@ -679,7 +680,7 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
 def test_identify_node_pushes_the_fit_to_a_running_controller(dom, tmp_path, ros):
     from rclpy.parameter_client import AsyncParameterClient
     out = tmp_path / 'id'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start('controller')
         p = procs.start('identify', {'bags': [str(ROOT / 'bags' / 'sample_sine_1hz')],
                                      'out': str(out), 'figures': False, 'push': True,
@@ -758,7 +759,7 @@ def test_the_rt_fastdds_profile_is_read_and_carries_the_loop(dom, tmp_path, brok
         bad.write_text(profile.read_text().replace('</profiles>', '</profile>'))
         profile = bad
     env = {'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile)}
-    with NodeProcesses(dom, tmp_path / 'logs', env=env) as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', env=env, bound=BOUND) as procs:
         procs.start_loop('lockstep', plant={'duration': 1.0})
         lockstep_complete(procs)
         procs.stop(['plant', 'controller'])
@@ -818,7 +819,7 @@ def test_a_reference_waiting_for_the_loop_starts_on_the_plants_ok_only(dom, tmp_
     ros.create_subscription(JointState, 'reference', got.append,
                             qos_profile(c.REFERENCE.qos, depth=1000))
     pub = ros.create_publisher(DiagnosticArray, 'diagnostics', qos_profile(c.DIAGNOSTICS.qos))
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start('reference', {'wait_loop': True, 'wait_subscribers': 1,
                                   'rate_hz': 250.0})
         assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=60)

@@ -88,17 +88,18 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     # the colcon-built executables start and talk (what `ros2 run ros_ehs plant` starts)
     from domain_coordinator import domain_id
     from ros_ehs.nodes.processes import loop_closed, NodeProcesses
+    from waits import BOUND
     from ros_ehs_msgs_py import PLANT_STATUS, STATION_STATUS
     site = next(install.glob('lib/python*/site-packages'))
     with domain_id() as dom:
         built = {'PYTHONPATH': str(site), 'AMENT_PREFIX_PATH': prefix_path}
-        with NodeProcesses(dom, tmp_path / 'logs', env=built) as procs:
+        with NodeProcesses(dom, tmp_path / 'logs', env=built, bound=BOUND) as procs:
             procs.start('plant', cmd=[str(lib / 'plant')])
             procs.start('controller', cmd=[str(lib / 'controller')])
-            ok = procs.wait_status(PLANT_STATUS, loop_closed, 60)
+            ok = procs.wait_status(PLANT_STATUS, loop_closed)
             # the station's page and its charting library came with the install
             procs.start('station', cmd=[str(lib / 'station'), '--ros-args', '-p', 'port:=0'])
-            served = procs.wait_status(STATION_STATUS, lambda st: 'url' in st.values, 60)
+            served = procs.wait_status(STATION_STATUS, lambda st: 'url' in st.values)
             url = procs.status(STATION_STATUS).values['url'] if served else ''
             page = urllib.request.urlopen(url, timeout=30).read() if served else b''
             lib_js = urllib.request.urlopen(url + 'static/vendor/uPlot.iife.min.js',

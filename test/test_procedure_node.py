@@ -70,7 +70,7 @@ def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, t
     bag = tmp_path / 'bag'
     proc = tmp_path / 'test.yaml'
     shutil.copy(FIXTURE, proc)
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         _loop(procs, bag, {'file': str(proc)})
         _status(procs, lambda v: v['state'] == 'idle' and int(v['stamp_ns']) > 0)
         res = _call(ros, '/procedure/resume')
@@ -110,7 +110,7 @@ def test_a_killed_procedure_resumes_at_its_count_and_no_cycle_counts_twice(
     proc = tmp_path / 'test.yaml'
     shutil.copy(FIXTURE, proc)
     opts = {'file': str(proc), 'recover_bag': str(bag)}
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         _loop(procs, bag, {**opts, 'autostart': True}, seconds=12.0)
         # killed once 7 cycles are on disk (a kill between a count and its checkpoint, a
         # fraction of a millisecond, applies that cycle again: the benchmark measures it)
@@ -147,7 +147,7 @@ def test_a_step_in_force_switches_the_controller_and_loads_the_specimen(dom, tmp
         {'name': 'hold', 'type': 'dwell', 'time': 1.0, 'control_mode': 'force'}],
         'stop_level': 2000.0}))
     bag = tmp_path / 'bag'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start('recorder', {'out': str(bag), 'use_sim_time': True})
         assert procs.wait_status(c.RECORDER_STATUS, lambda st: True, BOUND)
         procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, 'k_L': k,
@@ -210,7 +210,7 @@ def test_a_live_fit_of_a_softer_specimen_fails_the_test(dom, tmp_path, ros):
     bag = tmp_path / 'bag'
     pub = ros.create_publisher(DiagnosticArray, '/' + c.ESTIMATES.name,
                                qos_profile(c.ESTIMATES.qos))
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         _loop(procs, bag, {'file': str(proc), 'autostart': True}, seconds=300.0)
         # settled: 2 cycles judged (the step's first cycle leads in from the ramp, unjudged)
         _status(procs, lambda v: int(v['total_cycles']) >= 4)

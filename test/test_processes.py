@@ -13,6 +13,8 @@
 # limitations under the License.
 """Process supervision without DDS: node commands, CPU placement."""
 
+import math
+
 from foreign import diagnostic_array
 import pytest
 from ros_ehs.nodes.processes import node_command
@@ -81,6 +83,13 @@ def test_readiness_is_read_from_the_statuses_a_diagnostics_message_carries():
     assert loop_closed(plant._replace(level=0))
     assert reference_started(ref) and not reference_started(ref._replace(values={}))
     assert c.statuses_from_msg(diagnostic_array([])) == []
+
+
+@pytest.mark.parametrize('bound', [0.0, -1.0, math.nan, math.inf])
+def test_a_bound_that_is_no_time_is_refused(bound):
+    from ros_ehs.nodes.processes import NodeProcesses
+    with pytest.raises(ValueError, match=r'`bound` = .* s must be finite and > 0'):
+        NodeProcesses(bound=bound, clean_shm=False)
 
 
 @pytest.mark.ros

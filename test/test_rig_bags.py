@@ -287,12 +287,13 @@ def test_a_bad_topic_map_file_names_the_key(tmp_path, text, match):
 def test_the_identify_node_reads_a_rig_bag_through_its_topic_map(rig_bags, tmp_path, dom):
     """The node's `topic_map` and `joint` parameters, as `ehs_sim identify --topics`."""
     from ros_ehs.nodes.processes import NodeProcesses
+    from waits import BOUND
     bag, lay, truth = rig_bags['mcap-2kHz-array-fluid']
     rig = tmp_path / 'rig.yaml'
     m = {**lay.topic_map(0.0003).as_dict(), 'joint': 'wrong_joint'}
     rig.write_text(''.join(f'{k}: {json.dumps(v)}\n' for k, v in m.items()))
     out = tmp_path / 'id'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         p = procs.start('identify', {'bags': [str(bag)], 'out': str(out), 'topic_map': str(rig),
                                      'joint': lay.joint, 'max_nfev': 2, 'advise': False,
                                      'figures': False})
@@ -307,6 +308,7 @@ def test_the_player_node_replays_a_rig_bag_as_our_topics(rig_bags, tmp_path, dom
     """Over DDS: the player with the rig's map publishes ``state`` (joint piston)."""
     from rclpy.qos import QoSProfile
     from ros_ehs.nodes.processes import NodeProcesses
+    from waits import BOUND
     from sensor_msgs.msg import JointState
     import ros_ehs_msgs_py as c
     bag, lay, truth = rig_bags['db3-250Hz-float64-bar']
@@ -315,7 +317,7 @@ def test_the_player_node_replays_a_rig_bag_as_our_topics(rig_bags, tmp_path, dom
     rig.write_text(''.join(f'{k}: {json.dumps(v)}\n' for k, v in m.items()))
     got = []
     ros.create_subscription(JointState, 'state', got.append, QoSProfile(depth=5000))
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         p = procs.start('player', {'bag': str(bag), 'topic_map': str(rig), 'rate': 5.0,
                                    'clock': False, 'wait_subscribers': 1,
                                    'topics': ['/state']})

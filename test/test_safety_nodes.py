@@ -18,8 +18,8 @@ from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import (call_service, Frozen, lockstep_complete, status_value, wait_for_bag,
-                   wait_value)
+from waits import (BOUND, call_service, Frozen, lockstep_complete, status_value,
+                   wait_for_bag, wait_value)
 
 pytestmark = pytest.mark.ros
 PERIOD = 1_000_000
@@ -80,7 +80,7 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
     from std_srvs.srv import Trigger
     bag = tmp_path / 'bag'
     p = Params()
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag, plant={'duration': 60.0, **FAST},
                          controller={'limit_position_max': 0.03,
                                      'limit_position_max_action': 'hold', **FAST})
@@ -137,7 +137,7 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
 @pytest.mark.parametrize('fault', ['frozen_sensor', 'nan_sensor'])
 def test_a_failed_sensor_powers_the_valve_off(dom, tmp_path, fault):
     bag = tmp_path / 'bag'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag,
                          plant={'fault': fault, 'fault_time': 1.0, 'duration': 2.0})
         lockstep_complete(procs)
@@ -172,7 +172,7 @@ def test_a_failed_sensor_powers_the_valve_off(dom, tmp_path, fault):
 
 def test_a_stuck_valve_trips_the_error_detector(dom, tmp_path):
     bag = tmp_path / 'bag'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag,
                          plant={'fault': 'stuck_valve', 'fault_time': 1.0, 'duration': 2.0},
                          controller={'limit_error': 0.002, 'limit_error_time': 0.02,
@@ -198,7 +198,7 @@ def test_hydraulics_off_and_on_ramps_without_a_jump(dom, tmp_path, ros):
     from std_srvs.srv import SetBool, Trigger
     bag = tmp_path / 'bag'
     p = Params()
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag,
                          plant={'initial_z': -0.03, 'duration': 60.0, **FAST},
                          controller={'start_enabled': False})
@@ -236,7 +236,7 @@ def test_lockstep_acts_in_exactly_the_period_after_and_matches_the_in_process_lo
     duration = 1.5
     bag = tmp_path / 'bag'
     limits = {'limit_position_max': 0.03, 'limit_position_max_action': 'power_off'}
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag, plant={'duration': duration},
                          controller=limits)
         lockstep_complete(procs)

@@ -60,7 +60,7 @@ def test_every_loop_node_stops_at_any_moment_of_a_lockstep_run(dom, tmp_path, si
     rng = np.random.default_rng(7 + signum)
     nodes = ['recorder', 'reference', 'controller', 'plant']
     for k in range(2):
-        with NodeProcesses(dom, tmp_path / f'logs{k}') as procs:
+        with NodeProcesses(dom, tmp_path / f'logs{k}', bound=BOUND) as procs:
             procs.start_loop('lockstep', bag=tmp_path / f'bag{k}',
                              plant={'duration': 600.0, 'diagnostics_period': 0.05})
             # a moment of the test's choosing: at once, or some hundreds of periods on
@@ -70,7 +70,7 @@ def test_every_loop_node_stops_at_any_moment_of_a_lockstep_run(dom, tmp_path, si
 
 
 def test_the_player_and_a_refitting_identify_node_stop_at_once(dom, tmp_path):
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         for k in range(3):
             procs.start('player', {'bag': str(ROOT / 'bags' / 'sample_sine_1hz'),
                                    'rate': 0.5, 'loop': True}, name=f'player{k}')
@@ -100,7 +100,7 @@ def test_a_powered_off_controller_on_a_ros2_control_driver_stops_with_zero_once(
     got = []
     ros.create_subscription(Float64MultiArray, '/servo_valve_controller/commands',
                             lambda m: got.append(m.data[0]), qos_profile(c.RECORD_QOS, 1000))
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         for k in range(3):
             before = len(got)
             procs.start('controller', {

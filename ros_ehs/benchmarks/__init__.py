@@ -22,6 +22,10 @@ from typing import Any, Callable
 from ros_ehs.core.errors import ParameterError
 from ros_ehs.core.settings import parse_value, Setting
 
+#: how long a benchmark waits for one start step of its nodes or its page [s]: generous, since
+#: a benchmark on a loaded machine is slow, not broken (the figures say how slow)
+BOUND = 180.0
+
 
 def positive(text: str) -> float:
     """Parse a finite number > 0 (an argparse ``type``): NaN, inf, 0 and below are refused."""

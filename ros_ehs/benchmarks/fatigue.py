@@ -62,7 +62,7 @@ import sys
 import tempfile
 import time
 
-from ros_ehs.benchmarks import count, report
+from ros_ehs.benchmarks import BOUND, count, report
 
 __all__ = ['main']
 
@@ -84,7 +84,6 @@ RESUME = {'name': 'resume test', 'steps': [
 LONG = {'name': 'long run', 'steps': [
     {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.0, 'amplitude': 1.0e-4,
      'frequency': 50.0}]}
-BOUND = 180.0
 
 
 def _rig(life: float = 1.0e12):
@@ -262,7 +261,7 @@ def _resume(kills: int, seed: int) -> dict:
                 proc.write_text(yaml.safe_dump(RESUME))
                 bags = [d / 'bag0']
                 opts = {'file': str(proc), 'recover_bag': str(bags[0])}
-                with NodeProcesses(dom, d / 'logs') as procs:
+                with NodeProcesses(dom, d / 'logs', bound=BOUND) as procs:
                     _loop(procs, bags[0], {**opts, 'autostart': True})
                     _status(procs, lambda v: int(v['total_cycles']) >= at)
                     names = [n for n in procs.procs if procs.procs[n].alive()] \

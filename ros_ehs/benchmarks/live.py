@@ -33,7 +33,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import count, positive, report
+from ros_ehs.benchmarks import BOUND, count, positive, report
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
 
@@ -46,7 +46,7 @@ def _cpu(pid: int) -> float:
 
 
 def _round(dom: int, seconds: float, with_live: bool) -> dict:
-    with NodeProcesses(dom) as procs:
+    with NodeProcesses(dom, bound=BOUND) as procs:
         procs.start_loop('realtime')
         live_cpu = 0.0
         if with_live:
@@ -54,7 +54,7 @@ def _round(dom: int, seconds: float, with_live: bool) -> dict:
             procs.start('identify', {**LIVE, 'cpu_affinity': ref_cpu})
             state = '/' + contract.STATE.name
             if not procs.wait_status(contract.IDENTIFY_STATUS,
-                                     lambda st: state in st.listed('subscribed'), 60):
+                                     lambda st: state in st.listed('subscribed')):
                 raise RuntimeError('the identify node did not subscribe to the state:\n'
                                    + procs['identify'].output()[-3000:])
             c0 = _cpu(procs['identify'].pid)

@@ -43,7 +43,7 @@ import sys
 import time
 
 from domain_coordinator import domain_id
-from ros_ehs.benchmarks import count, positive, report
+from ros_ehs.benchmarks import BOUND, count, positive, report
 from ros_ehs.core.control.waveforms import Sine
 from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
@@ -60,7 +60,7 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
     """
     cpus = loop_placement(True) if pin else None
     roles = ['pong', 'relay', 'volley'] if '--relay' in extra else ['pong', 'volley']
-    with NodeProcesses(dom) as bare:
+    with NodeProcesses(dom, bound=BOUND) as bare:
         for role in roles:
             cpu = ['--cpu', str(cpus[role == 'relay'])] if cpus else []
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role,
@@ -72,7 +72,7 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
 
 def _ours(dom: int, seconds: float, model: str, pin: bool) -> dict:
     """Run plant, controller and reference in lock-step for ``seconds``; the plant's figures."""
-    with NodeProcesses(dom) as procs:
+    with NodeProcesses(dom, bound=BOUND) as procs:
         procs.start_loop('lockstep', plant={'duration': seconds, 'model': model,
                                             'start_delay': 1.0}, pin=pin)
         if not procs.wait_status(contract.PLANT_STATUS,

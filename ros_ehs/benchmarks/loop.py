@@ -40,7 +40,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import count, positive, report
+from ros_ehs.benchmarks import BOUND, count, positive, report
 from ros_ehs.nodes.processes import loop_closed, loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
 
@@ -60,10 +60,10 @@ def _measure(procs: NodeProcesses, names: tuple[str, str], seconds: float) -> di
 
 
 def _ours(dom: int, seconds: float, model: str, rt: dict) -> tuple[dict, dict]:
-    with NodeProcesses(dom) as procs:
+    with NodeProcesses(dom, bound=BOUND) as procs:
         procs.start('plant', {'model': model, **rt})
         procs.start('controller', rt)
-        if not procs.wait_status(contract.PLANT_STATUS, loop_closed, timeout=60):
+        if not procs.wait_status(contract.PLANT_STATUS, loop_closed):
             raise RuntimeError('the loop did not close:\n' + procs['plant'].output()[-2000:])
         cpu = _measure(procs, ('plant', 'controller'), seconds)
         # the plant first, as the bare ping goes first: a plant outliving its controller
@@ -73,7 +73,7 @@ def _ours(dom: int, seconds: float, model: str, rt: dict) -> tuple[dict, dict]:
 
 
 def _bare(dom: int, seconds: float, rt: list[str]) -> tuple[dict, dict]:
-    with NodeProcesses(dom) as bare:
+    with NodeProcesses(dom, bound=BOUND) as bare:
         for role in ('pong', 'ping'):
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role, *rt])
         time.sleep(2.0)

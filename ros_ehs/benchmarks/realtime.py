@@ -43,7 +43,7 @@ import time
 
 from domain_coordinator import domain_id
 import numpy as np
-from ros_ehs.benchmarks import positive, report
+from ros_ehs.benchmarks import BOUND, positive, report
 from ros_ehs.core.control.waveforms import Sine
 from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
@@ -121,7 +121,7 @@ def apc(dom: int, tmp: str, seconds: float, rt: int) -> dict:
     for corrected in (False, True):
         bag = Path(tmp) / f'apc_{corrected}'
         loop = {'rt_priority': rt} if rt else {}
-        with NodeProcesses(dom, Path(tmp) / f'logs_apc_{corrected}') as procs:
+        with NodeProcesses(dom, Path(tmp) / f'logs_apc_{corrected}', bound=BOUND) as procs:
             procs.start_loop('realtime', bag=bag, plant=loop, controller=loop,
                              reference={'amplitude': a, 'frequency': f,
                                         'amplitude_phase_control': corrected})
@@ -137,7 +137,7 @@ def apc(dom: int, tmp: str, seconds: float, rt: int) -> dict:
 def rig(dom: int, tmp: str, seconds: float) -> dict:
     """Measure the controller on a ros2_control driver and on our plant against in process."""
     rig_bag, our_bag = Path(tmp) / 'rig', Path(tmp) / 'ours'
-    with NodeProcesses(dom, Path(tmp) / 'logs_rig') as procs:
+    with NodeProcesses(dom, Path(tmp) / 'logs_rig', bound=BOUND) as procs:
         procs.start('recorder', {'out': str(rig_bag), 'topics': [
             '/joint_states', '/servo_valve_controller/commands', '/reference']})
         procs.wait_status(contract.RECORDER_STATUS, lambda st: True, 120)
@@ -153,7 +153,7 @@ def rig(dom: int, tmp: str, seconds: float) -> dict:
         _wait_for_bag(rig_bag, '/joint_states', int((seconds + 1) * RATE))
         procs.stop(['recorder', 'reference', 'controller', 'driver'])
         figures = json.loads(procs['driver'].output().strip().splitlines()[-1])
-    with NodeProcesses(dom, Path(tmp) / 'logs_ours') as procs:
+    with NodeProcesses(dom, Path(tmp) / 'logs_ours', bound=BOUND) as procs:
         procs.start_loop('realtime', bag=our_bag, plant={'rate_hz': RATE},
                          controller={'rate_hz': RATE})
         _wait_for_bag(our_bag, '/state', int((seconds + 1) * RATE))

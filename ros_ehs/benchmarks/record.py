@@ -36,7 +36,7 @@ import time
 from domain_coordinator import domain_id
 import numpy as np
 import psutil
-from ros_ehs.benchmarks import positive, positives, report
+from ros_ehs.benchmarks import BOUND, positive, positives, report
 from ros_ehs.core.errors import EhsError
 from ros_ehs.data.bag import BagWriter, open_bag
 from ros_ehs.nodes.processes import NodeProcesses, recording
@@ -74,7 +74,7 @@ time.sleep(1.0)
 
 
 def _one(dom: int, rate: float, seconds: float, out: str, compression: str) -> dict:
-    with NodeProcesses(dom) as procs:
+    with NodeProcesses(dom, bound=BOUND) as procs:
         rec = procs.start('recorder', {'out': out, 'topics': [TOPIC], 'depth': 10000,
                                        'compression': compression})
         assert procs.wait_status(contract.RECORDER_STATUS, lambda st: True), rec.output()
@@ -159,7 +159,7 @@ def _kills(n: int) -> list[float]:
     with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
         for k in range(n):
             bag = f'{tmp}/killed_{k}'
-            with NodeProcesses(dom, f'{tmp}/logs_{k}') as procs:
+            with NodeProcesses(dom, f'{tmp}/logs_{k}', bound=BOUND) as procs:
                 procs.start_loop('realtime', bag=bag)
                 end = time.monotonic() + 120.0
                 while time.monotonic() < end:

@@ -42,7 +42,7 @@ import time
 from domain_coordinator import domain_id
 import numpy as np
 import psutil
-from ros_ehs.benchmarks import positive, report
+from ros_ehs.benchmarks import BOUND, positive, report
 from ros_ehs.data.bag import BagWriter, open_bag
 from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, NodeProcesses
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
     env = {ENV: str(RT_PROFILE)} if rt and RT_PROFILE.is_file() else {}
     with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
         bag = Path(a.keep) if a.keep else Path(tmp) / 'soak'
-        with NodeProcesses(dom, Path(tmp) / 'logs', env=env) as procs:
+        with NodeProcesses(dom, Path(tmp) / 'logs', env=env, bound=BOUND) as procs:
             procs.start_loop(a.mode, bag=bag, controller=rt,
                              plant={**rt, 'duration': a.seconds} if lock else rt,
                              reference={'kind': 'sine', 'rate_hz': 1000.0 if lock else 250.0},

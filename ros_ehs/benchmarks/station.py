@@ -39,7 +39,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import count, cpu, positive, report, setting
+from ros_ehs.benchmarks import BOUND, count, cpu, positive, report, setting
 from ros_ehs.core.options import RT_PRIORITY
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
@@ -77,20 +77,20 @@ def _frames(page) -> int:
 def _round(dom: int, seconds: float, browser, with_station: bool, rt_priority: int,
            page_open: bool) -> dict:
     loop = {'rt_priority': rt_priority} if rt_priority else {}
-    with NodeProcesses(dom) as procs:
+    with NodeProcesses(dom, bound=BOUND) as procs:
         procs.start_loop('realtime', plant=loop, controller=loop)
         station_cpu = updates = browser_cpu = 0.0
         if with_station:
             ref_cpu = (loop_placement(True) or (-1, -1))[1]
             procs.start('station', {'port': 0, 'cpu_affinity': ref_cpu})
-            if not procs.wait_status(contract.STATION_STATUS, lambda st: 'url' in st.values,
-                                     60):
+            if not procs.wait_status(contract.STATION_STATUS, lambda st: 'url' in st.values):
                 raise RuntimeError('the station did not start:\n'
                                    + procs['station'].output()[-3000:])
             page = browser.new_page() if page_open else None
             if page is not None:
+                page.set_default_timeout(BOUND * 1000)
                 page.goto(procs.status(contract.STATION_STATUS).values['url'])
-                page.wait_for_function('window.station.frames > 0', timeout=60_000)
+                page.wait_for_function('window.station.frames > 0')
             c0, f0 = _cpu(procs['station'].pid), _frames(page)
             b0 = _browser_cpu()
         t0 = time.monotonic()

@@ -52,7 +52,7 @@ import tempfile
 import time
 
 from domain_coordinator import domain_id
-from ros_ehs.benchmarks import count, positive, report
+from ros_ehs.benchmarks import BOUND, count, positive, report
 from ros_ehs.benchmarks.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
 from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, loop_placement, NodeProcesses
@@ -137,7 +137,7 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
     if cpus:      # ping and pong on one CPU, as bench.py --cpu-affinity places ours
         rt += ['--cpu', str(cpus[0])]
     env = {ENV: str(RT_PROFILE)} if prio else {}
-    with NodeProcesses(dom, env=env) as bare:
+    with NodeProcesses(dom, env=env, bound=BOUND) as bare:
         for role in ('pong', 'ping'):
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role, *rt])
         time.sleep(2.0)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import json
+import math
 import os
 from pathlib import Path
 import signal
@@ -203,10 +204,16 @@ class NodeProcesses:
     (:mod:`ros_ehs.nodes.fastdds_profile`). ``clean_shm``: first remove the shared-memory
     ports and segments that processes which did not exit cleanly left in ``/dev/shm``
     (:func:`ros_ehs.nodes.fastdds_shm.clean_zombies`; what was done is in ``self.shm_cleanup``).
+    ``bound`` [s]: how long each step of :meth:`start_loop` and each :meth:`wait_status` waits
+    unless told (a test suite on a loaded machine passes its own, longer one).
     """
 
     def __init__(self, domain_id: int | None = None, log_dir: str | os.PathLike | None = None,
-                 env: dict[str, str] | None = None, clean_shm: bool = True) -> None:
+                 env: dict[str, str] | None = None, clean_shm: bool = True,
+                 bound: float = 60.0) -> None:
+        if not (math.isfinite(bound) and bound > 0):
+            raise ValueError(f'`bound` = {bound!r} s must be finite and > 0')
+        self.bound = float(bound)
         self.env = dict(os.environ)
         self.env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         self.env['PYTHONUNBUFFERED'] = '1'
@@ -300,7 +307,7 @@ class NodeProcesses:
                    procedure: dict[str, Any] | None = None,
                    params_file: str | os.PathLike | None = None,
                    pin: bool | None = None,
-                   timeout: float = 60.0) -> None:
+                   timeout: float | None = None) -> None:
         """
         Start the bench loop (recorder if ``bag``, controller, reference, plant) in order.
 
@@ -324,6 +331,7 @@ class NodeProcesses:
         extra parameters (``reference=False``: no reference node). ``procedure`` (its
         options, ``file`` among them): the procedure node in the reference's place. Raises
         :class:`StartupError` naming the step that did not happen, with that node's log.
+        ``timeout`` [s]: each step's wait (default ``bound``).
 
         ``pin`` (default: when this process may use two CPUs or more) sets the nodes'
         ``cpu_affinity`` as :func:`loop_placement` says, unless given in ``plant``,
@@ -334,6 +342,7 @@ class NodeProcesses:
         """
         if mode not in ('realtime', 'lockstep'):
             raise ValueError(f"mode: expected 'realtime' or 'lockstep', got {mode!r}")
+        timeout = self.bound if timeout is None else timeout
         lock = mode == 'lockstep'
         cpus = loop_placement(pin)
         if cpus is not None:
@@ -410,9 +419,13 @@ class NodeProcesses:
         return None if self.watch is None else self.watch.status(status_name)
 
     def wait_status(self, status_name: str, ready: Callable[[contract.NodeStatus], bool],
-                    timeout: float = 30.0) -> bool:
-        """Wait until the latest status ``status_name`` satisfies ``ready``; False on timeout."""
-        end = time.monotonic() + timeout
+                    timeout: float | None = None) -> bool:
+        """
+        Wait until status ``status_name`` satisfies ``ready``; False after ``timeout`` s.
+
+        ``timeout`` defaults to ``bound``.
+        """
+        end = time.monotonic() + (self.bound if timeout is None else timeout)
         while time.monotonic() < end:
             st = self.status(status_name)
             if st is not None and ready(st):
