@@ -21,7 +21,7 @@ from ros_ehs.core.station.board import Board
 from ros_ehs.core.station.meters import Meter
 from ros_ehs.core.station.scope import Scope, TIME_BASES
 from ros_ehs.core.station.station import Station
-from ros_ehs.web.app import make_app, StationServer
+from ros_ehs.web.app import make_app, Pacer, StationServer
 import ros_ehs_msgs_py as c
 from ros_ehs_msgs_py.values import AxisState, ParameterEstimate, Reference
 
@@ -307,6 +307,44 @@ def test_another_machine_watches_read_only_and_acts_only_with_the_token():
         server.stop()
 
 
+def test_a_page_that_has_not_drawn_gets_no_more_than_the_window():
+    p = Pacer(window=2, board_every=5)
+    assert [p.tick() for _ in range(4)] == [(True, True), (True, False), (False, False),
+                                            (False, False)]
+    assert (p.sent, p.ticks) == (2, 4)
+    assert p.take_drawn(1)                  # one drawn: one more may go, the newest
+    assert p.tick() == (True, False)        # tick 4
+    assert p.tick() == (False, False)       # tick 5: two undrawn again; its board waits
+    assert p.take_drawn(3)
+    assert p.tick() == (True, True)         # tick 6 brings the board of tick 5
+
+
+def test_the_pacer_sends_on_as_the_page_draws_and_keeps_its_board_for_the_next_frame():
+    p = Pacer(window=1, board_every=3)
+    assert p.tick() == (True, True)             # tick 0: the first frame has the board
+    assert p.tick() == (False, False)           # tick 1: not drawn yet
+    assert p.tick() == (False, False)           # tick 2
+    assert p.tick() == (False, False)           # tick 3: a board tick, nothing sent
+    assert p.take_drawn(1)
+    assert p.tick() == (True, True)             # tick 4: the board the skipped tick owed
+    assert p.take_drawn(2)
+    assert p.tick() == (True, False)            # tick 5
+    assert p.take_drawn(3)
+    assert p.tick() == (True, True)             # tick 6: a board tick
+
+
+def test_the_pacer_ignores_a_drawn_count_it_cannot_believe():
+    p = Pacer(window=2)
+    p.tick(), p.tick()
+    for bad in (3, 0, -1, 1.5, '2', True, None, [2]):     # beyond the sent, back, not a count
+        assert not p.take_drawn(bad), bad
+    assert p.drawn == 0 and p.take_drawn(2) and not p.take_drawn(1) and p.drawn == 2
+    with pytest.raises(ValueError, match='`window` = 0 must be an int >= 1'):
+        Pacer(window=0)
+    with pytest.raises(ValueError, match='`board_every` = 2.0 must be an int >= 1'):
+        Pacer(board_every=2.0)
+
+
 def test_a_page_gets_frames_at_its_rate_and_changes_its_time_base():
     desk = FakeDesk()
     server, port = _serve(desk, push_rate=50.0)
@@ -314,15 +352,23 @@ def test_a_page_gets_frames_at_its_rate_and_changes_its_time_base():
         async def go():
             async with aiohttp.ClientSession() as s:
                 async with s.ws_connect(f'http://127.0.0.1:{port}/ws?span=1') as ws:
-                    first = json.loads((await ws.receive()).data)
+                    drawn = 0
+
+                    async def draw():          # a page says when it has drawn each frame
+                        nonlocal drawn
+                        f = json.loads((await ws.receive()).data)
+                        drawn += 1
+                        await ws.send_str(json.dumps({'drawn': drawn}))
+                        return f
+                    first = await draw()
                     # the board 5 times a second: at 50 frames a second, every tenth frame
-                    boards = ['board' in json.loads((await ws.receive()).data)
-                              for _ in range(20)]
+                    boards = ['board' in await draw() for _ in range(20)]
                     assert [k for k, b in enumerate(boards) if b] == [9, 19]
                     await ws.send_str(json.dumps({'span': 0.1}))
                     await ws.send_str('not json')           # ignored, the page goes on
+                    await ws.send_str(json.dumps({'drawn': 'all'}))    # ignored too
                     for _ in range(50):
-                        f = json.loads((await ws.receive()).data)
+                        f = await draw()
                         if f['span'] == 0.1:
                             break
                     pages = desk.pages

@@ -59,10 +59,56 @@ def _page(browser):
     return page
 
 
+def _said(page):
+    """Return what the page shows and logged (for a failure's message)."""
+    try:
+        log = page.evaluate('window.station.log')
+        return (f'the answer is {page.inner_text("#answer")!r}, the link '
+                f'{page.inner_text("#link")!r}; the page logged:\n  ' + '\n  '.join(log)
+                + (f'\npage errors: {page.errors}' if page.errors else ''))
+    except Exception as e:         # a page that cannot say is itself the finding
+        return f'the page cannot say ({e})'
+
+
+def _wait(page, js, arg=None):
+    """Wait (bounded) until ``js`` holds in the page; on timeout say what the page logged."""
+    from playwright.sync_api import TimeoutError as PageTimeout
+    try:
+        page.wait_for_function(js, arg=arg, timeout=WAIT_MS)
+    except PageTimeout:
+        raise AssertionError(f'waited {BOUND} s for {js!r} ({arg}); {_said(page)}') from None
+
+
+#: what the page logged about a press on ``action`` since it had logged ``noted`` lines
+PRESSED = """([noted, action]) => {
+  const s = window.station;
+  return s.log.slice(Math.max(0, s.log.length - (s.noted - noted))).find((line) =>
+    line.endsWith(`click ${action}`) || line.endsWith(`press on ${action} (disabled)`)) || null;
+}"""
+
+
+def _press(page, action, tries=5):
+    """
+    Press ``action``'s button as an operator would: again if the press found it off.
+
+    Playwright waits until the button is enabled, then presses; the page may turn it off in
+    between (its link dropped, the controller not heard for a while). The page logs such a
+    press, and the operator, seeing nothing happen, presses again.
+    """
+    for _ in range(tries):
+        noted = page.evaluate('window.station.noted')
+        page.click(f'[data-testid={action}]')
+        _wait(page, PRESSED, [noted, action])
+        line = page.evaluate(PRESSED, [noted, action])
+        if line.endswith(f'click {action}'):
+            return
+    raise AssertionError(f'{tries} presses on {action} found it off; {_said(page)}')
+
+
 def _confirmed(page, action, *words):
     """Press ``action``; the page asks in its own dialog (naming ``words``); confirm it."""
-    page.click(f'[data-testid={action}]')
-    page.wait_for_selector('[data-testid=confirm][open]', timeout=WAIT_MS)
+    _press(page, action)
+    _wait(page, 'document.getElementById("confirm").open')
     text = page.inner_text('[data-testid=confirm-text]')
     assert all(w in text for w in words), text
     page.click('[data-testid=confirm-ok]')
@@ -70,15 +116,9 @@ def _confirmed(page, action, *words):
 
 def _answer(page, *words):
     """Wait until the page's answer line says every one of ``words``; return it."""
-    from playwright.sync_api import TimeoutError as PageTimeout
-    try:
-        page.wait_for_function(
-            'words => { const a = document.getElementById("answer");'
-            ' return !a.hidden && words.every(w => a.textContent.includes(w)); }',
-            arg=list(words), timeout=WAIT_MS)
-    except PageTimeout:
-        raise AssertionError(f'the answer is {page.inner_text("#answer")!r}, the link '
-                             f'{page.inner_text("#link")!r}, not {words}') from None
+    _wait(page, 'words => { const a = document.getElementById("answer");'
+                ' return !a.hidden && words.every(w => a.textContent.includes(w)); }',
+          list(words))
     return page.inner_text('#answer')
 
 
@@ -90,26 +130,24 @@ def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
     bag = tmp_path / 'bag'
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag, plant={'duration': 600.0, **FAST},
                          controller={'limit_position_max': 0.03, 'ramp_time': 0.2,
                                      'limit_position_max_action': 'hold', **FAST})
         page = _page(browser)
         page.goto(_station(procs))
         # the scope and the meters update: the scope's newest time moves on, frame to frame
-        page.wait_for_function('window.station.last && window.station.last.scope.end > 0.5',
-                               timeout=WAIT_MS)
+        _wait(page, 'window.station.last && window.station.last.scope.end > 0.5')
         end = page.evaluate('window.station.last.scope.end')
-        page.wait_for_function(f'window.station.last.scope.end > {end} + 0.2', timeout=WAIT_MS)
+        _wait(page, f'window.station.last.scope.end > {end} + 0.2')
         assert page.inner_text('[data-meter="position.max"]') != '-'
         # the trip shows, with its limit and action
-        row = page.wait_for_selector('tr.latched[data-detector="limit_position_max"]',
-                                     timeout=WAIT_MS)
+        _wait(page, "document.querySelector('tr.latched[data-detector=limit_position_max]')")
+        row = page.query_selector('tr.latched[data-detector="limit_position_max"]')
         assert '0.03' in row.inner_text() and 'hold' in row.inner_text()
-        page.wait_for_function('document.getElementById("axis").textContent.includes('
-                               '"interlock hold")', timeout=WAIT_MS)
+        _wait(page, 'document.getElementById("axis").textContent.includes("interlock hold")')
         # Reset while the piston is held at the limit: refused, and the page says why
-        page.click('[data-testid=reset]')
+        _press(page, 'reset')
         text = _answer(page, 'refused', 'limit_position_max')
         assert 'limit 0.03 m' in text, text
         assert page.query_selector('tr.latched[data-detector="limit_position_max"]')
@@ -118,28 +156,24 @@ def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path
         req = SetParameters.Request(parameters=[Parameter(name='limit_position_max', value=val)])
         assert call_service(ros, SetParameters, '/controller/set_parameters',
                             req).results[0].successful
-        page.click('[data-testid=reset]')
+        _press(page, 'reset')
         _answer(page, 'reset: done')
-        page.wait_for_selector('tr[data-detector="limit_position_max"]:not(.latched)',
-                               timeout=WAIT_MS)
+        _wait(page, "document.querySelector('tr[data-detector=limit_position_max]:not(.latched)')")
         # hydraulics off (confirmed), then on: the controller ramps on from where it is
         # the page asks first; Cancel (or Escape) does nothing
-        page.click('[data-testid=disable]')
-        page.wait_for_selector('[data-testid=confirm][open]', timeout=WAIT_MS)
+        _press(page, 'disable')
+        _wait(page, 'document.getElementById("confirm").open')
         page.keyboard.press('Escape')
-        page.wait_for_selector('[data-testid=confirm]:not([open])', state='attached',
-                               timeout=WAIT_MS)
+        _wait(page, '!document.getElementById("confirm").open')
         assert page.inner_text('#hyd') == 'on'
         _confirmed(page, 'disable', 'OFF')
         _answer(page, 'disable: done')
-        page.wait_for_function('document.getElementById("hyd").textContent === "off"',
-                               timeout=WAIT_MS)
+        _wait(page, 'document.getElementById("hyd").textContent === "off"')
         _confirmed(page, 'enable', 'ON', 'ramps on')
         _answer(page, 'enable: done', 'ramping on')
-        page.wait_for_function('document.getElementById("hyd").textContent === "on" && '
-                               'document.getElementById("ramp").value === 1', timeout=WAIT_MS)
-        page.wait_for_function('document.getElementById("events").textContent.includes('
-                               '"enabled")', timeout=WAIT_MS)
+        _wait(page, 'document.getElementById("hyd").textContent === "on" && '
+                    'document.getElementById("ramp").value === 1')
+        _wait(page, 'document.getElementById("events").textContent.includes("enabled")')
         assert page.errors == []
         page.close()
         # a closed page changes nothing on the axis: the loop runs on, no action after it
@@ -157,7 +191,7 @@ def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path
 def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
     proc = tmp_path / 'test.yaml'
     shutil.copy(Path(__file__).parent / 'fixtures' / 'procedure_long.yaml', proc)
-    with NodeProcesses(dom, tmp_path / 'logs') as procs:
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=tmp_path / 'bag',
                          plant={'duration': 600.0, 'k_L': 1.0e6, 'specimen_life': 1.0e12,
                                 **FAST},
@@ -165,16 +199,14 @@ def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
                          procedure={'file': str(proc), 'autostart': False, **FAST})
         page = _page(browser)
         page.goto(_station(procs))
-        page.wait_for_function('document.querySelector("[data-testid=proc-state]") && '
-                               'document.querySelector("[data-testid=proc-state]")'
-                               '.textContent === "idle"', timeout=WAIT_MS)
-        page.click('[data-testid=start]')
+        _wait(page, 'document.querySelector("[data-testid=proc-state]") && '
+                    'document.querySelector("[data-testid=proc-state]").textContent === "idle"')
+        _press(page, 'start')
         _answer(page, 'start: done')
 
         def cycles_past(n):
-            page.wait_for_function(
-                f'Number(document.querySelector("[data-testid=total-cycles]").textContent) > {n}',
-                timeout=WAIT_MS)
+            _wait(page, 'n => Number(document.querySelector("[data-testid=total-cycles]")'
+                        '.textContent) > n', n)
             return int(page.inner_text('[data-testid=total-cycles]'))
 
         cycles_past(3)
@@ -188,21 +220,19 @@ def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
               if (tops.length < 60) requestAnimationFrame(frame); else done(tops);
             })(); })""")
         assert len(set(tops)) == 1, tops
-        page.click('[data-testid=hold]')
+        _press(page, 'hold')
         _answer(page, 'hold: done')
-        page.wait_for_function('document.querySelector("[data-testid=proc-state]")'
-                               '.textContent === "held"', timeout=WAIT_MS)
+        _wait(page, 'document.querySelector("[data-testid=proc-state]").textContent === "held"')
         held = int(status_value(procs, c.PROCEDURE_STATUS, 'total_cycles'))
         steps = status_value(procs, c.PLANT_STATUS, 'steps')
         wait_value(procs, c.PLANT_STATUS, 'steps', steps + 300)      # 3 cycles' time, held
         assert int(status_value(procs, c.PROCEDURE_STATUS, 'total_cycles')) == held
-        page.click('[data-testid=resume]')
+        _press(page, 'resume')
         _answer(page, 'resume: done')
         assert cycles_past(held + 2) > held + 2
         # the controller goes away: the page says the graph is lost and disables its buttons
         procs.stop(['controller'])
-        page.wait_for_function('document.getElementById("link").textContent.includes('
-                               '"the ROS graph is lost")', timeout=WAIT_MS)
+        _wait(page, 'document.getElementById("link").textContent.includes("graph is lost")')
         assert page.is_disabled('[data-testid=reset]') and page.is_disabled('[data-testid=hold]')
         assert page.errors == []
         procs.stop(['station', 'procedure', 'recorder', 'plant'])
@@ -231,14 +261,14 @@ def test_bench_py_starts_the_station_beside_the_bench_and_stops_it_cleanly(
         assert m, ''.join(said)
         page = _page(browser)
         page.goto(m.group(1))
-        page.wait_for_function('window.station.last && window.station.last.scope.end > 0.5 '
-                               '&& window.station.last.controller', timeout=WAIT_MS)
+        _wait(page, 'window.station.last && window.station.last.scope.end > 0.5 '
+                    '&& window.station.last.controller')
         assert page.inner_text('[data-testid=link]') == 'connected'
         p.send_signal(signal.SIGINT)
         out, _ = p.communicate(timeout=BOUND)
         # the page hears that the station went; the open page did not hold the web server
         # (it once did, until the 5 s the station waits for it)
-        page.wait_for_function('window.station.connected === false', timeout=WAIT_MS)
+        _wait(page, 'window.station.connected === false')
         assert 'station disconnected' in page.inner_text('[data-testid=link]')
     finally:
         if p.poll() is None:

@@ -20,8 +20,11 @@ Routes:
   library among them (uPlot, shipped in the package: a rig's network is offline);
 * ``GET /ws``: a WebSocket; the server sends a frame (:meth:`Desk.frame`) ``push_rate``
   times a second, the board with it :data:`BOARD_HZ` times a second (the first frame always);
-  the page sends ``{"span": s}`` to change its time base. Uncompressed: the frames are mostly
-  a base64 block, and compressing them cost the station more than sending them;
+  the page sends ``{"drawn": n}`` when it has drawn its ``n``-th frame, and ``{"span": s}`` to
+  change its time base. At most :data:`WINDOW` frames are on their way undrawn
+  (:class:`Pacer`): a page that cannot draw every frame (a busy browser or machine) gets fewer,
+  never a queue of stale ones in front of its buttons' answers. Uncompressed: the frames are
+  mostly a base64 block, and compressing them cost the station more than sending them;
 * ``GET /api/frame?span=s``: one frame, for a script or a test;
 * ``POST /api/meters/reset``: the meters' min/max and cycles forgotten (the station's own
   state, nothing on the axis; the access rule applies);
@@ -52,8 +55,8 @@ from aiohttp import web, WSCloseCode, WSMsgType
 from ros_ehs.core.station.access import Access
 from ros_ehs.core.station.scope import TIME_BASES
 
-__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'STATIC', 'StationServer',
-           'STOP_TIMEOUT']
+__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'Pacer', 'STATIC',
+           'StationServer', 'STOP_TIMEOUT', 'WINDOW']
 
 #: the open pages' WebSockets (each is closed when the station stops)
 PAGES = web.AppKey('pages', weakref.WeakSet)
@@ -67,6 +70,57 @@ CONFIRM = ('enable', 'disable')
 DEFAULT_SPAN = 5.0
 #: how often a page gets the board (statuses, detectors, events) [Hz]: read by eye
 BOARD_HZ = 5.0
+#: frames a page may have on their way, sent and not yet drawn
+WINDOW = 2
+
+
+class Pacer:
+    """
+    Which ticks of a page's frame clock send a frame, and which frames carry the board.
+
+    The server ticks ``push_rate`` times a second (:meth:`tick`). A tick sends a frame unless
+    ``window`` frames are sent and not yet drawn (:meth:`take_drawn`): then it is skipped, and
+    the page, once it has drawn, gets the newest frame at the next tick. Without that, a
+    browser that draws slower than the frames come (a loaded machine) queued them: each
+    frame, and each button's answer behind them, came later than the last, until the
+    socket's buffers were full and the connection's heartbeat failed. The board goes with
+    the first frame and every ``board_every`` ticks; a board tick that sent nothing hands the
+    board to the next frame sent.
+    """
+
+    def __init__(self, window: int = WINDOW, board_every: int = 1) -> None:
+        for name, v in (('window', window), ('board_every', board_every)):
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f'`{name}` = {v!r} must be an int >= 1')
+        self.window = window
+        self.board_every = board_every
+        self.ticks = 0
+        self.sent = 0
+        self.drawn = 0
+        self._board_due = False
+
+    def tick(self) -> tuple[bool, bool]:
+        """Count one tick; return (send a frame now, with the board)."""
+        if self.ticks % self.board_every == 0:
+            self._board_due = True
+        self.ticks += 1
+        if self.sent - self.drawn >= self.window:
+            return False, False
+        board, self._board_due = self._board_due, False
+        self.sent += 1
+        return True, board
+
+    def take_drawn(self, n: object) -> bool:
+        """
+        Take the page's word that it has drawn ``n`` frames in all; True if taken.
+
+        A count that is not a whole number, goes back, or exceeds the frames sent is ignored
+        (the page's word can only open the window as far as the frames really sent).
+        """
+        if isinstance(n, int) and not isinstance(n, bool) and self.drawn < n <= self.sent:
+            self.drawn = n
+            return True
+        return False
 
 
 class Desk(Protocol):
@@ -188,28 +242,38 @@ def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Applica
         may = access.decide(request.remote, request.query.get('token'))._asdict()
         desk.page_count(1)
 
+        pacer = Pacer(WINDOW, max(1, round(push_rate / BOARD_HZ)))
+
         async def listen() -> None:
             nonlocal span
             async for msg in ws:
                 if msg.type != WSMsgType.TEXT:
                     continue
                 try:
-                    span = _span(str(json.loads(msg.data).get('span')))
-                except (ValueError, AttributeError, web.HTTPBadRequest):
-                    pass                # a bad time base is ignored: the page keeps its own
+                    said = json.loads(msg.data)
+                except ValueError:
+                    continue            # not JSON: ignored, the page goes on
+                if not isinstance(said, dict):
+                    continue
+                if 'drawn' in said:
+                    pacer.take_drawn(said['drawn'])
+                if 'span' in said:
+                    try:
+                        span = _span(str(said['span']))
+                    except web.HTTPBadRequest:
+                        pass            # a bad time base is ignored: the page keeps its own
 
         listener = asyncio.ensure_future(listen())
         try:
             period = 1.0 / push_rate
-            every = max(1, round(push_rate / BOARD_HZ))
             loop = asyncio.get_running_loop()
             next_t = loop.time()
-            k = 0
             while not ws.closed and not listener.done():
-                body = desk.frame(span, board=k % every == 0)
-                body['may_act'] = may
-                k += 1
-                await ws.send_str(json.dumps(body, allow_nan=False))
+                send, board = pacer.tick()
+                if send:
+                    body = desk.frame(span, board=board)
+                    body['may_act'] = may
+                    await ws.send_str(json.dumps(body, allow_nan=False))
                 next_t += period
                 await asyncio.sleep(max(0.0, next_t - loop.time()))
                 next_t = max(next_t, loop.time() - period)    # after a stall: no burst

@@ -4,8 +4,17 @@
   const $ = (id) => document.getElementById(id);
   const params = new URLSearchParams(location.search);
   const token = params.get('token') || '';
-  // what the tests and the station benchmark read: frames received, the newest frame
-  const state = window.station = { frames: 0, last: null, paused: false, connected: false };
+  // what the tests and the station benchmark read: frames received, the newest frame, and the
+  // page's own log (the link, the buttons' state and why, presses, the dialog), newest last
+  // (its last LOG_LINES lines; ``noted`` counts every line)
+  const state = window.station = { frames: 0, last: null, paused: false, connected: false,
+                                   log: [], noted: 0 };
+  const LOG_LINES = 200;
+  function note(what) {
+    state.log.push(`${(performance.now() / 1000).toFixed(3)} s: ${what}`);
+    state.noted += 1;
+    if (state.log.length > LOG_LINES) state.log.shift();
+  }
   const SCALE = { position: 1e3, reference: 1e3, error: 1e6, force: 1e-3, current: 1e3 };
   const UNIT = { position: 'mm', reference: 'mm', error: 'um', force: 'kN', current: 'mA' };
   const COLOR = { position: '#1565c0', reference: '#2e7d32', error: '#c62828',
@@ -158,6 +167,8 @@
       `<b>${esc(e.source)} ${esc(e.kind)}</b> ${esc(e.message)}</li>`).join(''));
   }
 
+  // why the buttons are off now ('' when on), as last logged
+  const buttons = { why: null, noProcedure: null };
   function drawHeader(f) {
     const link = $('link');
     if (f.lost) { link.textContent = f.lost; link.className = 'badge error'; }
@@ -169,10 +180,15 @@
     const may = f.may_act;
     $('rights').textContent = may.allowed ? 'operator' : 'read-only';
     $('rights').title = may.why;
+    const why = !may.allowed ? may.why : (f.lost || '');
+    const noProcedure = !f.procedure;
+    if (why !== buttons.why || noProcedure !== buttons.noProcedure) {
+      note(why ? `buttons off: ${why}` : `buttons on${noProcedure ? ' (no procedure)' : ''}`);
+      Object.assign(buttons, { why, noProcedure });
+    }
     const procedure = ['start', 'hold', 'resume', 'stop'];
     document.querySelectorAll('button.act, #meters-reset').forEach((b) => {
-      b.disabled = !may.allowed || Boolean(f.lost) ||
-        (procedure.includes(b.dataset.action) && !f.procedure);
+      b.disabled = Boolean(why) || (procedure.includes(b.dataset.action) && noProcedure);
     });
   }
 
@@ -201,11 +217,18 @@
   function connect() {
     const url = `ws://${location.host}/ws?span=${$('span').value}` +
                 (token ? `&token=${encodeURIComponent(token)}` : '');
-    ws = new WebSocket(url);
-    ws.onopen = () => { state.connected = true; };
-    ws.onmessage = (m) => onFrame(JSON.parse(m.data));
-    ws.onclose = () => {
+    const sock = ws = new WebSocket(url);
+    ws.onopen = () => { state.connected = true; note('link open'); };
+    let drawn = 0;                    // this connection's frames: the server sends on when drawn
+    ws.onmessage = (m) => {
+      onFrame(JSON.parse(m.data));
+      drawn += 1;
+      sock.send(JSON.stringify({ drawn }));
+    };
+    ws.onclose = (e) => {
       state.connected = false;
+      note(`link closed (${e.code}): buttons off`);
+      buttons.why = 'link closed';
       $('link').textContent = 'station disconnected: retrying';
       $('link').className = 'badge error';
       document.querySelectorAll('button.act').forEach((b) => { b.disabled = true; });
@@ -232,8 +255,12 @@
     $('confirm-text').textContent = text;
     d.returnValue = '';
     return new Promise((resolve) => {
-      d.addEventListener('close', () => resolve(d.returnValue === 'ok'), { once: true });
+      d.addEventListener('close', () => {
+        note(`dialog closed: ${d.returnValue || 'cancel'}`);
+        resolve(d.returnValue === 'ok');
+      }, { once: true });
       d.showModal();
+      note('dialog open');
     });
   }
 
@@ -242,14 +269,22 @@
     disable: 'Turn the hydraulics OFF? The valve gets 0 A.',
     stop: 'Stop the test (to its safe point)?',
   };
+  // a press is logged where it lands, also on a disabled button (which gets no click)
+  window.addEventListener('pointerdown', (e) => {
+    const b = e.target.closest && e.target.closest('button');
+    note(`press on ${b ? (b.dataset.testid || b.id) + (b.disabled ? ' (disabled)' : '')
+                       : e.target.tagName.toLowerCase()}`);
+  }, true);
   document.querySelectorAll('button.act').forEach((b) => b.addEventListener('click', async () => {
     const action = b.dataset.action;
+    note(`click ${action}`);
     const body = {};
     if (ASK[action] && !(await confirmed(ASK[action]))) return;
     if (action === 'enable' || action === 'disable') body.confirm = true;
     try {
       const r = await post(`/api/action/${action}`, body);
       answer(r.ok, `${action}: ${r.ok ? 'done' : 'refused'}: ${r.message}`);
+      note(`${action}: ${r.ok ? 'done' : 'refused'}`);
     } catch (err) {
       answer(false, `${action}: no answer from the station (${err})`);
     }
