@@ -109,3 +109,17 @@ def test_no_module_of_the_core_imports_another_that_imports_it_back():
     cycles = sorted(f'{a} <-> {b}' for a, deps in graph.items() for b in deps
                     if a < b and a in graph.get(b, ()))
     assert not cycles, cycles
+
+
+def test_the_nodes_that_do_not_simulate_start_without_numba():
+    # numba's import costs a node 0.3-0.4 CPU-s at every start, and the suite starts these
+    # nodes hundreds of times; only the plant and the fitting nodes step the model's kernels
+    nodes = ['controller', 'reference', 'recorder', 'station', 'procedure']
+    code = ('import importlib, sys\n'
+            'for n in sys.argv[1:]:\n'
+            "    importlib.import_module('ros_ehs.nodes.' + n)\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'llvmlite')))\n")
+    res = subprocess.run([sys.executable, '-c', code, *nodes], capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.strip() == '[]', res.stdout[:500]

@@ -29,7 +29,7 @@ from ros_ehs.core.control.feedforward import MODEL_PARAMS
 from ros_ehs.core.control.modes import SPECIMEN_PARAMS
 from ros_ehs.core.params import CONTROL_SPECS, ESTIMATED, PLANT_SPECS, SAFETY_SPECS, spec
 from ros_ehs.core.settings import Setting
-from ros_ehs.core.sim.axis import FAULTS
+from ros_ehs.core.sim.faults import FAULTS
 import ros_ehs_msgs_py as contract
 
 __all__ = ['CLI_OPTIONS', 'CLI_POSITIONAL', 'COMPRESSIONS', 'CONTROLLER', 'CONTROLLER_SPECS',

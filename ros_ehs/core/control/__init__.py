@@ -18,13 +18,26 @@ Controller core: PID (eq. 19), feedforward (eqs. 9-20), their combination (eq. 1
 (limit and error detectors, latched actions, ramp-on) in front of :class:`Controller`.
 """
 
-from ros_ehs.core.control.controller import Controller, DeltaP
-from ros_ehs.core.control.feedforward import (DelayLine, Feedforward, psc_force, stribeck_estimate,
-                                              xi_blend)
-from ros_ehs.core.control.pid import Pid, PidGains
-from ros_ehs.core.control.safety import braking_distance, DETECTORS, SafetyConfig, Supervisor
-from ros_ehs.core.control.supervised import AxisController
+import importlib
 
 __all__ = ['AxisController', 'Controller', 'DETECTORS', 'DelayLine', 'DeltaP', 'Feedforward',
            'Pid', 'PidGains', 'SafetyConfig', 'Supervisor', 'braking_distance', 'psc_force',
            'stribeck_estimate', 'xi_blend']
+
+#: where each public name lives (imported when first used, PEP 562: a node that needs one
+#: module of this package loads that one)
+_HOME = {'Controller': 'controller', 'DeltaP': 'controller', 'DelayLine': 'feedforward',
+         'Feedforward': 'feedforward', 'psc_force': 'feedforward',
+         'stribeck_estimate': 'feedforward', 'xi_blend': 'feedforward', 'Pid': 'pid',
+         'PidGains': 'pid', 'braking_distance': 'safety', 'DETECTORS': 'safety',
+         'SafetyConfig': 'safety', 'Supervisor': 'safety', 'AxisController': 'supervised'}
+
+
+def __getattr__(name: str):
+    if name in _HOME:
+        return getattr(importlib.import_module(f'{__name__}.{_HOME[name]}'), name)
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -36,7 +36,7 @@ import math
 
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.model.coefficients import ff_force_gain, flow_gain_kq
-from ros_ehs.core.model.kernels import smooth_clip
+from ros_ehs.core.model.smooth import smooth_clip
 
 __all__ = ['DelayLine', 'Feedforward', 'MODEL_PARAMS', 'psc_force', 'stribeck_estimate',
            'xi_blend']

@@ -43,6 +43,7 @@ from ros_ehs.core.model.coefficients import (C_A0, C_A2V, C_AN, C_AP, C_AS, C_BA
                                              C_PCR, C_PS, C_PT, C_RC, C_RENORM, C_RF, C_RHO,
                                              C_SMOOTH, C_STROKE, C_TAUST, C_TAUV, C_VC, C_VCS, C_W,
                                              C_XBIAS, C_XF0, C_XI0, C_XVMAX, C_ZL, pack)
+from ros_ehs.core.model.smooth import smooth_clip
 
 FULL = 0
 SIMPLIFIED = 1
@@ -54,21 +55,7 @@ N_REDUCED = 6
 _JIT = {'cache': True, 'nogil': True, 'fastmath': True, 'error_model': 'numpy'}
 
 
-def smooth_clip(f, lim):
-    """
-    Saturate ``f`` to +-``lim`` smoothly (corner width 1 % of ``lim``).
-
-    Plain Python, so the controller calls it without numba's dispatch cost; the kernels use
-    the compiled twin ``_smooth_clip`` of this same function. Squares are products: Python's
-    ``**`` raises OverflowError for ``|f|`` over 1e154 where a product gives inf (then NaN,
-    which the PID answers with 0 A and ``fault``); an absurd sensor reading must not crash the
-    controller.
-    """
-    d = 0.01 * lim + 1e-9
-    a, b = f + lim, f - lim
-    return 0.5 * (math.sqrt(a * a + d * d) - math.sqrt(b * b + d * d))
-
-
+#: :func:`ros_ehs.core.model.smooth.smooth_clip`, compiled
 _smooth_clip = njit(**_JIT)(smooth_clip)
 
 

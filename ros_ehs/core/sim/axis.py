@@ -68,15 +68,12 @@ from ros_ehs.core.errors import InputError
 from ros_ehs.core.model.plant import Plant
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import Params
+from ros_ehs.core.sim.faults import FAULTS, LOST_SUPPLY
 from ros_ehs_msgs_py import AxisState, Load
 
 __all__ = ['FAULTS', 'LOST_SUPPLY', 'MAX_CATCHUP', 'SPECIMEN_PARAMS', 'Sample', 'SimulatedAxis',
            'TRIP_LOG', 'WatchdogTrip']
 
-#: The faults the axis can inject.
-FAULTS = ('none', 'frozen_sensor', 'nan_sensor', 'stuck_valve', 'lost_pressure')
-#: The supply pressure of the ``lost_pressure`` fault [Pa] (the lowest p_s allows).
-LOST_SUPPLY = 1.0e6
 #: Periods a late tick may step before the grid is moved on.
 MAX_CATCHUP = 50
 #: Watchdog trips kept (the newest).
