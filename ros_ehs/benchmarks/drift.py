@@ -44,7 +44,7 @@ import math
 import time
 
 import numpy as np
-from ros_ehs.benchmarks import report
+from ros_ehs.benchmarks import positive, report
 from ros_ehs.core.control.feedforward import MODEL_PARAMS
 from ros_ehs.core.control.supervised import AxisController
 from ros_ehs.core.control.waveforms import Sine
@@ -62,10 +62,13 @@ DRIFT = Drift([DriftStage(60.0, 180.0, {'F_cc': -0.30, 'F_sc': -0.30}),
 RISING = Drift([DriftStage(60.0, 180.0, {'F_cc': 0.30, 'F_sc': 0.30}),
                 DriftStage(300.0, 120.0, {'c_c': 0.20})])
 DT = 1e-3
+#: the live refit's window and period [s]
+WINDOW = 10.0
+PERIOD = 5.0
 
 
-def run(mode: str, duration: float = 600.0, drift: Drift = DRIFT, window: float = 10.0,
-        period: float = 5.0, push_period: float = 10.0, seed: int = 1,
+def run(mode: str, duration: float = 600.0, drift: Drift = DRIFT, window: float = WINDOW,
+        period: float = PERIOD, push_period: float = 10.0, seed: int = 1,
         block: float = 20.0) -> dict:
     """
     Run the drifting rig with the controller in ``mode`` (live, static or true).
@@ -229,8 +232,13 @@ def _scenario(name: str, drift: Drift, duration: float) -> dict:
 def main(argv=None) -> int:
     """Run the benchmark and print its figures."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks drift')
-    ap.add_argument('--duration', type=float, default=600.0, help='simulated time [s]')
+    shortest = WINDOW + PERIOD
+    ap.add_argument('--duration', type=positive, default=600.0,
+                    help=f'simulated time [s], at least {shortest:g} (a window and a refit)')
     args = ap.parse_args(argv)
+    if args.duration < shortest:
+        ap.error(f'argument --duration: must be at least {shortest:g} s (one {WINDOW:g} s '
+                 f'window and one {PERIOD:g} s refit period), not {args.duration:g}')
     figures = {'duration_s': args.duration, **_scenario('warm-up', DRIFT, args.duration)}
     figures['rising'] = _scenario('rising', RISING, args.duration)
     return report(figures)
