@@ -16,6 +16,8 @@
 import importlib
 import sys
 
+from ros_ehs.core.errors import EhsError
+
 #: the benchmarks, each a module of this package with a ``main(argv)``
 BENCHMARKS = ('model', 'paper', 'identify', 'loop', 'lockstep', 'record', 'soak', 'window',
               'tracking', 'drift', 'live', 'realtime', 'force', 'fatigue', 'verdict',
@@ -30,7 +32,11 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     mod = importlib.import_module(f'ros_ehs.benchmarks.{argv[0]}')
-    return mod.main(argv[1:])
+    try:
+        return mod.main(argv[1:])
+    except EhsError as err:          # e.g. a run too short for the data it needs: one line
+        print(f'python -m ros_ehs.benchmarks {argv[0]}: error: {err}', file=sys.stderr)
+        return 2
 
 
 if __name__ == '__main__':

@@ -196,6 +196,10 @@ def main(argv=None) -> int:
                     help="the drive-file target's length [s]")
     ap.add_argument('--iterations', type=count, default=6, help='drive-file iterations')
     a = ap.parse_args(argv)
+    if a.sweep_seconds < SWEEP_FROM + SWEEP_WINDOW:
+        ap.error(f'argument --sweep-seconds: must be at least {SWEEP_FROM + SWEEP_WINDOW:g} s '
+                 f'(judged from {SWEEP_FROM:g} s on, in {SWEEP_WINDOW:g} s windows), '
+                 f'not {a.sweep_seconds:g}')
     fq = [int(f) if f == int(f) else f for f in a.frequencies]
     est = preset('table1_estimated')
     dp = est.replace(**DELTA_P)
