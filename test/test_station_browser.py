@@ -234,6 +234,9 @@ def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
         procs.stop(['controller'])
         _wait(page, 'document.getElementById("link").textContent.includes("graph is lost")')
         assert page.is_disabled('[data-testid=reset]') and page.is_disabled('[data-testid=hold]')
+        # a press on a disabled button sends nothing, and the page says why
+        page.click('[data-testid=hold]', force=True)
+        _answer(page, 'hold: not sent:', 'graph is lost')
         assert page.errors == []
         procs.stop(['station', 'procedure', 'recorder', 'plant'])
 

@@ -228,7 +228,7 @@
     ws.onclose = (e) => {
       state.connected = false;
       note(`link closed (${e.code}): buttons off`);
-      buttons.why = 'link closed';
+      buttons.why = 'the link to the station is closed';
       $('link').textContent = 'station disconnected: retrying';
       $('link').className = 'badge error';
       document.querySelectorAll('button.act').forEach((b) => { b.disabled = true; });
@@ -269,11 +269,16 @@
     disable: 'Turn the hydraulics OFF? The valve gets 0 A.',
     stop: 'Stop the test (to its safe point)?',
   };
-  // a press is logged where it lands, also on a disabled button (which gets no click)
+  // a press is logged where it lands, also on a disabled button, which gets no click: then the
+  // page says that nothing was sent, and why
   window.addEventListener('pointerdown', (e) => {
     const b = e.target.closest && e.target.closest('button');
     note(`press on ${b ? (b.dataset.testid || b.id) + (b.disabled ? ' (disabled)' : '')
                        : e.target.tagName.toLowerCase()}`);
+    if (b && b.disabled && (b.classList.contains('act') || b.id === 'meters-reset')) {
+      answer(false, `${b.dataset.action || 'meters'}: not sent: ` +
+                    (buttons.why || 'no procedure node heard'));
+    }
   }, true);
   document.querySelectorAll('button.act').forEach((b) => b.addEventListener('click', async () => {
     const action = b.dataset.action;
