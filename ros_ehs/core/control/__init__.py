@@ -18,26 +18,13 @@ Controller core: PID (eq. 19), feedforward (eqs. 9-20), their combination (eq. 1
 (limit and error detectors, latched actions, ramp-on) in front of :class:`Controller`.
 """
 
-import importlib
+import lazy_loader
 
-__all__ = ['AxisController', 'Controller', 'DETECTORS', 'DelayLine', 'DeltaP', 'Feedforward',
-           'Pid', 'PidGains', 'SafetyConfig', 'Supervisor', 'braking_distance', 'psc_force',
-           'stribeck_estimate', 'xi_blend']
-
-#: where each public name lives (imported when first used, PEP 562: a node that needs one
-#: module of this package loads that one)
-_HOME = {'Controller': 'controller', 'DeltaP': 'controller', 'DelayLine': 'feedforward',
-         'Feedforward': 'feedforward', 'psc_force': 'feedforward',
-         'stribeck_estimate': 'feedforward', 'xi_blend': 'feedforward', 'Pid': 'pid',
-         'PidGains': 'pid', 'braking_distance': 'safety', 'DETECTORS': 'safety',
-         'SafetyConfig': 'safety', 'Supervisor': 'safety', 'AxisController': 'supervised'}
-
-
-def __getattr__(name: str):
-    if name in _HOME:
-        return getattr(importlib.import_module(f'{__name__}.{_HOME[name]}'), name)
-    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+# each name is imported when first used (lazy_loader, SPEC 1): a node that needs one module of
+# this package loads that one
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    'controller': ['Controller', 'DeltaP'],
+    'feedforward': ['DelayLine', 'Feedforward', 'psc_force', 'stribeck_estimate', 'xi_blend'],
+    'pid': ['Pid', 'PidGains'],
+    'safety': ['braking_distance', 'DETECTORS', 'SafetyConfig', 'Supervisor'],
+    'supervised': ['AxisController']})

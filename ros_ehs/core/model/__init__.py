@@ -14,26 +14,12 @@
 """
 Plant models: full 10-state and simplified 4-state (numba kernels + checked layer).
 
-The names below are imported when first used (PEP 562): a process that needs only the
-valve's coefficients (a recorder, a reference, the controller) does not load numba.
+The names below are imported when first used (lazy_loader, SPEC 1): a process that needs
+only the valve's coefficients (a recorder, a reference, the controller) does not load numba.
 """
 
-import importlib
+import lazy_loader
 
-__all__ = ['FULL_STATES', 'MODELS', 'Plant', 'SIMPLIFIED_STATES', 'SimResult', 'ff_force_gain',
-           'flow_gain_kq', 'rhs']
-
-#: where each public name lives
-_HOME = {'ff_force_gain': 'coefficients', 'flow_gain_kq': 'coefficients',
-         **dict.fromkeys(('FULL_STATES', 'MODELS', 'Plant', 'SIMPLIFIED_STATES', 'SimResult',
-                          'rhs'), 'plant')}
-
-
-def __getattr__(name: str):
-    if name in _HOME:
-        return getattr(importlib.import_module(f'{__name__}.{_HOME[name]}'), name)
-    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    'coefficients': ['ff_force_gain', 'flow_gain_kq'],
+    'plant': ['FULL_STATES', 'MODELS', 'Plant', 'SIMPLIFIED_STATES', 'SimResult', 'rhs']})
