@@ -71,10 +71,10 @@ def _said(page):
 
 
 def _wait(page, js, arg=None):
-    """Wait (bounded) until ``js`` holds in the page; on timeout say what the page logged."""
+    """Wait (bounded) until ``js`` holds in the page, return its value; on timeout say why."""
     from playwright.sync_api import TimeoutError as PageTimeout
     try:
-        page.wait_for_function(js, arg=arg, timeout=WAIT_MS)
+        return page.wait_for_function(js, arg=arg, timeout=WAIT_MS).json_value()
     except PageTimeout:
         raise AssertionError(f'waited {BOUND} s for {js!r} ({arg}); {_said(page)}') from None
 
@@ -98,8 +98,7 @@ def _press(page, action, tries=5):
     for _ in range(tries):
         noted = page.evaluate('window.station.noted')
         page.click(f'[data-testid={action}]')
-        _wait(page, PRESSED, [noted, action])
-        line = page.evaluate(PRESSED, [noted, action])
+        line = _wait(page, PRESSED, [noted, action])
         if line.endswith(f'click {action}'):
             return
     raise AssertionError(f'{tries} presses on {action} found it off; {_said(page)}')
