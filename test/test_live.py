@@ -14,19 +14,22 @@
 """Live re-identification without ROS: the window, the push policy, drift, the estimate record."""
 
 import math
+import queue
+import threading
 
 import numpy as np
 import pytest
 from ros_ehs.benchmarks.drift import run
 from ros_ehs.core.errors import DataError, InputError, ParameterError
 from ros_ehs.core.identify.live import (LiveIdentifier, ReceiveClock, RefitSchedule,
-                                        SampleWindow)
+                                        RefitThread, SampleWindow)
 from ros_ehs.core.model import Plant
 from ros_ehs.core.model.drift import Drift, DriftStage, smoothstep
 from ros_ehs.core.params import ESTIMATED, preset
 from ros_ehs.data.experiments import load_experiment
 from ros_ehs.data.synthetic_bag import record_synthetic_bag
 import ros_ehs_msgs_py as c
+from waits import BOUND
 
 TRUE = preset('table1_estimated')
 PUSHABLE = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')
@@ -105,6 +108,49 @@ def test_a_refit_is_due_after_the_first_window_then_every_period_one_at_a_time()
     assert not s.state(5 * sec, new_run=True) and s.state(15 * sec)
     with pytest.raises(InputError, match='`period_s` = 0.0 must be a positive number'):
         RefitSchedule(10.0, 0.0)
+
+
+def test_the_refit_thread_runs_a_job_per_wake_up_and_goes_on_after_a_failed_one():
+    ran, failed, finished, setup, jobs = queue.Queue(), [], queue.Queue(), [], []
+
+    def job():
+        jobs.append(1)
+        ran.put(len(setup))
+        if len(jobs) == 1:
+            raise ValueError('singular Jacobian')
+
+    t = RefitThread(job, failed.append, lambda: finished.put(1), lambda: setup.append(1))
+    t.wake()
+    assert ran.get(timeout=BOUND) == 1                # the setup ran first, on the thread
+    finished.get(timeout=BOUND)                        # also after the failed job
+    assert [str(e) for e in failed] == ['singular Jacobian']
+    t.wake()
+    assert ran.get(timeout=BOUND) == 1 and finished.get(timeout=BOUND) == 1 and t.alive
+    assert t.stop(BOUND) and not t.alive and ran.empty()
+
+
+def test_a_stop_starts_no_refit_and_says_if_one_under_way_kept_the_thread():
+    # the stop's own wake-up once started a refit: numba compiled it in LLVM while the
+    # interpreter exited, and LLVM aborted the process
+    ran = []
+    t = RefitThread(lambda: ran.append(1), pytest.fail)
+    assert t.stop(BOUND) and ran == [] and t.stopping
+    t.wake()
+    assert ran == [] and not t.alive
+
+    inside, release = threading.Event(), threading.Event()
+
+    def job():
+        inside.set()
+        assert release.wait(BOUND)
+
+    t = RefitThread(job, pytest.fail)
+    t.wake()
+    assert inside.wait(BOUND)
+    assert not t.stop(0.0) and t.alive and t.stopping       # a refit under way keeps it
+    t.wake()
+    release.set()
+    assert t.stop(BOUND) and not t.alive                     # ended, no second job
 
 
 def test_a_message_without_a_header_goes_on_the_states_clock_by_the_median_offset():

@@ -52,7 +52,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
 from ros_ehs.core.errors import DataError, EhsError
-from ros_ehs.core.identify.live import (LiveIdentifier, ReceiveClock, RefitSchedule,
+from ros_ehs.core.identify.live import (LiveIdentifier, ReceiveClock, RefitSchedule, RefitThread,
                                         SampleWindow)
 from ros_ehs.core.identify.verdict import why_adequate
 from ros_ehs.core.options import CONTROLLER_SPECS, IDENTIFY
@@ -83,6 +83,9 @@ def pushable(names) -> list[str]:
 
 #: how long a stop waits for the refit thread's call into ROS under way [s]
 STOP_IO = 2.0
+#: how long a stop waits for a parked refit thread to end (else the process leaves without a
+#: teardown, which is safe either way) [s]
+STOP_PARKED = 0.2
 
 
 class IdentifyNode(Node):
@@ -205,9 +208,8 @@ class IdentifyNode(Node):
                                               qos_profile(contract.DIAGNOSTICS.qos))
         self.create_timer(float(o['diagnostics_period']), self._diagnose, clock=steady_clock())
         self._client = AsyncParameterClient(self, o['controller']) if o['push'] else None
-        self._worker = threading.Thread(target=self._refits, daemon=True, name='ehs-refit')
-        self._todo = threading.Event()
-        self._worker.start()
+        self._worker = RefitThread(self._refit_once, self._refit_failed, self.schedule.done,
+                                   self._prioritise)
         self._discover()
         self.get_logger().info(
             f'live: refit the last {o["window"]:g} s every {o["period"]:g} s ({o["model"]} '
@@ -276,10 +278,10 @@ class IdentifyNode(Node):
             self.get_logger().info('live: the state stamp jumped back: a new run, the window '
                                    'starts again')
         if self.schedule.state(stamp, new_run):
-            self._todo.set()
+            self._worker.wake()
 
-    def _refits(self) -> None:
-        """Run the refits at ``refit_priority`` (idle: only CPU time nobody else wants)."""
+    def _prioritise(self) -> None:
+        """Set the refit thread's ``refit_priority`` (idle: only CPU time nobody else wants)."""
         prio = self.opt['refit_priority']
         try:
             if prio == 'idle':
@@ -288,31 +290,31 @@ class IdentifyNode(Node):
             prio = 'nice'
         if prio == 'nice':
             os.nice(19)        # this thread only: Linux keeps the nice value per thread
-        while not self._closing.is_set():
-            self._todo.wait()
-            self._todo.clear()
-            try:
-                self._refit_once()
-            except Exception as err:      # a refit must never end the live node
-                with self._io:
-                    if not self._closing.is_set():
-                        self.get_logger().error(f'live: refit failed: '
-                                                f'{type(err).__name__}: {err}')
-            finally:
-                self.schedule.done()
+
+    def _refit_failed(self, err: Exception) -> None:
+        with self._io:
+            if not self._closing.is_set():
+                self.get_logger().error(f'live: refit failed: {type(err).__name__}: {err}')
 
     @property
     def busy(self) -> bool:
-        """Say if a live refit is under way (the process then exits without a teardown)."""
-        return bool(self.opt['live'] and self.schedule.busy)
+        """
+        Say if the refit thread has not ended (the process then exits without a teardown).
+
+        That thread may be in compiled code (a fit, or numba compiling one in LLVM), and the
+        interpreter's and LLVM's teardown under it crashed the process (a SIGSEGV once, an
+        LLVM assertion once): a stop lets a parked thread end, and the process exits at once
+        when it has not.
+        """
+        return bool(self.opt['live'] and self._worker.alive)
 
     def stop(self) -> None:
         """Stop talking to ROS from the refit thread (a refit under way is not published)."""
         self._closing.set()
-        if self.opt['live']:
-            self._todo.set()              # a waiting refit thread leaves its loop
         if self._io.acquire(timeout=STOP_IO):      # a call under way ends first
             self._io.release()
+        if self.opt['live']:
+            self._worker.stop(STOP_PARKED)      # a parked thread ends at once; a refit not
 
     def _refit_once(self) -> None:
         log = self.get_logger()

@@ -26,6 +26,10 @@ The ROS-free core of the identify node's live mode (docs/identification.md, "Liv
 * :class:`ReceiveClock` puts a message without a header (a ros2_control driver's
   ``Float64MultiArray`` commands, ``Float64`` pressures) on the states' clock: its receive
   time plus the median of the newest states' stamp minus receive time.
+* :class:`RefitThread` runs the refits on one thread, woken per due refit, and never starts
+  one after a stop (the stop's wake-up ends it); a stop waits a bound for a parked thread to
+  end and says whether it did, since a thread left in compiled code must not see the
+  interpreter's teardown.
 * :class:`LiveIdentifier` refits a window, warm-started from its last *adequate* estimate
   (cold from the base set until there is one), and decides whether to push the result to
   the controller: only an adequate fit, every value strictly inside its bounds, a change
@@ -39,8 +43,9 @@ from __future__ import annotations
 
 from collections import deque
 import math
+import threading
 import time
-from typing import Sequence
+from typing import Callable, Sequence
 import warnings
 
 import numpy as np
@@ -51,7 +56,7 @@ from ros_ehs.core.identify.verdict import why_adequate
 from ros_ehs.core.params import Params, spec
 from ros_ehs_msgs_py import ParameterEstimate
 
-__all__ = ['LiveIdentifier', 'ReceiveClock', 'RefitSchedule', 'SampleWindow']
+__all__ = ['LiveIdentifier', 'ReceiveClock', 'RefitSchedule', 'RefitThread', 'SampleWindow']
 
 #: A state this much older than the last one starts a new run [ns].
 NEW_RUN_NS = 1_000_000_000
@@ -179,6 +184,60 @@ class RefitSchedule:
     def done(self) -> None:
         """Say that the running refit has ended."""
         self.busy = False
+
+
+class RefitThread:
+    """
+    Run ``job`` on one thread each time :meth:`wake` is called; never after :meth:`stop`.
+
+    ``setup`` runs first on the thread (its priority); an exception from ``job`` goes to
+    ``failed`` and the thread waits for the next wake-up; ``finished`` runs after each job,
+    also after a failed one. Wake-ups while a job runs fold into one.
+    """
+
+    def __init__(self, job: Callable[[], None], failed: Callable[[Exception], None],
+                 finished: Callable[[], None] = lambda: None,
+                 setup: Callable[[], None] = lambda: None, name: str = 'ehs-refit') -> None:
+        self._job, self._failed, self._finished, self._setup = job, failed, finished, setup
+        self._todo = threading.Event()
+        self._stopping = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True, name=name)
+        self._thread.start()
+
+    def wake(self) -> None:
+        """Ask for one run of the job (ignored after :meth:`stop`)."""
+        self._todo.set()
+
+    @property
+    def stopping(self) -> bool:
+        """Say if :meth:`stop` was called (a job under way then keeps its result to itself)."""
+        return self._stopping.is_set()
+
+    @property
+    def alive(self) -> bool:
+        """Say if the thread has not ended (it may be inside a job, in compiled code)."""
+        return self._thread.is_alive()
+
+    def stop(self, wait: float) -> bool:
+        """Stop: no job starts after this; wait up to ``wait`` [s]; return True if it ended."""
+        self._stopping.set()
+        self._todo.set()
+        self._thread.join(wait)
+        return not self._thread.is_alive()
+
+    def _run(self) -> None:
+        self._setup()
+        while True:
+            self._todo.wait()
+            self._todo.clear()
+            if self._stopping.is_set():
+                return
+            try:
+                self._job()
+            except Exception as err:      # a refit must never end the live node
+                self._failed(err)
+            finally:
+                self._finished()
 
 
 class ReceiveClock:
