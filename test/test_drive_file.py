@@ -2,7 +2,8 @@
 
 import numpy as np
 import pytest
-from ros_ehs.core.control.drive import band_error, DriveIteration, frf, multisine, rms_error_pct
+from ros_ehs.core.control.drive import (band_error, band_rms_error_pct, DriveIteration, frf,
+                                        multisine, rms_error_pct)
 from ros_ehs.core.control.waveforms import CsvTrajectory
 from ros_ehs.core.control.waveforms import Samples
 from ros_ehs.core.errors import DataError, InputError
@@ -47,6 +48,38 @@ def test_the_frf_of_a_known_filter_and_the_iteration_on_it():
     assert it.history[0] > 10 * it.history[-1] and it.history[-1] < 0.5   # [%]
     db, deg = band_error(r, _loop(drive), FS, 0.5, 20.0)
     assert db < 0.1 and deg < 1.0
+
+
+def test_the_step_halves_where_the_error_grows_and_stays_where_it_converges():
+    _, d = multisine(20.0, FS, 0.2, 60.0, 0.08, seed=2)
+    f, h, coh = frf(d, _loop(d), FS)
+    _, r = multisine(20.0, FS, 0.5, 45.0, 0.08, seed=1)
+    grid = np.fft.rfftfreq(r.size, 1 / FS)
+
+    def iterate(frf_given, fixed=False):
+        it = DriveIteration(r, FS, f, frf_given, coherence=coh)
+        drive, errs = it.first(), []
+        for _ in range(8):
+            y = _loop(drive)
+            errs.append(band_rms_error_pct(r, y, FS, 31, 39) if fixed is not None else
+                        band_rms_error_pct(r, y, FS, 1, 25))
+            drive = it.update(drive, y)
+            if fixed:                     # the iteration without its back-off
+                it.step[:] = it.beta
+        return it, errs
+
+    # the loop's own FRF: the error falls everywhere it acts, so no step is ever halved
+    it, errs = iterate(h, fixed=None)
+    assert np.all(it.step[(grid > 1) & (grid < 25)] == 0.8)
+    assert errs[-1] < 0.01 * errs[0], errs
+    # its sign turned over 30-40 Hz: there each full step makes the error larger (21x in
+    # eight runs); halved at each growth, the growth stops
+    wrong = np.where((f > 30) & (f < 40), -h, h)
+    it, errs = iterate(wrong)
+    _, fixed = iterate(wrong, fixed=True)
+    assert np.median(it.step[(grid > 31) & (grid < 39)]) <= 0.8 / 2 ** 5
+    assert errs[-1] < 4 * errs[0] and fixed[-1] > 15 * fixed[0], (errs, fixed)
+    assert errs[-1] - errs[-2] < 0.02 * errs[-1]                  # it has stopped growing
 
 
 def test_the_full_model_rig_within_six_iterations():

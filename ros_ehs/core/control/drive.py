@@ -25,7 +25,14 @@ frequency response and refined by playing it:
    where the loop hardly responds do not blow up; ``lam`` 1e-3), only in the bins where the
    FRF is known (:class:`DriveIteration`);
 3. **iterate**: ``d_0 = F^-1(G F(r))``; play ``d_k``, record ``y_k``, then
-   ``d_k+1 = d_k + beta F^-1(G F(r - y_k))`` (``beta`` 0.8).
+   ``d_k+1 = d_k + F^-1(beta_f G F(r - y_k))``, ``beta_f`` starting at ``beta`` (0.8) in
+   every bin and halved in each bin whose error grew since the last run (its power summed
+   over ``BACKOFF_BINS`` neighbours: one bin alone is noisy), unless that error is under
+   ``BACKOFF_FLOOR`` of the target's there (converged: what is left is noise). Where the
+   loop cannot do what the inverse asks (a target's edges faster than the valve can move
+   the piston, content the FRF measured at another amplitude does not describe) a fixed
+   step pushed the drive on, saturated the valve and spread the error over the whole band;
+   the halved step stops pushing there and leaves the rest converging.
 
 Playing the runs and keeping them as bags and CSVs is :mod:`ros_ehs.data.drive_files`; on the
 bench's nodes, :mod:`ros_ehs.nodes.drive_bench`.
@@ -172,12 +179,25 @@ def band_error(target, response, fs: float, f_lo: float, f_hi: float) -> tuple[f
             float(np.abs(np.degrees(np.angle(ratio))).max()))
 
 
+#: how many neighbouring bins an error's growth is judged over (see the module docstring)
+BACKOFF_BINS = 9
+#: an error under this fraction of the target's (in those bins) has converged: no back-off
+BACKOFF_FLOOR = 0.01
+
+
+def _bin_power(x: np.ndarray, spec: np.ndarray | None = None) -> np.ndarray:
+    """Return each FFT bin's power summed over its ``BACKOFF_BINS`` neighbours."""
+    spec = np.fft.rfft(x) if spec is None else spec
+    return np.convolve(np.abs(spec) ** 2, np.ones(BACKOFF_BINS), 'same')
+
+
 @dataclass
 class DriveIteration:
     """
     Iterate a drive for ``target`` (samples at ``fs``) from the loop's FRF ``(f_h, h)``.
 
-    ``history`` holds the RMS error [%] of each response given to :meth:`update`.
+    ``history`` holds the RMS error [%] of each response given to :meth:`update`; ``step``
+    each bin's step now (``beta``, halved wherever the error grew).
     """
 
     target: np.ndarray
@@ -217,6 +237,9 @@ class DriveIteration:
         peak = np.abs(h[self.band]).max() if self.band.any() else 1.0
         self.g = np.where(self.band, np.conj(h) / (np.abs(h) ** 2 + self.lam * peak ** 2),
                           0.0)
+        self.step = np.full(f.size, float(self.beta))
+        self._last_power: np.ndarray | None = None
+        self._r_power = _bin_power(self.target)
 
     def uncovered_pct(self) -> float:
         """Return the target's content the inverse does not act on [% of its RMS, mean apart]."""
@@ -236,4 +259,12 @@ class DriveIteration:
         """Record ``response`` to ``drive``; return the next drive."""
         e = self.target - np.asarray(response, dtype=float)
         self.history.append(rms_error_pct(self.target, response))
-        return np.asarray(drive, dtype=float) + self.beta * self._apply(e)
+        spec = np.fft.rfft(e)
+        power = _bin_power(e, spec)
+        if self._last_power is not None:
+            # grown, and not just a converged bin's numerical floor
+            grew = (power > self._last_power) & (power > BACKOFF_FLOOR ** 2 * self._r_power)
+            self.step = np.where(grew, 0.5 * self.step, self.step)
+        self._last_power = power
+        return np.asarray(drive, dtype=float) + np.fft.irfft(self.step * self.g * spec,
+                                                             self.target.size)
