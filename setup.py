@@ -18,7 +18,7 @@ setup(
          glob('launch_scripts/*.py') + glob('launch_scripts/*.xml')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'pyyaml', 'matplotlib', 'psutil',
-                      'mcap', 'mcap-ros2-support', 'aiohttp', 'lazy-loader'],
+                      'mcap', 'mcap-ros2-support', 'aiohttp', 'rosbags'],
     extras_require={'test': ['pytest']},
     zip_safe=False,
     maintainer='ros_ehs maintainers',

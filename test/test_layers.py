@@ -123,3 +123,23 @@ def test_the_nodes_that_do_not_simulate_start_without_numba():
                          timeout=300)
     assert res.returncode == 0, res.stderr[-3000:]
     assert res.stdout.strip() == '[]', res.stdout[:500]
+
+
+def test_a_core_packages_names_import_on_first_use_and_a_wrong_one_is_named():
+    code = ('import sys\n'
+            'import ros_ehs.core.model as m\n'
+            "before = 'ros_ehs.core.model.plant' in sys.modules\n"
+            'names = dir(m)\n'
+            'cls = m.Plant\n'
+            "print(before, 'ros_ehs.core.model.plant' in sys.modules, 'Plant' in vars(m),\n"
+            "      'Plant' in names and 'flow_gain_kq' in names, cls.__module__)\n"
+            'try:\n'
+            '    m.Plnat\n'
+            'except AttributeError as err:\n'
+            '    print(err)\n')
+    res = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.splitlines() == [
+        'False True True True ros_ehs.core.model.plant',
+        "module 'ros_ehs.core.model' has no attribute 'Plnat'"], res.stdout

@@ -25,6 +25,53 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+#: the rosdep key of each module from outside the package that it imports (the keys are
+#: rosdistro's: rosdep/base.yaml, python.yaml, and the ROS packages of the same name); None:
+#: only a benchmark needs it, installed from requirements.txt (no rosdep key exists)
+ROSDEP = {
+    **{m: m for m in ('rclpy', 'ament_index_python', 'domain_coordinator', 'rcl_interfaces',
+                      'diagnostic_msgs', 'geometry_msgs', 'rosgraph_msgs', 'sensor_msgs',
+                      'std_msgs', 'std_srvs', 'trajectory_msgs')},
+    'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
+    'numba': 'python3-numba', 'matplotlib': 'python3-matplotlib', 'psutil': 'python3-psutil',
+    'aiohttp': 'python3-aiohttp', 'mcap': 'mcap-ros2-support',
+    'mcap_ros2': 'mcap-ros2-support', 'rosbags': 'python3-rosbags-pip',
+    'playwright': None}
+
+
+def _imports() -> dict[str, set[str]]:
+    """Return each top-level module from outside the package, and the files importing it."""
+    import ast
+    out: dict[str, set[str]] = {}
+    for root in ('ros_ehs', 'ros_ehs_msgs_py', 'launch_scripts'):
+        for path in (ROOT / root).rglob('*.py'):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    names = [node.module]
+                else:
+                    continue
+                for name in names:
+                    top = name.split('.')[0]
+                    if top not in sys.stdlib_module_names and top not in (
+                            'ros_ehs', 'ros_ehs_msgs_py'):
+                        out.setdefault(top, set()).add(str(path.relative_to(ROOT)))
+    return out
+
+
+def test_package_xml_names_every_module_the_package_imports():
+    import xml.etree.ElementTree as ET
+    imports = _imports()
+    unknown = {m: sorted(f)[:2] for m, f in imports.items() if m not in ROSDEP}
+    assert not unknown, f'modules without a rosdep key in ROSDEP: {unknown}'
+    declared = {e.text.strip() for e in ET.parse(ROOT / 'package.xml').getroot()
+                if e.tag in ('exec_depend', 'depend')}
+    needed = {ROSDEP[m] for m in imports} - {None}
+    assert needed <= declared, f'package.xml lacks {sorted(needed - declared)}'
+    assert declared <= needed, f'package.xml names what nothing imports: {declared - needed}'
+
+
 def _console_scripts():
     import ast
     tree = ast.parse((ROOT / 'setup.py').read_text())

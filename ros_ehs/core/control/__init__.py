@@ -18,11 +18,11 @@ Controller core: PID (eq. 19), feedforward (eqs. 9-20), their combination (eq. 1
 (limit and error detectors, latched actions, ramp-on) in front of :class:`Controller`.
 """
 
-import lazy_loader
+from ros_ehs.core.lazy_names import attach
 
-# each name is imported when first used (lazy_loader, SPEC 1): a node that needs one module of
-# this package loads that one
-__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+# each name is imported when first used (PEP 562, ros_ehs.core.lazy_names): a node that needs
+# one module of this package loads that one
+__getattr__, __dir__, __all__ = attach(__name__, submod_attrs={
     'controller': ['Controller', 'DeltaP'],
     'feedforward': ['DelayLine', 'Feedforward', 'psc_force', 'stribeck_estimate', 'xi_blend'],
     'pid': ['Pid', 'PidGains'],

@@ -14,12 +14,13 @@
 """
 Plant models: full 10-state and simplified 4-state (numba kernels + checked layer).
 
-The names below are imported when first used (lazy_loader, SPEC 1): a process that needs
-only the valve's coefficients (a recorder, a reference, the controller) does not load numba.
+The names below are imported when first used (PEP 562, :mod:`ros_ehs.core.lazy_names`): a
+process that needs only the valve's coefficients (a recorder, a reference, the controller)
+does not load numba.
 """
 
-import lazy_loader
+from ros_ehs.core.lazy_names import attach
 
-__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+__getattr__, __dir__, __all__ = attach(__name__, submod_attrs={
     'coefficients': ['ff_force_gain', 'flow_gain_kq'],
     'plant': ['FULL_STATES', 'MODELS', 'Plant', 'SIMPLIFIED_STATES', 'SimResult', 'rhs']})
