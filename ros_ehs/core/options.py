@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from ros_ehs.core.control.apc import MAX_HARMONICS
 from ros_ehs.core.control.feedforward import MODEL_PARAMS
-from ros_ehs.core.control.modes import SPECIMEN_PARAMS
+from ros_ehs.core.control.modes import SPECIMEN_IN_CONTROLLER
 from ros_ehs.core.params import CONTROL_SPECS, ESTIMATED, PLANT_SPECS, SAFETY_SPECS, spec
 from ros_ehs.core.settings import Setting
 from ros_ehs.core.sim.faults import FAULTS
@@ -360,7 +360,7 @@ NODE_OPTIONS = {'plant': PLANT, 'controller': CONTROLLER, 'reference': REFERENCE
 #: the parameters the controller declares: its own, the safety layer's and the plant values
 #: its feedforward uses
 CONTROLLER_SPECS = CONTROL_SPECS + SAFETY_SPECS + tuple(spec(n) for n in MODEL_PARAMS) + \
-    tuple(spec(n) for n in SPECIMEN_PARAMS)
+    tuple(spec(n) for n in SPECIMEN_IN_CONTROLLER)
 #: each node's parameters (model, controller, safety), declared with its options
 NODE_PARAMS = {'plant': PLANT_SPECS, 'controller': CONTROLLER_SPECS}
 

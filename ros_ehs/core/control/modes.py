@@ -59,7 +59,7 @@ from ros_ehs.core.control.pid import Pid, PidGains
 from ros_ehs.core.control.safety import ramp_weight
 from ros_ehs.core.model.coefficients import flow_gain_kq
 
-__all__ = ['ForceLimit', 'ForceLoop', 'LOAD_MODES', 'MODES', 'SPECIMEN_PARAMS',
+__all__ = ['ForceLimit', 'ForceLoop', 'LOAD_MODES', 'MODES', 'SPECIMEN_IN_CONTROLLER',
            'load_train_compliance']
 
 #: The control modes, in the order of ``control_mode``'s choices.
@@ -67,8 +67,9 @@ MODES = ('displacement', 'force', 'displacement_force_limited')
 #: The modes that need the load cell.
 LOAD_MODES = ('force', 'displacement_force_limited')
 #: The specimen's values the controller reads (the controller node declares them too): its
-#: stiffness and damping (the force loop's feedforward) and installed position (its limits).
-SPECIMEN_PARAMS = ('k_L', 'c_L', 'z_L')
+#: stiffness and damping (the force loop's feedforward) and installed position (its limits);
+#: the plant's specimen takes more (:data:`ros_ehs.core.sim.axis.SPECIMEN_PARAMS`).
+SPECIMEN_IN_CONTROLLER = ('k_L', 'c_L', 'z_L')
 
 
 def load_train_compliance(params: Mapping[str, object], z: float = 0.0) -> float:
