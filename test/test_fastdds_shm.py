@@ -23,6 +23,7 @@ import time
 
 import pytest
 from ros_ehs.nodes.fastdds_shm import _locked, clean_zombies, main, SHM_DIR
+from waits import BOUND
 
 
 def _port(d: Path, n: int, locks=('_el',)) -> None:
@@ -109,12 +110,12 @@ def test_real_fast_dds_files_are_kept_while_alive_and_removed_once_killed(dom):
     """A bare rclpy participant's own files: kept while it runs; stale after SIGKILL."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(dom), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     code = ('import rclpy, time; rclpy.init(); n = rclpy.create_node("shm_probe"); '
-            'print("up", flush=True); time.sleep(60)')
+            'print("up", flush=True); time.sleep(3600)')     # killed below
     p = subprocess.Popen([sys.executable, '-c', code], env=env, stdout=subprocess.PIPE,
                          text=True)
     try:
         assert p.stdout.readline().strip() == 'up'
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + BOUND
         while time.monotonic() < deadline:
             own = {n for n in _files_of(p.pid) if n.startswith('fastrtps_port')}
             if own:
@@ -129,7 +130,7 @@ def test_real_fast_dds_files_are_kept_while_alive_and_removed_once_killed(dom):
         assert held, f'no lock held on {own}'
     finally:
         p.send_signal(signal.SIGKILL)
-        p.wait(10)
+        p.wait(BOUND)
     # the ports only this participant listened on: their locks died with it
     mine = {n for n in held if _locked(SHM_DIR / n) is False}
     assert mine, 'SIGKILL left no stale port'
