@@ -192,7 +192,7 @@ def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
     shutil.copy(Path(__file__).parent / 'fixtures' / 'procedure_long.yaml', proc)
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=tmp_path / 'bag',
-                         plant={'duration': 600.0, 'k_L': 1.0e6, 'specimen_life': 1.0e12,
+                         plant={'duration': 1.0e5, 'k_L': 1.0e6, 'specimen_life': 1.0e12,
                                 **FAST},
                          controller={'ramp_time': 0.05, **FAST},
                          procedure={'file': str(proc), 'autostart': False, **FAST})
