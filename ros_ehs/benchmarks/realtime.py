@@ -37,6 +37,7 @@ import argparse
 import json
 import math
 from pathlib import Path
+import shutil
 import sys
 import tempfile
 import time
@@ -181,9 +182,18 @@ def main(argv=None) -> int:
                     help='SCHED_FIFO priority of plant and controller in the APC runs (0: the '
                     'default scheduler)')
     a = ap.parse_args(argv)
-    with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
-        fig = {'seconds': a.seconds, 'apc': apc(dom, tmp, max(a.seconds, 3.0), a.rt_priority),
-               'rig': rig(dom, tmp, max(a.seconds, 3.0))}
+    tmp = tempfile.mkdtemp(prefix='ehs_realtime_')
+    with domain_id() as dom:
+        try:
+            fig = {'seconds': a.seconds,
+                   'apc': apc(dom, tmp, max(a.seconds, 3.0), a.rt_priority),
+                   'rig': rig(dom, tmp, max(a.seconds, 3.0))}
+        except BaseException:
+            # the bags and the nodes' logs stay for whoever reads the error
+            print(f'python -m ros_ehs.benchmarks realtime: its bags and logs are kept in {tmp}',
+                  file=sys.stderr)
+            raise
+    shutil.rmtree(tmp, ignore_errors=True)
     return report(fig)
 
 
