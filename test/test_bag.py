@@ -15,7 +15,9 @@
 
 import os
 from pathlib import Path
+import sys
 import textwrap
+import threading
 
 import numpy as np
 import pytest
@@ -23,6 +25,7 @@ from ros_ehs.core.errors import BagError, DataError
 from ros_ehs.data.bag import BagWriter, full_definition, open_bag, type_hash
 from ros_ehs.data.experiments import load_experiment
 import ros_ehs_msgs_py as c
+from waits import BOUND
 import yaml
 
 FIXTURES = Path(__file__).resolve().parent / 'fixtures' / 'rosbag2'
@@ -279,6 +282,47 @@ def test_writer_rejects_bad_input_without_losing_what_is_written(tmp_path):
     with pytest.raises(BagError, match='is closed'):
         w.add_topic('/later', c.STATE.msg_type)
     assert open_bag(tmp_path / 'bad').topics['/state'].count == 1
+    with pytest.raises(BagError, match='is closed'):
+        w.write_msg('/state', msg, 7)
+
+
+def test_a_bag_closed_while_another_thread_writes_stays_whole(tmp_path):
+    # A node whose executor does not return in time is closed on the main thread while its
+    # callbacks may still write: each write lands before the summary or is refused, whole.
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)      # switch threads as often as CPython can
+    try:
+        for trial in range(12):
+            w = BagWriter(tmp_path / f'b{trial}', flush_period=1e-3)
+            w.add_topic('/state', c.STATE.msg_type, c.STATE.qos)
+            written, refused, started = [], [], threading.Event()
+
+            def pump():
+                for k in range(10**6):
+                    ns = 10**9 + k * 10**6
+                    try:
+                        w.write_msg('/state', c.fill_state(c.empty_msg(c.STATE.msg_type),
+                                                           c.AxisState(ns, 1e-3 * k, 0.0)), ns)
+                    except BagError as err:
+                        refused.append(str(err))
+                        return
+                    written.append(ns)
+                    if k == 100 + 7 * trial:
+                        started.set()
+
+            th = threading.Thread(target=pump, daemon=True)
+            th.start()
+            assert started.wait(BOUND)
+            w.close()
+            th.join(BOUND)
+            assert not th.is_alive()
+            assert refused and 'is closed' in refused[0]
+            bag = open_bag(tmp_path / f'b{trial}')
+            assert not bag.truncated, bag.problem
+            stamps = [m.log_time_ns for m, _ in bag.decoded(['/state'])]
+            assert stamps == written
+    finally:
+        sys.setswitchinterval(interval)
 
 
 def test_experiment_rejects_non_finite_and_irregular_samples():

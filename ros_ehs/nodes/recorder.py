@@ -163,7 +163,8 @@ class RecorderNode(Node):
                 write(topic, data, now())
                 self._take_waiting(topic, sub)
             except BagError as err:
-                self._fail(err)
+                if not self.writer.closed:     # closed: a late callback of a stuck executor
+                    self._fail(err)
                 return
             self._dirty = True
             if len(self.writer.files) != self._files:

@@ -46,6 +46,13 @@ back to the end of its last complete flush (the half-written chunk is garbage, a
 disk its bytes are what ``metadata.yaml`` needs), releases a small space reserve kept beside
 the bag for this moment, and writes ``metadata.yaml`` for everything flushed before the error
 (all of it readable); :attr:`BagWriter.metadata_error` says if even that failed.
+
+Threads: :meth:`BagWriter.write`, :meth:`~BagWriter.flush`, :meth:`~BagWriter.add_topic` and
+:meth:`~BagWriter.close` hold one lock, so a node may close its bag on one thread while a
+callback on another is still writing (a node whose executor did not return in time): the
+write either lands before the summary or raises :class:`BagError` ("closed"), never inside it.
+Unlocked, such a write went into the chunk being finished and left a message that does not
+decode.
 """
 
 from __future__ import annotations
@@ -55,6 +62,7 @@ import errno as errno_mod
 import os
 from pathlib import Path
 import shutil
+import threading
 import time
 from typing import Any, Iterable
 
@@ -197,6 +205,7 @@ class BagWriter:
         self.error: BagWriteError | None = None
         #: why ``metadata.yaml`` could not be written at close ('' if it was)
         self.metadata_error = ''
+        self._lock = threading.RLock()
         self.path.mkdir(parents=True, exist_ok=True)
         self._guard(self._reserve)
         self._guard(self._open_file)
@@ -275,6 +284,10 @@ class BagWriter:
     # -- topics ------------------------------------------------------------------------------
     def add_topic(self, name: str, msg_type: str, qos: Any = ()) -> None:
         """Register topic ``name`` of type ``msg_type`` offered with QoS profile(s) ``qos``."""
+        with self._lock:
+            self._add_topic(name, msg_type, qos)
+
+    def _add_topic(self, name: str, msg_type: str, qos: Any) -> None:
         self._check_open()
         if name in self._topics:
             if self._topics[name]['type'] != msg_type:
@@ -304,9 +317,14 @@ class BagWriter:
     def write(self, topic: str, data: bytes, log_time_ns: int,
               publish_time_ns: int | None = None) -> None:
         """Write serialized CDR ``data`` on ``topic`` (``log_time`` = receive time [ns])."""
+        with self._lock:
+            self._write(topic, data, log_time_ns, publish_time_ns)
+
+    def _write(self, topic: str, data: bytes, log_time_ns: int,
+               publish_time_ns: int | None) -> None:
+        self._check_open()
         t = self._topics.get(topic)
         if t is None:
-            self._check_open()
             raise BagError(f'topic {topic!r} is not registered (add_topic first)')
         if self.error is not None:
             raise self.error
@@ -346,9 +364,10 @@ class BagWriter:
 
     def flush(self) -> None:
         """Close the open chunk and flush it to the OS (and to disk with ``fsync``)."""
-        if self.closed or self.error is not None:
-            return
-        self._guard(self._flush)
+        with self._lock:
+            if self.closed or self.error is not None:
+                return
+            self._guard(self._flush)
 
     def _flush(self) -> None:
         if self._finalize_chunk is not None:
@@ -420,6 +439,10 @@ class BagWriter:
         lost); if even that fails, :attr:`metadata_error` says why. Raises the write error
         if closing itself is what failed.
         """
+        with self._lock:
+            self._close()
+
+    def _close(self) -> None:
         if self.closed:
             return
         self.closed = True
