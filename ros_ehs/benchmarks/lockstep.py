@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import subprocess
 import sys
 import time
 
@@ -64,8 +65,12 @@ def _volley(dom: int, seconds: float, extra: list[str], pin: bool = False) -> di
         for role in roles:
             cpu = ['--cpu', str(cpus[role == 'relay'])] if cpus else []
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role,
-                                  *extra, *cpu])
-        time.sleep(2.0 + seconds)
+                                  *extra, *cpu, '--seconds', repr(seconds)])
+        try:            # the volley ends by itself ``seconds`` after its first echo
+            bare['volley'].popen.wait(BOUND)
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f'the bare ping-pong {extra} did not end within {BOUND:g} s:\n'
+                               + bare['volley'].output()[-2000:]) from None
         bare.stop(roles[::-1])
         return json.loads(bare['volley'].output().strip().splitlines()[-1])
 

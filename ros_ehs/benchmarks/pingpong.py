@@ -38,7 +38,8 @@ path the loop nodes take (ping, pong, volley). ``--reliable`` uses the
 lock-step loop's QoS (reliable, depth 10000) instead;
 ``--rt-priority N`` puts every thread on SCHED_FIFO priority N, as the loop nodes' option
 ``rt_priority`` does; ``--cpu N`` keeps them on CPU N, as ``cpu_affinity`` does. On SIGINT
-the ping or volley prints its figures as one JSON line.
+the ping or volley prints its figures as one JSON line; ``--seconds S`` ends a volley by
+itself S seconds after its first echo (its caller waits for it to exit, not on a clock).
 """
 
 from collections import deque
@@ -100,6 +101,7 @@ def main(argv=None) -> int:
     trip_log = deque(maxlen=100)
 
     relay = '--relay' in args
+    seconds = float(args[args.index('--seconds') + 1]) if '--seconds' in args else 0.0
     raw = '--raw' in args
     wire = bytearray(serialize_message(msg))       # --raw: stamp.sec at bytes 4-7
     if role == 'pong' and relay:
@@ -165,6 +167,9 @@ def main(argv=None) -> int:
                 if role == 'volley':
                     if st['t0'] is None:
                         st['t0'] = time.monotonic()
+                    if seconds and st['rx'] - st['t0'] >= seconds:
+                        stop.append(1)
+                        return
                     send()
 
         node.create_subscription(JointState, 'pong', on_pong, qos, raw=raw)
