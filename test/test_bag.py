@@ -22,7 +22,8 @@ import threading
 import numpy as np
 import pytest
 from ros_ehs.core.errors import BagError, DataError
-from ros_ehs.data.bag import BagWriter, full_definition, open_bag, type_hash
+from ros_ehs.data.bag import (bag_counts, BagWriter, full_definition, open_bag, type_hash,
+                              wait_for_counts)
 from ros_ehs.data.experiments import load_experiment
 import ros_ehs_msgs_py as c
 from waits import BOUND
@@ -323,6 +324,27 @@ def test_a_bag_closed_while_another_thread_writes_stays_whole(tmp_path):
             assert stamps == written
     finally:
         sys.setswitchinterval(interval)
+
+
+def test_a_wait_for_counts_returns_them_or_says_what_the_bag_held(tmp_path):
+    with pytest.raises(BagError, match='after 0 s the bag holds nothing readable '
+                                       r"\(.*not \{'/state': 1\}"):
+        wait_for_counts(tmp_path / 'none', {'/state': 1}, 0.0)
+    w = BagWriter(tmp_path / 'live')
+    w.add_topic('/state', c.STATE.msg_type, c.STATE.qos)
+    msg = c.fill_state(c.empty_msg(c.STATE.msg_type), c.AxisState(5, 0.0, 0.0))
+    for k in range(10):
+        w.write_msg('/state', msg, 10**9 + k)
+    w.flush()                     # on disk, as a recorder's flush leaves it; not closed
+    assert bag_counts(tmp_path / 'live') == {'/state': 10}
+    assert wait_for_counts(tmp_path / 'live', {'/state': 10}, 0.0) == {'/state': 10}
+    with pytest.raises(BagError, match=r"holds \{'/state': 10\}, not \{'/state': 11\}"):
+        wait_for_counts(tmp_path / 'live', {'/state': 11}, 0.0)
+    later = threading.Thread(target=lambda: (w.write_msg('/state', msg, 2 * 10**9), w.flush()))
+    later.start()                 # the wait sees the message another thread writes
+    assert wait_for_counts(tmp_path / 'live', {'/state': 11}, BOUND) == {'/state': 11}
+    later.join()
+    w.close()
 
 
 def test_experiment_rejects_non_finite_and_irregular_samples():

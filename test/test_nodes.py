@@ -30,11 +30,10 @@ import pytest
 from ros_ehs.core.control.waveforms import Sine
 from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
-from ros_ehs.data.bag import open_bag
+from ros_ehs.data.bag import bag_counts, open_bag
 from ros_ehs.nodes.processes import loop_closed, loop_placement, node_command, NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import (bag_counts, BOUND, lockstep_complete, status_value, wait_for_bag,
-                   wait_value)
+from waits import BOUND, lockstep_complete, status_value, wait_for_bag, wait_value
 import yaml
 
 pytestmark = pytest.mark.ros

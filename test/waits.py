@@ -19,10 +19,8 @@ makes it slower), and says on timeout what it saw.
 """
 
 import signal
-import time
 
-from ros_ehs.core.errors import BagError
-from ros_ehs.data.bag import open_bag
+from ros_ehs.data.bag import wait_for_counts
 from ros_ehs.nodes.ros_common import call_until_answered
 import ros_ehs_msgs_py as c
 
@@ -37,14 +35,6 @@ def lockstep_complete(procs, name: str = 'plant', timeout: float = BOUND) -> Non
                              timeout), procs[name].output()[-3000:]
 
 
-def bag_counts(bag) -> dict:
-    """Return ``{topic: count}`` of what the bag (being recorded) holds on disk now."""
-    try:
-        return {k: v.count for k, v in open_bag(bag).topics.items()}
-    except BagError:      # not created yet, or caught before its first topic
-        return {}
-
-
 def rosbags_read(bag, topic: str, convert) -> list:
     """Return ``convert(msg)`` of each message on ``topic``, decoded by rosbags (not ours)."""
     from rosbags.rosbag2 import Reader
@@ -57,19 +47,8 @@ def rosbags_read(bag, topic: str, convert) -> list:
 
 
 def wait_for_bag(bag, least: dict, timeout: float = BOUND) -> dict:
-    """
-    Wait until the bag being recorded holds ``least`` = {topic: count} messages on disk.
-
-    The recorder flushes every 50 ms, so the live file shows its progress.
-    """
-    end = time.monotonic() + timeout
-    counts = {}
-    while time.monotonic() < end:
-        counts = bag_counts(bag)
-        if all(counts.get(k, 0) >= n for k, n in least.items()):
-            return counts
-        time.sleep(0.05)
-    raise AssertionError(f'after {timeout:g} s the bag holds {counts}, wanted {least}')
+    """Wait until the bag being recorded holds ``least`` = {topic: count} on disk (bounded)."""
+    return wait_for_counts(bag, least, timeout)
 
 
 def status_value(procs, status: str, key: str, default: float = 0.0) -> float:

@@ -40,7 +40,6 @@ from pathlib import Path
 import shutil
 import sys
 import tempfile
-import time
 
 from domain_coordinator import domain_id
 import numpy as np
@@ -48,24 +47,14 @@ from ros_ehs.benchmarks import BOUND, positive, report
 from ros_ehs.core.control.waveforms import Sine
 from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
-from ros_ehs.data.bag import open_bag
+from ros_ehs.data.bag import open_bag, wait_for_counts
 from ros_ehs.nodes.processes import NodeProcesses, recording, reference_started
 import ros_ehs_msgs_py as contract
 
 RATE = 500.0
+#: the longest wait for a run's messages to reach its bag [s]
+BAG_WAIT = 600.0
 JOINT = 'actuator_z'
-
-
-def _wait_for_bag(bag, topic: str, count: int, timeout: float = 600.0) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        try:
-            if open_bag(bag).topics[topic].count >= count:
-                return
-        except (KeyError, ValueError, OSError, Exception):  # noqa: B902 - not written yet
-            pass
-        time.sleep(0.2)
-    raise RuntimeError(f'{bag}: fewer than {count} messages on {topic} after {timeout:g} s')
 
 
 def fundamental(bag, frequency: float, cycles: int = 2) -> tuple[float, float]:
@@ -126,7 +115,7 @@ def apc(dom: int, tmp: str, seconds: float, rt: int) -> dict:
             procs.start_loop('realtime', bag=bag, plant=loop, controller=loop,
                              reference={'amplitude': a, 'frequency': f,
                                         'amplitude_phase_control': corrected})
-            _wait_for_bag(bag, '/state', int(seconds * 1000))
+            wait_for_counts(bag, {'/state': int(seconds * 1000)}, BAG_WAIT)
             procs.stop(['recorder', 'reference', 'controller', 'plant'])
         amp, phase = fundamental(bag, f, cycles=min(20, int(seconds * f / 2)))
         ratio = amp / a * complex(math.cos(math.radians(phase)), math.sin(math.radians(phase)))
@@ -151,13 +140,13 @@ def rig(dom: int, tmp: str, seconds: float) -> dict:
         procs.wait_status(contract.RECORDER_STATUS, recording('/joint_states'), 120)
         procs.start('reference', {'wait_subscribers': 2})
         procs.wait_status(contract.REFERENCE_STATUS, reference_started, 120)
-        _wait_for_bag(rig_bag, '/joint_states', int((seconds + 1) * RATE))
+        wait_for_counts(rig_bag, {'/joint_states': int((seconds + 1) * RATE)}, BAG_WAIT)
         procs.stop(['recorder', 'reference', 'controller', 'driver'])
         figures = json.loads(procs['driver'].output().strip().splitlines()[-1])
     with NodeProcesses(dom, Path(tmp) / 'logs_ours', bound=BOUND) as procs:
         procs.start_loop('realtime', bag=our_bag, plant={'rate_hz': RATE},
                          controller={'rate_hz': RATE})
-        _wait_for_bag(our_bag, '/state', int((seconds + 1) * RATE))
+        wait_for_counts(our_bag, {'/state': int((seconds + 1) * RATE)}, BAG_WAIT)
         procs.stop(['recorder', 'reference', 'plant', 'controller'])
     rms_rig, _ = tracking(rig_bag, '/joint_states', JOINT)
     rms_ours, _ = tracking(our_bag, '/state', contract.JOINT_PISTON)

@@ -23,29 +23,15 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-import time
 
 import numpy as np
-from ros_ehs.core.errors import DataError, EhsError, InputError
-from ros_ehs.data.bag import open_bag
+from ros_ehs.core.errors import BagError, DataError, EhsError, InputError
+from ros_ehs.data.bag import wait_for_counts
 from ros_ehs.data.drive_files import lead_in, run_from_bag, save_drive
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as contract
 
 __all__ = ['BenchPlayer']
-
-
-def _holds(bag, topic: str, count: int, timeout: float) -> bool:
-    """Wait until the bag being recorded holds ``count`` messages on ``topic`` on disk."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        try:
-            if open_bag(bag).topics[topic].count >= count:
-                return True
-        except (KeyError, EhsError):      # not written yet
-            pass
-        time.sleep(0.05)
-    return False
 
 
 class BenchPlayer:
@@ -100,7 +86,12 @@ class BenchPlayer:
                     lambda st: float(st.values.get('time_s', 0)) > duration + 0.2,
                     duration + self.timeout)
             if done and lock:         # every state of the run in the bag, then stop
-                done = _holds(bag, '/state', int(round(duration * fs)) + 1, self.timeout)
+                try:
+                    wait_for_counts(bag, {'/state': int(round(duration * fs)) + 1},
+                                    self.timeout)
+                    done = True
+                except BagError:
+                    done = False
             codes = procs.stop(['recorder', 'reference', 'controller', 'plant'])
             figures = procs['plant'].figures() if codes.get('plant') == 0 else {}
         if not done or any(codes.values()):

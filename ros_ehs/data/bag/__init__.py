@@ -15,13 +15,14 @@
 rosbag2-compatible MCAP bags: the only reader and writer in ros_ehs (no rclpy).
 
 ``BagWriter`` writes a bag directory; ``open_bag`` reads ours, rosbag2's and truncated ones;
-``load_experiment`` extracts the arrays identification needs from the contract topics;
-``load_experiments`` splits a recording with missing samples into its contiguous runs.
+``bag_counts`` and ``wait_for_counts`` read the progress of a bag being recorded. What
+identification takes from a bag is in :mod:`ros_ehs.data.experiments`.
 """
 
 from ros_ehs.data.bag.definitions import full_definition, type_hash
-from ros_ehs.data.bag.reader import Bag, BagMessage, open_bag, TopicInfo
+from ros_ehs.data.bag.reader import (Bag, bag_counts, BagMessage, open_bag, TopicInfo,
+                                     wait_for_counts)
 from ros_ehs.data.bag.writer import BagWriter
 
-__all__ = ['Bag', 'BagMessage', 'BagWriter', 'TopicInfo', 'full_definition', 'open_bag',
-           'type_hash']
+__all__ = ['Bag', 'BagMessage', 'BagWriter', 'TopicInfo', 'bag_counts', 'full_definition',
+           'open_bag', 'type_hash', 'wait_for_counts']

@@ -41,6 +41,7 @@ from pathlib import Path
 import re
 import sqlite3
 import struct
+import time
 from typing import Any, Iterator
 
 from mcap.data_stream import ReadDataStream
@@ -51,7 +52,7 @@ from mcap.stream_reader import get_chunk_data_stream, StreamReader
 from ros_ehs.core.errors import BagError
 import yaml
 
-__all__ = ['Bag', 'BagMessage', 'TopicInfo', 'open_bag']
+__all__ = ['Bag', 'BagMessage', 'TopicInfo', 'bag_counts', 'open_bag', 'wait_for_counts']
 
 _MAGIC = b'\x89MCAP0\r\n'
 _SQLITE_MAGIC = b'SQLite format 3\x00'
@@ -447,3 +448,38 @@ def open_bag(path: str | os.PathLike, *, start: float | None = None,
              end: float | None = None) -> Bag:
     """Open and read the bag at ``path`` (directory, ``.mcap`` or ``.db3`` file)."""
     return Bag(path, start=start, end=end)
+
+
+def bag_counts(path: str | os.PathLike) -> dict[str, int]:
+    """
+    Return ``{topic: count}`` of what the bag at ``path`` holds on disk now.
+
+    For a bag being recorded (a recorder flushes every ``flush_period``, so the live file shows
+    its progress). Raises :class:`BagError` as :func:`open_bag` does, also while the recorder
+    has not yet written its first topic.
+    """
+    return {k: v.count for k, v in open_bag(path).topics.items()}
+
+
+def wait_for_counts(path: str | os.PathLike, least: dict[str, int], timeout: float,
+                    poll: float = 0.05) -> dict[str, int]:
+    """
+    Wait until the bag at ``path`` (being recorded) holds ``least`` = {topic: count} messages.
+
+    Returns the counts then. Until then the bag may not be there or be unreadable (not yet
+    created, no topic written yet); after ``timeout`` [s] raises :class:`BagError` saying what
+    it held, or why it could not be read. Polls every ``poll`` s.
+    """
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            counts = bag_counts(path)
+            held = str(counts or 'no topic')
+        except BagError as err:
+            counts, held = {}, f'nothing readable ({err})'
+        if all(counts.get(k, 0) >= n for k, n in least.items()):
+            return counts
+        if time.monotonic() >= end:
+            raise BagError(f'{str(path)!r}: after {timeout:g} s the bag holds {held}, '
+                           f'not {least}')
+        time.sleep(poll)
