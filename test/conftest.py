@@ -29,7 +29,7 @@ use_profile()
 
 
 def _place_loops() -> None:
-    """Give each xdist worker's benches a loop CPU of their own (they all took the first)."""
+    """Give the xdist workers' benches the loop CPUs in turn (they all took the first)."""
     worker = os.environ.get('PYTEST_XDIST_WORKER', '')
     cpus = sorted(os.sched_getaffinity(0))
     if worker.startswith('gw') and len(cpus) >= 2 and not os.environ.get(LOOP_CPUS_ENV):
