@@ -44,9 +44,9 @@ def _estimates(bag):
 def _controller_values(ros, names):
     from rclpy.parameter_client import AsyncParameterClient
     cli = AsyncParameterClient(ros, 'controller')
-    assert ros.spin(until=cli.services_are_ready, timeout=20)
+    assert ros.spin(until=cli.services_are_ready, timeout=BOUND)
     fut = cli.get_parameters(names)
-    assert ros.spin(until=fut.done, timeout=10)
+    assert ros.spin(until=fut.done, timeout=BOUND)
     return dict(zip(names, (v.double_value for v in fut.result().values)))
 
 

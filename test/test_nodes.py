@@ -524,7 +524,7 @@ def test_bad_messages_crash_nothing(dom, tmp_path, ros):
         wait_value(procs, c.PLANT_STATUS, 'bad_commands', 1, 60)
         wait_value(procs, c.CONTROLLER_STATUS, 'bad', 1, 60)
         n = len(states)
-        assert ros.spin(until=lambda: len(states) > n + 100, timeout=60)
+        assert ros.spin(until=lambda: len(states) > n + 100, timeout=BOUND)
         assert procs['plant'].alive() and procs['controller'].alive()
         procs.stop(['controller', 'plant'])
     f = procs['plant'].figures()
@@ -549,11 +549,11 @@ def test_controller_parameters_from_file_and_live_with_reasons(dom, tmp_path, ro
         bare = node_command('controller')[:-1]          # without --ros-args: the bare form
         procs.start('controller', cmd=bare + ['--params-file', str(pf)])
         cli = AsyncParameterClient(ros, 'controller')
-        assert ros.spin(until=lambda: cli.services_are_ready(), timeout=60), \
+        assert ros.spin(until=lambda: cli.services_are_ready(), timeout=BOUND), \
             procs['controller'].output()
 
         def call(fut):
-            ros.spin(until=fut.done, timeout=10)
+            ros.spin(until=fut.done, timeout=BOUND)
             return fut.result()
 
         got = call(cli.get_parameters(['kp', 'F_cc', 'ki']))
@@ -622,7 +622,7 @@ def test_nodes_create_exactly_the_contract_topics(dom, tmp_path, ros, lockstep):
                    {('/' + t.name.lstrip('/'), t.msg_type) for t in want.subscribes})
             # each node's part of the graph, as discovery shows it (the processes start
             # meanwhile: the first look may find nothing yet)
-            assert ros.spin(until=lambda: graph(name) == exp, timeout=60), \
+            assert ros.spin(until=lambda: graph(name) == exp, timeout=BOUND), \
                 (name, graph(name), exp)
 
 
@@ -637,8 +637,8 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         p = procs.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 4.0,
                                    'topics': ['/topic'], 'wait_subscribers': 1})
-        ros.spin(until=lambda: p.popen.poll() is not None, timeout=60)
-        ros.spin(until=lambda: len(got) >= 10, timeout=10)      # the last on their way
+        ros.spin(until=lambda: p.popen.poll() is not None, timeout=BOUND)
+        ros.spin(until=lambda: len(got) >= 10, timeout=BOUND)      # the last on their way
         assert p.popen.returncode == 0, p.output()
     bag = open_bag(FIXTURES / 'talker.mcap')
     want = [m.data for _, m in bag.decoded(['/topic'])]
@@ -651,7 +651,7 @@ def test_player_replays_a_rosbag2_fixture_with_clock(dom, tmp_path, ros):
         p = procs.start('player', {'bag': str(FIXTURES / 'talker.mcap'), 'rate': 20.0,
                                    'topics': ['/topic'], 'loop': True,
                                    'wait_subscribers': 1})
-        assert ros.spin(until=lambda: len(got) >= 25, timeout=60), len(got)
+        assert ros.spin(until=lambda: len(got) >= 25, timeout=BOUND), len(got)
         assert p.alive()
         assert procs.stop(['player'])['player'] == 0
     assert [m.data for m in got[:20]] == want + want
@@ -688,9 +688,9 @@ def test_identify_node_pushes_the_fit_to_a_running_controller(dom, tmp_path, ros
         assert 'iteration' in p.output() and 'pushed to `controller`' in p.output()
         fit = json.loads((out / 'summary.json').read_text())['parameters']
         cli = AsyncParameterClient(ros, 'controller')
-        assert ros.spin(until=lambda: cli.services_are_ready(), timeout=20)
+        assert ros.spin(until=lambda: cli.services_are_ready(), timeout=BOUND)
         fut = cli.get_parameters(['F_cc', 'F_sc', 'c_c'])
-        ros.spin(until=fut.done, timeout=10)
+        ros.spin(until=fut.done, timeout=BOUND)
         vals = [v.double_value for v in fut.result().values]
         assert vals == pytest.approx([fit[n]['value'] for n in ('F_cc', 'F_sc', 'c_c')])
         assert vals[0] == pytest.approx(1046.9, rel=0.02)
@@ -821,7 +821,7 @@ def test_a_reference_waiting_for_the_loop_starts_on_the_plants_ok_only(dom, tmp_
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start('reference', {'wait_loop': True, 'wait_subscribers': 1,
                                   'rate_hz': 250.0})
-        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=60)
+        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=BOUND)
         pub.publish(array(('ros_ehs/controller', 0), ('ros_ehs/plant', 1)))
         # a plant says its status every second: so does this test, until the samples come
         for _ in range(120):

@@ -315,17 +315,17 @@ def test_the_player_node_replays_a_rig_bag_as_our_topics(rig_bags, tmp_path, dom
     rig = tmp_path / 'rig.yaml'
     m = lay.topic_map(round(truth['input_delay'], 6)).as_dict()
     rig.write_text(''.join(f'{k}: {json.dumps(v)}\n' for k, v in m.items()))
+    runs = load_experiments(bag, topics=lay.topic_map(round(truth['input_delay'], 6)))
+    n = sum(e.t.size for e in runs)
     got = []
     ros.create_subscription(JointState, 'state', got.append, QoSProfile(depth=5000))
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         p = procs.start('player', {'bag': str(bag), 'topic_map': str(rig), 'rate': 5.0,
                                    'clock': False, 'wait_subscribers': 1,
                                    'topics': ['/state']})
-        assert ros.spin(until=lambda: p.popen.poll() is not None, timeout=120)
-        ros.spin(0.5)
+        assert ros.spin(until=lambda: p.popen.poll() is not None, timeout=BOUND)
+        ros.spin(until=lambda: len(got) >= 0.95 * n, timeout=BOUND)    # the last on their way
         assert p.popen.returncode == 0, p.output()[-2000:]
-    runs = load_experiments(bag, topics=lay.topic_map(round(truth['input_delay'], 6)))
-    n = sum(e.t.size for e in runs)
     assert f'replay done: /state {n}' in p.output()
     states = [c.state_from_msg(x) for x in got]
     assert len(states) >= 0.95 * n and all(np.isfinite(s.i) for s in states)

@@ -110,7 +110,7 @@ def test_a_state_and_a_command_stamped_an_hour_ahead_are_dropped(dom, tmp_path, 
         pub_state = ros.create_publisher(JointState, 'state', qos_profile(c.LOOP_QOS))
         pub_cmd = ros.create_publisher(JointState, 'servo_current', qos_profile(c.LOOP_QOS))
         assert ros.spin(until=lambda: pub_state.get_subscription_count() >= 1
-                        and pub_cmd.get_subscription_count() >= 1, timeout=30)
+                        and pub_cmd.get_subscription_count() >= 1, timeout=BOUND)
         _answers_go_on(ros, diag)
         hour = time.time_ns() + 3600 * 10**9
         sent = []
@@ -162,15 +162,15 @@ def test_a_stamp_jumping_back_starts_a_new_run_answered_at_once(dom, tmp_path, r
 
         t100 = 100 * 10**9
         # the held position: z = 0 (resent, a repeated stamp, until our subscription matched)
-        assert ros.spin(until=lambda: t100 in got or send(t100, 0.0) and False, timeout=20)
+        assert ros.spin(until=lambda: t100 in got or send(t100, 0.0) and False, timeout=BOUND)
         for k in range(1, 200):             # then 10 mm off it: the integral winds up
             send(t100 + k * 10**6, 0.01 + k * 1e-9)     # a live sensor: never frozen
             ros.spin(0.002)
-        assert ros.spin(until=lambda: t100 + 199 * 10**6 in got, timeout=10)
+        assert ros.spin(until=lambda: t100 + 199 * 10**6 in got, timeout=BOUND)
         send(10**9, 0.0)                    # 99 s back: a new run
-        assert ros.spin(until=lambda: 10**9 in got, timeout=5)
+        assert ros.spin(until=lambda: 10**9 in got, timeout=BOUND)
         send(10**9 + 10**6, 0.0)
-        assert ros.spin(until=lambda: 10**9 + 10**6 in got, timeout=5)
+        assert ros.spin(until=lambda: 10**9 + 10**6 in got, timeout=BOUND)
         send(10**9 - 10**6, 0.0)            # 2 periods back: out of order, dropped
         send(10**9 + 2 * 10**6, 0.0)        # then the next: answered, after what came before
         assert ros.spin(until=lambda: 10**9 + 2 * 10**6 in got, timeout=BOUND)
@@ -215,7 +215,7 @@ def test_a_malformed_clock_from_another_client_is_counted_and_the_reference_answ
                          reference={'diagnostics_period': 0.1})
         lockstep_complete(procs)
         pub = ros.create_publisher(Clock, '/clock', qos_profile(c.CLOCK_QOS))
-        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=30)
+        assert ros.spin(until=lambda: pub.get_subscription_count() >= 1, timeout=BOUND)
 
         def send_bad():          # bytes go out as they are: a foreign, broken clock
             for payload in (b'\x00\x01\x00\x00\x01', b'\x09\x09\x00\x00' + bytes(8)):
@@ -231,7 +231,7 @@ def test_a_malformed_clock_from_another_client_is_counted_and_the_reference_answ
         ros.create_subscription(JointTrajectory, c.REFERENCE_TRAJECTORY.name, got.append,
                                 qos_profile(c.REFERENCE_TRAJECTORY.qos))
         assert ros.spin(until=lambda: ros.count_publishers(c.REFERENCE_TRAJECTORY.name) >= 1,
-                        timeout=30)
+                        timeout=BOUND)
         good = Clock()
         good.clock.sec = 100
         assert ros.spin(until=_resent_until(
@@ -276,11 +276,11 @@ def test_empty_and_undeclared_parameter_names_are_rejected_with_a_reason(dom, tm
                               ('  ', 'undeclared parameter'),
                               ('no_such_thing', 'undeclared parameter')):
                 fut = client.set_parameters([Parameter(name, value=1.0)])
-                assert ros.spin(until=fut.done, timeout=10)
+                assert ros.spin(until=fut.done, timeout=BOUND)
                 res = fut.result().results[0]
                 assert not res.successful and why in res.reason, (n, name, res)
             fut = client.set_parameters_atomically([Parameter('', value=1.0)])
-            assert ros.spin(until=fut.done, timeout=10)
+            assert ros.spin(until=fut.done, timeout=BOUND)
             assert not fut.result().result.successful
         procs.stop()
 
@@ -333,7 +333,7 @@ def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, t
         pubs = [ros.create_publisher(JointState, t, qos_profile(c.LOOP_QOS))
                 for t in ('state', 'servo_current', 'reference')]
         assert ros.spin(until=lambda: all(p.get_subscription_count() >= 1 for p in pubs),
-                        timeout=30)
+                        timeout=BOUND)
         _answers_go_on(ros, diag)
         clients = {n: AsyncParameterClient(ros, n) for n in ('plant', 'controller')}
         for cl in clients.values():
