@@ -23,6 +23,7 @@ from domain_coordinator import domain_id
 import pytest
 from ros_ehs.nodes.fastdds_profile import use_profile
 from ros_ehs.nodes.processes import LOOP_CPUS_ENV
+from waits import BOUND
 
 #: this process's participants (the `ros` fixture's, the status watch's) on the nodes' profile
 use_profile()
@@ -57,7 +58,7 @@ def ros(dom):
     exe = SingleThreadedExecutor(context=ctx)
     exe.add_node(node)
 
-    def spin(seconds=0.0, until=None, timeout=30.0):
+    def spin(seconds=0.0, until=None, timeout=BOUND):
         end = time.monotonic() + (timeout if until else seconds)
         while time.monotonic() < end:
             exe.spin_once(timeout_sec=0.02)
@@ -101,7 +102,7 @@ def python_lines():
     """
     def run(code: str, *args: str) -> list[str]:
         out = subprocess.run([sys.executable, '-c', code, *args], capture_output=True,
-                             text=True, timeout=60)
+                             text=True, timeout=BOUND)
         assert out.returncode == 0, out.stderr
         return out.stdout.strip().splitlines()
     return run

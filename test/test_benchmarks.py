@@ -22,6 +22,7 @@ import json
 
 import pytest
 from ros_ehs.benchmarks.__main__ import BENCHMARKS, main
+from waits import BOUND
 
 
 @pytest.mark.parametrize('bench, args, says', [
@@ -67,14 +68,14 @@ def test_the_benchmarks_are_named_when_asked_wrong():
     import sys
     module = 'ros_ehs.benchmarks'
     r = subprocess.run([sys.executable, '-m', module, 'nope'], capture_output=True, text=True,
-                       timeout=60)
+                       timeout=BOUND)
     assert r.returncode == 2 and 'usage: python -m ros_ehs.benchmarks {model,paper,' in r.stderr
     r = subprocess.run([sys.executable, '-m', module, 'loop', '--rounds', '0'],
-                       capture_output=True, text=True, timeout=60)
+                       capture_output=True, text=True, timeout=BOUND)
     assert r.returncode == 2 and 'argument --rounds: must be a whole number' in r.stderr
     # an EhsError from a run: one line naming the benchmark, no traceback
     r = subprocess.run([sys.executable, '-m', module, 'identify', '--seconds', '0.05'],
-                       capture_output=True, text=True, timeout=60)
+                       capture_output=True, text=True, timeout=BOUND)
     assert r.returncode == 2 and 'Traceback' not in r.stderr, r.stderr
     assert r.stderr.strip() == ('python -m ros_ehs.benchmarks identify: error: bench: too '
                                 'little data: 50 samples (need at least 500, e.g. 0.5 s at '
