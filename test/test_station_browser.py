@@ -266,12 +266,16 @@ def test_bench_py_starts_the_station_beside_the_bench_and_stops_it_cleanly(
         _wait(page, 'window.station.last && window.station.last.scope.end > 0.5 '
                     '&& window.station.last.controller')
         assert page.inner_text('[data-testid=link]') == 'connected'
+        acting = 'button.act, #meters-reset'
+        _wait(page, f'!document.getElementById("meters-reset").disabled && '
+                    f'document.querySelectorAll("{acting}").length > 5')
         p.send_signal(signal.SIGINT)
         out, _ = p.communicate(timeout=BOUND)
         # the page hears that the station went; the open page did not hold the web server
-        # (it once did, until the 5 s the station waits for it)
+        # (it once did, until the 5 s the station waits for it); every button goes off
         _wait(page, 'window.station.connected === false')
         assert 'station disconnected' in page.inner_text('[data-testid=link]')
+        assert page.evaluate(f'[...document.querySelectorAll("{acting}")].every(b => b.disabled)')
     finally:
         if p.poll() is None:
             p.kill()

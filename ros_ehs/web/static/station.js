@@ -180,15 +180,19 @@
     const may = f.may_act;
     $('rights').textContent = may.allowed ? 'operator' : 'read-only';
     $('rights').title = may.why;
-    const why = !may.allowed ? may.why : (f.lost || '');
-    const noProcedure = !f.procedure;
+    setButtons(!may.allowed ? may.why : (f.lost || ''), !f.procedure);
+  }
+
+  // every button that acts (the axis's, the procedure's, the meters' reset): off while
+  // ``why`` says why; the procedure's also while no procedure runs
+  const PROCEDURE_ACTIONS = ['start', 'hold', 'resume', 'stop'];
+  function setButtons(why, noProcedure) {
     if (why !== buttons.why || noProcedure !== buttons.noProcedure) {
       note(why ? `buttons off: ${why}` : `buttons on${noProcedure ? ' (no procedure)' : ''}`);
       Object.assign(buttons, { why, noProcedure });
     }
-    const procedure = ['start', 'hold', 'resume', 'stop'];
     document.querySelectorAll('button.act, #meters-reset').forEach((b) => {
-      b.disabled = Boolean(why) || (procedure.includes(b.dataset.action) && noProcedure);
+      b.disabled = Boolean(why) || (PROCEDURE_ACTIONS.includes(b.dataset.action) && noProcedure);
     });
   }
 
@@ -227,11 +231,10 @@
     };
     ws.onclose = (e) => {
       state.connected = false;
-      note(`link closed (${e.code}): buttons off`);
-      buttons.why = 'the link to the station is closed';
+      note(`link closed (${e.code})`);
+      setButtons('the link to the station is closed', buttons.noProcedure);
       $('link').textContent = 'station disconnected: retrying';
       $('link').className = 'badge error';
-      document.querySelectorAll('button.act').forEach((b) => { b.disabled = true; });
       setTimeout(connect, 1000);
     };
   }
