@@ -211,6 +211,47 @@ def test_smoothing_leaves_the_response_unchanged():
     assert np.abs(np.array(z) - smooth.z).max() < 5e-5     # 0.1 % of the amplitude
 
 
+def _rates(plant, x, i):
+    from ros_ehs.core.model import kernels as K
+    f = np.empty(plant.n)
+    K.rhs(plant._id, x, np.array([i, 0.0]), plant._c, f)
+    return dict(zip(plant.state_names, f))
+
+
+@pytest.mark.parametrize('model', ['full', 'reduced', 'simplified'])
+def test_the_rest_state_is_newtons_and_hybrs_alike(model, monkeypatch):
+    # Newton's method solves it (no scipy.optimize at a node's start); MINPACK's hybrid
+    # method, where Newton does not converge, finds the same state where it converges
+    from ros_ehs.core.model import plant as plant_module
+    rng = np.random.default_rng(7)
+    for k in range(6):
+        p = EST.replace(**{n: float(EST[n] * rng.uniform(0.75, 1.25))
+                           for n in ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c', 'r_c')})
+        pl = Plant(p, model)
+        z, i = float(rng.uniform(-0.05, 0.05)), float(rng.uniform(-2e-4, 2e-4)) * (k % 2)
+        x = pl.equilibrium(z, i)
+        rates = _rates(pl, x, i)
+        held = [s for s in ('p_CP', 'p_CT', 'x_dot', 'theta_dot', 'p_tL', 'p_tR')
+                if s in rates]
+        assert x[pl.state_names.index('z')] == z and x[pl.state_names.index('z_dot')] == 0.0
+        # each solved rate vanishes: a pressure's to 1e-3 Pa/s (of 1e7 Pa), the others' to 1e-9
+        assert all(abs(rates[s]) < (1e-3 if s.startswith('p') else 1e-9) for s in held), rates
+        with monkeypatch.context() as m:
+            m.setattr(plant_module, '_newton', lambda resid, y: None)     # hybr alone
+            y = pl.equilibrium(z, i)
+        assert np.allclose(x, y, rtol=1e-11, atol=1e-12), (x, y)
+
+
+def test_a_plant_at_rest_does_not_import_scipy_optimize(python_lines):
+    code = ('import sys\n'
+            'from ros_ehs.core.params import Params\n'
+            'from ros_ehs.core.sim.axis import SimulatedAxis\n'
+            'for model in ("simplified", "reduced", "full"):\n'
+            '    SimulatedAxis(Params(), model, initial_z=0.01)\n'
+            'print("scipy.optimize" in sys.modules)')
+    assert python_lines(code) == ['False']
+
+
 def test_bad_inputs_give_clear_errors():
     plant = Plant(EST, 'simplified')
     x = plant.equilibrium()
