@@ -123,7 +123,7 @@ def _newton(resid, y: np.ndarray) -> np.ndarray | None:
     """
     n = y.size
     jac = np.empty((n, n))
-    r = resid(y).copy()
+    r = resid(y)                    # a new array each call (f[eqs] is a copy)
     for _ in range(NEWTON_STEPS):
         for k in range(n):
             h = 1e-7 * max(1.0, abs(y[k]))
@@ -143,7 +143,7 @@ def _newton(resid, y: np.ndarray) -> np.ndarray | None:
         a = 1.0
         for _ in range(30):
             trial = y + a * step
-            rt = resid(trial).copy()
+            rt = resid(trial)
             if np.all(np.isfinite(rt)) and float(np.sum(rt * rt)) <= norm:
                 break
             a *= 0.5
@@ -332,8 +332,8 @@ class Plant:
         Solve the states named ``solved`` in ``x`` (in place) for zero rate at ``i``.
 
         Newton's method first (its few unknowns, a smooth model: it converges in a handful of
-        steps, and a node's start does not pay scipy.optimize's import, 0.3-0.5 s); MINPACK's
-        hybrid method (``scipy.optimize.root``) where Newton does not converge.
+        steps, and a node's start does not pay scipy.optimize's import, about 0.15 CPU-s);
+        MINPACK's hybrid method (``scipy.optimize.root``) where Newton does not converge.
         """
         names = self.state_names
         free = [k for k, s in enumerate(names) if s in solved]
