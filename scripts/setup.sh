@@ -7,13 +7,17 @@ venv="${EHS_VENV:-$root/.venv}"
 py="${PYTHON:-python3}"
 stamp="$venv/.ros_ehs_setup"
 want="$(cat "$root/requirements.txt" "$root/constraints.txt" "$root/setup.py" "$root/scripts/setup.sh" | sha256sum | cut -c1-16)"
-if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
-  exit 0
+if ! { [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; }; then
+  echo "[setup] creating $venv"
+  "$py" -m venv "$venv"
+  "$venv/bin/python" -m pip install -q --upgrade 'pip==25.3' 'setuptools==79.0.1' 'wheel==0.45.1'
+  "$venv/bin/python" -m pip install -q -r "$root/requirements.txt" -c "$root/constraints.txt"
+  "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation -e "$root"
+  echo "$want" > "$stamp"
+  echo "[setup] done"
 fi
-echo "[setup] creating $venv"
-"$py" -m venv "$venv"
-"$venv/bin/python" -m pip install -q --upgrade 'pip==25.3' 'setuptools==79.0.1' 'wheel==0.45.1'
-"$venv/bin/python" -m pip install -q -r "$root/requirements.txt" -c "$root/constraints.txt"
-"$venv/bin/python" -m pip install -q --no-deps --no-build-isolation -e "$root"
-echo "$want" > "$stamp"
-echo "[setup] done"
+# numba compiles the model's kernels at their first call and caches them where env.sh says:
+# compile them here, once, so the first node does not (a fresh cache takes ~10 s; a warm one
+# loads in under a second, and a changed kernels.py is compiled again)
+(source "$root/scripts/env.sh" &&
+  python -c 'from ros_ehs.core.model.plant import compile_kernels; compile_kernels()')

@@ -334,3 +334,15 @@ def test_the_exact_jacobians_match_central_differences(model, law, flow, smooth)
         err = np.abs(jac - num) / (np.abs(num).max(axis=1, keepdims=True) + 1e-300)
         worst = max(worst, float(err.max()))
     assert worst < 1e-5, worst
+
+
+def test_compile_kernels_leaves_every_entry_point_compiled_for_contiguous_arrays():
+    """setup.sh compiles through this: it must reach what the plant and the fit call."""
+    from ros_ehs.core.model import kernels as K
+    from ros_ehs.core.model.plant import compile_kernels
+    compile_kernels()
+    for kernel in (K.rhs, K.advance_ws, K.simulate):
+        arrays = [[a for a in sig if getattr(a, 'layout', None)] for sig in kernel.signatures]
+        assert any(all(a.layout == 'C' and str(a.dtype) == 'float64'
+                       for a in sig if str(a.dtype) != 'int64') for sig in arrays), \
+            (kernel.__name__, kernel.signatures)

@@ -28,10 +28,10 @@ import numpy as np
 
 from ros_ehs.core.errors import InputError, ParameterError
 from ros_ehs.core.model import kernels as K
-from ros_ehs.core.params import Params
+from ros_ehs.core.params import Params, preset
 
 __all__ = ['FULL_STATES', 'MODELS', 'Plant', 'SIMPLIFIED_STATES', 'SimResult', 'StateSeries',
-           'rhs']
+           'compile_kernels', 'rhs']
 
 FULL_STATES = ('theta_dot', 'theta', 'p_tL', 'p_tR', 'x_dot', 'x', 'p_CP', 'p_CT', 'z_dot',
                'z')
@@ -111,6 +111,25 @@ def rhs(t: float, x: np.ndarray, u: np.ndarray, params: Params, model: str = 'fu
 
 #: Newton's method for the rest state: steps at most, and the step [scaled units] it ends at
 NEWTON_STEPS, NEWTON_XTOL = 30, 1e-12
+
+
+def compile_kernels(params: Params | None = None) -> None:
+    """
+    Compile every kernel the package calls, for each model, into numba's cache.
+
+    numba compiles a kernel at its first call (seconds for the set) and caches it in
+    ``NUMBA_CACHE_DIR`` (``scripts/env.sh``); ``scripts/setup.sh`` calls this once, so that
+    neither the first node nor parallel test workers compile the same kernels again. With a
+    warm cache it only loads them (well under a second).
+    """
+    params = params or preset()
+    u = np.array([1e-3, 0.0])
+    for model in MODELS:
+        plant = Plant(params, model)
+        x = plant.equilibrium()
+        plant.dynamics(0.0, x, u)
+        plant.step(x, u, 1e-3)
+        plant.simulate(1e-3, np.tile(u, (3, 1)), x)
 
 
 def _newton(resid, y: np.ndarray) -> np.ndarray | None:
