@@ -13,7 +13,9 @@
 # limitations under the License.
 """Fixtures of the DDS tests: a ROS domain of the test's own, and an rclpy node on it."""
 
+import fcntl
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -39,6 +41,34 @@ def _place_loops() -> None:
 
 
 _place_loops()
+
+
+@pytest.fixture(scope='session')
+def once(tmp_path_factory, worker_id):
+    """
+    Return a getter of results built by one xdist worker for all: ``get(name, build)``.
+
+    pytest-xdist's pattern for a fixture built once: the first worker to ask builds it in a
+    folder of the directory every worker shares, under a file lock, and pickles the result;
+    the others wait on the lock and read it. ``build(folder)`` may keep what its result names
+    (bags) in ``folder``.
+    """
+    base = tmp_path_factory.getbasetemp()
+    if worker_id != 'master':
+        base = base.parent
+
+    def get(name, build):
+        root = base / name
+        root.mkdir(exist_ok=True)
+        with open(root / '.lock', 'w') as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            done = root / 'result.pickle'
+            if done.exists():
+                return pickle.loads(done.read_bytes())
+            value = build(root)
+            done.write_bytes(pickle.dumps(value))
+            return value
+    return get
 
 
 @pytest.fixture

@@ -35,19 +35,18 @@ TOL = {'d_c': 0.02, 'F_cc': 0.02, 'F_sc': 0.02, 'l_iac': 0.02, 'c_c': 0.02, 'r_c
 
 
 @pytest.fixture(scope='module')
-def fits(tmp_path_factory):
+def fits(once):
     """Fit the sample bag (seed 0) and two more noise seeds from Table 1's initial values."""
-    out = {}
-    exps = {0: load_experiment(SAMPLE)}
-    for seed in (1, 2):
-        path = tmp_path_factory.mktemp('seed') / f'seed{seed}'
-        record_synthetic_bag(path, seed=seed)
-        exps[seed] = load_experiment(path)
-    with warnings.catch_warnings():
-        warnings.simplefilter('error', IdentificationWarning)
-        for seed, e in exps.items():
-            out[seed] = (e, identify(e))
-    return out
+    def fit(root):
+        exps = {0: load_experiment(SAMPLE)}
+        for seed in (1, 2):
+            record_synthetic_bag(root / f'seed{seed}', seed=seed)
+            exps[seed] = load_experiment(root / f'seed{seed}')
+        with warnings.catch_warnings():
+            warnings.simplefilter('error', IdentificationWarning)
+            return {seed: (e, identify(e)) for seed, e in exps.items()}
+
+    return once('fits', fit)
 
 
 def test_sample_bag_is_what_the_readme_says():

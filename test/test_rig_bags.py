@@ -8,11 +8,9 @@ driver stamps on another clock, lost samples, /rosout and /tf. Each mapping erro
 clear message, and reading never changes the bag.
 """
 
-import fcntl
 import hashlib
 import json
 from pathlib import Path
-import pickle
 import shutil
 import subprocess
 import sys
@@ -63,28 +61,13 @@ LAYOUTS = {
 
 
 @pytest.fixture(scope='module')
-def rig_bags(tmp_path_factory, worker_id):
-    """
-    Return the layouts' bags (read only), recorded once for all xdist workers.
+def rig_bags(once):
+    """Return the layouts' bags (read only), recorded once for all xdist workers."""
+    def record(root):
+        return {name: (root / name, lay, record_rig_bag(root / name, lay, duration=6.0, seed=3))
+                for name, lay in LAYOUTS.items()}
 
-    pytest-xdist's pattern for a fixture built once: the first worker records them under a
-    file lock in the session's directory, which every worker shares; the others read them.
-    """
-    if worker_id == 'master':                # no xdist: this session's own directory
-        root = tmp_path_factory.mktemp('rigs')
-    else:
-        root = tmp_path_factory.getbasetemp().parent / 'rigs'
-        root.mkdir(exist_ok=True)
-    with open(root / '.lock', 'w') as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        done = root / 'truths.pickle'
-        if done.exists():
-            truths = pickle.loads(done.read_bytes())
-        else:
-            truths = {name: record_rig_bag(root / name, lay, duration=6.0, seed=3)
-                      for name, lay in LAYOUTS.items()}
-            done.write_bytes(pickle.dumps(truths))
-    return {name: (root / name, lay, truths[name]) for name, lay in LAYOUTS.items()}
+    return once('rigs', record)
 
 
 def _digest(path: Path) -> str:
