@@ -340,8 +340,11 @@ def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_pat
     # a held command repeats its value, so take the latest one stamped before it was applied
     applied = [x.stamp_ns for x in cmds if x.i == i[k] and x.stamp_ns <= last_nonzero]
     last_cmd = max(applied) if applied else max(x.stamp_ns for x in cmds if x.i != 0.0)
-    assert 0 <= (last_nonzero - last_cmd) / 1e6 <= 20, (
-        (last_nonzero - last_cmd) / 1e6, len(applied), f)
+    # counted in the plant's periods (its recorded states), not in stamp time: a plant held
+    # longer than its catch-up moves its grid on, a gap in the stamps (3 s once, held at the
+    # kill, in a full run: the last command applied at the first period after it, correctly)
+    periods = k - np.searchsorted(t, last_cmd)
+    assert 0 <= periods <= 20, (periods, (last_nonzero - last_cmd) / 1e6, len(applied), f)
 
 
 @contextlib.contextmanager
