@@ -133,13 +133,22 @@ class _File:
     end_ns: int | None = None
 
 
+#: libyaml's loader where PyYAML was built with it (its wheels are): the same documents, parsed
+#: about ten times faster (a bag's metadata and its topics' QoS profiles, at each open)
+_YAML_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+
+
+def _yaml(text: str) -> Any:
+    return yaml.load(text, Loader=_YAML_LOADER)     # noqa: S506 (a safe loader)
+
+
 def _parse_qos(text: Any) -> list[dict[str, Any]]:
     if isinstance(text, list):
         return text
     if not text:
         return []
     try:
-        q = yaml.safe_load(text)
+        q = _yaml(text)
     except yaml.YAMLError:
         return []
     return q if isinstance(q, list) else []
@@ -152,7 +161,7 @@ def _number(p: Path) -> tuple[int, str]:
 
 def _read_metadata(meta: Path) -> dict[str, Any]:
     try:
-        info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
+        info = _yaml(meta.read_text())['rosbag2_bagfile_information']
         if not isinstance(info, dict):
             raise TypeError('not a mapping')
     except (yaml.YAMLError, KeyError, TypeError) as e:
@@ -468,10 +477,13 @@ def wait_for_counts(path: str | os.PathLike, least: dict[str, int], timeout: flo
 
     Returns the counts then. Until then the bag may not be there or be unreadable (not yet
     created, no topic written yet); after ``timeout`` [s] raises :class:`BagError` saying what
-    it held, or why it could not be read. Polls every ``poll`` s.
+    it held, or why it could not be read. Polls every ``poll`` s, or twice as long as a read
+    took: a bag is read whole, and a long wait on a large bag would otherwise keep a CPU busy
+    reading it (waiting costs at most a third of one).
     """
     end = time.monotonic() + timeout
     while True:
+        start = time.monotonic()
         try:
             counts = bag_counts(path)
             held = str(counts or 'no topic')
@@ -482,4 +494,4 @@ def wait_for_counts(path: str | os.PathLike, least: dict[str, int], timeout: flo
         if time.monotonic() >= end:
             raise BagError(f'{str(path)!r}: after {timeout:g} s the bag holds {held}, '
                            f'not {least}')
-        time.sleep(poll)
+        time.sleep(max(poll, 2.0 * (time.monotonic() - start)))
