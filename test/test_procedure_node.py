@@ -236,3 +236,51 @@ def test_a_live_fit_of_a_softer_specimen_fails_the_test(dom, tmp_path, ros):
     events = read_procedure_events(bag)
     failure = [e for e in events if e['kind'] == 'failure']
     assert len(failure) == 1 and 'k_L 700000' in failure[0]['message'], failure
+
+
+def test_close_waits_for_a_running_callback_and_no_callback_runs_after_it(tmp_path, dom):
+    """A stuck executor: close() neither tears the checkpoint nor lets a callback run on."""
+    import threading
+
+    import rclpy
+    from rclpy.parameter import Parameter
+    from ros_ehs.nodes.procedure import ProcedureNode
+    from std_srvs.srv import Trigger
+    proc = tmp_path / 'procedure.yaml'
+    shutil.copy(Path(__file__).parent / 'fixtures' / 'procedure_short.yaml', proc)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    try:
+        def node():
+            return ProcedureNode(context=ctx, parameter_overrides=[
+                Parameter('file', value=str(proc)),
+                Parameter('checkpoint', value=str(tmp_path / 'cp.json'))])
+
+        # a callback holds the runner (an executor stuck in it): close gives up after its wait
+        stuck = node()
+        held, release = threading.Event(), threading.Event()
+
+        def callback():
+            with stuck._lock:
+                held.set()
+                release.wait(BOUND)
+        t = threading.Thread(target=callback)
+        t.start()
+        assert held.wait(BOUND)
+        assert stuck.close(wait=0.05) is False
+        release.set()
+        t.join(BOUND)
+        # nothing runs after close: a request is refused, a state is not measured
+        response = stuck._on_request('start', Trigger.Request(), Trigger.Response())
+        assert not response.success and 'closing' in response.message
+        stuck._on_state(b'not even a message')         # returns before decoding
+        assert stuck.runner.last_stamp < 0
+        stuck.destroy_node()
+
+        # no callback running: close writes the last checkpoint
+        free = node()
+        assert free.close() is True
+        assert read_checkpoint(tmp_path / 'cp.json')['state'] == 'idle'
+        free.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

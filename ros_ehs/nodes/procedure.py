@@ -81,6 +81,20 @@ CYCLES_BATCH = 10
 #: a control mode switch unanswered this long [s] is asked again (three times at most)
 MODE_RESEND = 5.0
 CYCLES_BATCH_NS = 1_000_000_000
+#: how long :meth:`ProcedureNode.close` waits for a callback still running [s] (an executor
+#: that did not return in time: ``ros_common.run`` closes the node anyway)
+CLOSE_WAIT = 1.0
+
+
+def _guarded(callback):
+    """Run a callback under the node's lock, and not at all once the node has closed."""
+    @functools.wraps(callback)
+    def guarded(self, *args):
+        with self._lock:
+            if self._closed:
+                return None
+            return callback(self, *args)
+    return guarded
 
 
 def recovered_total(bag: str) -> int | None:
@@ -151,6 +165,10 @@ class ProcedureNode(Node):
         cp_path = self.opt['checkpoint'] or self.opt['file'] + '.checkpoint.json'
         self.cp_path = Path(cp_path)
         self._rows: list[tuple] = []          # cycle records not yet published
+        # the callbacks and close() change the runner under it; reentrant: a future already
+        # done runs its callback inside the call that adds it
+        self._lock = threading.RLock()
+        self._closed = False
         restored = self._restore()
         self.writer = _CheckpointWriter(self.cp_path)
         self.pub = self.create_publisher(JointState, contract.REFERENCE.name,
@@ -210,6 +228,7 @@ class ProcedureNode(Node):
         return self.runner.restore(cp, extra)
 
     # -- messages in -------------------------------------------------------------------------
+    @_guarded
     def _on_state(self, data: bytes) -> None:
         s = read_msg(self, self._read_state, data, 'state')
         if s is None:
@@ -223,6 +242,7 @@ class ProcedureNode(Node):
             self.runner.start(s.stamp_ns)
         self._after()
 
+    @_guarded
     def _on_load(self, data: bytes) -> None:
         r = read_msg(self, self._read_wrench, data, 'load_cell')
         if r is not None:
@@ -231,6 +251,7 @@ class ProcedureNode(Node):
     def _read_wrench(self, data: bytes):
         return contract.load_from_cdr(data, self.opt['load_axis'])
 
+    @_guarded
     def _on_event(self, msg: DiagnosticArray) -> None:
         try:
             e = contract.event_from_msg(msg)
@@ -239,6 +260,7 @@ class ProcedureNode(Node):
         self.runner.event(e.kind, e.detector, e.action, e.stamp_ns)
         self._after()
 
+    @_guarded
     def _on_estimate(self, msg: DiagnosticArray) -> None:
         try:
             e = contract.estimate_from_msg(msg)
@@ -256,6 +278,7 @@ class ProcedureNode(Node):
                              e.adequate)
         self._after()
 
+    @_guarded
     def _on_clock(self, data: bytes) -> None:
         t = read_msg(self, contract.clock_from_cdr, data, '/clock')
         if t is None or self.runner.last_stamp < 0:
@@ -265,6 +288,7 @@ class ProcedureNode(Node):
         self.pub.publish(contract.reference_to_cdr(refs[0]))
         self._after()
 
+    @_guarded
     def _tick(self) -> None:
         if self.runner.last_stamp < 0:
             return
@@ -273,6 +297,13 @@ class ProcedureNode(Node):
         self._after()
 
     def _on_request(self, name: str, request, response):
+        with self._lock:
+            if self._closed:
+                response.success, response.message = False, 'refused: the node is closing'
+                return response
+            return self._request(name, response)
+
+    def _request(self, name: str, response):
         stamp = max(self.runner.last_stamp, 0)
         ok, why = getattr(self.runner, name)(stamp)
         response.success, response.message = bool(ok), why
@@ -342,6 +373,7 @@ class ProcedureNode(Node):
         self._mode_sent = (mode, time.monotonic(), self._mode_sent[2] + 1
                            if self._mode_sent and self._mode_sent[0] == mode else 1)
 
+    @_guarded
     def _resend_mode(self) -> None:
         """Send the switch again when unanswered for MODE_RESEND s; give up after three."""
         fut = self._mode_call
@@ -362,6 +394,7 @@ class ProcedureNode(Node):
             return
         self._switch(mode)
 
+    @_guarded
     def _switched(self, fut) -> None:
         if fut is not self._mode_call:
             return                            # one given up on
@@ -375,6 +408,7 @@ class ProcedureNode(Node):
         self.runner.mode_switched(ok, why, max(self.runner.last_stamp, 0))
         self._after()
 
+    @_guarded
     def _diagnose(self) -> None:
         st = self.runner.status()
         level = {'failed': ERROR}.get(st['result'], OK)
@@ -389,12 +423,31 @@ class ProcedureNode(Node):
                                     f"{st['step_cycles']} ({st['total_cycles']} in all)")
         self.pub_diag.publish(diagnostics(self, contract.PROCEDURE_STATUS, level, msg, values))
 
-    def close(self) -> None:
-        """Publish the cycles not yet out and write the last checkpoint (as the node closes)."""
-        if self._rows:
-            self._publish_rows()
-        self.writer.put(self._checkpoint())
-        self.writer.close()
+    def close(self, wait: float = CLOSE_WAIT) -> bool:
+        """
+        Publish the cycles not yet out and write the last checkpoint (as the node closes).
+
+        No callback runs from then on. A callback still running after ``wait`` s (an executor
+        stuck in it) would make that checkpoint a torn one: the last one written stands, it
+        says so, and returns False.
+        """
+        if not self._lock.acquire(timeout=wait):
+            self._closed = True
+            self.get_logger().error(
+                f'closing while a callback still runs after {wait:g} s: the last checkpoint '
+                f'written stands ({self.writer.written} written this run; rewritten at each '
+                'cycle, it holds the cycles not yet published)')
+            self.writer.close()
+            return False
+        try:
+            self._closed = True
+            if self._rows:
+                self._publish_rows()
+            self.writer.put(self._checkpoint())
+            self.writer.close()
+            return True
+        finally:
+            self._lock.release()
 
     def _publish_rows(self) -> None:
         rows, self._rows = self._rows, []
