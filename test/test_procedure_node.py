@@ -247,7 +247,7 @@ def test_close_waits_for_a_running_callback_and_no_callback_runs_after_it(tmp_pa
     from ros_ehs.nodes.procedure import ProcedureNode
     from std_srvs.srv import Trigger
     proc = tmp_path / 'procedure.yaml'
-    shutil.copy(Path(__file__).parent / 'fixtures' / 'procedure_short.yaml', proc)
+    shutil.copy(FIXTURE, proc)
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=dom)
     try:

@@ -431,23 +431,23 @@ class ProcedureNode(Node):
         stuck in it) would make that checkpoint a torn one: the last one written stands, it
         says so, and returns False.
         """
-        if not self._lock.acquire(timeout=wait):
-            self._closed = True
-            self.get_logger().error(
-                f'closing while a callback still runs after {wait:g} s: the last checkpoint '
-                f'written stands ({self.writer.written} written this run; rewritten at each '
-                'cycle, it holds the cycles not yet published)')
-            self.writer.close()
-            return False
+        held = self._lock.acquire(timeout=wait)
         try:
             self._closed = True
-            if self._rows:
-                self._publish_rows()
-            self.writer.put(self._checkpoint())
+            if held:
+                if self._rows:
+                    self._publish_rows()
+                self.writer.put(self._checkpoint())
+            else:
+                self.get_logger().error(
+                    f'closing while a callback still runs after {wait:g} s: the last '
+                    f'checkpoint written stands ({self.writer.written} written this run; '
+                    'rewritten at each cycle, it holds the cycles not yet published)')
             self.writer.close()
-            return True
+            return held
         finally:
-            self._lock.release()
+            if held:
+                self._lock.release()
 
     def _publish_rows(self) -> None:
         rows, self._rows = self._rows, []

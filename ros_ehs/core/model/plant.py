@@ -118,8 +118,8 @@ def compile_kernels(params: Params | None = None) -> None:
     Compile every kernel the package calls, for each model, into numba's cache.
 
     numba compiles a kernel at its first call (seconds for the set) and caches it in
-    ``NUMBA_CACHE_DIR`` (``scripts/env.sh``); ``scripts/setup.sh`` calls this once, so that
-    neither the first node nor parallel test workers compile the same kernels again. With a
+    ``NUMBA_CACHE_DIR`` (``scripts/env.sh``); ``scripts/setup.sh`` calls this at each set-up,
+    so that neither the first node nor parallel test workers compile the same kernels again. With a
     warm cache it only loads them (well under a second).
     """
     params = params or preset()
