@@ -19,6 +19,7 @@ docs/benchmarks.md); that each runs to its end and says what it measured is.
 """
 
 import json
+import os
 
 import pytest
 from ros_ehs.benchmarks.__main__ import BENCHMARKS, main
@@ -112,16 +113,57 @@ def test_every_benchmark_has_a_short_run():
     assert set(SHORT) == set(BENCHMARKS)
 
 
+def test_a_window_that_fails_stops_its_machine_probes(monkeypatch):
+    """The window benchmark's probes (one per CPU) end with a window that raises."""
+    import psutil
+    from ros_ehs.benchmarks import window
+    seen = []
+
+    def fails(*args):
+        me = psutil.Process()
+        seen.extend(c for c in me.children() if 'ros_ehs.benchmarks.sleeper' in c.cmdline())
+        raise RuntimeError('the bench failed')
+    monkeypatch.setattr(window, '_ours', fails)
+    with pytest.raises(RuntimeError, match='the bench failed'):
+        window.main(['--windows', '1', '--seconds', '1', '--rt-priority', '0'])
+    assert len(seen) == len(os.sched_getaffinity(0))
+    assert not [p for p in seen if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+
+
+def _left_in_session(sid: int) -> list[str]:
+    """Kill what is still running in session ``sid``; return the command lines killed."""
+    import psutil
+    left = []
+    for p in psutil.process_iter(['pid', 'cmdline', 'status']):
+        try:
+            if os.getsid(p.pid) == sid and p.info['status'] != psutil.STATUS_ZOMBIE:
+                left.append(' '.join(p.info['cmdline'] or [])[:200])
+                p.kill()
+        except (ProcessLookupError, psutil.Error):
+            pass
+    return left
+
+
 @pytest.mark.ros
 @pytest.mark.parametrize('bench', sorted(SHORT))
-def test_each_benchmark_runs_short_and_ends_with_its_json(bench, dom):
-    import os
+def test_each_benchmark_runs_short_and_ends_with_its_json(bench, dom, tmp_path):
     import subprocess
     import sys
     args, key = SHORT[bench]
-    r = subprocess.run([sys.executable, '-m', 'ros_ehs.benchmarks', bench, *args],
-                       capture_output=True, text=True, timeout=900,
-                       env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    last = json.loads(r.stdout.strip().splitlines()[-1])
+    # in a session of its own, its output to files: what it leaves running is found (and
+    # cannot hold a pipe open, which kept this test waiting once on a failed run's probes)
+    out, err = tmp_path / 'out.txt', tmp_path / 'err.txt'
+    with open(out, 'w') as o, open(err, 'w') as e:
+        p = subprocess.Popen([sys.executable, '-m', 'ros_ehs.benchmarks', bench, *args],
+                             stdout=o, stderr=e, stdin=subprocess.DEVNULL, text=True,
+                             start_new_session=True,
+                             env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
+        try:
+            code = p.wait(timeout=900)
+        finally:
+            left = _left_in_session(p.pid)
+    said = out.read_text()[-3000:] + err.read_text()[-3000:]
+    assert code == 0, said
+    assert not left, f'{bench} left processes running: {left}\n{said}'
+    last = json.loads(out.read_text().strip().splitlines()[-1])
     assert isinstance(last, dict) and key in last, (key, list(last))

@@ -42,6 +42,7 @@ its own wake-ups, so a trip outside one is not proven ours.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -50,6 +51,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import Iterator
 
 from domain_coordinator import domain_id
 from ros_ehs.benchmarks import BOUND, count, positive, report
@@ -61,11 +63,25 @@ BENCH = launch_script('bench.py')
 RT_PROFILE = BENCH.with_name('fastdds_rt.xml')
 
 
-def _probes(rt_priority: int) -> dict[int, subprocess.Popen]:
-    """Start a machine probe on each CPU this process may use: ``{cpu: process}``."""
-    return {c: subprocess.Popen(command(c, HICCUP_MS, rt_priority), stdout=subprocess.PIPE,
-                                text=True)
-            for c in sorted(os.sched_getaffinity(0))}
+@contextlib.contextmanager
+def _probes(rt_priority: int) -> Iterator[dict[int, subprocess.Popen]]:
+    """
+    Run a machine probe on each CPU this process may use: ``{cpu: process}``.
+
+    :func:`_stalls` stops them; whatever is still running when the block ends (a window
+    that failed) is killed, so no probe outlives the benchmark.
+    """
+    probes: dict[int, subprocess.Popen] = {}
+    try:
+        for c in sorted(os.sched_getaffinity(0)):
+            probes[c] = subprocess.Popen(command(c, HICCUP_MS, rt_priority),
+                                         stdout=subprocess.PIPE, text=True)
+        yield probes
+    finally:
+        for p in probes.values():
+            if p.poll() is None:
+                p.kill()
+            p.communicate()
 
 
 def _stalls(probes: dict[int, subprocess.Popen]) -> tuple[list[tuple], list[tuple]]:
@@ -144,8 +160,14 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
         t0 = time.monotonic()
         time.sleep(seconds)
         t1 = time.monotonic()
-        bare.stop(['ping', 'pong'])
-        f = json.loads(bare['ping'].output().strip().splitlines()[-1])
+        codes = bare.stop(['ping', 'pong'])
+        said = bare['ping'].output().strip()
+        try:
+            f = json.loads(said.splitlines()[-1])
+        except (IndexError, ValueError):
+            raise RuntimeError(f'the bare ping-pong left no figures (ping exit {codes["ping"]}, '
+                               f'pong exit {codes["pong"]}); ping said:\n{said[-2000:]}'
+                               ) from None
     # trips in the warm-up are not in the window (ours count from the loop's start)
     return [(t, ms) for t, ms in f['trip_log'] if t >= t0], t0, t1
 
@@ -175,11 +197,12 @@ def main(argv=None) -> int:
     with domain_id() as dom, tempfile.TemporaryDirectory(prefix='ehs_window_') as tmp:
         for i in range(a.windows):
             for kind in (('ours', 'bare') if i % 2 == 0 else ('bare', 'ours')):
-                probes = _probes(a.rt_priority)
-                trips, t0, t1 = (
-                    _ours(dom, a.seconds, a.rt_priority, a.cpu_affinity, Path(tmp), i)
-                    if kind == 'ours' else _bare(dom, a.seconds, a.rt_priority, a.cpu_affinity))
-                all_stalls, all_hics = _stalls(probes)
+                with _probes(a.rt_priority) as probes:
+                    trips, t0, t1 = (
+                        _ours(dom, a.seconds, a.rt_priority, a.cpu_affinity, Path(tmp), i)
+                        if kind == 'ours' else
+                        _bare(dom, a.seconds, a.rt_priority, a.cpu_affinity))
+                    all_stalls, all_hics = _stalls(probes)
                 early = [(t, ms) for t, ms in trips if t < t0]
                 if early:
                     s_, h_ = _explained(early, all_stalls, all_hics, loop_cpu)
