@@ -10,11 +10,13 @@ want="$(cat "$root/requirements.txt" "$root/constraints.txt" "$root/setup.py" "$
 if ! { [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; }; then
   echo "[setup] creating $venv"
   "$py" -m venv "$venv"
-  "$venv/bin/python" -m pip install -q --upgrade 'pip==25.3' 'setuptools==79.0.1' 'wheel==0.45.1'
-  # pip byte-compiles on one core; compileall after it uses them all (a third less set-up)
-  "$venv/bin/python" -m pip install -q --no-compile -r "$root/requirements.txt" \
+  "$venv/bin/python" -m pip install -q --upgrade 'pip==25.3' 'setuptools==79.0.1' \
+    'wheel==0.45.1' 'uv==0.13.9'
+  # uv installs the same pinned wheels as pip would, fetched and unpacked in parallel (a
+  # third of pip's time); it byte-compiles nothing: each module is compiled at its first
+  # import, so only what runs pays for it
+  "$venv/bin/uv" pip install -q --python "$venv/bin/python" -r "$root/requirements.txt" \
     -c "$root/constraints.txt"
-  "$venv/bin/python" -m compileall -q -j 0 "$venv/lib" > /dev/null
   "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation -e "$root"
   echo "$want" > "$stamp"
   echo "[setup] done"
