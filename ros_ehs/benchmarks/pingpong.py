@@ -48,6 +48,7 @@ import os
 import signal
 import struct
 import sys
+import threading
 import time
 
 import rclpy
@@ -57,6 +58,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from ros_ehs.nodes.ros_common import STOP_GRACE
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 
@@ -198,8 +200,22 @@ def main(argv=None) -> int:
                     send()
             node.create_timer(0.05, kick, clock=steady)
 
-    while not stop and rclpy.ok():
-        exe.spin_until_future_complete(Future(), timeout_sec=0.1)
+    # spun as the loop nodes spin theirs (ros_common.run): on a thread, in 0.1 s slices, and
+    # waited for at most STOP_GRACE after the stop, so the figures come out whatever the
+    # middleware does
+    spinning = threading.Event()
+    spinning.set()
+
+    def spin():
+        while spinning.is_set() and rclpy.ok():
+            exe.spin_until_future_complete(Future(), timeout_sec=0.1)
+
+    thread = threading.Thread(target=spin, name='pingpong-executor', daemon=True)
+    thread.start()
+    while not stop and thread.is_alive():
+        time.sleep(0.05)
+    spinning.clear()
+    thread.join(STOP_GRACE)
     if role == 'ping':
         ms = 1e3
         print(json.dumps({'cycles': st['cycles'], 'fresh_cycles': st['fresh'],
@@ -214,6 +230,10 @@ def main(argv=None) -> int:
         n = st['n']
         print(json.dumps({'volleys': n, 'volleys_per_s': n / dt if dt > 0 else 0.0}),
               flush=True)
+    if thread.is_alive():
+        print(f'{role}: the executor did not return within {STOP_GRACE:g} s of the stop',
+              file=sys.stderr, flush=True)
+        os._exit(1)         # its shutdown would wait on the same executor
     exe.shutdown()
     node.destroy_node()
     rclpy.try_shutdown()
