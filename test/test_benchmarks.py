@@ -42,6 +42,8 @@ from waits import BOUND
     ('record', ['--seconds', 'inf'], "argument --seconds: must be a finite number > 0, not 'inf'"),
     ('record', ['--compressions', 'gzip'], '--compressions takes none, zstd or lz4'),
     ('verdict', ['--rigs', '0'], "argument --rigs: must be a whole number >= 1, not '0'"),
+    ('verdict', ['--fits-out', '/nonexistent/fits.jsonl'],
+     "argument --fits-out: cannot write '/nonexistent/fits.jsonl': No such file or directory"),
     ('drift', ['--duration', '8'], 'argument --duration: must be at least 15 s (one 10 s window'),
     ('drift', ['--duration', 'nan'], 'argument --duration: must be a finite number > 0'),
     ('tracking', ['--sweep-seconds', '2'], 'argument --sweep-seconds: must be at least 3 s'),
@@ -104,7 +106,8 @@ SHORT = {
     'force': (['--frequencies', '20', '--cycles', '3', '--specimens', 'stiff'], 'protect'),
     'fatigue': (['--life', '200', '--speed-cycles', '10', '--speed-runs', '1', '--long-cycles',
                  '200', '--kills', '1'], 'resume'),
-    'verdict': (['--rigs', '1', '--seconds', '3', '--first', '12'], 'misses'),
+    'verdict': (['--rigs', '1', '--seconds', '3', '--first', '12', '--fits-out',
+                 '{tmp}/fits.jsonl'], 'misses'),
     'station': (['--seconds', '2', '--rounds', '2'], 'updates_per_s'),
 }
 
@@ -150,6 +153,7 @@ def test_each_benchmark_runs_short_and_ends_with_its_json(bench, dom, tmp_path):
     import subprocess
     import sys
     args, key = SHORT[bench]
+    args = [x.replace('{tmp}', str(tmp_path)) for x in args]
     # in a session of its own, its output to files: what it leaves running is found (and
     # cannot hold a pipe open, which kept this test waiting once on a failed run's probes)
     out, err = tmp_path / 'out.txt', tmp_path / 'err.txt'
@@ -167,3 +171,7 @@ def test_each_benchmark_runs_short_and_ends_with_its_json(bench, dom, tmp_path):
     assert not left, f'{bench} left processes running: {left}\n{said}'
     last = json.loads(out.read_text().strip().splitlines()[-1])
     assert isinstance(last, dict) and key in last, (key, list(last))
+    if bench == 'verdict':      # each fit a JSON line, with what its verdict judged
+        rows = [json.loads(x) for x in (tmp_path / 'fits.jsonl').read_text().splitlines()]
+        assert [(r['rig'], r['model']) for r in rows] == [(12, 'reduced'), (12, 'simplified')]
+        assert all({'errors', 'reasons', 'held_out', 'noise_ratio'} <= set(r) for r in rows)
