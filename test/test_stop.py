@@ -55,6 +55,49 @@ def _stopped(procs, name, signum):
     assert code == 0, (name, code, procs[name].output()[-3000:])
 
 
+#: a node whose close() does not return (what a hung process looks like to its supervisor)
+STUCK = """
+import sys, time
+from rclpy.node import Node
+from ros_ehs.nodes import ros_common
+ros_common.STOP_DUMP = 0.5
+
+
+class Stuck(Node):
+    def __init__(self):
+        super().__init__('stuck')
+        print('spinning', flush=True)
+
+    def close(self):
+        time.sleep(60)
+
+
+sys.exit(ros_common.run(Stuck, []))
+"""
+
+
+def test_a_node_that_hangs_after_its_stop_writes_every_threads_stack(dom):
+    import subprocess
+    p = subprocess.Popen([sys.executable, '-c', STUCK], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True,
+                         env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
+    try:
+        assert p.stdout.readline() == 'spinning\n'
+        p.send_signal(signal.SIGINT)
+        lines = []
+        for line in p.stderr:       # until its stack reaches run(): bounded, close() ends
+            lines.append(line)
+            if 'in run' in line:
+                break
+    finally:
+        p.kill()
+        p.wait(BOUND)
+    said = ''.join(lines)
+    # faulthandler's dump: the timeout, then each thread's frames, the newest first
+    assert said.startswith('Timeout (') and 'most recent call first' in said, said
+    assert said.index('in close') < said.index('in run'), said
+
+
 @pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM], ids=['INT', 'TERM'])
 def test_every_loop_node_stops_at_any_moment_of_a_lockstep_run(dom, tmp_path, signum):
     rng = np.random.default_rng(7 + signum)

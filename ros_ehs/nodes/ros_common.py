@@ -27,6 +27,7 @@ Parameters: :mod:`ros_ehs.nodes.parameters`.
 
 from __future__ import annotations
 
+import faulthandler
 import gc
 import importlib
 import os
@@ -54,7 +55,7 @@ import ros_ehs_msgs_py as contract
 
 __all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'RESEND', 'WARN', 'call_until_answered', 'diagnostics',
            'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock',
-           'STOP_GRACE']
+           'STOP_DUMP', 'STOP_GRACE']
 
 OK, WARN, ERROR = 0, 1, 2
 #: The plant's status in ``diagnostics`` (level OK once its loop is closed; see the contract)
@@ -62,6 +63,12 @@ PLANT_STATUS = contract.PLANT_STATUS
 
 #: After a stop, the executor has this long to return before the node closes without it [s].
 STOP_GRACE = 2.0
+
+#: A process not gone this long after its stop's drain and ``STOP_GRACE`` writes every
+#: thread's Python stack to stderr (its log) [s]: faulthandler's own thread does it, which
+#: needs no GIL, so a process hung anywhere (its close, a middleware call, a thread that
+#: keeps the GIL) still says where, before its supervisor's SIGKILL
+STOP_DUMP = 5.0
 
 
 def qos_profile(spec: Any, depth: int | None = None) -> QoSProfile:
@@ -221,7 +228,8 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     asks it to return and waits at most ``STOP_GRACE`` seconds for it. An executor that does
     not return does not keep the node alive: ``close()`` runs anyway and the process exits
     with its code (and a line saying so), so every node exits within a bounded time of its
-    signal, whatever the middleware does.
+    signal, whatever the middleware does. A process still there :data:`STOP_DUMP` seconds
+    after that writes every thread's stack to stderr: where it hangs.
     """
     argv = ros_args(sys.argv if args is None else args)
     # Our own SIGINT/SIGTERM handling: leave the spin loop first, then close the node (a bag
@@ -278,6 +286,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         if not done.done() and hasattr(node, 'stop'):
             node.stop()
         drain = float(getattr(node, 'drain_period', 0.0))
+        faulthandler.dump_traceback_later(drain + STOP_GRACE + STOP_DUMP)
         if not done.done() and drain > 0:      # take in what is already queued
             thread.join(drain)
         spinning.clear()
@@ -306,6 +315,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
             _wait_acked(node)
             node.destroy_node()
         rclpy.try_shutdown()
+        faulthandler.cancel_dump_traceback_later()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         if node is not None and getattr(node, 'busy', False):
