@@ -26,8 +26,9 @@ import pytest
 from ros_ehs.core.errors import DataError, IdentificationWarning
 from ros_ehs.core.identify import identify
 from ros_ehs.core.identify.experiment import experiment_from_arrays, state_rate
-from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, MIN_RATE_HZ,
-                                           PREDICTION_LIMIT, RESTART, restart, SENSED_LIMIT,
+from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, median_noise_ratios,
+                                           MIN_RATE_HZ, PREDICTION_LIMIT, RESTART, restart,
+                                           SENSED_LIMIT,
                                            SETTLE_ITERATIONS, SETTLED, settled, spread)
 from ros_ehs.core.params import preset
 
@@ -247,3 +248,11 @@ def test_the_simplified_fit_of_the_same_bag_is_caught_with_the_model_to_fit(driv
     assert max(abs(v) for v in err.values()) > 0.10, err       # a bad fit ...
     assert not r.adequate                                      # ... is not called adequate
     assert any('--model reduced' in a for a in r.advice), r.advice
+
+
+def test_median_noise_ratios_are_per_signal_over_the_runs_that_have_it():
+    metrics = {'r0': {'z': {'noise_ratio': 1.0}, 'p_CP': {'noise_ratio': 3.0}},
+               'r1': {'z': {'noise_ratio': 2.0}},
+               'r2': {'z': {'noise_ratio': 9.0}, 'p_CP': {'noise_ratio': 1.0}}}
+    assert median_noise_ratios(metrics) == {'z': 2.0, 'p_CP': 2.0}
+    assert median_noise_ratios({}) == {}

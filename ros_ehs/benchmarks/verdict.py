@@ -52,7 +52,7 @@ from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.core.control.waveforms import Chirp, Sine
 from ros_ehs.core.errors import IdentificationWarning
 from ros_ehs.core.identify import identify
-from ros_ehs.core.identify.verdict import MIN_RATE_HZ
+from ros_ehs.core.identify.verdict import median_noise_ratios, MIN_RATE_HZ
 from ros_ehs.core.params import ESTIMATED, preset
 
 #: the parameters a fit is judged good or bad on
@@ -102,10 +102,6 @@ def _fit(exps, model: str, truth) -> dict:
     # and the solver converged
     noise = all(m['noise_ratio'] <= 2.0 for sig in r.metrics.values() for m in sig.values())
     kind = 'good' if worst <= GOOD else 'bad' if worst > BAD else 'between'
-    ratios: dict[str, list[float]] = {}
-    for sig in r.metrics.values():
-        for name, m in sig.items():
-            ratios.setdefault(name, []).append(m['noise_ratio'])
     return {'model': model, 'kind': kind, 'worst_error': worst,
             'worst_parameter': max(err, key=lambda n: abs(err[n])), 'adequate': r.adequate,
             'noise_verdict': noise and r.status != 0,
@@ -113,7 +109,7 @@ def _fit(exps, model: str, truth) -> dict:
             'prediction': r.halves.get('prediction', {}), 'wall_s': time.perf_counter() - t0,
             'errors': err, 'reasons': list(r.inadequacy), 'held_out': r.halves,
             'status': r.status, 'settled': r.settled,
-            'noise_ratio': {n: float(np.median(v)) for n, v in ratios.items()}}
+            'noise_ratio': median_noise_ratios(r.metrics)}
 
 
 def confusion(fits: list, key: str = 'adequate') -> dict:

@@ -52,7 +52,7 @@ from ros_ehs.core.identify.problem import CELL, LOAD, Problem, SIGNALS
 __all__ = ['AGREEMENT', 'DRIFT_FREE', 'MIN_RATE_HZ', 'NULL_SHAPE', 'PREDICTION_LIMIT', 'RESTART',
            'SENSED', 'SENSED_LIMIT', 'SETTLED', 'SETTLE_ITERATIONS', 'SMALL_MODEL_ERROR',
            'spread', 'why_adequate', 'adequacy', 'fit_metrics', 'halves', 'halves_check',
-           'restart', 'settled', 'worst_noise_ratio']
+           'median_noise_ratios', 'restart', 'settled', 'worst_noise_ratio']
 
 
 #: Held-out prediction: a half replayed with the other half's values may leave a residual RMS
@@ -175,6 +175,15 @@ def fit_metrics(problem: Problem, theta: np.ndarray, fitted: dict | None = None
         if fitted is not None:
             fitted[ex.name] = fit
     return out
+
+
+def median_noise_ratios(metrics: dict) -> dict[str, float]:
+    """Return per signal the median over the runs of ``metrics`` of its ``noise_ratio``."""
+    ratios: dict[str, list[float]] = {}
+    for sig in metrics.values():
+        for name, m in sig.items():
+            ratios.setdefault(name, []).append(m['noise_ratio'])
+    return {name: float(np.median(v)) for name, v in ratios.items()}
 
 
 def worst_noise_ratio(metrics: dict) -> float:
@@ -314,9 +323,9 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
     recorded = {n for m in metrics.values() for n in m}
     pressures = any(n in recorded for n in ('p_CP', 'p_CT', LOAD))
     wrong_model = bool(invalid)
+    medians = median_noise_ratios(metrics)
     for name in SENSED:
-        ratios = [m[name]['noise_ratio'] for m in metrics.values() if name in m]
-        ratio = float(np.median(ratios)) if ratios else math.nan
+        ratio = medians.get(name, math.nan)
         if ratio > SENSED_LIMIT:
             wrong_model = True
             why.append(f'the {name} residual is {ratio:.1f}x its sensor noise (median of the '
