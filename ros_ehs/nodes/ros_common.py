@@ -283,10 +283,11 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         thread.start()
         while not stop.wait(0.1):
             pass
+        drain = float(getattr(node, 'drain_period', 0.0))
+        # armed before the node's stop(): a hang there is dumped too
+        faulthandler.dump_traceback_later(drain + STOP_GRACE + STOP_DUMP)
         if not done.done() and hasattr(node, 'stop'):
             node.stop()
-        drain = float(getattr(node, 'drain_period', 0.0))
-        faulthandler.dump_traceback_later(drain + STOP_GRACE + STOP_DUMP)
         if not done.done() and drain > 0:      # take in what is already queued
             thread.join(drain)
         spinning.clear()
