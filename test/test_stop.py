@@ -30,7 +30,7 @@ import sys
 
 import numpy as np
 import pytest
-from ros_ehs.nodes.processes import NodeProcesses
+from ros_ehs.nodes.processes import DUMP_SIGNAL, NodeProcesses
 from ros_ehs.nodes.ros_common import STOP_GRACE
 import ros_ehs_msgs_py as c
 from waits import BOUND, wait_value
@@ -66,6 +66,10 @@ ros_common.STOP_DUMP = 0.5
 class Stuck(Node):
     def __init__(self):
         super().__init__('stuck')
+        self.said = self.create_timer(0.01, self.spinning)     # from the executor's thread
+
+    def spinning(self):
+        self.said.cancel()
         print('spinning', flush=True)
 
     def close(self):
@@ -96,6 +100,46 @@ def test_a_node_that_hangs_after_its_stop_writes_every_threads_stack(dom):
     # faulthandler's dump: the timeout, then each thread's frames, the newest first
     assert said.startswith('Timeout (') and 'most recent call first' in said, said
     assert said.index('in close') < said.index('in run'), said
+
+
+def test_a_node_asked_for_its_stacks_writes_them_and_runs_on(dom):
+    import subprocess
+    p = subprocess.Popen([sys.executable, '-c', STUCK], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True,
+                         env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
+    try:
+        assert p.stdout.readline() == 'spinning\n'
+        lines = []
+        for _ in range(2):              # twice: the first did not end it
+            p.send_signal(DUMP_SIGNAL)
+            for line in p.stderr:       # until its main thread's stack reaches run()
+                lines.append(line)
+                if 'ros_common.py' in line and line.endswith(' in run\n'):
+                    break
+        assert p.poll() is None
+    finally:
+        p.kill()
+        p.wait(BOUND)
+    said = ''.join(lines)
+    # every thread: the executor's spinning, the main one waiting for a signal in run()
+    assert said.count('Current thread') == 2 and said.count('in spin') >= 2, said
+
+
+def test_a_node_that_does_not_exit_in_time_is_asked_for_its_stacks_first(
+        dom, ros, tmp_path, capfd):
+    """NodeProcesses.stop: a node still there after its timeout writes its stacks, then dies."""
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
+        # a recorder hung in its close (its own dump much later than the supervisor's)
+        hung = procs.start('recorder', cmd=[sys.executable, '-c',
+                                            STUCK.replace('STOP_DUMP = 0.5', 'STOP_DUMP = 60')])
+        # on the graph: its signal handlers are in place (set before the node is made)
+        assert ros.spin(until=lambda: 'stuck' in ros.get_node_names(), timeout=BOUND)
+        codes = procs.stop(timeout=1.0)
+    assert codes == {'recorder': -signal.SIGKILL}
+    log = hung.output()
+    assert 'in close' in log and log.index('in close') < log.index('in run'), log
+    assert f"recorder did not exit within 1 s of SIGINT: its threads' stacks are in " \
+        f'{hung.log}' in capfd.readouterr().err
 
 
 @pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM], ids=['INT', 'TERM'])

@@ -45,8 +45,8 @@ from ros_ehs.nodes.fastdds_profile import use_profile
 from ros_ehs.nodes.fastdds_shm import clean_zombies, SHM_DIR
 import ros_ehs_msgs_py as contract
 
-__all__ = ['LOOP_CPUS_ENV', 'NodeProcesses', 'StartupError', 'launch_script', 'loop_closed',
-           'loop_placement', 'NodeProcess', 'node_command', 'NODES', 'recording',
+__all__ = ['DUMP_SIGNAL', 'LOOP_CPUS_ENV', 'NodeProcesses', 'StartupError', 'launch_script',
+           'loop_closed', 'loop_placement', 'NodeProcess', 'node_command', 'NODES', 'recording',
            'reference_started']
 
 
@@ -72,6 +72,14 @@ def launch_script(name: str) -> Path:
 
 
 #: The node executables of the package (``ros2 run ros_ehs <name>``).
+#: The signal that makes a node (every one runs :func:`ros_ehs.nodes.ros_common.run`) write
+#: every thread's stack to its log at once (faulthandler, from its C handler: no GIL needed),
+#: whatever it is doing: :meth:`NodeProcesses.stop` sends it to a node that did not exit in
+#: time, before it signals it again
+DUMP_SIGNAL = signal.SIGUSR1
+#: How long the stacks have to reach the log before the next signal [s]
+DUMP_WAIT = 1.0
+
 NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify', 'procedure',
          'station')
 
@@ -141,6 +149,7 @@ class NodeProcess:
     log: Path
     cmd: list[str] = field(default_factory=list)
     figures_file: Path | None = None
+    node: str = ''          #: the node it runs (one of NODES), '' for another command
 
     @property
     def pid(self) -> int:
@@ -260,7 +269,8 @@ class NodeProcesses:
         p = subprocess.Popen(cmd, env=self.env, stdout=fh, stderr=subprocess.STDOUT,
                              stdin=subprocess.DEVNULL)
         fh.close()
-        self.procs[name] = NodeProcess(name, p, log, cmd, figures)
+        ours = node if node in NODES else ''      # its own command too: an installed script
+        self.procs[name] = NodeProcess(name, p, log, cmd, figures, ours)
         return self.procs[name]
 
     def __getitem__(self, name: str) -> NodeProcess:
@@ -279,17 +289,28 @@ class NodeProcesses:
         Stop processes in the order given (default: reverse start order) with SIGINT.
 
         Each gets ``timeout`` seconds to exit, then SIGTERM, then SIGKILL. Returns the exit
-        codes (negative: killed by that signal).
+        codes (negative: killed by that signal). A node still running after ``timeout`` is
+        first sent :data:`DUMP_SIGNAL`: its threads' stacks go to its log (and a line saying
+        so to stderr), where the hang shows.
         """
         order = list(names) if names is not None else list(reversed(list(self.procs)))
         codes = {}
         for n in order:
-            p = self.procs[n].popen
+            proc = self.procs[n]
+            p = proc.popen
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
                 try:
                     p.wait(timeout)
                 except subprocess.TimeoutExpired:
+                    if proc.node in NODES:
+                        p.send_signal(DUMP_SIGNAL)
+                        print(f"{n} did not exit within {timeout:g} s of SIGINT: its threads' "
+                              f'stacks are in {proc.log}', file=sys.stderr, flush=True)
+                        try:
+                            p.wait(DUMP_WAIT)
+                        except subprocess.TimeoutExpired:
+                            pass
                     p.terminate()
                     try:
                         p.wait(3.0)

@@ -50,12 +50,13 @@ from rclpy.task import Future
 from ros_ehs.core.errors import EhsError
 from ros_ehs.nodes.fastdds_profile import use_profile
 from ros_ehs.nodes.parameters import check_names
+from ros_ehs.nodes.processes import DUMP_SIGNAL
 from ros_ehs.nodes.scheduling import set_cpu_affinity, set_realtime
 import ros_ehs_msgs_py as contract
 
 __all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'RESEND', 'WARN', 'call_until_answered', 'diagnostics',
            'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock',
-           'STOP_DUMP', 'STOP_GRACE']
+           'DUMP_SIGNAL', 'STOP_DUMP', 'STOP_GRACE']
 
 OK, WARN, ERROR = 0, 1, 2
 #: The plant's status in ``diagnostics`` (level OK once its loop is closed; see the contract)
@@ -232,6 +233,9 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     after that writes every thread's stack to stderr: where it hangs.
     """
     argv = ros_args(sys.argv if args is None else args)
+    # first: a node asked for its stacks (a supervisor about to kill it) says where it is even
+    # if its main thread never runs Python again (starved of the GIL, in a middleware call)
+    faulthandler.register(DUMP_SIGNAL, all_threads=True, chain=False)
     # Our own SIGINT/SIGTERM handling: leave the spin loop first, then close the node (a bag
     # gets its summary), then shut rclpy down. With rclpy's handler the context dies while
     # callbacks still publish.
@@ -317,6 +321,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
             node.destroy_node()
         rclpy.try_shutdown()
         faulthandler.cancel_dump_traceback_later()
+        faulthandler.unregister(DUMP_SIGNAL)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         if node is not None and getattr(node, 'busy', False):
