@@ -80,6 +80,21 @@ sys.exit(ros_common.run(Stuck, []))
 """
 
 
+def _until(stream, last) -> str:
+    """Read lines of ``stream`` up to the first for which ``last(line)`` holds."""
+    lines = []
+    for line in stream:
+        lines.append(line)
+        if last(line):
+            break
+    return ''.join(lines)
+
+
+def _in_run(line: str) -> bool:
+    """Say if a dump's ``line`` is the main thread's frame in ros_common.run (its last but one)."""
+    return 'ros_common.py' in line and line.endswith(' in run\n')
+
+
 def test_a_node_that_hangs_after_its_stop_writes_every_threads_stack(dom):
     import subprocess
     p = subprocess.Popen([sys.executable, '-c', STUCK], stdout=subprocess.PIPE,
@@ -88,15 +103,10 @@ def test_a_node_that_hangs_after_its_stop_writes_every_threads_stack(dom):
     try:
         assert p.stdout.readline() == 'spinning\n'
         p.send_signal(signal.SIGINT)
-        lines = []
-        for line in p.stderr:       # until its stack reaches run(): bounded, close() ends
-            lines.append(line)
-            if 'in run' in line:
-                break
+        said = _until(p.stderr, _in_run)    # bounded: close() ends
     finally:
         p.kill()
         p.wait(BOUND)
-    said = ''.join(lines)
     # faulthandler's dump: the timeout, then each thread's frames, the newest first
     assert said.startswith('Timeout (') and 'most recent call first' in said, said
     assert said.index('in close') < said.index('in run'), said
@@ -117,11 +127,9 @@ def test_a_node_asked_for_its_stacks_writes_them_and_runs_on(dom):
     try:
         assert p.stdout.readline() == 'spinning\n'
         p.send_signal(DUMP_SIGNAL)
-        asked = _until(p.stderr, lambda line: 'ros_common.py' in line
-                       and line.endswith(' in run\n'))     # the main thread's run()
+        asked = _until(p.stderr, _in_run)
         p.send_signal(signal.SIGINT)      # it runs on: its stop, then its close hangs
-        stopped = _until(p.stderr, lambda line: 'ros_common.py' in line
-                         and line.endswith(' in run\n'))
+        stopped = _until(p.stderr, _in_run)
     finally:
         p.kill()
         p.wait(BOUND)
@@ -129,16 +137,6 @@ def test_a_node_asked_for_its_stacks_writes_them_and_runs_on(dom):
     assert asked.count('(most recent call first)') == 2 and 'in spin' in asked, asked
     assert 'in close' not in asked and stopped.index('in close') < stopped.index('in run'), \
         stopped
-
-
-def _until(stream, last) -> str:
-    """Read lines of ``stream`` up to the first for which ``last(line)`` holds."""
-    lines = []
-    for line in stream:
-        lines.append(line)
-        if last(line):
-            break
-    return ''.join(lines)
 
 
 def test_a_node_that_does_not_exit_in_time_is_asked_for_its_stacks_first(

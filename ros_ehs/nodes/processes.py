@@ -71,7 +71,6 @@ def launch_script(name: str) -> Path:
     return installed
 
 
-#: The node executables of the package (``ros2 run ros_ehs <name>``).
 #: The signal that makes a node (every one runs :func:`ros_ehs.nodes.ros_common.run`) write
 #: every thread's stack to its log at once (faulthandler, from its C handler: no GIL needed),
 #: whatever it is doing: :meth:`NodeProcesses.stop` sends it to a node that did not exit in
@@ -80,6 +79,7 @@ DUMP_SIGNAL = signal.SIGUSR1
 #: How long the stacks have to reach the log before the next signal [s]
 DUMP_WAIT = 1.0
 
+#: The node executables of the package (``ros2 run ros_ehs <name>``).
 NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify', 'procedure',
          'station')
 
@@ -303,7 +303,7 @@ class NodeProcesses:
                 try:
                     p.wait(timeout)
                 except subprocess.TimeoutExpired:
-                    if proc.node in NODES:
+                    if proc.node:
                         p.send_signal(DUMP_SIGNAL)
                         print(f"{n} did not exit within {timeout:g} s of SIGINT: its threads' "
                               f'stacks are in {proc.log}', file=sys.stderr, flush=True)

@@ -56,7 +56,7 @@ import ros_ehs_msgs_py as contract
 
 __all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'RESEND', 'WARN', 'call_until_answered', 'diagnostics',
            'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock',
-           'DUMP_SIGNAL', 'STOP_DUMP', 'STOP_GRACE']
+           'STOP_DUMP', 'STOP_GRACE']
 
 OK, WARN, ERROR = 0, 1, 2
 #: The plant's status in ``diagnostics`` (level OK once its loop is closed; see the contract)
