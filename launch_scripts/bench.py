@@ -339,10 +339,14 @@ def main(argv=None) -> int:
         # the recorder first (it drains while the writers still run), then the plant before
         # its controller: a plant outliving the controller would count every period until
         # its own exit as stale, with a watchdog trip (the summary's figures are the plant's)
-        recorder = procs.status(contract.RECORDER_STATUS)
         first = ['procedure'] if a.procedure else []      # its last records reach the bag
         order = [*first, 'recorder', *live, 'reference', 'plant', 'controller', *probes]
         codes = procs.stop([n for n in order if n in procs.procs])
+        if codes.get('recorder', 0) != 0:
+            # a recorder that stops on an error says why in its status before it exits (and
+            # waits until readers have it); the watch's thread may not have taken it in yet
+            procs.wait_status(contract.RECORDER_STATUS, lambda st: st.level == 2, 5.0)
+        recorder = procs.status(contract.RECORDER_STATUS)
     error = ''
     if recorder is not None and recorder.level == 2:
         error = recorder.message
