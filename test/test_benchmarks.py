@@ -53,6 +53,7 @@ from waits import BOUND
     ('fatigue', ['--speed-runs', '0'],
      "argument --speed-runs: must be a whole number >= 1, not '0'"),
     ('station', ['--seconds', 'nan'], 'argument --seconds: must be a finite number > 0'),
+    ('realtime', ['--seconds', '1'], 'argument --seconds: must be at least 2 s'),
     ('station', ['--rt-priority', '120'], 'argument --rt-priority: parameter `rt_priority`'),
     ('station', ['--browser-cpu', '99'], 'argument --browser-cpu: must be a CPU of this')])
 def test_the_benchmarks_refuse_bad_numbers_by_name(bench, args, says, capsys):
@@ -92,7 +93,7 @@ SHORT = {
     'paper': (['--duration', '2.0'], 'rms_err_ffpid_m'),
     'tracking': (['--frequencies', '10', '--cycles', '3', '--sweep-seconds', '3',
                   '--drive-seconds', '2', '--iterations', '1'], 'targets_met'),
-    'identify': (['--seconds', '3'], 'fit_s'),
+    'identify': (['--seconds', '1.5'], 'fit_s'),
     'drift': (['--duration', '15'], 'rising'),
     'loop': (['--seconds', '1', '--rounds', '1'], 'rounds'),
     'live': (['--seconds', '2', '--rounds', '2'], 'per_round'),
@@ -102,11 +103,11 @@ SHORT = {
                 '--kills', '1'], 'sigkill_lost_ms'),
     'soak': (['--seconds', '4', '--max-bag-duration', '1', '--sample', '0.5'],
              'rss_slope_mb_per_h'),
-    'realtime': (['--seconds', '3'], 'rig'),
+    'realtime': (['--seconds', '2'], 'rig'),
     'force': (['--frequencies', '20', '--cycles', '3', '--specimens', 'stiff'], 'protect'),
     'fatigue': (['--life', '200', '--speed-cycles', '10', '--speed-runs', '1', '--long-cycles',
                  '200', '--kills', '1'], 'resume'),
-    'verdict': (['--rigs', '1', '--seconds', '3', '--first', '12', '--fits-out',
+    'verdict': (['--rigs', '1', '--seconds', '2', '--first', '12', '--fits-out',
                  '{tmp}/fits.jsonl'], 'misses'),
     'station': (['--seconds', '2', '--rounds', '2'], 'updates_per_s'),
 }
@@ -114,6 +115,18 @@ SHORT = {
 
 def test_every_benchmark_has_a_short_run():
     assert set(SHORT) == set(BENCHMARKS)
+
+
+def test_every_benchmark_has_its_figure_and_command_in_the_docs():
+    from pathlib import Path
+    doc = Path(__file__).resolve().parents[1] / 'docs' / 'benchmarks.md'
+    rows = [[c.strip() for c in ln.split('|')[1:-1]] for ln in doc.read_text().splitlines()
+            if ln.startswith('| ') and not ln.startswith(('| bench |', '|---'))]
+    named = {r[0]: r for r in rows if len(r) == 4}
+    assert set(named) == set(BENCHMARKS), set(BENCHMARKS) ^ set(named)
+    for name, (_, command, figure, yardstick) in named.items():
+        assert command.startswith(f'`python -m ros_ehs.benchmarks {name}'), (name, command)
+        assert figure and yardstick, name
 
 
 def test_a_window_that_fails_stops_its_machine_probes(monkeypatch):

@@ -52,6 +52,11 @@ from ros_ehs.nodes.processes import NodeProcesses, recording, reference_started
 import ros_ehs_msgs_py as contract
 
 RATE = 500.0
+#: the APC runs' sine [Hz]
+APC_HZ = 10.0
+#: the shortest run [s]: its tracking RMS leaves out the first half, at least the ramp-on's
+#: second (and the in-process yardstick's alike)
+SHORTEST = 2.0
 #: the longest wait for a run's messages to reach its bag [s]
 BAG_WAIT = 600.0
 JOINT = 'actuator_z'
@@ -106,7 +111,7 @@ def tracking(bag: Path, state: str, joint: str, skip: float = 2.0) -> tuple[floa
 
 def apc(dom: int, tmp: str, seconds: float, rt: int) -> dict:
     """Measure the reference node's APC of a 4 mm, 10 Hz sine in real time, and without it."""
-    a, f = 0.004, 10.0
+    a, f = 0.004, APC_HZ
     err = {}
     for corrected in (False, True):
         bag = Path(tmp) / f'apc_{corrected}'
@@ -148,13 +153,14 @@ def rig(dom: int, tmp: str, seconds: float) -> dict:
                          controller={'rate_hz': RATE})
         wait_for_counts(our_bag, {'/state': int((seconds + 1) * RATE)}, BAG_WAIT)
         procs.stop(['recorder', 'reference', 'plant', 'controller'])
-    rms_rig, _ = tracking(rig_bag, '/joint_states', JOINT)
-    rms_ours, _ = tracking(our_bag, '/state', contract.JOINT_PISTON)
+    skip = min(2.0, seconds / 2)
+    rms_rig, _ = tracking(rig_bag, '/joint_states', JOINT, skip)
+    rms_ours, _ = tracking(our_bag, '/state', contract.JOINT_PISTON, skip)
     pred = {}
     for d in (0, 1):
         r = run_closed_loop(Params(), Sine(0.04, 1.0), seconds, model='simplified',
                             dt=1.0 / RATE, supervised=True, command_delay=d)
-        pred[d] = float(np.sqrt(np.mean((r.z_ref - r.z)[r.t > 2.0] ** 2)))
+        pred[d] = float(np.sqrt(np.mean((r.z_ref - r.z)[r.t > skip] ** 2)))
     return {'rms_rig_mm': round(rms_rig * 1e3, 4), 'rms_rig_in_process_mm': round(
         pred[1] * 1e3, 4), 'ratio_rig': round(rms_rig / pred[1], 3),
         'rms_ours_mm': round(rms_ours * 1e3, 4), 'rms_ours_in_process_mm': round(
@@ -166,17 +172,22 @@ def main(argv=None) -> int:
     """Run the benchmark; print figures, the last line JSON."""
     ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks realtime',
                                  description=__doc__.strip().splitlines()[0])
-    ap.add_argument('--seconds', type=positive, default=10.0, help='each run [s]')
+    ap.add_argument('--seconds', type=positive, default=10.0,
+                    help=f'each run [s], at least {SHORTEST:g}; the tracking RMS skips the '
+                    'first 2 s of a run (of a run shorter than 4 s, its first half)')
     ap.add_argument('--rt-priority', type=int, default=50,
                     help='SCHED_FIFO priority of plant and controller in the APC runs (0: the '
                     'default scheduler)')
     a = ap.parse_args(argv)
+    if a.seconds < SHORTEST:
+        ap.error(f'argument --seconds: must be at least {SHORTEST:g} s (the tracking RMS '
+                 'leaves out the ramp-on)')
     tmp = tempfile.mkdtemp(prefix='ehs_realtime_')
     with domain_id() as dom:
         try:
             fig = {'seconds': a.seconds,
-                   'apc': apc(dom, tmp, max(a.seconds, 3.0), a.rt_priority),
-                   'rig': rig(dom, tmp, max(a.seconds, 3.0))}
+                   'apc': apc(dom, tmp, a.seconds, a.rt_priority),
+                   'rig': rig(dom, tmp, a.seconds)}
         except BaseException:
             # the bags and the nodes' logs stay for whoever reads the error
             print(f'python -m ros_ehs.benchmarks realtime: its bags and logs are kept in {tmp}',
