@@ -92,7 +92,11 @@ def test_pip_install_puts_working_console_scripts_on_path(tmp_path):
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     site = next(prefix.glob('lib/python*/site-packages'))
-    env = dict(os.environ, PYTHONPATH=str(site), PATH=f'{prefix / "bin"}:{os.environ["PATH"]}')
+    # the model's kernels run uncompiled: numba would compile them again for this copy (9
+    # CPU-s; its cache is keyed by the file's path), and the colcon test below runs a
+    # compiled plant from its install
+    env = dict(os.environ, PYTHONPATH=str(site), PATH=f'{prefix / "bin"}:{os.environ["PATH"]}',
+               NUMBA_DISABLE_JIT='1')
     for name in _console_scripts():
         assert (prefix / 'bin' / name).exists(), name
     out = subprocess.run(['ehs_sim', 'main', '--model', 'simplified', '--duration', '1.0'],
