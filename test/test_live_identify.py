@@ -32,7 +32,7 @@ WRONG = {'F_cc': 730.0, 'F_sc': 1540.0, 'c_c': 12000.0}
 #: the refits at normal priority: these tests judge what is pushed, not the scheduling (at
 #: the rig's idle priority a machine whose cores another process keeps busy starves them, as
 #: it should; test_stop checks that the default refits at SCHED_IDLE)
-LIVE = {'live': True, 'push': True, 'window': 6.0, 'period': 3.0, 'push_period': 0.0,
+LIVE = {'live': True, 'push': True, 'window': 4.0, 'period': 2.0, 'push_period': 0.0,
         'cpu_affinity': -1, 'refit_priority': 'normal'}
 
 
