@@ -26,10 +26,17 @@ from ros_ehs.nodes.fastdds_shm import _locked, clean_zombies, main, SHM_DIR
 from waits import BOUND
 
 
-def _port(d: Path, n: int, locks=('_el',)) -> None:
+def _old(path: Path, data: bytes = b'x', age: float = 60.0) -> None:
+    """Write ``path`` as a file last changed ``age`` s ago (left by an earlier run)."""
+    path.write_bytes(data)
+    t = time.time() - age
+    os.utime(path, (t, t))
+
+
+def _port(d: Path, n: int, locks=('_el',), age: float = 60.0) -> None:
     for name in (f'fastrtps_port{n}', f'sem.fastrtps_port{n}_mutex',
                  *(f'fastrtps_port{n}{s}' for s in locks)):
-        (d / name).write_bytes(b'x')
+        _old(d / name, age=age)
 
 
 def test_stale_ports_and_segments_go_and_held_ones_stay(tmp_path):
@@ -39,9 +46,9 @@ def test_stale_ports_and_segments_go_and_held_ones_stay(tmp_path):
     _port(d, 7002)                       # held below: a live listener
     _port(d, 7003, locks=('_sl',))       # shared lock held below: a live multicast listener
     for seg in ('0123456789abcdef', 'fedcba9876543210'):
-        (d / f'fastrtps_{seg}').write_bytes(b'x')
-        (d / f'fastrtps_{seg}_el').write_bytes(b'')
-    (d / 'fastrtps_0000000000000000_el').write_bytes(b'')   # a lock without its segment
+        _old(d / f'fastrtps_{seg}')
+        _old(d / f'fastrtps_{seg}_el', b'')
+    _old(d / 'fastrtps_0000000000000000_el', b'')          # a lock without its segment
     for other in ('lttng-ust-wait-6', 'sem.other_mutex', 'fastrtps_portx', 'fastrtps_port123456',
                   'fastrtps_short_el'):
         (d / other).write_bytes(b'keep')
@@ -75,6 +82,30 @@ def test_stale_ports_and_segments_go_and_held_ones_stay(tmp_path):
     assert sorted(p.name for p in d.iterdir()) == sorted([
         'fastrtps_portx', 'fastrtps_port123456', 'fastrtps_short_el', 'lttng-ust-wait-6',
         'sem.other_mutex'])
+
+
+def test_files_changed_in_the_last_ten_seconds_are_left_untested(tmp_path):
+    """A port a participant is just setting up may not be locked yet: it stays."""
+    _port(tmp_path, 7200, age=1.0)                    # unlocked, but just made
+    _port(tmp_path, 7201, locks=(), age=1.0)
+    _old(tmp_path / 'fastrtps_0123456789abcdef_el', b'', age=1.0)   # a lock without segment
+    _port(tmp_path, 7202)                             # the same, a minute old: stale
+    before = sorted(p.name for p in tmp_path.iterdir())
+    res = clean_zombies(tmp_path)
+    assert res.ports_removed == 1 and res.in_use == 2, res
+    assert set(res.removed) == {'fastrtps_port7202', 'fastrtps_port7202_el',
+                                'sem.fastrtps_port7202_mutex'}
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        n for n in before if '7202' not in n]
+    # one file of a port changed lately (its mutex) keeps the whole port
+    _port(tmp_path, 7203)
+    _old(tmp_path / 'sem.fastrtps_port7203_mutex', age=1.0)
+    assert 'fastrtps_port7203' not in clean_zombies(tmp_path).removed
+    everything = clean_zombies(tmp_path, min_age=0.0)  # what a caller who knows may ask
+    assert everything.ports_removed == 3 and 'fastrtps_0123456789abcdef_el' in everything.removed
+    for bad in (-1.0, float('nan'), float('inf'), '10'):
+        with pytest.raises(ValueError, match='min_age: .* is not a finite number of seconds'):
+            clean_zombies(tmp_path, min_age=bad)
 
 
 def test_a_bad_directory_is_named(tmp_path, capsys):
@@ -134,7 +165,7 @@ def test_real_fast_dds_files_are_kept_while_alive_and_removed_once_killed(dom):
     # the ports only this participant listened on: their locks died with it
     mine = {n for n in held if _locked(SHM_DIR / n) is False}
     assert mine, 'SIGKILL left no stale port'
-    res = clean_zombies()
+    res = clean_zombies(min_age=0.0)           # they were made seconds ago
     stale = mine | {n[:-3] for n in mine}
     assert stale <= set(res.removed), res
     assert not stale & {f.name for f in SHM_DIR.iterdir()}

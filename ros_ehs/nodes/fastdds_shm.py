@@ -33,9 +33,11 @@ watchdog trip. Removing those files first avoids it (docs/nodes.md).
 :func:`clean_zombies` removes every port and segment that no live process holds, as
 ``fastdds shm clean`` does, and also the ports left without a lock file, which that tool
 does not list. A lock is tested with ``flock`` (what Fast DDS takes); a file that cannot be
-tested is left alone. Run it before starting nodes, not while other participants on the
-machine are being created (a port just being set up may not be locked yet); running
-participants are safe. ``python -m ros_ehs.nodes.fastdds_shm`` runs it and prints what it removed;
+tested is left alone. Files changed in the last ``min_age`` seconds (10 s) are not even
+tested: a port another participant is just setting up may not be locked yet, and the test's
+own brief lock could make its creator's fail; so it may run while participants start, as the
+test suite's workers start theirs (running participants are safe whatever their age).
+``python -m ros_ehs.nodes.fastdds_shm`` runs it and prints what it removed;
 :class:`ros_ehs.nodes.processes.NodeProcesses` and ``launch_scripts/bench.py`` run it before
 starting
 nodes.
@@ -49,6 +51,7 @@ import os
 from pathlib import Path
 import re
 import sys
+import time
 
 __all__ = ['SHM_DIR', 'ShmCleanup', 'clean_zombies', 'main']
 
@@ -58,6 +61,8 @@ SHM_DIR = Path('/dev/shm')
 _PORT = re.compile(r'^fastrtps_port(\d{1,5})$')
 _SEGMENT = re.compile(r'^fastrtps_[0-9a-z]{16}$')
 _LOCKS = ('_el', '_sl')
+#: Files changed more recently than this [s] are left untested (see the module docstring).
+MIN_AGE = 10.0
 
 
 @dataclass(frozen=True)
@@ -104,23 +109,39 @@ def _remove(path: Path, removed: list[str]) -> None:
     removed.append(path.name)
 
 
-def clean_zombies(shm_dir: str | os.PathLike = SHM_DIR) -> ShmCleanup:
+def clean_zombies(shm_dir: str | os.PathLike = SHM_DIR, min_age: float = MIN_AGE) -> ShmCleanup:
     """
     Remove Fast DDS's ports and segments in ``shm_dir`` that no live process holds.
 
     A port or segment is in use when any of its lock files is locked; one whose lock files
     are all unlocked or missing is stale, and its files (segment, lock files, a port's
-    mutex) are removed. Nothing else in ``shm_dir`` is touched. Raises ValueError when
-    ``shm_dir`` is not a directory.
+    mutex) are removed. One with a file changed less than ``min_age`` s ago is counted in
+    use, untested. Nothing else in ``shm_dir`` is touched. Raises ValueError when
+    ``shm_dir`` is not a directory or ``min_age`` is not a finite number >= 0.
     """
     d = Path(shm_dir)
     if not d.is_dir():
         raise ValueError(f'shm_dir: {str(d)!r} is not a directory')
+    if not (isinstance(min_age, (int, float)) and 0.0 <= min_age < float('inf')):
+        raise ValueError(f'min_age: {min_age!r} is not a finite number of seconds >= 0')
+    since = time.time() - float(min_age)
+
+    def young(*paths: Path) -> bool:
+        for path in paths:
+            try:
+                if path.stat().st_mtime > since:
+                    return True
+            except OSError:
+                pass
+        return False
     removed: list[str] = []
     ports = segments = in_use = 0
     for name in sorted(os.listdir(d)):
         port = _PORT.match(name)
         if not (port or _SEGMENT.match(name)):
+            continue
+        if young(d / name, *(d / (name + s) for s in _LOCKS), d / f'sem.{name}_mutex'):
+            in_use += 1
             continue
         held = [_locked(d / (name + s)) for s in _LOCKS]
         if any(held):
@@ -139,7 +160,8 @@ def clean_zombies(shm_dir: str | os.PathLike = SHM_DIR) -> ShmCleanup:
     for name in sorted(os.listdir(d)):
         base = name[:-3]
         if name.endswith(_LOCKS) and (_PORT.match(base) or _SEGMENT.match(base)) and \
-                not (d / base).exists() and _locked(d / name) is False:
+                not (d / base).exists() and not young(d / name) and \
+                _locked(d / name) is False:
             _remove(d / name, removed)
     return ShmCleanup(tuple(removed), ports, segments, in_use)
 
