@@ -54,8 +54,10 @@ import ros_ehs_msgs_py as contract
 RATE = 500.0
 #: the APC runs' sine [Hz]
 APC_HZ = 10.0
-#: the shortest run [s]: its tracking RMS leaves out the first half, at least the ramp-on's
-#: second (and the in-process yardstick's alike)
+#: what the tracking RMS leaves out of a run [s] (of a run shorter than twice that, its first
+#: half), and the in-process yardstick's alike
+SKIP = 2.0
+#: the shortest run [s]: its first half still holds the ramp-on's second
 SHORTEST = 2.0
 #: the longest wait for a run's messages to reach its bag [s]
 BAG_WAIT = 600.0
@@ -81,7 +83,7 @@ def fundamental(bag, frequency: float, cycles: int = 2) -> tuple[float, float]:
     return math.hypot(a, bb), math.degrees(math.atan2(bb, a))
 
 
-def tracking(bag: Path, state: str, joint: str, skip: float = 2.0) -> tuple[float, int]:
+def tracking(bag: Path, state: str, joint: str, skip: float = SKIP) -> tuple[float, int]:
     """
     RMS of z_ref - z [m] after ``skip`` s of the reference, and the states counted.
 
@@ -153,7 +155,7 @@ def rig(dom: int, tmp: str, seconds: float) -> dict:
                          controller={'rate_hz': RATE})
         wait_for_counts(our_bag, {'/state': int((seconds + 1) * RATE)}, BAG_WAIT)
         procs.stop(['recorder', 'reference', 'plant', 'controller'])
-    skip = min(2.0, seconds / 2)
+    skip = min(SKIP, seconds / 2)
     rms_rig, _ = tracking(rig_bag, '/joint_states', JOINT, skip)
     rms_ours, _ = tracking(our_bag, '/state', contract.JOINT_PISTON, skip)
     pred = {}
@@ -174,7 +176,8 @@ def main(argv=None) -> int:
                                  description=__doc__.strip().splitlines()[0])
     ap.add_argument('--seconds', type=positive, default=10.0,
                     help=f'each run [s], at least {SHORTEST:g}; the tracking RMS skips the '
-                    'first 2 s of a run (of a run shorter than 4 s, its first half)')
+                    f'first {SKIP:g} s of a run (of a run shorter than {2 * SKIP:g} s, its '
+                    'first half)')
     ap.add_argument('--rt-priority', type=int, default=50,
                     help='SCHED_FIFO priority of plant and controller in the APC runs (0: the '
                     'default scheduler)')

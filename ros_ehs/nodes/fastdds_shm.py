@@ -34,13 +34,12 @@ watchdog trip. Removing those files first avoids it (docs/nodes.md).
 ``fastdds shm clean`` does, and also the ports left without a lock file, which that tool
 does not list. A lock is tested with ``flock`` (what Fast DDS takes); a file that cannot be
 tested is left alone. Files changed in the last ``min_age`` seconds (10 s) are not even
-tested: a port another participant is just setting up may not be locked yet, and the test's
-own brief lock could make its creator's fail; so it may run while participants start, as the
-test suite's workers start theirs (running participants are safe whatever their age).
-``python -m ros_ehs.nodes.fastdds_shm`` runs it and prints what it removed;
-:class:`ros_ehs.nodes.processes.NodeProcesses` and ``launch_scripts/bench.py`` run it before
-starting
-nodes.
+tested: a port another participant is just setting up may not be locked yet, and the brief
+``flock`` that tests it could make its creator's own lock fail; so it may run while
+participants start, as the test suite's workers start theirs (running participants are safe
+whatever their age). ``python -m ros_ehs.nodes.fastdds_shm`` runs it and prints what it
+removed; :class:`ros_ehs.nodes.processes.NodeProcesses` and ``launch_scripts/bench.py`` run it
+before starting nodes.
 """
 
 from __future__ import annotations
