@@ -76,6 +76,7 @@ def _set(ros, name, value, node='/controller'):
 
 def test_a_mode_switch_on_a_running_loop_is_bumpless_and_a_refused_one_says_why(
         dom, tmp_path, ros):
+    from rcl_interfaces.srv import SetParameters
     bag = tmp_path / 'bag'
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag,
@@ -84,7 +85,7 @@ def test_a_mode_switch_on_a_running_loop_is_bumpless_and_a_refused_one_says_why(
                          reference={'kind': 'step', 'amplitude': 0.0006, 'step_time': 0.1,
                                     'rise': 0.5})
         wait_value(procs, c.PLANT_STATUS, 'steps', 1500)        # held still at 3 kN
-        with Frozen(procs):
+        with Frozen(procs, ros, [(SetParameters, '/controller/set_parameters')]):
             ok, why = _set(ros, 'control_mode', 'displacement_force_limited')
             assert not ok and 'beyond protect_force 100 N' in why, why
             ok, why = _set(ros, 'control_mode', 'force')

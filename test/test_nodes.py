@@ -105,9 +105,10 @@ def _corrected_lockstep(dom, tmp_path, duration: float, reference: dict, correct
 
 
 # -- lock-step ---------------------------------------------------------------------------------
-#: the longest the recorder is paused [s]: a process frozen for more than Fast DDS's
-#: shared-memory health check (1 s) can have a writer's path to it dropped for good
-RECORDER_PAUSE = 0.5
+#: the longest the recorder is paused [s]: Fast DDS's shared-memory health check takes a
+#: process frozen for about a second for a crashed one, can hold its writers that long and
+#: drop a writer's path to it for good (docs/recording.md, "A recorder that stalls")
+RECORDER_PAUSE = 0.3
 
 
 def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
@@ -136,14 +137,11 @@ def test_lockstep_over_dds_reproduces_the_in_process_loop(dom, tmp_path):
         wait_value(procs, c.PLANT_STATUS, 'steps', 1)
         steps = status_value(procs, c.PLANT_STATUS, 'steps')
         rec.send_signal(signal.SIGSTOP)           # paused, as a busy machine pauses it
-        # while the loop runs on 300 periods, at most RECORDER_PAUSE: a longer freeze can cost
-        # Fast DDS's shared-memory path (docs/recording.md, "A recorder that stalls")
+        # while the loop runs on 300 periods (on a quiet machine), at most RECORDER_PAUSE
         procs.wait_status(c.PLANT_STATUS,
                           lambda st: float(st.values['steps']) >= min(n, steps + 300),
                           RECORDER_PAUSE)
         rec.send_signal(signal.SIGCONT)
-        paused = status_value(procs, c.PLANT_STATUS, 'steps') - steps
-        assert paused >= 20, f'the loop ran {paused:g} periods while the recorder was paused'
         lockstep_complete(procs)
         # what the pause made the recorder miss is repaired at the writers' next heartbeat
         # (0.1 s on the nodes' Fast DDS profile; 3 s on Fast DDS's own, where a recorder

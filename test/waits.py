@@ -76,24 +76,41 @@ def call_service(ros, srv_type, name: str, request, timeout: float = BOUND):
     (:func:`ros_ehs.nodes.ros_common.call_until_answered`); the services called so are ones a
     repeat answers harmlessly.
     """
-    clients = ros.__dict__.setdefault('_ehs_clients', {})
-    cli = clients.get((srv_type, name))
-    if cli is None:
-        cli = clients[(srv_type, name)] = ros.create_client(srv_type, name)
-    assert ros.spin(until=cli.service_is_ready, timeout=timeout), f'no service {name}'
+    cli = service_client(ros, srv_type, name, timeout)
     res = call_until_answered(cli, request, lambda until, t: ros.spin(until=until, timeout=t),
                               timeout)
     assert res is not None, f'{name} did not answer in {timeout:g} s'
     return res
 
 
-class Frozen:
-    """The lock-step loop held still (its plant stopped) while a test calls a service."""
+def service_client(ros, srv_type, name: str, timeout: float = BOUND):
+    """Return the test node's client of service ``name`` (made once), once the service is up."""
+    clients = ros.__dict__.setdefault('_ehs_clients', {})
+    cli = clients.get((srv_type, name))
+    if cli is None:
+        cli = clients[(srv_type, name)] = ros.create_client(srv_type, name)
+    assert ros.spin(until=cli.service_is_ready, timeout=timeout), f'no service {name}'
+    return cli
 
-    def __init__(self, procs):
+
+class Frozen:
+    """
+    The lock-step loop held still (its plant stopped) while a test calls a service.
+
+    ``services``, ``(srv_type, name)`` pairs, are discovered before the plant stops, so the
+    freeze lasts only the calls: Fast DDS takes a process frozen for more than about a second
+    for a crashed one and can drop its shared-memory path for good (docs/recording.md, "A
+    recorder that stalls"), and a new client can take that long to find its service.
+    """
+
+    def __init__(self, procs, ros=None, services=()):
         self.plant = procs['plant'].popen
+        self.ros, self.services = ros, list(services)
+        assert ros is not None or not self.services, 'discovering services needs the node'
 
     def __enter__(self):
+        for srv_type, name in self.services:
+            service_client(self.ros, srv_type, name)
         self.plant.send_signal(signal.SIGSTOP)
 
     def __exit__(self, *exc):
