@@ -19,6 +19,8 @@ Start a bench: plant + controller + reference + recorder, each its own process.
     python launch_scripts/bench.py --mode lockstep --duration 10     # deterministic, fast
     python launch_scripts/bench.py --mode lockstep --duration 60 --no-cpu-affinity
     python launch_scripts/bench.py --mode lockstep --duration 600 --procedure test.yaml
+    python launch_scripts/bench.py --mode lockstep --duration 600 --station 8080 \
+        --plant-param real_time_factor=1      # a virtual rig at the rig's speed, to watch
 
 ``--procedure FILE`` runs a test (docs/procedures.md): the procedure node takes the
 reference's place, starts at once (``--no-autostart``: wait for ``~/start``) and the bench
@@ -31,7 +33,8 @@ the bench prints, read from the bag, what it holds, the safety events (topic ``e
 with ``--live-identify``, the live refits (``parameter_estimates``).
 
 It runs for ``--duration`` seconds (real time: wall seconds after the loop closes; lock-step:
-sim seconds, as fast as DDS goes) or until Ctrl-C, then stops every child cleanly: the
+sim seconds, as fast as DDS goes, or at most ``real_time_factor`` sim seconds per wall second)
+or until Ctrl-C, then stops every child cleanly: the
 recorder first (so the bag closes with the loop intact), then reference, plant, controller.
 With ``--rt-priority`` the nodes get the Fast DDS profile ``fastdds_rt.xml`` beside this
 script (unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` names a profile other than the

@@ -25,7 +25,7 @@ import pytest
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.model.plant import Plant
 from ros_ehs.core.params import Params
-from ros_ehs.core.sim.axis import MAX_CATCHUP, SimulatedAxis
+from ros_ehs.core.sim.axis import MAX_CATCHUP, PACE_CREDIT, PACE_TICK, SimulatedAxis
 
 MS = 1_000_000      # ns
 
@@ -142,6 +142,52 @@ def test_lockstep_steps_once_per_answer_and_resends_after_silence():
     assert a.command(a.stamp_ns(), 0.001, 10.7) == 'not_current'   # finished: no more steps
     assert a.poll(20.0, 1) is None                                 # nor resends
     assert a.figures(20.0)['steps_per_s'] == pytest.approx(4 / 0.09)
+
+
+def test_lockstep_at_a_real_time_factor_holds_each_state_until_its_time():
+    """At 0.5 (2 ms of wall per 1 ms period) from the first state; released by poll."""
+    a = SimulatedAxis(Params(), rate_hz=1000.0, lockstep=True, start_delay=0.0,
+                      resend_period=0.05, real_time_factor=0.5)
+    assert a.poll_period == PACE_TICK
+    assert a.poll(1.0, 1) == 'matched' and a.poll(1.0, 1) == 'first'
+    assert a.command(a.stamp_ns(), 0.001, 1.0005) == 'applied' and a.k == 1
+    assert a.held                                  # due at 1.002
+    assert a.poll(1.0019, 1) is None and a.held
+    assert a.command(a.stamp_ns(), 0.001, 1.0019) == 'future'   # an answer to an unsent state
+    assert a.poll(1.002, 1) == 'release' and not a.held
+    # a slow answer: behind the pace, so the next state goes at once
+    assert a.command(a.stamp_ns(), 0.001, 1.0045) == 'applied' and a.k == 2 and not a.held
+    assert a.command(a.stamp_ns(), 0.001, 1.0046) == 'applied' and a.k == 3 and a.held
+    assert a.poll(1.0059, 1) is None and a.poll(1.006, 1) == 'release'
+    # while held there is no resend, however long the wait
+    b = SimulatedAxis(Params(), rate_hz=10.0, lockstep=True, start_delay=0.0,
+                      resend_period=0.05, real_time_factor=1.0)
+    assert b.poll(0.0, 1) == 'matched' and b.poll(0.0, 1) == 'first'
+    assert b.command(b.stamp_ns(), 0.0, 0.001) == 'applied' and b.held
+    assert [b.poll(t, 1) for t in (0.05, 0.09)] == [None, None] and b.resends == 0
+    assert b.poll(0.1, 1) == 'release'
+    assert b.poll(0.149, 1) is None and b.poll(0.151, 1) == 'resend'   # then the usual rule
+
+
+def test_a_paced_lockstep_run_far_behind_restarts_its_pace_and_the_last_state_is_not_held():
+    a = SimulatedAxis(Params(), rate_hz=1000.0, lockstep=True, start_delay=0.0,
+                      real_time_factor=1.0, duration=0.005)
+    assert a.poll(0.0, 1) == 'matched' and a.poll(0.0, 1) == 'first'
+    # a stall: the first answer comes 1 s late; the run does not race through the next second
+    assert a.command(a.stamp_ns(), 0.0, 1.0) == 'applied' and not a.held
+    assert a.command(a.stamp_ns(), 0.0, 1.0) == 'applied' and a.held       # paced from 1 s
+    assert a.poll(1.001, 1) == 'release'
+    # behind by less than PACE_CREDIT: caught up at full speed
+    t = 1.001 + PACE_CREDIT / 2
+    assert a.command(a.stamp_ns(), 0.0, t) == 'applied' and not a.held
+    assert a.command(a.stamp_ns(), 0.0, t) == 'applied' and a.k == 4 and not a.held
+    assert a.command(a.stamp_ns(), 0.0, t) == 'applied' and a.finished and not a.held
+    # unpaced (the default) and real time never hold
+    for b in (SimulatedAxis(Params(), lockstep=True, start_delay=0.0),
+              SimulatedAxis(Params(), real_time_factor=1.0)):
+        assert b.poll_period == b.resend_period
+    with pytest.raises(InputError, match='`real_time_factor` = -1'):
+        SimulatedAxis(Params(), lockstep=True, real_time_factor=-1.0)
 
 
 def test_the_lockstep_axis_is_the_model_stepped_with_each_answer():

@@ -97,6 +97,9 @@ PLANT = (
             "sim time (0: every period); keep it below the reference's preview"),
     Setting('resend_period', 's', 0.05, 1.0e-3, 10.0, 'lock-step: republish the state after '
             'this much silence'),
+    Setting('real_time_factor', '', 0.0, 0.0, 1000.0, 'lock-step: advance at most this much '
+            'sim time per wall second (1: as fast as the rig would, to watch a virtual test '
+            'or spare the CPU while waiting on something else; 0: as fast as the loop runs)'),
     Setting('noise_z', 'm', 0.0, 0.0, 0.01, 'white noise (1 sigma) on the published position; '
             'the bench sets 5e-6'),
     Setting('noise_v', 'm/s', 0.0, 0.0, 1.0, 'white noise on the published velocity'),

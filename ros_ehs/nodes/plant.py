@@ -121,7 +121,8 @@ class PlantNode(Node):
             wait_subscribers=int(o['wait_subscribers']), start_delay=float(o['start_delay']),
             clock_period=float(o['clock_period']), resend_period=float(o['resend_period']),
             noise=(float(o['noise_z']), float(o['noise_v']), float(o['noise_p'])),
-            seed=int(o['seed']), fault=o['fault'], fault_time=float(o['fault_time']))
+            seed=int(o['seed']), fault=o['fault'], fault_time=float(o['fault_time']),
+            real_time_factor=float(o['real_time_factor']))
         # compile the kernels now, on a throw-away copy (the loop's axis starts fresh)
         SimulatedAxis(self.params, o['model']).step(0.0)
         self.dt = self.axis.dt
@@ -162,7 +163,7 @@ class PlantNode(Node):
         self.add_post_set_parameters_callback(self._apply_params)
         clock = steady_clock()
         if self.lockstep:
-            self.create_timer(float(o['resend_period']), self._poll, clock=clock)
+            self.create_timer(self.axis.poll_period, self._poll, clock=clock)
         elif o['timing'] == 'thread':
             self._stop = threading.Event()
             self._loop = threading.Thread(target=self._run_loop, daemon=True)
@@ -208,6 +209,8 @@ class PlantNode(Node):
             self.stats.tick(now, True)
             if ax.notes:
                 self._log_notes()
+            if ax.held:        # ahead of its real-time factor: _poll sends it in time
+                return
             self._publish(clock=ax.clock_due())
             if ax.finished:
                 self.get_logger().info(f'lock-step run complete: {ax.k} steps, '
@@ -261,6 +264,8 @@ class PlantNode(Node):
         if what == 'matched':
             self.get_logger().info('subscribers matched; lock-step starts in '
                                    f'{self.opt["start_delay"]:g} s')
+        elif what == 'release':
+            self._publish(clock=self.axis.clock_due())
         elif what is not None:
             self._publish(clock=True)
 

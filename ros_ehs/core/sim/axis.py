@@ -21,7 +21,7 @@ the sensor noise. The node converts messages, calls it and publishes; the clocks
 in (``now`` [s] or ``now_ns``, ``time.monotonic``'s), so every rule is tested without DDS.
 
 **Stamp policy** (the controller stamps each command with the state it answers): a command
-stamped after the latest state answers none (a stray publisher, another clock): ``future``;
+stamped after the latest state sent answers none (a stray publisher, another clock): ``future``;
 one no newer than the last applied, or any before a real-time axis's first state: ``stale``;
 in lock-step only the answer to the current state counts (``not_current``); a non-finite
 current is ``non_finite``. A restarted controller therefore needs nothing: its first answer is
@@ -39,7 +39,12 @@ a later on-time tick finds the command too old as well (a controller that stoppe
 **Lock-step**: :meth:`poll` (every ``resend_period``) waits for the subscribers, then
 ``start_delay``, then says to send the first state, and to send it again after
 ``resend_period`` of silence; the answer to the current state steps exactly one period
-(:meth:`command`). :meth:`clock_due` says which states carry ``/clock``.
+(:meth:`command`). :meth:`clock_due` says which states carry ``/clock``. With a
+``real_time_factor`` > 0 the run advances at most that much sim time per wall second, counted
+from the first state: a state due later is held (:attr:`held`) and released by the first
+:meth:`poll` at or after its time (poll every ``PACE_TICK`` then). A run that falls more than
+``PACE_CREDIT`` behind its pace (a stalled machine) does not race to catch up: the pace
+restarts from there.
 
 **The specimen** (:class:`~ros_ehs.core.model.specimen.Specimen`, when ``k_L`` > 0): each
 step its force is taken from the new state, its crack grows at each reversal (the model's load
@@ -71,13 +76,17 @@ from ros_ehs.core.params import Params
 from ros_ehs.core.sim.faults import FAULTS, LOST_SUPPLY
 from ros_ehs_msgs_py import AxisState, Load
 
-__all__ = ['FAULTS', 'LOST_SUPPLY', 'MAX_CATCHUP', 'SPECIMEN_PARAMS', 'Sample', 'SimulatedAxis',
-           'TRIP_LOG', 'WatchdogTrip']
+__all__ = ['FAULTS', 'LOST_SUPPLY', 'MAX_CATCHUP', 'PACE_CREDIT', 'PACE_TICK', 'SPECIMEN_PARAMS',
+           'Sample', 'SimulatedAxis', 'TRIP_LOG', 'WatchdogTrip']
 
 #: Periods a late tick may step before the grid is moved on.
 MAX_CATCHUP = 50
 #: Watchdog trips kept (the newest).
 TRIP_LOG = 100
+#: Lock-step at a real-time factor: the node polls at least this often [s] (the longest burst).
+PACE_TICK = 0.005
+#: Lock-step at a real-time factor: the most wall time a run may catch up at full speed [s].
+PACE_CREDIT = 0.05
 _ZEROS = (0.0, 0.0, 0.0, 0.0)
 
 
@@ -127,7 +136,8 @@ class SimulatedAxis:
                  wait_subscribers: int = 1, start_delay: float = 0.5,
                  clock_period: float = 0.01, resend_period: float = 0.05,
                  noise: tuple[float, float, float] = (0.0, 0.0, 0.0), seed: int = 0,
-                 fault: str = 'none', fault_time: float = 0.0) -> None:
+                 fault: str = 'none', fault_time: float = 0.0,
+                 real_time_factor: float = 0.0) -> None:
         if not isinstance(params, Params):
             raise InputError(f'`params` must be a Params, got {type(params).__name__}')
         if not (math.isfinite(rate_hz) and rate_hz > 0):
@@ -138,6 +148,9 @@ class SimulatedAxis:
                         ('clock_period', clock_period), ('resend_period', resend_period)):
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f'`{name}` = {v!r} s must be finite and >= 0')
+        if not (math.isfinite(real_time_factor) and real_time_factor >= 0):
+            raise InputError(f'`real_time_factor` = {real_time_factor!r} must be finite and >= 0 '
+                             '(0: as fast as the loop runs)')
         self.params = params
         self.model = model
         self.plant = Plant(params, model)
@@ -197,6 +210,12 @@ class SimulatedAxis:
         self._first_due: float | None = None  # lock-step: when the first state goes out
         self._sent_first = False
         self._last_progress = 0.0
+        # lock-step pace: wall seconds per period (0: none); the wall time and period it
+        # counts from; the wall time the held state is due at (None: none held)
+        self._pace = self.dt / real_time_factor if self.lockstep and real_time_factor else 0.0
+        self._pace_wall = 0.0
+        self._pace_k = 0
+        self._held_until: float | None = None
         self.notes: list[tuple[str, str]] = []
 
     # -- configuration -----------------------------------------------------------------------
@@ -250,9 +269,10 @@ class SimulatedAxis:
         """
         if not math.isfinite(i):
             verdict = 'non_finite'
-        elif stamp_ns > self.stamp_ns():
+        elif stamp_ns > self.stamp_ns() or (stamp_ns == self.stamp_ns() and self.held):
             # adopting a command from after the latest state would make every true command
-            # look stale until the watchdog zeroes the valve for good
+            # look stale until the watchdog zeroes the valve for good (a held state is not
+            # sent yet)
             verdict = 'future'
         elif stamp_ns <= self._last_cmd_stamp or (self.k == 0 and not self.lockstep):
             # a real-time answer to another run must not arm the watchdog
@@ -275,6 +295,8 @@ class SimulatedAxis:
             self._last_progress = now
             self.step(self.i_cmd)
             self._last_step = now
+            if self._pace and not self.finished:
+                self._hold(now)
         return verdict
 
     # -- real time ---------------------------------------------------------------------------
@@ -343,8 +365,8 @@ class SimulatedAxis:
         Lock-step housekeeping at ``now`` [s]; return what to do.
 
         ``matched`` (the subscribers are there: the first state goes out in ``start_delay``),
-        ``first`` (send the first state now), ``resend`` (no answer for ``resend_period``:
-        send the state again) or None.
+        ``first`` (send the first state now), ``release`` (the held state's time has come:
+        send it), ``resend`` (no answer for ``resend_period``: send the state again) or None.
         """
         if self._first_due is None:
             if subscribers >= self.wait_subscribers:
@@ -353,12 +375,36 @@ class SimulatedAxis:
         elif not self._sent_first:
             if now >= self._first_due:
                 self._sent_first = True
-                self._last_progress = now
+                self._last_progress = self._pace_wall = now
+                self._pace_k = self.k
                 return 'first'
+        elif self._held_until is not None:
+            if now >= self._held_until:
+                self._held_until = None
+                self._last_progress = now
+                return 'release'
         elif now - self._last_progress >= self.resend_period and not self.finished:
             self.resends += 1
             return 'resend'
         return None
+
+    @property
+    def poll_period(self) -> float:
+        """Lock-step: how often the node calls :meth:`poll` [s] (more often at a pace)."""
+        return min(self.resend_period, PACE_TICK) if self._pace else self.resend_period
+
+    @property
+    def held(self) -> bool:
+        """Lock-step at a real-time factor: say if the current state waits for its time."""
+        return self._held_until is not None
+
+    def _hold(self, now: float) -> None:
+        """Hold the new state until its time on the pace (restarting a pace far behind)."""
+        due = self._pace_wall + (self.k - self._pace_k) * self._pace
+        if now - due > PACE_CREDIT:       # far behind (a stall): no race to catch up
+            self._pace_wall, self._pace_k = now, self.k
+        elif due > now:
+            self._held_until = due
 
     def clock_due(self) -> bool:
         """Lock-step: say if the current state carries ``/clock`` (each clock period, the last)."""
