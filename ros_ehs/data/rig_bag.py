@@ -148,7 +148,9 @@ def record_rig_bag(out: str | os.PathLike, layout: RigLayout = RigLayout(), *,
                     float(z_ref[k]), float(v_ref[k]))
                 queue.append(cmds[k])
                 u[0] = queue.popleft()
-            x = plant.step(x, u, dt / sub)
+            if not plant.advance(x, u, dt / sub):     # in place: the unchecked fast path
+                raise InputError(f'the rig left its model at {t[k]:.6g} s (a non-finite '
+                                 'state, or the piston outside the cylinder)')
             fine[k * sub + s + 1] = x[[iz, iv, ipa, ipb]]
     samp = fine[np.arange(n) * sub + jit_steps]
     z = encoder(samp[:, 0] + layout.noise_z * rng.standard_normal(n))

@@ -125,7 +125,7 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
         z_ref, v_ref = np.empty(n + 1), np.empty(n + 1)
     else:
         z_ref, v_ref = reference(t)
-    x = plant.equilibrium() if x0 is None else np.asarray(x0, dtype=float)
+    x = plant.equilibrium() if x0 is None else np.array(x0, dtype=float)      # a copy
     xs = np.empty((n + 1, plant.n))
     cur = np.zeros(n + 1)
     iz = plant.state_names.index('z')
@@ -153,7 +153,10 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
             late.append(u[0])
             u[0] = late.pop(0)
         cur[k] = u[0]
-        x = plant.step(x, u, dt) if stepper == 'fast' else reference_step(plant, x, u, dt)
+        if stepper != 'fast':
+            x = reference_step(plant, x, u, dt)
+        elif not plant.advance(x, u, dt) and not np.all(np.isfinite(x)):   # x in place
+            raise InputError(f'integration diverged within dt = {dt!r} s at u = {u.tolist()}')
         xs[k + 1] = x
     cur[n] = cur[n - 1]
     if online:
