@@ -33,7 +33,11 @@ WRONG = {'F_cc': 730.0, 'F_sc': 1540.0, 'c_c': 12000.0}
 #: the rig's idle priority a machine whose cores another process keeps busy starves them, as
 #: it should; test_stop checks that the default refits at SCHED_IDLE)
 LIVE = {'live': True, 'push': True, 'window': 4.0, 'period': 2.0, 'push_period': 0.0,
-        'cpu_affinity': -1, 'refit_priority': 'normal'}
+        'cpu_affinity': -1, 'refit_priority': 'normal', 'use_sim_time': True}
+#: the loop at twice the rig's speed, from when the identify node listens (the plant waits for
+#: it, the controller and the recorder): a loop as fast as it runs would step on through
+#: every refit, tens of seconds of sim time the tests do not need
+LOOP = {**NOISE, 'duration': 600.0, 'real_time_factor': 2.0, 'wait_subscribers': 3}
 
 
 def _estimates(bag):
@@ -68,9 +72,9 @@ def _run(procs, bag, plant, ros, done):
     Returns the controller's values then, and the identify node's log.
     """
     got = _listen(ros)
-    procs.start_loop('lockstep', bag=bag, plant={**NOISE, 'duration': 600.0, **plant},
+    procs.start('identify', LIVE)
+    procs.start_loop('lockstep', bag=bag, plant={**LOOP, **plant},
                      controller=WRONG, reference={'cpu_affinity': -1})
-    procs.start('identify', {**LIVE, 'use_sim_time': True})
     assert ros.spin(until=lambda: done(got), timeout=BOUND), (got, procs['identify'].output())
     values = _controller_values(ros, list(WRONG))
     procs.stop(['recorder', 'identify', 'reference', 'controller', 'plant'])
@@ -114,9 +118,9 @@ def test_a_push_target_that_does_not_take_the_values_is_named_and_never_pushed(
     """The live node pointed at a node that does not declare the feedforward's values."""
     got = _listen(ros)
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
-        procs.start_loop('lockstep', bag=tmp_path / 'bag', plant={**NOISE, 'duration': 600.0},
+        procs.start('identify', {**LIVE, 'controller': 'recorder'})
+        procs.start_loop('lockstep', bag=tmp_path / 'bag', plant=LOOP,
                          reference={'cpu_affinity': -1})
-        procs.start('identify', {**LIVE, 'controller': 'recorder', 'use_sim_time': True})
         # named once, and it refits on: two estimates, never pushed
         assert ros.spin(until=lambda: len(got) >= 2, timeout=BOUND), \
             procs['identify'].output()[-3000:]

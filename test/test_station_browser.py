@@ -22,6 +22,9 @@ from waits import BOUND, call_service, rosbags_read, status_value, wait_value
 
 pytestmark = pytest.mark.ros
 FAST = {'diagnostics_period': 0.05}
+#: the plant's lock-step at the rig's speed: the page's waits are on the page, and a loop as
+#: fast as it runs would spend the CPU the browser needs
+PACED = {'real_time_factor': 1.0}
 CHROMIUM = '/usr/bin/chromium'
 #: Chromium on a machine with no network (the flags keep it from calling home)
 ARGS = ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
@@ -130,7 +133,7 @@ def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path
     from rcl_interfaces.srv import SetParameters
     bag = tmp_path / 'bag'
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
-        procs.start_loop('lockstep', bag=bag, plant={'duration': 600.0, **FAST},
+        procs.start_loop('lockstep', bag=bag, plant={'duration': 600.0, **PACED, **FAST},
                          controller={'limit_position_max': 0.03, 'ramp_time': 0.2,
                                      'limit_position_max_action': 'hold', **FAST})
         page = _page(browser)
@@ -193,7 +196,7 @@ def test_the_page_starts_holds_and_resumes_a_procedure(dom, tmp_path, browser):
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=tmp_path / 'bag',
                          plant={'duration': 1.0e5, 'k_L': 1.0e6, 'specimen_life': 1.0e12,
-                                **FAST},
+                                **PACED, **FAST},
                          controller={'ramp_time': 0.05, **FAST},
                          procedure={'file': str(proc), 'autostart': False, **FAST})
         page = _page(browser)
@@ -250,7 +253,7 @@ def test_bench_py_starts_the_station_beside_the_bench_and_stops_it_cleanly(
     from ros_ehs.nodes.processes import launch_script
     cmd = [sys.executable, str(launch_script('bench.py')), '--mode', 'lockstep', '--duration',
            '600', '--out', str(tmp_path / 'bag'), '--log-dir', str(tmp_path / 'logs'),
-           '--no-cpu-affinity', '--station', '0']
+           '--no-cpu-affinity', '--station', '0', '--plant-param', 'real_time_factor=1']
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                          env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
     try:
