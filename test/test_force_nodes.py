@@ -31,7 +31,7 @@ from ros_ehs.core.control.safety import break_travel
 from ros_ehs.core.params import preset
 from ros_ehs.nodes.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as c
-from waits import BOUND, call_service, Frozen, lockstep_complete, wait_for_bag, wait_value
+from waits import BOUND, call_service, lockstep_complete, Paused, wait_for_bag, wait_value
 
 pytestmark = pytest.mark.ros
 #: the fatigue rig with a compliant specimen (the force benchmark's), its force gains tuned
@@ -76,7 +76,6 @@ def _set(ros, name, value, node='/controller'):
 
 def test_a_mode_switch_on_a_running_loop_is_bumpless_and_a_refused_one_says_why(
         dom, tmp_path, ros):
-    from rcl_interfaces.srv import SetParameters
     bag = tmp_path / 'bag'
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag,
@@ -85,7 +84,7 @@ def test_a_mode_switch_on_a_running_loop_is_bumpless_and_a_refused_one_says_why(
                          reference={'kind': 'step', 'amplitude': 0.0006, 'step_time': 0.1,
                                     'rise': 0.5})
         wait_value(procs, c.PLANT_STATUS, 'steps', 1500)        # held still at 3 kN
-        with Frozen(procs, ros, [(SetParameters, '/controller/set_parameters')]):
+        with Paused(ros):
             ok, why = _set(ros, 'control_mode', 'displacement_force_limited')
             assert not ok and 'beyond protect_force 100 N' in why, why
             ok, why = _set(ros, 'control_mode', 'force')

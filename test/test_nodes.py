@@ -396,6 +396,21 @@ def _plant_on_a_moved_clock(dom, monkeypatch, subscribers=None, **params):
         rclpy.shutdown(context=ctx)
 
 
+def test_only_a_lockstep_plant_node_takes_paused(dom, monkeypatch):
+    """``paused`` (the axis's rule, tested in test_sim_axis): refused in real time, by name."""
+    from rclpy.parameter import Parameter
+    with _plant_on_a_moved_clock(dom, monkeypatch) as (node, _):
+        res = node.set_parameters([Parameter('paused', value=True)])[0]
+        assert not res.successful and '`paused`: only a lock-step axis' in res.reason
+        assert node.get_parameter('paused').value is False and not node.axis.paused
+        assert node.set_parameters([Parameter('paused', value=False)])[0].successful
+    with _plant_on_a_moved_clock(dom, monkeypatch, mode='lockstep') as (node, _):
+        assert node.set_parameters([Parameter('paused', value=True)])[0].successful
+        assert node.axis.paused and node.figures()['paused'] is True
+        assert node.set_parameters([Parameter('paused', value=False)])[0].successful
+        assert not node.axis.paused
+
+
 def test_the_watchdog_tells_a_late_plant_tick_from_a_late_command(dom, monkeypatch):
     """
     The plant's real-time tick, on a clock the test moves (in-process, nothing spun).

@@ -18,7 +18,7 @@ from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import (BOUND, call_service, Frozen, lockstep_complete, status_value,
+from waits import (BOUND, call_service, lockstep_complete, Paused, status_value,
                    wait_for_bag, wait_value)
 
 pytestmark = pytest.mark.ros
@@ -86,8 +86,7 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
                                      'limit_position_max_action': 'hold', **FAST})
         _wait_trip(procs, 'limit_position_max')
         _after(procs, 300)            # held a while
-        with Frozen(procs, ros, [(Trigger, '/controller/reset'),
-                                 (SetParameters, '/controller/set_parameters')]):
+        with Paused(ros):
             res = _call(ros, Trigger, '/controller/reset', Trigger.Request())
             # refused, naming the detector and where the piston is: held near the limit,
             # inside the reset hysteresis (once at 0.029967 m, below it but not clear of it)
@@ -204,14 +203,13 @@ def test_hydraulics_off_and_on_ramps_without_a_jump(dom, tmp_path, ros):
                          plant={'initial_z': -0.03, 'duration': 60.0, **FAST},
                          controller={'start_enabled': False})
         _after(procs, 1000)                        # a second off
-        with Frozen(procs, ros, [(Trigger, '/controller/reset'),
-                                 (SetBool, '/controller/enable')]):
+        with Paused(ros):
             res = _call(ros, Trigger, '/controller/reset', Trigger.Request())
             assert res.success and res.message == 'nothing was latched'
             res = _call(ros, SetBool, '/controller/enable', SetBool.Request(data=True))
             assert res.success and 'ramping on' in res.message
         _after(procs, 2000)
-        with Frozen(procs, ros, [(SetBool, '/controller/enable')]):
+        with Paused(ros):
             res = _call(ros, SetBool, '/controller/enable', SetBool.Request(data=False))
             assert res.success
         _after(procs, 300)

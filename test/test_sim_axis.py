@@ -190,6 +190,43 @@ def test_a_paced_lockstep_run_far_behind_restarts_its_pace_and_the_last_state_is
         SimulatedAxis(Params(), lockstep=True, real_time_factor=-1.0)
 
 
+def test_a_paused_lockstep_axis_holds_the_next_state_until_the_pause_ends():
+    a = SimulatedAxis(Params(), rate_hz=1000.0, lockstep=True, start_delay=0.0,
+                      resend_period=0.05)
+    assert a.poll(0.0, 1) == 'matched' and a.poll(0.0, 1) == 'first'
+    a.pause(True, 0.001)
+    # the answer to the state already sent steps once; the state after it is held
+    assert a.command(a.stamp_ns(), 0.001, 0.002) == 'applied' and a.k == 1 and a.held
+    assert a.command(a.stamp_ns(), 0.001, 0.003) == 'future' and a.k == 1
+    assert [a.poll(t, 1) for t in (0.1, 10.0)] == [None, None] and a.resends == 0
+    assert a.figures(10.0)['paused'] is True
+    a.pause(True, 10.0)                          # again: nothing changes
+    a.pause(False, 10.0)
+    assert a.poll(10.0, 1) == 'release' and not a.held and not a.paused
+    assert a.command(a.stamp_ns(), 0.001, 10.001) == 'applied' and a.k == 2 and not a.held
+    # paused before the first state: it waits for the pause to end
+    b = SimulatedAxis(Params(), lockstep=True, start_delay=0.0)
+    b.pause(True, 0.0)
+    assert b.poll(0.0, 1) == 'matched' and b.poll(1.0, 1) is None
+    b.pause(False, 1.0)
+    assert b.poll(1.0, 1) == 'first'
+    # a paced run pauses too, and its pace counts from the end of the pause
+    c = SimulatedAxis(Params(), rate_hz=1000.0, lockstep=True, start_delay=0.0,
+                      real_time_factor=1.0)
+    assert c.poll(0.0, 1) == 'matched' and c.poll(0.0, 1) == 'first'
+    assert c.command(c.stamp_ns(), 0.0, 0.0001) == 'applied' and c.held      # due at 0.001
+    c.pause(True, 0.0002)
+    assert c.poll(0.5, 1) is None
+    c.pause(False, 5.0)
+    assert c.poll(5.0, 1) == 'release'
+    assert c.command(c.stamp_ns(), 0.0, 5.0001) == 'applied' and c.held      # due at 5.001
+    assert c.poll(5.0009, 1) is None and c.poll(5.001, 1) == 'release'
+    # a real-time axis runs on the clock: it refuses, and going on is nothing to it
+    with pytest.raises(InputError, match='only a lock-step axis holds still'):
+        SimulatedAxis(Params()).pause(True, 0.0)
+    SimulatedAxis(Params()).pause(False, 0.0)
+
+
 def test_the_lockstep_axis_is_the_model_stepped_with_each_answer():
     p = Params()
     a = SimulatedAxis(p, rate_hz=1000.0, lockstep=True)

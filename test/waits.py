@@ -18,7 +18,6 @@ Each wait has a bound (generous: a test waits for what it needs, so a loaded mac
 makes it slower), and says on timeout what it saw.
 """
 
-import signal
 
 from ros_ehs.data.bag import wait_for_counts
 from ros_ehs.nodes.ros_common import call_until_answered
@@ -93,24 +92,30 @@ def service_client(ros, srv_type, name: str, timeout: float = BOUND):
     return cli
 
 
-class Frozen:
+class Paused:
     """
-    The lock-step loop held still (its plant stopped) while a test calls a service.
+    The lock-step loop held still (the plant's ``paused``) while a test calls a service.
 
-    ``services``, ``(srv_type, name)`` pairs, are discovered before the plant stops, so the
-    freeze lasts only the calls: Fast DDS takes a process frozen for more than about a second
-    for a crashed one and can drop its shared-memory path for good (docs/recording.md, "A
-    recorder that stalls"), and a new client can take that long to find its service.
+    The answer to the state already sent steps the loop once more; the state after it waits
+    until the pause ends. No process is stopped: Fast DDS takes a process frozen for more
+    than about a second for a crashed one and can drop its paths for good
+    (docs/recording.md, "A recorder that stalls"), which a freeze of the plant did to a loop
+    once (it went on only by the plant's resends, 20 periods a second).
     """
 
-    def __init__(self, procs, ros, services):
-        self.plant = procs['plant'].popen
-        self.ros, self.services = ros, list(services)
+    def __init__(self, ros):
+        self.ros = ros
+
+    def _set(self, on: bool) -> None:
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+        value = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=on)
+        req = SetParameters.Request(parameters=[Parameter(name='paused', value=value)])
+        res = call_service(self.ros, SetParameters, '/plant/set_parameters', req)
+        assert res.results[0].successful, res.results[0].reason
 
     def __enter__(self):
-        for srv_type, name in self.services:
-            service_client(self.ros, srv_type, name)
-        self.plant.send_signal(signal.SIGSTOP)
+        self._set(True)
 
     def __exit__(self, *exc):
-        self.plant.send_signal(signal.SIGCONT)
+        self._set(False)

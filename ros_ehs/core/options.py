@@ -100,6 +100,9 @@ PLANT = (
     Setting('real_time_factor', '', 0.0, 0.0, 1000.0, 'lock-step: advance at most this much '
             'sim time per wall second (1: as fast as the rig would, to watch a virtual test '
             'or spare the CPU while waiting on something else; 0: as fast as the loop runs)'),
+    Setting('paused', '', False, meaning='lock-step: hold the loop still from the next state '
+            'on, until false (a service called on a still loop acts at a known period); no '
+            'process is stopped. Real time: refused', live=True),
     Setting('noise_z', 'm', 0.0, 0.0, 0.01, 'white noise (1 sigma) on the published position; '
             'the bench sets 5e-6'),
     Setting('noise_v', 'm/s', 0.0, 0.0, 1.0, 'white noise on the published velocity'),

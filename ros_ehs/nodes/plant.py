@@ -75,6 +75,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
+from ros_ehs.core.errors import InputError
 from ros_ehs.core.options import PLANT
 from ros_ehs.core.params import Params, PLANT_SPECS
 from ros_ehs.core.sim.axis import SimulatedAxis
@@ -315,6 +316,13 @@ class PlantNode(Node):
     # -- parameters and diagnostics ----------------------------------------------------------
     def _check_params(self, changes):
         res, self._pending = validate_changes(self.params, changes, PLANT_SPECS, OPTIONS)
+        if res.successful and not self.lockstep and any(
+                c.name == 'paused' and c.value for c in changes):
+            try:
+                self.axis.pause(True, time.monotonic())     # the axis's rule: it refuses
+            except InputError as e:
+                self._pending = None
+                res.successful, res.reason = False, str(e)
         return res
 
     def _apply_params(self, changes) -> None:
@@ -326,6 +334,7 @@ class PlantNode(Node):
         update_settings(self.opt, changes, OPTIONS)
         self.axis.configure(watchdog_periods=int(self.opt['watchdog_periods']),
                             fault=self.opt['fault'], fault_time=float(self.opt['fault_time']))
+        self.axis.pause(bool(self.opt['paused']), time.monotonic())
 
     def figures(self, last: int | None = None) -> dict:
         """

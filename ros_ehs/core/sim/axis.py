@@ -44,7 +44,10 @@ a later on-time tick finds the command too old as well (a controller that stoppe
 from the first state: a state due later is held (:attr:`held`) and released by the first
 :meth:`poll` at or after its time (poll every ``PACE_TICK`` then). A run that falls more than
 ``PACE_CREDIT`` behind its pace (a stalled machine) does not race to catch up: the pace
-restarts from there.
+restarts from there. :meth:`pause` holds the loop still: the answer to the state already
+sent steps the axis, and the state after it is held until the pause ends (a test calls a
+service on a still loop so; no process is stopped, which the middleware can take for a
+crash, docs/recording.md).
 
 **The specimen** (:class:`~ros_ehs.core.model.specimen.Specimen`, when ``k_L`` > 0): each
 step its force is taken from the new state, its crack grows at each reversal (the model's load
@@ -216,6 +219,7 @@ class SimulatedAxis:
         self._pace_wall = 0.0
         self._pace_k = 0
         self._held_until: float | None = None
+        self.paused = False
         self.notes: list[tuple[str, str]] = []
 
     # -- configuration -----------------------------------------------------------------------
@@ -295,7 +299,9 @@ class SimulatedAxis:
             self._last_progress = now
             self.step(self.i_cmd)
             self._last_step = now
-            if self._pace and not self.finished:
+            if self.paused:
+                self._held_until = math.inf
+            elif self._pace and not self.finished:
                 self._hold(now)
         return verdict
 
@@ -373,7 +379,7 @@ class SimulatedAxis:
                 self._first_due = now + self.start_delay
                 return 'matched'
         elif not self._sent_first:
-            if now >= self._first_due:
+            if now >= self._first_due and not self.paused:
                 self._sent_first = True
                 self._last_progress = self._pace_wall = now
                 self._pace_k = self.k
@@ -387,6 +393,29 @@ class SimulatedAxis:
             self.resends += 1
             return 'resend'
         return None
+
+    def pause(self, on: bool, now: float) -> None:
+        """
+        Lock-step: hold the loop still from the next state on (``on``), or go on at ``now``.
+
+        A held state goes at the next :meth:`poll`; a pace counts from there. Raises
+        :class:`InputError` for a real-time axis, which runs on the clock.
+        """
+        if on and not self.lockstep:
+            raise InputError('`paused`: only a lock-step axis holds still (a real-time one '
+                             'runs on the clock)')
+        on = bool(on)
+        if on == self.paused:
+            return
+        self.paused = on
+        if on:
+            if self._held_until is not None:
+                self._held_until = math.inf
+        elif self._held_until is not None:
+            self._held_until = now
+            self._pace_wall, self._pace_k = now, self.k
+        elif self._sent_first:
+            self._pace_wall, self._pace_k = now, self.k
 
     @property
     def poll_period(self) -> float:
@@ -510,6 +539,7 @@ class SimulatedAxis:
              'stale_commands': self.counts['stale'] + self.counts['not_current'],
              'future_commands': self.counts['future'], 'model_faults': self.model_faults,
              'overruns': self.overruns, 'resends': self.resends, 'finished': self.finished,
+             'paused': self.paused,
              'fault': self.fault if self._fault_on else 'none'}
         if self.specimen.present:
             f.update(self.specimen.figures())
