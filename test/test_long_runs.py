@@ -353,7 +353,7 @@ def _tmpfs_available():
     return r.returncode == 0
 
 
-def test_a_full_disk_during_a_bench_leaves_a_readable_bag_and_one_line(tmp_path):
+def test_a_full_disk_during_a_bench_leaves_a_readable_bag_and_one_line(dom, tmp_path):
     """The bench on a 2 MB tmpfs (its own mount namespace): the recorder fills it."""
     assert _tmpfs_available(), 'this test needs unshare -m and tmpfs (root or user namespaces)'
     mnt = tmp_path / 'small'
@@ -361,7 +361,7 @@ def test_a_full_disk_during_a_bench_leaves_a_readable_bag_and_one_line(tmp_path)
     env = dict(os.environ)
     script = (f'mount -t tmpfs -o size=2m tmpfs {mnt} && '
               f'{sys.executable} {ROOT / "launch_scripts" / "bench.py"} --duration 30 '
-              f'--out {mnt}/run --compression none --min-free-space 0; rc=$?; '
+              f'--out {mnt}/run --compression none --min-free-space 0 --domain-id {dom}; rc=$?; '
               f'cp -r {mnt}/run {tmp_path}/copy; exit $rc')
     res = subprocess.run(['unshare', '-m', 'sh', '-c', script], capture_output=True,
                          text=True, env=env, cwd=tmp_path, timeout=180)
@@ -380,14 +380,19 @@ def test_a_full_disk_during_a_bench_leaves_a_readable_bag_and_one_line(tmp_path)
     assert log.count('disk space low') == 1 and 'recording stops at' in log
 
 
-def test_below_min_free_space_the_recorder_stops_cleanly(tmp_path):
-    """On a 4 MB tmpfs with min_free_space 2 MB: a clean stop before the disk is full."""
+def test_below_min_free_space_the_recorder_stops_cleanly(dom, tmp_path):
+    """
+    On a 4 MB tmpfs with min_free_space 2 MB: a clean stop before the disk is full.
+
+    Uncompressed, so the bench fills the 2 MB sooner (the test took 17 s with zstd, 14 s so).
+    """
     assert _tmpfs_available(), 'this test needs unshare -m and tmpfs (root or user namespaces)'
     mnt = tmp_path / 'small'
     mnt.mkdir()
     script = (f'mount -t tmpfs -o size=4m tmpfs {mnt} && '
               f'{sys.executable} {ROOT / "launch_scripts" / "bench.py"} --duration 60 '
-              f'--out {mnt}/run --min-free-space 2000000; rc=$?; '
+              f'--out {mnt}/run --min-free-space 2000000 --compression none '
+              f'--domain-id {dom}; rc=$?; '
               f'cp -r {mnt}/run {tmp_path}/copy; exit $rc')
     res = subprocess.run(['unshare', '-m', 'sh', '-c', script], capture_output=True,
                          text=True, cwd=tmp_path, timeout=180)
