@@ -42,6 +42,13 @@ def _place_loops() -> None:
 
 _place_loops()
 
+#: a ROS domain of this test process's own for the whole session, in ROS_DOMAIN_ID: a node, a
+#: bench or a CLI a test starts without naming a domain cannot hear another worker's (two
+#: benches on the default domain once did: one read the other's recorder error). A test that
+#: starts nodes still takes a domain of its own (``dom``).
+_SESSION_DOMAIN = domain_id()
+os.environ['ROS_DOMAIN_ID'] = str(_SESSION_DOMAIN.__enter__())
+
 
 @pytest.fixture(scope='session')
 def once(tmp_path_factory, worker_id):

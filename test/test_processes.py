@@ -107,3 +107,14 @@ def test_start_loop_names_the_status_it_waited_for(dom, tmp_path):
                              recorder={'topics': ['/diagnostics']})
         assert procs.watch is not None and 'plant' not in procs.procs
     assert procs.watch is None
+
+
+def test_the_test_process_holds_a_ros_domain_of_its_own():
+    """The conftest reserves ROS_DOMAIN_ID for this process: no other worker can take it."""
+    import os
+    import socket
+    from domain_coordinator.impl import PORT_BASE
+    d = int(os.environ['ROS_DOMAIN_ID'])
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        with pytest.raises(OSError):
+            s.bind(('', PORT_BASE + d))
