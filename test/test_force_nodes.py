@@ -31,7 +31,8 @@ from ros_ehs.core.control.safety import break_travel
 from ros_ehs.core.params import preset
 from ros_ehs.nodes.processes import NodeProcesses, recording
 import ros_ehs_msgs_py as c
-from waits import BOUND, call_service, lockstep_complete, Paused, wait_for_bag, wait_value
+from waits import (BOUND, lockstep_complete, Paused, set_parameter, wait_for_bag,
+                   wait_value)
 
 pytestmark = pytest.mark.ros
 #: the fatigue rig with a compliant specimen (the force benchmark's), its force gains tuned
@@ -65,12 +66,8 @@ def _bag(bag, load_topic='/load_cell', axis='force.z'):
 
 
 def _set(ros, name, value, node='/controller'):
-    """Set a string parameter through the node's parameter service: (successful, reason)."""
-    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-    from rcl_interfaces.srv import SetParameters
-    val = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
-    res = call_service(ros, SetParameters, f'{node}/set_parameters', SetParameters.Request(
-        parameters=[Parameter(name=name, value=val)])).results[0]
+    """Set a parameter through the node's parameter service: (successful, reason)."""
+    res = set_parameter(ros, node, name, value)
     return res.successful, res.reason
 
 

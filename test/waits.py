@@ -18,7 +18,6 @@ Each wait has a bound (generous: a test waits for what it needs, so a loaded mac
 makes it slower), and says on timeout what it saw.
 """
 
-
 from ros_ehs.data.bag import wait_for_counts
 from ros_ehs.nodes.ros_common import call_until_answered
 import ros_ehs_msgs_py as c
@@ -92,6 +91,14 @@ def service_client(ros, srv_type, name: str, timeout: float = BOUND):
     return cli
 
 
+def set_parameter(ros, node: str, name: str, value):
+    """Set parameter ``name`` of ``node`` through its parameter service; return the result."""
+    from rclpy.parameter import Parameter
+    from rcl_interfaces.srv import SetParameters
+    req = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+    return call_service(ros, SetParameters, f'{node}/set_parameters', req).results[0]
+
+
 class Paused:
     """
     The lock-step loop held still (the plant's ``paused``) while a test calls a service.
@@ -107,12 +114,8 @@ class Paused:
         self.ros = ros
 
     def _set(self, on: bool) -> None:
-        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-        from rcl_interfaces.srv import SetParameters
-        value = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=on)
-        req = SetParameters.Request(parameters=[Parameter(name='paused', value=value)])
-        res = call_service(self.ros, SetParameters, '/plant/set_parameters', req)
-        assert res.results[0].successful, res.results[0].reason
+        res = set_parameter(self.ros, '/plant', 'paused', on)
+        assert res.successful, res.reason
 
     def __enter__(self):
         self._set(True)

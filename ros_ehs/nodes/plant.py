@@ -210,13 +210,17 @@ class PlantNode(Node):
             self.stats.tick(now, True)
             if ax.notes:
                 self._log_notes()
-            if ax.held:        # ahead of its real-time factor: _poll sends it in time
-                return
-            self._publish(clock=ax.clock_due())
-            if ax.finished:
-                self.get_logger().info(f'lock-step run complete: {ax.k} steps, '
-                                       f'{ax.figures(now)["steps_per_s"]:.0f} steps/s')
-                self._diagnose()
+            if not ax.held:        # held (paused, or ahead of its pace): _poll sends it
+                self._send_stepped()
+
+    def _send_stepped(self) -> None:
+        """Lock-step: send the state a step made (and say so when it was the run's last)."""
+        ax = self.axis
+        self._publish(clock=ax.clock_due())
+        if ax.finished:
+            self.get_logger().info(f'lock-step run complete: {ax.k} steps, '
+                                   f'{ax.figures(time.monotonic())["steps_per_s"]:.0f} steps/s')
+            self._diagnose()
 
     # -- real time ---------------------------------------------------------------------------
     def _tick(self) -> None:
@@ -266,7 +270,7 @@ class PlantNode(Node):
             self.get_logger().info('subscribers matched; lock-step starts in '
                                    f'{self.opt["start_delay"]:g} s')
         elif what == 'release':
-            self._publish(clock=self.axis.clock_due())
+            self._send_stepped()
         elif what is not None:
             self._publish(clock=True)
 

@@ -408,13 +408,9 @@ class SimulatedAxis:
         if on == self.paused:
             return
         self.paused = on
-        if on:
-            if self._held_until is not None:
-                self._held_until = math.inf
-        elif self._held_until is not None:
-            self._held_until = now
-            self._pace_wall, self._pace_k = now, self.k
-        elif self._sent_first:
+        if self._held_until is not None:
+            self._held_until = math.inf if on else now
+        if not on and self._sent_first:
             self._pace_wall, self._pace_k = now, self.k
 
     @property
