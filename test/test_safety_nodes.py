@@ -18,8 +18,8 @@ from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import (BOUND, call_service, lockstep_complete, Paused, status_value,
-                   wait_for_bag, wait_value)
+from waits import (BOUND, call_service, lockstep_complete, Paused, set_parameter,
+                   status_value, wait_for_bag, wait_value)
 
 pytestmark = pytest.mark.ros
 PERIOD = 1_000_000
@@ -75,8 +75,6 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
     piston is still beyond the limit; the limit raised live; reset accepted, and the axis
     ramps back onto the sine without a current step.
     """
-    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-    from rcl_interfaces.srv import SetParameters
     from std_srvs.srv import Trigger
     bag = tmp_path / 'bag'
     p = Params()
@@ -93,11 +91,8 @@ def test_a_reference_beyond_the_position_limit_stops_inside_the_braking_distance
             assert not res.success and 'limit_position_max' in res.message, res.message
             held = float(re.search(r'z = (\S+) m', res.message).group(1))
             assert 0.029 < held < 0.032 and 'limit 0.03 m' in res.message, res.message
-            val = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.05)
-            req = SetParameters.Request(parameters=[Parameter(name='limit_position_max',
-                                                              value=val)])
-            assert _call(ros, SetParameters, '/controller/set_parameters',
-                         req).results[0].successful
+            res = set_parameter(ros, '/controller', 'limit_position_max', 0.05)
+            assert res.successful, res.reason
             res = _call(ros, Trigger, '/controller/reset', Trigger.Request())
             assert res.success and 'limit_position_max' in res.message, res.message
         _after(procs, 2000)

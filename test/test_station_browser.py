@@ -18,7 +18,7 @@ import shutil
 import pytest
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import BOUND, call_service, rosbags_read, status_value, wait_value
+from waits import BOUND, rosbags_read, set_parameter, status_value, wait_value
 
 pytestmark = pytest.mark.ros
 FAST = {'diagnostics_period': 0.05}
@@ -129,8 +129,6 @@ def _station_events(bag):
 
 
 def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path, ros, browser):
-    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-    from rcl_interfaces.srv import SetParameters
     bag = tmp_path / 'bag'
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         procs.start_loop('lockstep', bag=bag, plant={'duration': 600.0, **PACED, **FAST},
@@ -154,10 +152,8 @@ def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path
         assert 'limit 0.03 m' in text, text
         assert page.query_selector('tr.latched[data-detector="limit_position_max"]')
         # the engineer raises the limit (the station does not edit limits); Reset clears it
-        val = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.05)
-        req = SetParameters.Request(parameters=[Parameter(name='limit_position_max', value=val)])
-        assert call_service(ros, SetParameters, '/controller/set_parameters',
-                            req).results[0].successful
+        res = set_parameter(ros, '/controller', 'limit_position_max', 0.05)
+        assert res.successful, res.reason
         _press(page, 'reset')
         _answer(page, 'reset: done')
         _wait(page, "document.querySelector('tr[data-detector=limit_position_max]:not(.latched)')")
