@@ -128,9 +128,17 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     # the launchers, and the Fast DDS profile bench.py hands its nodes under --rt-priority
     share = install / 'share' / 'ros_ehs' / 'launch_scripts'
     assert {'bench.py', 'replay.py', 'fastdds_rt.xml'} <= {p.name for p in share.iterdir()}
-    # what `ros2 run ros_ehs <exe>` does: ament_index lookup, then lib/<pkg>/<exe>
-    prefix_path = f'{install}:{os.environ.get("AMENT_PREFIX_PATH", "")}'
+    # the environment the README's `source install/setup.bash` gives (colcon-bash)
+    shown = subprocess.run(['bash', '-c', 'source install/setup.bash && env -0'], cwd=tmp_path,
+                           capture_output=True, text=True)
+    assert shown.returncode == 0, shown.stderr
+    sourced = dict(v.split('=', 1) for v in shown.stdout.split('\0') if '=' in v)
+    site = next(install.glob('lib/python*/site-packages'))
+    assert str(site) in sourced['PYTHONPATH'].split(':'), sourced['PYTHONPATH']
+    prefix_path = sourced['AMENT_PREFIX_PATH']
+    assert prefix_path.split(':')[0] == str(install), prefix_path
     env = dict(os.environ, AMENT_PREFIX_PATH=prefix_path)
+    # what `ros2 run ros_ehs <exe>` does: ament_index lookup, then lib/<pkg>/<exe>
     code = ('from ament_index_python.packages import get_package_prefix\n'
             "print(get_package_prefix('ros_ehs'))")
     found = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True)
@@ -141,9 +149,8 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     from ros_ehs.nodes.processes import loop_closed, NodeProcesses
     from waits import BOUND
     from ros_ehs_msgs_py import PLANT_STATUS, STATION_STATUS
-    site = next(install.glob('lib/python*/site-packages'))
     with domain_id() as dom:
-        built = {'PYTHONPATH': str(site), 'AMENT_PREFIX_PATH': prefix_path}
+        built = {'PYTHONPATH': sourced['PYTHONPATH'], 'AMENT_PREFIX_PATH': prefix_path}
         with NodeProcesses(dom, tmp_path / 'logs', env=built, bound=BOUND) as procs:
             procs.start('plant', cmd=[str(lib / 'plant')])
             procs.start('controller', cmd=[str(lib / 'controller')])
@@ -161,7 +168,8 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     assert b'ros_ehs station' in page and lib_js.startswith(b'/*! https://github.com/leeoniya')
     assert codes == {'station': 0, 'controller': 0, 'plant': 0}
     where = subprocess.run([str(lib / 'identify'), '--ros-args', '-p', 'bags:=[nope]'],
-                           env=dict(env, PYTHONPATH=str(site)), capture_output=True, text=True)
+                           env=dict(env, PYTHONPATH=sourced['PYTHONPATH']), capture_output=True,
+                           text=True)
     assert where.returncode == 2 and 'no bag at' in where.stderr, where.stderr
 
 
