@@ -270,6 +270,16 @@ def test_bad_inputs_give_clear_errors():
     assert np.array_equal(plant.step(x, [0.0, 0.0], 0.0), x)
 
 
+def test_a_step_that_leaves_no_finite_state_says_so_in_both_paths():
+    full = Plant(EST, 'full')
+    x = full.equilibrium()
+    x[full.state_names.index('p_CP')] = 1e300          # finite, and overflows in one step
+    with pytest.raises(InputError, match=r'integration diverged within dt = 0.001 s at u'):
+        full.step(x, [0.01, 0.0], 1e-3)
+    with pytest.raises(InputError, match=r'integration diverged within dt = 0.001 s at u'):
+        run_closed_loop(EST, Sine(0.01, 1.0), 0.01, model='full', x0=x)
+
+
 @pytest.mark.parametrize('model', ['full', 'reduced', 'simplified'])
 def test_the_unchecked_advance_is_step_to_the_bit_and_says_when_the_state_leaves(model):
     checked, fast = Plant(EST, model), Plant(EST, model)

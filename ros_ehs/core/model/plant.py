@@ -287,8 +287,13 @@ class Plant:
             return x
         self._advance(x, u, dt)
         if not np.all(np.isfinite(x)):
-            raise InputError(f'integration diverged within dt = {dt!r} s at u = {u.tolist()}')
+            raise self.diverged(dt, u)
         return x
+
+    @staticmethod
+    def diverged(dt: float, u: np.ndarray) -> InputError:
+        """Return the error of a step over ``dt`` with input ``u`` that left no finite state."""
+        return InputError(f'integration diverged within dt = {dt!r} s at u = {u.tolist()}')
 
     def advance(self, x: np.ndarray, u: np.ndarray, dt: float) -> bool:
         """

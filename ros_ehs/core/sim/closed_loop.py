@@ -156,7 +156,7 @@ def run_closed_loop(plant_params: Params, reference, duration: float, *,
         if stepper != 'fast':
             x = reference_step(plant, x, u, dt)
         elif not plant.advance(x, u, dt) and not np.all(np.isfinite(x)):   # x in place
-            raise InputError(f'integration diverged within dt = {dt!r} s at u = {u.tolist()}')
+            raise plant.diverged(dt, u)
         xs[k + 1] = x
     cur[n] = cur[n - 1]
     if online:
