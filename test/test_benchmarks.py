@@ -55,7 +55,10 @@ from waits import BOUND
     ('station', ['--seconds', 'nan'], 'argument --seconds: must be a finite number > 0'),
     ('realtime', ['--seconds', '1'], 'argument --seconds: must be at least 2 s'),
     ('station', ['--rt-priority', '120'], 'argument --rt-priority: parameter `rt_priority`'),
-    ('station', ['--browser-cpu', '99'], 'argument --browser-cpu: must be a CPU of this')])
+    ('station', ['--browser-cpu', '99'], 'argument --browser-cpu: must be a CPU of this'),
+    ('freeze', ['--pauses', '0.5,-1'], "argument --pauses: must be a finite number > 0, not '-1'"),
+    ('freeze', ['--seconds', '2', '--pauses', '1'],
+     'argument --seconds: 2 s must be at least the longest pause plus 1.5 s')])
 def test_the_benchmarks_refuse_bad_numbers_by_name(bench, args, says, capsys):
     # in process (the dispatcher's own main; the command line's is tested below): an
     # exception other than argparse's exit would fail the test with its traceback
@@ -110,6 +113,7 @@ SHORT = {
     'verdict': (['--rigs', '1', '--seconds', '2', '--first', '12', '--fits-out',
                  '{tmp}/fits.jsonl'], 'misses'),
     'station': (['--seconds', '2', '--rounds', '2'], 'updates_per_s'),
+    'freeze': (['--pauses', '0.2', '--runs', '1', '--seconds', '2'], 'per_pause'),
 }
 
 
