@@ -191,4 +191,7 @@ def test_each_benchmark_runs_short_and_ends_with_its_json(bench, dom, tmp_path):
     if bench == 'verdict':      # each fit a JSON line, with what its verdict judged
         rows = [json.loads(x) for x in (tmp_path / 'fits.jsonl').read_text().splitlines()]
         assert [(r['rig'], r['model']) for r in rows] == [(12, 'reduced'), (12, 'simplified')]
-        assert all({'errors', 'reasons', 'held_out', 'noise_ratio'} <= set(r) for r in rows)
+        assert all({'errors', 'reasons', 'failed', 'held_out', 'noise_ratio'} <= set(r)
+                   for r in rows)
+        assert all(len(r['failed']) == len(r['reasons']) for r in rows)
+        assert 'false_alarms_by_rule' in last

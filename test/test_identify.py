@@ -211,6 +211,7 @@ def test_an_adequate_fit_says_so_with_its_noise_ratios(fits, tmp_path):
     from ros_ehs.data.report import write_report
     summary = json.loads(write_report(r, e, tmp_path, figures=False)['summary'].read_text())
     assert summary['adequate'] is True and summary['inadequacy'] == []
+    assert summary['failed_rules'] == []
 
 
 def test_data_from_another_model_is_flagged_inadequate_with_advice(tmp_path, capsys):
@@ -235,6 +236,10 @@ def test_data_from_another_model_is_flagged_inadequate_with_advice(tmp_path, cap
     assert rc == 1 and 'verdict: NOT ADEQUATE' in out and 'advice: fit the reduced model' in out
     summary = json.loads((tmp_path / 'rep' / 'summary.json').read_text())
     assert summary['adequate'] is False and summary['advice']
+    # each reason with the rule it failed, for a program to read
+    assert 'invalid' in r.failed and len(r.failed) == len(r.inadequacy)
+    assert 'invalid' in summary['failed_rules']
+    assert len(summary['failed_rules']) == len(summary['inadequacy'])
     assert (tmp_path / 'rep' / 'fit_full.png').stat().st_size > 10000
 
 

@@ -102,6 +102,7 @@ def test_the_reduced_model_identifies_the_full_model_rig_from_its_bag(rig_bags, 
         # trusted: said, with what to record instead
         assert not r.adequate and all('recorded at 250 Hz' in w for w in r.inadequacy), (
             r.inadequacy)
+        assert r.failed == ['rate']
         assert any('500 Hz or faster' in a for a in r.advice), r.advice
     else:
         assert r.adequate, r.inadequacy

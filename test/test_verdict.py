@@ -28,7 +28,7 @@ from ros_ehs.core.identify import identify
 from ros_ehs.core.identify.experiment import experiment_from_arrays, state_rate
 from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, median_noise_ratios,
                                            MIN_RATE_HZ, PREDICTION_LIMIT, RESTART, restart,
-                                           SENSED_LIMIT,
+                                           RULES, SENSED_LIMIT,
                                            SETTLE_ITERATIONS, SETTLED, settled, spread)
 from ros_ehs.core.params import preset
 
@@ -94,23 +94,23 @@ def _metrics(**ratios):
 
 def test_a_fit_that_predicts_held_out_data_and_whose_halves_agree_is_adequate():
     """Position and velocity far above their noise do not count: drift and a fine encoder."""
-    why, advice = adequacy(1, 100, 'reduced', '', _check(), _metrics())
-    assert why == [] and advice == []
+    why, advice, failed = adequacy(1, 100, 'reduced', '', _check(), _metrics())
+    assert why == [] and advice == [] and failed == []
 
 
 def test_a_fit_that_does_not_predict_the_other_half_is_not_adequate_and_names_the_model():
-    why, advice = adequacy(1, 100, 'simplified', '',
-                           _check(prediction={'z_dot': PREDICTION_LIMIT + 0.01, 'z': 1.0}),
-                           _metrics())
-    assert len(why) == 1 and 'z_dot residual 1.26x' in why[0]
+    why, advice, failed = adequacy(1, 100, 'simplified', '',
+                                   _check(prediction={'z_dot': PREDICTION_LIMIT + 0.01, 'z': 1.0}),
+                                   _metrics())
+    assert len(why) == 1 and 'z_dot residual 1.26x' in why[0] and failed == ['prediction:z_dot']
     assert any('--model reduced' in a for a in advice)
-    _, advice = adequacy(1, 100, 'reduced', '', _check(prediction={'z_dot': 2.0}), _metrics())
+    _, advice, _ = adequacy(1, 100, 'reduced', '', _check(prediction={'z_dot': 2.0}), _metrics())
     assert any('--model full' in a for a in advice)
 
 
 def test_the_position_is_reported_but_not_judged_on_held_out_data():
-    why, _ = adequacy(1, 100, 'reduced', '', _check(prediction={'z_dot': 1.0, 'z': 9.0}),
-                      _metrics())
+    why, _, _ = adequacy(1, 100, 'reduced', '', _check(prediction={'z_dot': 1.0, 'z': 9.0}),
+                         _metrics())
     assert why == []
 
 
@@ -121,28 +121,30 @@ def test_the_spread_counts_halves_that_agree_with_each_other_but_not_with_the_wh
 
 
 def test_halves_that_disagree_beyond_the_limit_and_their_errors_name_the_parameter():
-    why, advice = adequacy(1, 100, 'reduced', '',
-                           _check(disagreement={'F_cc': AGREEMENT + 0.01}), _metrics())
+    why, advice, failed = adequacy(1, 100, 'reduced', '',
+                                   _check(disagreement={'F_cc': AGREEMENT + 0.01}), _metrics())
     assert len(why) == 1 and (f'give F_cc = 1 and 1.1, the whole 1.05: '
                               f'{100 * AGREEMENT + 1:.1f} % apart (limit {100 * AGREEMENT:g} %)'
                               in why[0]), why
+    assert failed == ['agreement:F_cc']
     assert any('record the chamber pressures' in a for a in advice)   # friction, no pressures
     assert any('each half of the record shows F_cc' in a for a in advice)
     # with pressures recorded, the advice is more excitation only
-    _, advice = adequacy(1, 100, 'reduced', '', _check(disagreement={'F_cc': AGREEMENT + 0.01}),
-                         _metrics(p_CP=1.0, p_CT=1.0))
+    _, advice, _ = adequacy(1, 100, 'reduced', '', _check(disagreement={'F_cc': AGREEMENT + 0.01}),
+                            _metrics(p_CP=1.0, p_CT=1.0))
     assert not any('pressures' in a for a in advice)
 
 
 def test_the_valves_null_shape_is_judged_by_its_effect_alone():
-    why, _ = adequacy(1, 100, 'reduced', '', _check(disagreement={'r_c': 0.9}), _metrics())
+    why, _, _ = adequacy(1, 100, 'reduced', '', _check(disagreement={'r_c': 0.9}), _metrics())
     assert why == []
 
 
 def test_a_pressure_residual_beyond_its_sensors_noise_is_a_model_error():
-    why, advice = adequacy(1, 100, 'simplified', '', _check(),
-                           _metrics(p_CP=SENSED_LIMIT + 0.5, p_CT=1.0))
+    why, advice, failed = adequacy(1, 100, 'simplified', '', _check(),
+                                   _metrics(p_CP=SENSED_LIMIT + 0.5, p_CT=1.0))
     assert len(why) == 1 and 'p_CP residual is 2.5x its sensor noise' in why[0]
+    assert failed == ['sensed:p_CP']
     assert any('--model reduced' in a for a in advice)
     # the median of the runs: one run's start does not decide
     m = {'a': {'p_CP': {'noise_ratio': 9.0}}, 'b': {'p_CP': {'noise_ratio': 1.0}},
@@ -151,10 +153,23 @@ def test_a_pressure_residual_beyond_its_sensors_noise_is_a_model_error():
 
 
 def test_an_invalid_set_and_a_stop_at_the_limit_are_not_adequate_without_a_check():
-    why, advice = adequacy(0, 7, 'reduced', 'F_cc above F_sc', None, _metrics())
+    why, advice, failed = adequacy(0, 7, 'reduced', 'F_cc above F_sc', None, _metrics())
     assert any('evaluation limit (max_nfev = 7)' in w for w in why)
     assert any('not a valid parameter set (F_cc above F_sc)' in w for w in why)
+    assert failed == ['solver', 'invalid']
     assert any('max_nfev' in a for a in advice)
+
+
+def test_each_reason_comes_with_the_rule_it_failed_in_its_order():
+    check = _check(prediction={'z_dot': 2.0, 'p_CP': 2.0},
+                   disagreement={'F_cc': 0.5, 'd_c': 0.5, 'r_c': 0.9})
+    why, _, failed = adequacy(0, 7, 'reduced', 'F_cc above F_sc', check,
+                              _metrics(p_CP=SENSED_LIMIT + 1.0, p_CT=1.0), rate_hz=250.0)
+    assert failed == ['rate', 'solver', 'invalid', 'sensed:p_CP', 'prediction:z_dot',
+                      'prediction:p_CP', 'agreement:d_c', 'agreement:F_cc']
+    assert len(why) == len(failed)
+    assert {f.split(':')[0] for f in failed} <= set(RULES)
+    assert 'p_CP' in why[3] and 'z_dot' in why[4] and 'd_c' in why[6] and 'F_cc' in why[7]
 
 
 def test_halves_that_both_leave_the_whole_for_one_side_say_where_to_refit_it():
@@ -170,13 +185,14 @@ def test_halves_that_both_leave_the_whole_for_one_side_say_where_to_refit_it():
 
 
 def test_a_record_slower_than_the_verdicts_rate_is_not_adequate_and_says_to_record_faster():
-    why, advice = adequacy(1, 100, 'reduced', '', None, _metrics(), rate_hz=250.0)
+    why, advice, failed = adequacy(1, 100, 'reduced', '', None, _metrics(), rate_hz=250.0)
     assert any(f'recorded at 250 Hz, below {MIN_RATE_HZ:.0f} Hz' in w and 'F_sc' in w
                for w in why), why
     assert any(f'{MIN_RATE_HZ:.0f} Hz or faster' in a for a in advice), advice
+    assert failed == ['rate']
     # a driver's mean period a little off its nominal rate is that rate
     assert adequacy(1, 100, 'reduced', '', None, _metrics(),
-                    rate_hz=0.999 * MIN_RATE_HZ) == ([], [])
+                    rate_hz=0.999 * MIN_RATE_HZ) == ([], [], [])
     # the rate judged is the slowest run's: one slow run in a fast record is enough
     s = np.sin(np.arange(600) / 30.0)
     runs = [experiment_from_arrays(f'r{k}', np.arange(600) / rate, 0.01 * s, 0.02 * s, s)
@@ -200,9 +216,9 @@ def test_a_stop_at_the_limit_with_settled_values_is_converged():
     # a value without a finite standard error must not move at all
     assert settled(_history({'F_cc': 0.0, 'r_c': 0.0}), {'F_cc': math.inf, 'r_c': math.nan})
     assert not settled(_history({'F_cc': 1e-9, 'r_c': 0.0}), {'F_cc': math.inf, 'r_c': 1.0})
-    why, _ = adequacy(0, 100, 'reduced', '', None, _metrics(), is_settled=True)
+    why, _, _ = adequacy(0, 100, 'reduced', '', None, _metrics(), is_settled=True)
     assert not any('evaluation limit' in w for w in why)
-    why, _ = adequacy(0, 100, 'reduced', '', None, _metrics())
+    why, _, _ = adequacy(0, 100, 'reduced', '', None, _metrics())
     assert any('evaluation limit (max_nfev = 100)' in w for w in why)
 
 

@@ -27,7 +27,8 @@ A fit is **good** when all five of d_c, F_cc, F_sc, l_iac and c_c are within 5 %
 **bad** when any is beyond 10 % (r_c and x_bias, the valve's null shape, are not counted:
 no model pins them down from such bags). A good fit called not adequate is a false alarm, a
 bad fit called adequate a miss. Prints each rig's fits and the confusion matrix per model;
-the last line is one JSON object with ``good_fits``, ``false_alarms``, ``bad_fits``,
+the last line is one JSON object with ``good_fits``, ``false_alarms`` (and
+``false_alarms_by_rule``: the rules they failed, from each fit's ``failed``), ``bad_fits``,
 ``misses``, the same per model and per state rate (``per_rate``: from and below the
 verdict's :data:`ros_ehs.core.identify.verdict.MIN_RATE_HZ`), and under ``noise_verdict``
 the same fits judged by the verdict this one replaced (every residual within 2x its sensor
@@ -107,20 +108,34 @@ def _fit(exps, model: str, truth) -> dict:
             'noise_verdict': noise and r.status != 0,
             'reason': r.inadequacy[0] if r.inadequacy else '',
             'prediction': r.halves.get('prediction', {}), 'wall_s': time.perf_counter() - t0,
-            'errors': err, 'reasons': list(r.inadequacy), 'held_out': r.halves,
+            'errors': err, 'reasons': list(r.inadequacy), 'failed': list(r.failed),
+            'held_out': r.halves,
             'status': r.status, 'settled': r.settled,
             'noise_ratio': median_noise_ratios(r.metrics)}
 
 
 def confusion(fits: list, key: str = 'adequate') -> dict:
-    """Return the counts of a list of fits by verdict ``key``: good, false alarms, bad..."""
+    """
+    Return the counts of a list of fits by verdict ``key``: good, false alarms, bad...
+
+    For the verdict (``key`` 'adequate'), ``false_alarms_by_rule`` too: how many false alarms
+    failed each rule (``verdict.RULES``; a fit that failed two counts under both).
+    """
     good = [f for f in fits if f['kind'] == 'good']
     bad = [f for f in fits if f['kind'] == 'bad']
-    return {'fits': len(fits), 'good_fits': len(good),
-            'false_alarms': sum(not f[key] for f in good), 'bad_fits': len(bad),
-            'misses': sum(f[key] for f in bad),
-            'between': len(fits) - len(good) - len(bad),
-            'between_adequate': sum(f[key] for f in fits if f['kind'] == 'between')}
+    out = {'fits': len(fits), 'good_fits': len(good),
+           'false_alarms': sum(not f[key] for f in good), 'bad_fits': len(bad),
+           'misses': sum(f[key] for f in bad),
+           'between': len(fits) - len(good) - len(bad),
+           'between_adequate': sum(f[key] for f in fits if f['kind'] == 'between')}
+    if key == 'adequate':
+        by: dict[str, int] = {}
+        for f in good:
+            if not f[key]:
+                for rule in sorted({x.split(':')[0] for x in f['failed']}):
+                    by[rule] = by.get(rule, 0) + 1
+        out['false_alarms_by_rule'] = by
+    return out
 
 
 def main(argv=None) -> int:

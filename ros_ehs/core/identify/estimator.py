@@ -105,6 +105,8 @@ class IdentificationResult:
     adequate: bool = True
     inadequacy: list[str] = field(default_factory=list)
     advice: list[str] = field(default_factory=list)
+    #: the verdict's rules each reason comes from, one to a reason (``verdict.RULES``)
+    failed: list[str] = field(default_factory=list)
     #: the largest factor a standard error was widened by for correlated residuals (1: white)
     stderr_widening: float = 1.0
     #: the solver stopped at its evaluation limit (``status`` 0) with the values settled
@@ -138,6 +140,7 @@ class IdentificationResult:
             'correlation': {'names': list(self.free),
                             'matrix': np.round(self.correlation, 4).tolist()},
             'adequate': self.adequate, 'inadequacy': self.inadequacy, 'advice': self.advice,
+            'failed_rules': self.failed,
             'stderr_widening': self.stderr_widening, 'settled': self.settled,
             'starts': self.starts,
             'excitation': self.excitation, 'input_delay': self.input_delay,
@@ -410,8 +413,8 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         notes.append(f'the fitted set is not a valid parameter set: {e}')
     for note in notes:
         warnings.warn(note, IdentificationWarning, stacklevel=2)
-    inadequacy, advice = adequacy(int(sol.status), max_nfev, model, invalid, None, metrics,
-                                  is_settled, state_rate(experiments))
+    inadequacy, advice, failed = adequacy(int(sol.status), max_nfev, model, invalid, None,
+                                          metrics, is_settled, state_rate(experiments))
     result = IdentificationResult(
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
         sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),
@@ -424,7 +427,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
                          **({CELL: float(ex.cell_sigma)} if ex.cell is not None else {})}
                for ex in problem.exps},
         warnings=notes, wall_s=time.perf_counter() - t_start, model=model, cost_kind=cost,
-        adequate=not inadequacy, inadequacy=inadequacy, advice=advice,
+        adequate=not inadequacy, inadequacy=inadequacy, advice=advice, failed=failed,
         stderr_widening=widening, settled=is_settled)
     return judge(result, experiments, signals=signals, segment=segment, h=h_given,
                  workers=workers, max_nfev=max_nfev) if verdict else result
@@ -468,6 +471,7 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
             result.wall_s += time.perf_counter() - t0
             result.inadequacy.append('held out: the fit of one half of the record is not a '
                                      'valid parameter set: the data do not determine the values')
+            result.failed.append('half_invalid')
             return result
         refits.append(r)
     mean = restart(refits[0].x, refits[1].x, result.x)
@@ -495,9 +499,9 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
         return Problem(exps, p, result.free, result.model, signals, segment, step)
 
     result.halves = halves_check(parts, refits, result.x, problem_of)
-    result.inadequacy, result.advice = adequacy(result.status, max_nfev, result.model, '',
-                                                result.halves, result.metrics, result.settled,
-                                                state_rate(experiments))
+    result.inadequacy, result.advice, result.failed = adequacy(
+        result.status, max_nfev, result.model, '', result.halves, result.metrics, result.settled,
+        state_rate(experiments))
     result.adequate = not result.inadequacy
     result.wall_s += time.perf_counter() - t0
     return result

@@ -50,9 +50,25 @@ from ros_ehs.core.identify.experiment import Experiment
 from ros_ehs.core.identify.problem import CELL, LOAD, Problem, SIGNALS
 
 __all__ = ['AGREEMENT', 'DRIFT_FREE', 'MIN_RATE_HZ', 'NULL_SHAPE', 'PREDICTION_LIMIT', 'RESTART',
-           'SENSED', 'SENSED_LIMIT', 'SETTLED', 'SETTLE_ITERATIONS', 'SMALL_MODEL_ERROR',
-           'spread', 'why_adequate', 'adequacy', 'fit_metrics', 'halves', 'halves_check',
-           'median_noise_ratios', 'restart', 'settled', 'worst_noise_ratio']
+           'RULES', 'SENSED', 'SENSED_LIMIT', 'SETTLED', 'SETTLE_ITERATIONS',
+           'SMALL_MODEL_ERROR', 'spread', 'why_adequate', 'adequacy', 'fit_metrics', 'halves',
+           'halves_check', 'median_noise_ratios', 'restart', 'settled', 'worst_noise_ratio']
+
+
+#: The verdict's rules, each failed one named in a fit's ``failed`` (``summary.json``:
+#: ``failed_rules``), beside its reason, as ``rule`` or ``rule:what`` (the signal or the
+#: parameter it judged: ``prediction:z_dot``, ``agreement:F_cc``), so that a program reads
+#: why a fit failed without parsing the reason's text.
+RULES = {
+    'rate': 'the states were recorded below MIN_RATE_HZ',
+    'solver': 'the solver stopped at its evaluation limit before the values settled',
+    'invalid': 'the fitted values are not a valid parameter set',
+    'sensed': "a sensed signal's residual is above SENSED_LIMIT times its sensor noise",
+    'prediction': "a half replayed with the other half's values: above PREDICTION_LIMIT",
+    'agreement': "the halves' and the whole record's values of a parameter spread above "
+                 'AGREEMENT',
+    'half_invalid': "a half's fit is not a valid parameter set",
+}
 
 
 #: Held-out prediction: a half replayed with the other half's values may leave a residual RMS
@@ -294,9 +310,11 @@ def halves_check(parts: Sequence[Sequence[Experiment]], refits: Sequence, joint:
 
 def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict | None,
              metrics: dict, is_settled: bool = False,
-             rate_hz: float = math.inf) -> tuple[list[str], list[str]]:
+             rate_hz: float = math.inf) -> tuple[list[str], list[str], list[str]]:
     """
-    Return the reasons a fit is not adequate (empty: adequate) and the advice they imply.
+    Return the reasons a fit is not adequate (empty: adequate), the advice, the rules failed.
+
+    The rules (:data:`RULES`) go one to a reason, in its order.
 
     ``status``: scipy's (0: the evaluation limit); ``invalid``: why the fitted values are not
     a valid parameter set (empty: they are); ``check``: :func:`halves_check`'s answer, or
@@ -307,17 +325,21 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
     """
     why: list[str] = []
     advice: list[str] = []
+    failed: list[str] = []
     if rate_hz < 0.98 * MIN_RATE_HZ:         # a driver's mean period is not exact
+        failed.append('rate')
         why.append(f'the states were recorded at {rate_hz:.0f} Hz, below {MIN_RATE_HZ:.0f} Hz: '
                    'at that rate the fit puts the breakaway friction (F_sc) low even with the '
                    "rig's own model (docs/identification.md)")
         advice.append(f'record the states at {MIN_RATE_HZ:.0f} Hz or faster (the rate the rig '
                       'driver publishes them at)')
     if status == 0 and not is_settled:
+        failed.append('solver')
         why.append(f'the solver stopped at its evaluation limit (max_nfev = {max_nfev}) '
                    'before converging: the values are not an optimum')
         advice.append('raise max_nfev, or start nearer (--initial)')
     if invalid:
+        failed.append('invalid')
         why.append(f'the fitted values are not a valid parameter set ({invalid}): the model '
                    'cannot describe what the data show')
     recorded = {n for m in metrics.values() for n in m}
@@ -328,6 +350,7 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
         ratio = medians.get(name, math.nan)
         if ratio > SENSED_LIMIT:
             wrong_model = True
+            failed.append(f'sensed:{name}')
             why.append(f'the {name} residual is {ratio:.1f}x its sensor noise (median of the '
                        f'runs; limit {SENSED_LIMIT:g}): the model does not explain what this '
                        'sensor measured')
@@ -336,6 +359,7 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
             ratio = check['prediction'][name]
             if ratio > PREDICTION_LIMIT:
                 wrong_model = True
+                failed.append(f'prediction:{name}')
                 why.append(f'held out: each half replayed with the values fitted to the other '
                            f"leaves a {name} residual {ratio:.2f}x its own fit's (median of "
                            f'the runs; limit {PREDICTION_LIMIT:g}): the values describe the data '
@@ -345,6 +369,7 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
         for n in loose:
             d = check['disagreement'][n]
             v = [h['values'][n] for h in check['halves']]
+            failed.append(f'agreement:{n}')
             why.append(f'held out: the two halves of the record give {n} = {v[0]:.4g} and '
                        f'{v[1]:.4g}, the whole {check["joint"][n]:.4g}: {100 * d:.1f} % apart '
                        f'(limit {100 * AGREEMENT:g} %): the data do not determine it')
@@ -369,7 +394,7 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
         else:
             advice.append('free other parameters (--free): the fixed values may not be the '
                           "rig's")
-    return why, advice
+    return why, advice, failed
 
 
 def why_adequate(check: dict) -> str:
