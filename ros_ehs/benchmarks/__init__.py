@@ -17,6 +17,7 @@ import argparse
 import json
 import math
 import os
+import time
 from typing import Any, Callable
 
 from ros_ehs.core.errors import ParameterError
@@ -25,6 +26,29 @@ from ros_ehs.core.settings import parse_value, Setting
 #: how long a benchmark waits for one start step of its nodes or its page [s]: generous, since
 #: a benchmark on a loaded machine is slow, not broken (the figures say how slow)
 BOUND = 180.0
+
+
+#: what the bare ping (``ros_ehs.benchmarks.pingpong``) prints when its first echo is back
+FIRST_ECHO = 'pingpong: first echo'
+
+
+def wait_first_echo(ping, timeout: float = BOUND) -> None:
+    """
+    Wait until the bare ping (a :class:`ros_ehs.nodes.processes.NodeProcess`) has an echo.
+
+    Discovery takes seconds on a busy machine: a ping-pong measured before its pong answers
+    measures nothing (a pong with no CPU time once made a ratio divide by zero). Raises
+    RuntimeError, with the ping's output, when the ping exits or ``timeout`` [s] passes.
+    """
+    end = time.monotonic() + timeout
+    while FIRST_ECHO not in ping.output():
+        if not ping.alive():
+            raise RuntimeError(f'the bare ping exited before its first echo:\n'
+                               f'{ping.output()[-2000:]}')
+        if time.monotonic() >= end:
+            raise RuntimeError(f'the bare ping had no echo within {timeout:g} s:\n'
+                               f'{ping.output()[-2000:]}')
+        time.sleep(0.05)
 
 
 def positive(text: str) -> float:

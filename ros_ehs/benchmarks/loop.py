@@ -40,7 +40,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import BOUND, count, positive, report
+from ros_ehs.benchmarks import BOUND, count, positive, report, wait_first_echo
 from ros_ehs.nodes.processes import loop_closed, loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
 
@@ -76,7 +76,7 @@ def _bare(dom: int, seconds: float, rt: list[str]) -> tuple[dict, dict]:
     with NodeProcesses(dom, bound=BOUND) as bare:
         for role in ('pong', 'ping'):
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role, *rt])
-        time.sleep(2.0)
+        wait_first_echo(bare['ping'])       # as ours is measured from the loop's closing
         cpu = _measure(bare, ('ping', 'pong'), seconds)
         bare.stop(['ping', 'pong'])
         return cpu, json.loads(bare['ping'].output().strip().splitlines()[-1])

@@ -58,6 +58,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from ros_ehs.benchmarks import FIRST_ECHO
 from ros_ehs.nodes.ros_common import STOP_GRACE
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
@@ -161,6 +162,8 @@ def main(argv=None) -> int:
 
         def on_pong(m):
             if (struct.unpack_from('<i', m, 4)[0] if raw else m.header.stamp.sec) == st['k']:
+                if st['rx'] is None:        # the pair talks: what a bench waits for
+                    print(FIRST_ECHO, flush=True)
                 st['n'] += 1
                 st['rx'] = time.monotonic()
                 if len(rtt) < _N:

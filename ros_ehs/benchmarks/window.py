@@ -54,7 +54,7 @@ import time
 from typing import Iterator
 
 from domain_coordinator import domain_id
-from ros_ehs.benchmarks import BOUND, count, positive, report
+from ros_ehs.benchmarks import BOUND, count, positive, report, wait_first_echo
 from ros_ehs.benchmarks.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
 from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, loop_placement, NodeProcesses
@@ -156,7 +156,7 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
     with NodeProcesses(dom, env=env, bound=BOUND) as bare:
         for role in ('pong', 'ping'):
             bare.start(role, cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.pingpong', role, *rt])
-        time.sleep(2.0)
+        wait_first_echo(bare['ping'])       # as ours counts from the loop's start
         t0 = time.monotonic()
         time.sleep(seconds)
         t1 = time.monotonic()
