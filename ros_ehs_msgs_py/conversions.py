@@ -382,6 +382,8 @@ def event_from_msg(msg: Any) -> SafetyEvent:
 
 
 _ESTIMATE_KEYS = ('adequate', 'pushed', 'reason', 'window_s', 'wall_s', 'iterations')
+#: values an estimate may lack (a writer before them): the verdict's failed rules
+_ESTIMATE_OPTIONAL = ('failed_rules',)
 _STDERR = '.stderr'
 
 
@@ -397,7 +399,8 @@ def fill_estimate(msg: Any, e: ParameterEstimate, status: Any = None,
         pairs += [(n, f'{v:.9g}'), (n + _STDERR, f'{e.stderr.get(n, math.nan):.9g}')]
     pairs += [('adequate', str(bool(e.adequate)).lower()), ('pushed', str(bool(e.pushed)).lower()),
               ('reason', e.reason), ('window_s', f'{e.window_s:.9g}'),
-              ('wall_s', f'{e.wall_s:.9g}'), ('iterations', str(int(e.iterations)))]
+              ('wall_s', f'{e.wall_s:.9g}'), ('iterations', str(int(e.iterations))),
+              ('failed_rules', ','.join(e.failed))]
     return _fill_status(msg, e.stamp_ns, _OK if e.adequate else _WARN,
                         'ros_ehs/identify/estimate', e.verdict, 'axis', pairs, status, key_value)
 
@@ -405,14 +408,16 @@ def fill_estimate(msg: Any, e: ParameterEstimate, status: Any = None,
 def estimate_from_msg(msg: Any) -> ParameterEstimate:
     """Read the estimate of a ``parameter_estimates`` DiagnosticArray; ValueError if malformed."""
     st, vals = _status_values(msg, 'parameter_estimates', _ESTIMATE_KEYS)
-    names = [k for k in vals if k not in _ESTIMATE_KEYS and not k.endswith(_STDERR)]
+    names = [k for k in vals if k not in _ESTIMATE_KEYS + _ESTIMATE_OPTIONAL
+             and not k.endswith(_STDERR)]
     try:
         return ParameterEstimate(
             stamp_ns(_get(msg, 'header')), {n: float(vals[n]) for n in names},
             {n: float(vals.get(n + _STDERR, 'nan')) for n in names},
             vals['adequate'] == 'true', _get(st, 'message'), vals['pushed'] == 'true',
             vals['reason'], float(vals['window_s']), float(vals['wall_s']),
-            int(vals['iterations']))
+            int(vals['iterations']),
+            tuple(x for x in vals.get('failed_rules', '').split(',') if x))
     except ValueError as err:
         raise ValueError(f'parameter_estimates: a value is not a number: {err}') from None
 

@@ -100,7 +100,9 @@ ESTIMATES = Topic('parameter_estimates', 'diagnostic_msgs/msg/DiagnosticArray',
                   'live identification, one status per refit: name '
                   '`ros_ehs/identify/estimate`, level OK (adequate) or WARN (not), message '
                   'the verdict; values `<parameter>` and `<parameter>.stderr` (SI), adequate, '
-                  'pushed, reason, window_s, wall_s, iterations', EVENTS_QOS)
+                  "pushed, reason, window_s, wall_s, iterations, failed_rules (the verdict's "
+                  'rules it failed, comma-separated: `rate`, `agreement:F_cc`...; absent from '
+                  'a writer before it)', EVENTS_QOS)
 CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock',
               'published by the plant in lock-step mode', CLOCK_QOS)
 REFERENCE_TRAJECTORY = Topic(

@@ -90,8 +90,10 @@ class ParameterEstimate(NamedTuple):
     ``stamp_ns`` is the window's last state stamp; ``values`` and ``stderr`` map each fitted
     parameter to its value and standard error (SI units of the parameter table);
     ``adequate`` is the fit's verdict (the sensor noise explains the residuals) and
-    ``verdict`` says why or why not; ``pushed`` whether these values were set on the
-    controller, and ``reason`` why (or why not).
+    ``verdict`` says why or why not, ``failed`` the verdict's rules it failed (as
+    ``summary.json``'s ``failed_rules``: ``rate``, ``agreement:F_cc``...; empty when adequate);
+    ``pushed`` whether these values were set on the controller, and ``reason`` why (or why
+    not).
     """
 
     stamp_ns: int
@@ -104,6 +106,7 @@ class ParameterEstimate(NamedTuple):
     window_s: float = math.nan      #: the data fitted [s]
     wall_s: float = math.nan        #: the refit's wall time [s]
     iterations: int = 0
+    failed: tuple = ()
 
 
 class NodeStatus(NamedTuple):

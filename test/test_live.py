@@ -191,6 +191,7 @@ def test_an_inadequate_fit_is_never_pushed_nor_started_from(exps):
     live.controller = {n: 0.5 * TRUE[n] for n in PUSHABLE}
     est, r = live.refit([exps[1]], 10_000_000_000, 10.0)     # the full model's rig
     assert not r.adequate and not est.adequate and not est.pushed
+    assert est.failed == tuple(r.failed) and est.failed      # the rules, as data
     assert est.reason.startswith('not adequate') and live.estimate is None
     assert live.pushes == 0
 
@@ -200,7 +201,15 @@ def test_the_estimate_record_round_trips_and_a_malformed_one_is_named():
                             {'F_cc': 1.2, 'c_c': 7.0}, True, 'adequate: 1.00x',
                             True, 'F_cc 700 -> 1046.9', 10.0, 0.31, 4)
     back = c.estimate_from_msg(c.fill_estimate({'header': {'stamp': {}}}, e))
-    assert back == e
+    assert back == e and back.failed == ()
+    # a refit that failed rules names them; a writer from before failed_rules reads as none
+    bad = e._replace(adequate=False, verdict='not adequate: ...',
+                     failed=('agreement:F_cc', 'prediction:z_dot'))
+    assert c.estimate_from_msg(c.fill_estimate({'header': {'stamp': {}}}, bad)) == bad
+    old = c.fill_estimate({'header': {'stamp': {}}}, e)
+    old['status'][0]['values'] = [kv for kv in old['status'][0]['values']
+                                  if kv['key'] != 'failed_rules']
+    assert c.estimate_from_msg(old) == e
     msg = c.fill_estimate({'header': {'stamp': {}}}, e)
     msg['status'][0]['values'] = [kv for kv in msg['status'][0]['values']
                                   if kv['key'] != 'pushed']

@@ -110,6 +110,7 @@ def test_a_rig_that_is_not_the_fitted_model_is_never_pushed(dom, tmp_path, ros):
     assert est, out[-3000:]
     assert not any(e.pushed for e in est)
     assert all(not e.adequate and 'not adequate' in e.verdict for e in est), est
+    assert all(e.failed for e in est), est          # over DDS, in the bag: its rules
     assert 'live push to' not in out
 
 

@@ -308,7 +308,7 @@ class LiveIdentifier:
             self.estimate = dict(r.x)
         push, reason = self.decide(r, stamp_ns) if ok else (False, verdict)
         est = ParameterEstimate(stamp_ns, dict(r.x), dict(r.stderr), bool(ok), verdict,
-                                push, reason, window_s, wall, r.iterations)
+                                push, reason, window_s, wall, r.iterations, tuple(r.failed))
         return est, r
 
     def decide(self, r: IdentificationResult, stamp_ns: int) -> tuple[bool, str]:
