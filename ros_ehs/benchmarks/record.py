@@ -49,13 +49,16 @@ import sys, time, rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 import ros_ehs_msgs_py as c
-rate, seconds = float(sys.argv[1]), float(sys.argv[2])
+rate, seconds, bound = float(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
 rclpy.init()
 node = rclpy.create_node('blaster')
 pub = node.create_publisher(JointState, '{topic}', QoSProfile(
     depth=1000, reliability=ReliabilityPolicy.RELIABLE))
-t_end = time.monotonic() + 20
-while pub.get_subscription_count() < 1 and time.monotonic() < t_end:
+t_end = time.monotonic() + bound
+while pub.get_subscription_count() < 1:
+    if time.monotonic() >= t_end:
+        print(f'no subscriber to {topic} within {{bound:g}} s: nothing sent', file=sys.stderr)
+        sys.exit(3)
     time.sleep(0.05)
 time.sleep(1.0)
 m = JointState()
@@ -79,13 +82,17 @@ def _one(dom: int, rate: float, seconds: float, out: str, compression: str) -> d
                                        'compression': compression})
         assert procs.wait_status(contract.RECORDER_STATUS, lambda st: True), rec.output()
         pub = procs.start('pub', cmd=[sys.executable, '-c', _PUBLISHER, str(rate),
-                                      str(seconds)])
-        assert procs.wait_status(contract.RECORDER_STATUS, recording(TOPIC), 30), rec.output()
+                                      str(seconds), str(BOUND)])
+        if not procs.wait_status(contract.RECORDER_STATUS, recording(TOPIC)):
+            raise RuntimeError(f'the recorder did not discover {TOPIC} within {BOUND:g} s:\n'
+                               + rec.output()[-2000:])
         proc = psutil.Process(rec.pid)
         c0 = sum(proc.cpu_times()[:2])
         t0 = time.monotonic()
-        pub.popen.wait(seconds * 10 + 60)
+        code = pub.popen.wait(seconds * 10 + BOUND)
         cpu = (sum(proc.cpu_times()[:2]) - c0) / (time.monotonic() - t0)
+        if code != 0:
+            raise RuntimeError(f'the publisher exited with {code}:\n' + pub.output()[-2000:])
         procs.stop(['recorder'])
         sent_line = [x for x in pub.output().splitlines() if x.startswith('sent')][-1]
     n, achieved = int(sent_line.split()[1]), float(sent_line.split()[2])
