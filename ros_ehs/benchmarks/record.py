@@ -80,7 +80,9 @@ def _one(dom: int, rate: float, seconds: float, out: str, compression: str) -> d
     with NodeProcesses(dom, bound=BOUND) as procs:
         rec = procs.start('recorder', {'out': out, 'topics': [TOPIC], 'depth': 10000,
                                        'compression': compression})
-        assert procs.wait_status(contract.RECORDER_STATUS, lambda st: True), rec.output()
+        if not procs.wait_status(contract.RECORDER_STATUS, lambda st: True):
+            raise RuntimeError(f'the recorder did not start within {BOUND:g} s:\n'
+                               + rec.output()[-2000:])
         pub = procs.start('pub', cmd=[sys.executable, '-c', _PUBLISHER, str(rate),
                                       str(seconds), str(BOUND)])
         if not procs.wait_status(contract.RECORDER_STATUS, recording(TOPIC)):
