@@ -51,11 +51,7 @@ def wait_for_bag(bag, least: dict, timeout: float = BOUND) -> dict:
 
 def status_value(procs, status: str, key: str, default: float = 0.0) -> float:
     """Return a number from a node's newest status (``default`` before any)."""
-    st = procs.status(status)
-    try:
-        return float(st.values[key]) if st is not None else default
-    except (KeyError, ValueError):
-        return default
+    return procs.status_value(status, key, default)
 
 
 def wait_value(procs, status: str, key: str, least: float, timeout: float = BOUND) -> None:

@@ -56,11 +56,6 @@ def pause_or_zero(text: str) -> float:
     return 0.0 if text.strip() in ('0', '0.0') else positive(text)
 
 
-def _steps(procs) -> int:
-    st = procs.status(contract.PLANT_STATUS)
-    return int(float(st.values['steps'])) if st is not None else 0
-
-
 def _run(dom: int, seconds: float, pause: float, node: str, tmp: str, k: int) -> dict:
     """Run the loop once, ``node`` stopped ``pause`` s one second in; the bag's counts."""
     from ros_ehs.data.bag import open_bag
@@ -78,11 +73,11 @@ def _run(dom: int, seconds: float, pause: float, node: str, tmp: str, k: int) ->
                 raise RuntimeError('the loop did not step a second:\n' +
                                    procs['plant'].output()[-2000:])
             p = procs[node].popen
-            before, t0 = _steps(procs), time.monotonic()
+            before, t0 = procs.status_value(contract.PLANT_STATUS, 'steps'), time.monotonic()
             p.send_signal(signal.SIGSTOP)
             try:
                 time.sleep(pause)
-                after, t1 = _steps(procs), time.monotonic()
+                after, t1 = procs.status_value(contract.PLANT_STATUS, 'steps'), time.monotonic()
             finally:
                 p.send_signal(signal.SIGCONT)
             held = (after - before) / ((t1 - t0) * RATE)

@@ -439,6 +439,14 @@ class NodeProcesses:
         """Return the latest status ``status_name`` on the domain (None: none seen yet)."""
         return None if self.watch is None else self.watch.status(status_name)
 
+    def status_value(self, status_name: str, key: str, default: float = 0.0) -> float:
+        """Return the number ``key`` of the latest status ``status_name`` (``default``: none)."""
+        st = self.status(status_name)
+        try:
+            return float(st.values[key]) if st is not None else default
+        except (KeyError, ValueError):
+            return default
+
     def wait_status(self, status_name: str, ready: Callable[[contract.NodeStatus], bool],
                     timeout: float | None = None) -> bool:
         """
