@@ -288,14 +288,14 @@ def test_the_unchecked_advance_is_step_to_the_bit_and_says_when_the_state_leaves
     for i in np.random.default_rng(3).uniform(-0.01, 0.01, 200):
         u = np.array([i, 0.0])
         x = checked.step(x, u, 1e-3)
-        assert fast.advance(y, u, 1e-3)
+        assert fast.advance(y, u, 1e-3) == y.tolist()     # the new state, as floats
     assert np.array_equal(x, y)
     bad = y.copy()
     bad[0] = np.nan
-    assert not fast.advance(bad, np.zeros(2), 1e-3)
+    assert fast.advance(bad, np.zeros(2), 1e-3) is None
     out = y.copy()
     out[fast.state_names.index('z')] = 1.01 * EST['l_iac']     # past the cylinder's end
-    assert not fast.advance(out, np.zeros(2), 1e-3)
+    assert fast.advance(out, np.zeros(2), 1e-3) is None
 
 
 @pytest.mark.parametrize('model', ['simplified', 'reduced'])

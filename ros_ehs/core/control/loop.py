@@ -318,14 +318,16 @@ class ControlLoop:
             self.lost = False
             self.axis.restart_loops()
             self._note('info', 'states are back; PID restarted from rest')
-        i = self.axis.step(s.stamp_ns, s.z, s.z_dot, s.force, z_ref, v_ref, s.load, f_ref)
+        axis, z = self.axis, s.z
+        i = axis.step(s.stamp_ns, z, s.z_dot, s.force, z_ref, v_ref, s.load, f_ref)
+        z_ok = math.isfinite(z)
         has_ref = math.isfinite(z_ref) and math.isfinite(v_ref) or math.isfinite(f_ref)
-        if not (math.isfinite(s.z) and has_ref):
+        if not (z_ok and has_ref):
             self.counts['nonfinite'] += 1
-            if not self.axis.supervisor.latches['feedback'].tripped:   # else reported once
+            if not axis.supervisor.latches['feedback'].tripped:   # else reported once
                 self._note('warning', 'non-finite state or reference: command 0 A', now,
                            key='nonfinite')
-        elif self.axis.ctrl.force_missing(s.force):
+        elif axis.ctrl.force_missing(s.force):
             self.counts['nonfinite'] += 1
             if not self.no_force:
                 self.no_force = True
@@ -337,10 +339,11 @@ class ControlLoop:
         self.measured = s
         self.last_stamp = s.stamp_ns
         self.counts['answered'] += 1
-        if math.isfinite(s.z) and math.isfinite(z_ref):
-            self.errors.append(z_ref - s.z)
-        events = tuple(self.axis.events)
-        self.counts['events'] += len(events)
+        if z_ok and math.isfinite(z_ref):
+            self.errors.append(z_ref - z)
+        events = tuple(axis.events)
+        if events:
+            self.counts['events'] += len(events)
         return Reply(s.stamp_ns, i, events)
 
     # -- lost states (real time: a timer) ----------------------------------------------------

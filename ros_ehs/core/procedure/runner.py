@@ -352,6 +352,12 @@ class ProcedureRunner:
 
     def _advance(self, stamp: int) -> None:
         """Hand over from segments whose known end has come, exactly at their end."""
+        segs = self._segs          # the common case first (twice a period): no end has come
+        if not segs:
+            return
+        end = segs[-1].end
+        if (end is None and segs[-1].kind != 'ramp') or (end is not None and stamp < end):
+            return
         for _ in range(len(self.steps) + 2):
             seg = self._segs[-1] if self._segs else None
             if seg is None or self.state not in ('running', 'stopping'):

@@ -271,9 +271,10 @@ class SimulatedAxis:
         ``future``, ``stale``, ``not_current``; each counted). In lock-step an applied command
         steps one period.
         """
+        current = self.t0_ns + self.k * self.dt_ns          # self.stamp_ns(), per period
         if not math.isfinite(i):
             verdict = 'non_finite'
-        elif stamp_ns > self.stamp_ns() or (stamp_ns == self.stamp_ns() and self.held):
+        elif stamp_ns > current or (stamp_ns == current and self.held):
             # adopting a command from after the latest state would make every true command
             # look stale until the watchdog zeroes the valve for good (a held state is not
             # sent yet)
@@ -281,7 +282,7 @@ class SimulatedAxis:
         elif stamp_ns <= self._last_cmd_stamp or (self.k == 0 and not self.lockstep):
             # a real-time answer to another run must not arm the watchdog
             verdict = 'stale'
-        elif self.lockstep and (stamp_ns != self.stamp_ns() or self.finished):
+        elif self.lockstep and (stamp_ns != current or self.finished):
             verdict = 'not_current'
         else:
             verdict = 'applied'
@@ -452,16 +453,16 @@ class SimulatedAxis:
         self.u[0] = self.applied = i
         nxt = self._x_next
         nxt[:] = self.x
-        ok = self.plant.advance(nxt, self.u, self.dt)      # the unchecked fast path
+        xs = self.plant.advance(nxt, self.u, self.dt)      # the unchecked fast path
+        ok = xs is not None
         if ok:
             self.x, self._x_next = nxt, self.x
             self._failing = False
             sp = self.specimen
-            if sp.present and not sp.broken:
-                was = sp.broken
-                if sp.update(sp.force(float(nxt[self._iz]), float(nxt[self._iv]))):
+            if not sp.broken and sp.present:
+                if sp.update(sp.force(xs[self._iz], xs[self._iv])):
                     self.plant.set_load(sp.stiffness, sp.damping)
-                    if sp.broken and not was:
+                    if sp.broken:
                         self.notes.append(('warning', f'the specimen fractured after '
                                            f'{sp.cycles:g} cycles, at {self.k * self.dt:.6g} s'))
         else:
@@ -508,7 +509,8 @@ class SimulatedAxis:
         load = sp.force(xs[self._iz], xs[self._iv])
         if self._load_noise:
             load += self._load_noise * float(self._rng_load.standard_normal())
-        state = AxisState(self.stamp_ns(), z, v, self._A_p * (xs[self._ipa] - xs[self._ipb]),
+        stamp = self.t0_ns + self.k * self.dt_ns                     # self.stamp_ns()
+        state = AxisState(stamp, z, v, self._A_p * (xs[self._ipa] - xs[self._ipb]),
                           xs[self._ixv] if self._ixv >= 0 else math.nan, self.applied,
                           load if sp.present else math.nan)
         return Sample(state, xs[self._ipa] + npr * e[2], xs[self._ipb] + npr * e[3], load)

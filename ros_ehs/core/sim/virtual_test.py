@@ -123,38 +123,43 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
         window = SampleWindow(live.window, int(live.window * rate_hz) + 10)
         every = max(1, int(round(live.period * rate_hz)))
         full = live.window - 1.5 / rate_hz        # the window's span once it is full [s]
+    # the nodes' calls, bound once (a period is some 130 calls: each lookup counts)
+    sample, reference, trajectory, answer = axis.sample, runner.sample, loop.trajectory, \
+        loop.state
+    command, measure = axis.command, runner.measure
     wall0 = time.perf_counter()
     started = False
     k = 0
     for k in range(n):
-        s = axis.sample()
+        s = sample()
         st = s.state
+        stamp = st.stamp_ns
         if not started:
-            runner.measure(st.stamp_ns, st.z, s.load)
-            ok, why = runner.start(st.stamp_ns)
+            measure(stamp, st.z, s.load)
+            ok, why = runner.start(stamp)
             if not ok:
                 raise InputError(f'the procedure did not start: {why}')
             started = True
-        ref = runner.sample(st.stamp_ns)
-        loop.trajectory([ref])
-        reply = loop.state(st, 0.0, st.stamp_ns)
-        axis.command(st.stamp_ns, reply.current, 0.0)
+        trajectory((reference(stamp),))
+        reply = answer(st, 0.0, stamp)
+        command(stamp, reply.current, 0.0)
         for e in reply.events:
             events.append(('controller', e.kind, e.detector, e.message))
-            runner.event(e.kind, e.detector, e.action, st.stamp_ns)
-        runner.measure(st.stamp_ns, st.z, s.load)
+            runner.event(e.kind, e.detector, e.action, stamp)
+        measure(stamp, st.z, s.load)
         if window is not None:
             _live_step(live, window, every, full, k, s, reply.current, runner, estimates)
         if runner.request_mode is not None:
             ok, why, ev = loop.set_mode(runner.request_mode)
             events.append(('controller', ev.kind, ev.detector, ev.message))
-            runner.mode_switched(ok, why, st.stamp_ns)
+            runner.mode_switched(ok, why, stamp)
         if runner.cycles:
             for c in runner.cycles:
                 table[n_kept % keep_cycles] = _row(c)
                 n_kept += 1
             runner.cycles.clear()
-        runner.captures.clear()
+        if runner.captures:
+            runner.captures.clear()
         if runner.events:
             events.extend(('procedure',) + e for e in runner.events)
             runner.events.clear()
