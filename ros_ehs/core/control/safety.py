@@ -274,6 +274,8 @@ class Supervisor:
             raise InputError(f'`config` must be SafetyConfig, got {type(config).__name__}')
         self.config = config or SafetyConfig()
         self.dt = float(dt)
+        self._win_cfg: SafetyConfig | None = None     # the config _win_n is of
+        self._win_n = 1
         self.latches = {d: _Latch() for d in DETECTORS}
         self.enabled = bool(enabled)
         self.counts = dict.fromkeys(DETECTORS, 0)
@@ -480,7 +482,10 @@ class Supervisor:
             while zhi and zhi[-1][1] <= z:
                 zhi.pop()
             zhi.append((self._win_seq, z))
-        n = max(1, int(math.ceil(cfg.break_window / self.dt - 1e-9)))
+        if cfg is not self._win_cfg:        # the window's length in periods, per config
+            self._win_cfg = cfg
+            self._win_n = max(1, int(math.ceil(cfg.break_window / self.dt - 1e-9)))
+        n = self._win_n
         while len(win) > n:
             old = win.popleft()[0]
             if top and top[0][0] == old:
