@@ -178,6 +178,10 @@ def test_the_board_keeps_a_bounded_log_and_trend():
     assert snap['events_total'] == 12
     assert snap['trend']['d_c'] == [[-3.0, 109.0], [-2.0, 110.0], [-1.0, 111.0]]
     assert snap['estimate']['params']['d_c'] == {'value': 111.0, 'stderr': 1.0}
+    assert snap['estimate']['failed'] == []
+    b.take_estimate(13.0, ParameterEstimate(13, {'d_c': 90.0}, {'d_c': 1.0}, False,
+                                            'NOT ADEQUATE', failed=('rate', 'agreement:d_c')))
+    assert b.snapshot(13.0)['estimate']['failed'] == ['rate', 'agreement:d_c']
 
 
 # -- the station: scope and meters from states ------------------------------------------------

@@ -17,6 +17,7 @@ import shutil
 
 import pytest
 from ros_ehs.nodes.processes import NodeProcesses
+from ros_ehs.nodes.ros_common import qos_profile
 import ros_ehs_msgs_py as c
 from waits import BOUND, rosbags_read, set_parameter, status_value, wait_value
 
@@ -124,6 +125,20 @@ def _answer(page, *words):
     return page.inner_text('#answer')
 
 
+def _refit():
+    """Return a live refit that failed two rules, as an identify node sends it."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    st = DiagnosticStatus(level=DiagnosticStatus.WARN, name='ros_ehs/identify/estimate',
+                          message='NOT ADEQUATE: the halves disagree', hardware_id='axis')
+    pairs = {'F_cc': '310.0', 'F_cc.stderr': '4.0', 'adequate': 'false', 'pushed': 'false',
+             'reason': 'not adequate', 'window_s': '10.0', 'wall_s': '1.0', 'iterations': '9',
+             'failed_rules': 'prediction:z_dot,agreement:F_cc'}
+    st.values = [KeyValue(key=k, value=v) for k, v in pairs.items()]
+    msg = DiagnosticArray(status=[st])
+    msg.header.stamp.sec = 1
+    return msg
+
+
 def _station_events(bag):
     return rosbags_read(bag, '/station/events', c.station_event_from_msg)
 
@@ -172,6 +187,17 @@ def test_the_page_shows_the_axis_a_trip_and_its_reset_and_ramps_on(dom, tmp_path
         _wait(page, 'document.getElementById("hyd").textContent === "on" && '
                     'document.getElementById("ramp").value === 1')
         _wait(page, 'document.getElementById("events").textContent.includes("enabled")')
+        # a live refit, sent as an identify node sends it (built field by field, not by our
+        # encoder): its verdict's failed rules show as tags beside NOT ADEQUATE
+        refit = _refit()
+        pub = ros.create_publisher(type(refit), c.ESTIMATES.name, qos_profile(c.ESTIMATES.qos))
+        pub.publish(refit)          # kept for late joiners (transient local) while pub lives
+        _wait(page, 'document.querySelector("[data-testid=failed-rules]") && document.'
+                    'querySelector("[data-testid=failed-rules]").textContent.includes('
+                    '"agreement:F_cc")')
+        assert 'NOT ADEQUATE' in page.inner_text('#estimate')
+        tags = page.query_selector_all('[data-testid=failed-rules] .tag')
+        assert [t.inner_text() for t in tags] == ['prediction:z_dot', 'agreement:F_cc']
         assert page.errors == []
         page.close()
         # a closed page changes nothing on the axis: the loop runs on, no action after it

@@ -100,7 +100,8 @@ class Board:
                 params[k] = {'value': x, 'stderr': _clean(e.stderr.get(k, math.nan))}
                 self.estimates.setdefault(k, deque(maxlen=self._trend)).append((now, x))
         self.estimate = {'adequate': bool(e.adequate), 'message': e.verdict, 'params': params,
-                         'pushed': bool(e.pushed), 'reason': e.reason}
+                         'pushed': bool(e.pushed), 'reason': e.reason,
+                         'failed': list(e.failed)}     # the verdict's rules, as tags
 
     # -- output ------------------------------------------------------------------------------
     def lost(self, now: float) -> str | None:

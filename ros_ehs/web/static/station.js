@@ -129,9 +129,11 @@
     if (!e) return;
     const rows = Object.entries(e.params).map(([k, p]) =>
       `<tr><td>${k}</td><td>${fmt(p.value)}</td><td>&plusmn; ${fmt(p.stderr, 2)}</td></tr>`);
+    const failed = (e.failed || []).map((r) => `<span class="tag">${esc(r)}</span>`).join(' ');
     put('estimate', `<div>${e.adequate ? 'adequate' : 'NOT ADEQUATE'}` +
       `${e.pushed ? ', pushed to the controller' : ''}: <span class="note">${esc(e.message)}</span>` +
-      `</div><table>${rows.join('')}</table>`);
+      `</div>` + (failed ? `<div data-testid="failed-rules">failed: ${failed}</div>` : '') +
+      `<table>${rows.join('')}</table>`);
     const names = Object.keys(f.trend);
     if (!names.length) return;
     if (!trend || trend.names.join() !== names.join()) {
