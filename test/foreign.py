@@ -11,7 +11,12 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Messages written by a writer that is not ours (rosbags), for our decoders to read."""
+"""
+Messages written by a writer that is not ours, for our decoders to read.
+
+rosbags (:func:`diagnostic_array`), or rclpy's message classes filled field by field as
+another node fills them (:func:`estimate`), never our encoders.
+"""
 
 
 def diagnostic_array(statuses, sec: int = 0, nanosec: int = 0):
@@ -33,3 +38,20 @@ def diagnostic_array(statuses, sec: int = 0, nanosec: int = 0):
             for name, level, message, values in statuses])
     kind = msg.__msgtype__
     return ts.deserialize_cdr(ts.serialize_cdr(msg, kind), kind)
+
+
+def estimate(values: dict, adequate: bool, message: str = 'a test refit', sec: int = 1):
+    """
+    Return a ``parameter_estimates`` DiagnosticArray (rclpy) built field by field.
+
+    As an identify node sends it, not by our encoder: one status ``ros_ehs/identify/estimate``,
+    level OK or WARN by ``adequate``, ``values`` its key-value pairs in order.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    st = DiagnosticStatus(level=DiagnosticStatus.OK if adequate else DiagnosticStatus.WARN,
+                          name='ros_ehs/identify/estimate', message=message,
+                          hardware_id='axis')
+    st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+    msg = DiagnosticArray(status=[st])
+    msg.header.stamp.sec = sec
+    return msg

@@ -185,18 +185,11 @@ def test_a_step_in_force_switches_the_controller_and_loads_the_specimen(dom, tmp
 
 def _estimate(k_L, stderr, adequate=True):
     """Return a refit as an identify node sends it, built field by field (not our encoder)."""
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    st = DiagnosticStatus(level=DiagnosticStatus.OK if adequate else DiagnosticStatus.WARN,
-                          name='ros_ehs/identify/estimate', message='a test refit',
-                          hardware_id='axis')
-    pairs = {'k_L': repr(k_L), 'k_L.stderr': repr(stderr), 'd_c': '0.0005',
-             'd_c.stderr': '1e-06', 'adequate': 'true' if adequate else 'false',
-             'pushed': 'false', 'reason': 'not pushed', 'window_s': '10.0', 'wall_s': '1.0',
-             'iterations': '12'}
-    st.values = [KeyValue(key=k, value=v) for k, v in pairs.items()]
-    msg = DiagnosticArray(status=[st])
-    msg.header.stamp.sec = 1
-    return msg
+    from foreign import estimate
+    return estimate({'k_L': repr(k_L), 'k_L.stderr': repr(stderr), 'd_c': '0.0005',
+                     'd_c.stderr': '1e-06', 'adequate': 'true' if adequate else 'false',
+                     'pushed': 'false', 'reason': 'not pushed', 'window_s': '10.0',
+                     'wall_s': '1.0', 'iterations': '12'}, adequate)
 
 
 def test_a_live_fit_of_a_softer_specimen_fails_the_test(dom, tmp_path, ros):

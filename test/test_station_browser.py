@@ -127,16 +127,12 @@ def _answer(page, *words):
 
 def _refit():
     """Return a live refit that failed two rules, as an identify node sends it."""
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    st = DiagnosticStatus(level=DiagnosticStatus.WARN, name='ros_ehs/identify/estimate',
-                          message='NOT ADEQUATE: the halves disagree', hardware_id='axis')
-    pairs = {'F_cc': '310.0', 'F_cc.stderr': '4.0', 'adequate': 'false', 'pushed': 'false',
-             'reason': 'not adequate', 'window_s': '10.0', 'wall_s': '1.0', 'iterations': '9',
-             'failed_rules': 'prediction:z_dot,agreement:F_cc'}
-    st.values = [KeyValue(key=k, value=v) for k, v in pairs.items()]
-    msg = DiagnosticArray(status=[st])
-    msg.header.stamp.sec = 1
-    return msg
+    from foreign import estimate
+    return estimate({'F_cc': '310.0', 'F_cc.stderr': '4.0', 'adequate': 'false',
+                     'pushed': 'false', 'reason': 'not adequate', 'window_s': '10.0',
+                     'wall_s': '1.0', 'iterations': '9',
+                     'failed_rules': 'prediction:z_dot,agreement:F_cc'},
+                    False, 'NOT ADEQUATE: the halves disagree')
 
 
 def _station_events(bag):
