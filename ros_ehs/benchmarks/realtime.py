@@ -25,8 +25,10 @@ time is measured here, each against a yardstick of the same run:
 * ``rig``: the controller on a driver to ros2_control's conventions
   (:mod:`ros_ehs.benchmarks.ros2_control_driver`, 500 Hz, its command written at its next
   cycle) and on our plant, the paper's sine: the tracking RMS of each against the same
-  controller in process (a command a period late, and on arrival), ``ratio_rig``,
-  ``ratio_ours`` (1.0: the machine's timing cost nothing).
+  controller in process (a command a period late, and on arrival) at the same moments of the
+  sine (what a run leaves out, after a watchdog trip, falls unevenly on the sine's phase),
+  ``ratio_rig``, ``ratio_ours`` (1.0: the machine's timing cost nothing), and the states
+  each counted (``counted_rig``, ``counted_ours``).
 
 Last line: one JSON object.
 """
@@ -83,15 +85,18 @@ def fundamental(bag, frequency: float, cycles: int = 2) -> tuple[float, float]:
     return math.hypot(a, bb), math.degrees(math.atan2(bb, a))
 
 
-def tracking(bag: Path, state: str, joint: str, skip: float = SKIP) -> tuple[float, int]:
+def tracking(bag: Path, state: str, joint: str, skip: float = SKIP
+             ) -> tuple[float, np.ndarray]:
     """
-    RMS of z_ref - z [m] after ``skip`` s of the reference, and the states counted.
+    RMS of z_ref - z [m] after ``skip`` s of the reference, and the moments it counted.
 
     A reference that went silent for more than the controller's reference_timeout (0.1 s) is
     held, then ramped back onto over ramp_time (1 s), by design: from the gap to a ramp_time
     after it is not tracking, and is left out. So is 0.2 s from a period our plant's watchdog
     zeroed the valve (the state's applied current exactly 0 A: a plant tick the machine made
-    late).
+    late). The moments are the counted states' times from the reference's first sample [s]:
+    what is left out is not spread evenly over the sine's phase, whose error is not even
+    either, so the yardstick is judged at the same moments (:func:`in_process`).
     """
     b = open_bag(bag)
     ref = sorted(contract.reference_from_cdr(m.data) for m in b.messages(['/reference']))
@@ -108,7 +113,26 @@ def tracking(bag: Path, state: str, joint: str, skip: float = SKIP) -> tuple[flo
         m &= ~((ts > tr[g]) & (ts < tr[g + 1] + 1.0e9))
     for k in np.flatnonzero(np.array([s.i for s in st]) == 0.0):
         m &= ~((ts >= ts[k]) & (ts < ts[k] + 0.2e9))
-    return float(np.sqrt(np.mean((z_ref[m] - z[m]) ** 2))), int(m.sum())
+    if not m.any():
+        return math.nan, np.empty(0)
+    return float(np.sqrt(np.mean((z_ref[m] - z[m]) ** 2))), (ts[m] - tr[0]) * 1e-9
+
+
+def in_process(moments: np.ndarray, command_delay: int) -> float:
+    """
+    RMS of z_ref - z [m] of the paper's sine run in process, at ``moments`` of its time [s].
+
+    The same controller and plant (simplified model) at :data:`RATE`, the sine's time zero
+    its start (as the bag's is the reference's first sample); its error interpolated between
+    periods. NaN when there are no moments.
+    """
+    if moments.size == 0:
+        return math.nan
+    r = run_closed_loop(Params(), Sine(0.04, 1.0), float(np.max(moments)) + 0.1,
+                        model='simplified', dt=1.0 / RATE, supervised=True,
+                        command_delay=command_delay)
+    e = np.interp(moments, r.t, r.z_ref - r.z)
+    return float(np.sqrt(np.mean(e ** 2)))
 
 
 def apc(dom: int, tmp: str, seconds: float, rt: int) -> dict:
@@ -156,17 +180,16 @@ def rig(dom: int, tmp: str, seconds: float) -> dict:
         wait_for_counts(our_bag, {'/state': int((seconds + 1) * RATE)}, BAG_WAIT)
         procs.stop(['recorder', 'reference', 'plant', 'controller'])
     skip = min(SKIP, seconds / 2)
-    rms_rig, _ = tracking(rig_bag, '/joint_states', JOINT, skip)
-    rms_ours, _ = tracking(our_bag, '/state', contract.JOINT_PISTON, skip)
-    pred = {}
-    for d in (0, 1):
-        r = run_closed_loop(Params(), Sine(0.04, 1.0), seconds, model='simplified',
-                            dt=1.0 / RATE, supervised=True, command_delay=d)
-        pred[d] = float(np.sqrt(np.mean((r.z_ref - r.z)[r.t > skip] ** 2)))
+    rms_rig, at_rig = tracking(rig_bag, '/joint_states', JOINT, skip)
+    rms_ours, at_ours = tracking(our_bag, '/state', contract.JOINT_PISTON, skip)
+    # the yardsticks at the moments each run counted: a command a period late (the driver's)
+    # and on arrival (our plant's)
+    pred = {1: in_process(at_rig, 1), 0: in_process(at_ours, 0)}
     return {'rms_rig_mm': round(rms_rig * 1e3, 4), 'rms_rig_in_process_mm': round(
         pred[1] * 1e3, 4), 'ratio_rig': round(rms_rig / pred[1], 3),
         'rms_ours_mm': round(rms_ours * 1e3, 4), 'rms_ours_in_process_mm': round(
             pred[0] * 1e3, 4), 'ratio_ours': round(rms_ours / pred[0], 3),
+        'counted_rig': int(at_rig.size), 'counted_ours': int(at_ours.size),
         'driver_stale_cycles': figures['stale_cycles'], 'driver_cycles': figures['cycles']}
 
 
