@@ -130,6 +130,26 @@ def test_a_reference_is_carried_to_the_states_instant_forward_and_back():
     assert loop.axis.demand.v_ref == 0.5
 
 
+def test_a_state_between_two_references_gets_the_velocity_at_its_instant():
+    """
+    Its velocity interpolated between theirs, not the newer one's.
+
+    The newer reference's alone would lead the state by up to a reference period, by the
+    phase of the two nodes' timers: a feedforward lead that changed from run to run.
+    """
+    loop = _loop(params=Params().replace(ramp_time=0.0), reference_timeout=0.1)
+    loop.reference(Reference(T0 + 2 * MS, 0.010, 0.2), 0.0015)
+    loop.reference(Reference(T0 + 6 * MS, 0.011, 0.6), 0.0055)
+    _answer(loop, 5, now=0.0056)            # stamped 3/4 of the way from the first
+    assert loop.axis.demand.v_ref == pytest.approx(0.5)
+    assert loop.axis.demand.z_ref == pytest.approx(0.011 - 0.6 * 0.001)    # as before
+    _answer(loop, 7, now=0.0075)            # after the newest: its own velocity
+    assert loop.axis.demand.v_ref == 0.6
+    loop.reference(Reference(T0 + 3 * MS, 0.012, 0.1), 0.0076)     # out of order: not used
+    _answer(loop, 8, now=0.0082)            # for the velocity between
+    assert loop.axis.demand.v_ref == 0.1
+
+
 def test_a_stale_reference_is_held_still_and_the_axis_ramps_back_onto_it():
     p = Params().replace(ramp_time=0.05)
     loop = _loop(params=p, reference_timeout=0.1)
