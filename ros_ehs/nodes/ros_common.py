@@ -241,9 +241,20 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     # callbacks still publish.
     use_profile()              # the package's Fast DDS profile, unless one is named
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda signum, frame: stop.set())
-                for sig in (signal.SIGINT, signal.SIGTERM)}
+    # The stop is a byte in a pipe, not a threading.Event: a Python signal handler runs in
+    # the main thread between two of its bytecodes, and Event.set() there deadlocked a plant
+    # whose main thread was inside Event.wait() holding the Event's lock (SIGTERM ignored,
+    # then SIGINT: the kind of cpython#126434). os.write takes no lock.
+    wake_r, wake_w = os.pipe()
+    os.set_blocking(wake_w, False)
+
+    def wake(*_: object) -> None:
+        try:
+            os.write(wake_w, b'.')
+        except OSError:          # the pipe full of wake-ups (or closed at the end): enough
+            pass
+
+    previous = {sig: signal.signal(sig, wake) for sig in (signal.SIGINT, signal.SIGTERM)}
     node = None
     rc = 0
     stuck = False
@@ -281,12 +292,11 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
             except (KeyboardInterrupt, ExternalShutdownException):
                 pass
             finally:
-                stop.set()
+                wake()
 
         thread = threading.Thread(target=spin, name='ehs-executor', daemon=True)
         thread.start()
-        while not stop.wait(0.1):
-            pass
+        os.read(wake_r, 1)       # a signal, or the spin thread's end (done, a shutdown)
         drain = float(getattr(node, 'drain_period', 0.0))
         # armed before the node's stop(): a hang there is dumped too
         faulthandler.dump_traceback_later(drain + STOP_GRACE + STOP_DUMP)
@@ -324,6 +334,8 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         faulthandler.unregister(DUMP_SIGNAL)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        os.close(wake_r)
+        os.close(wake_w)
         if node is not None and getattr(node, 'busy', False):
             # a worker thread still in compiled code (a refit): the interpreter's teardown
             # under it crashed once (SIGSEGV); everything is closed, so leave now
