@@ -22,7 +22,8 @@ time is measured here, each against a yardstick of the same run:
   in real time (plant and controller on SCHED_FIFO ``--rt-priority``): the complex error of
   the response's fundamental over the specified sine over the last 20 cycles, with APC and,
   as the yardstick, without (``err_apc``, ``err_pid``, their ``ratio``);
-* ``rig``: the controller on a driver to ros2_control's conventions
+* ``rig``: the controller on a driver to ros2_control's conventions (driver and controller on
+  SCHED_FIFO ``--rt-priority`` too, as controller_manager's update loop runs)
   (:mod:`ros_ehs.benchmarks.ros2_control_driver`, 500 Hz, its command written at its next
   cycle) and on our plant, the paper's sine: the tracking RMS of each against the same
   controller in process (a command a period late, and on arrival) at the same moments of the
@@ -155,9 +156,14 @@ def apc(dom: int, tmp: str, seconds: float, rt: int) -> dict:
             'ratio': round(err[True] / err[False], 3)}
 
 
-def rig(dom: int, tmp: str, seconds: float) -> dict:
-    """Measure the controller on a ros2_control driver and on our plant against in process."""
+def rig(dom: int, tmp: str, seconds: float, rt: int = 0) -> dict:
+    """
+    Measure the controller on a ros2_control driver and on our plant against in process.
+
+    ``rt``: SCHED_FIFO priority of the controller and of the driver or our plant (0: none).
+    """
     rig_bag, our_bag = Path(tmp) / 'rig', Path(tmp) / 'ours'
+    loop = {'rt_priority': rt} if rt else {}
     with NodeProcesses(dom, Path(tmp) / 'logs_rig', bound=BOUND) as procs:
         procs.start('recorder', {'out': str(rig_bag), 'topics': [
             '/joint_states', '/servo_valve_controller/commands', '/reference']})
@@ -165,9 +171,10 @@ def rig(dom: int, tmp: str, seconds: float) -> dict:
         procs.start('controller', {
             'rate_hz': RATE, 'state_topic': '/joint_states', 'joint': JOINT,
             'command_interface': 'forward_command',
-            'command_topic': '/servo_valve_controller/commands'})
+            'command_topic': '/servo_valve_controller/commands', **loop})
         procs.start('driver', cmd=[sys.executable, '-m', 'ros_ehs.benchmarks.ros2_control_driver',
-                                   '--rate', str(RATE), '--joint', JOINT])
+                                   '--rate', str(RATE), '--joint', JOINT,
+                                   '--rt-priority', str(rt)])
         procs.wait_status(contract.RECORDER_STATUS, recording('/joint_states'), 120)
         procs.start('reference', {'wait_subscribers': 2})
         procs.wait_status(contract.REFERENCE_STATUS, reference_started, 120)
@@ -175,8 +182,8 @@ def rig(dom: int, tmp: str, seconds: float) -> dict:
         procs.stop(['recorder', 'reference', 'controller', 'driver'])
         figures = json.loads(procs['driver'].output().strip().splitlines()[-1])
     with NodeProcesses(dom, Path(tmp) / 'logs_ours', bound=BOUND) as procs:
-        procs.start_loop('realtime', bag=our_bag, plant={'rate_hz': RATE},
-                         controller={'rate_hz': RATE})
+        procs.start_loop('realtime', bag=our_bag, plant={'rate_hz': RATE, **loop},
+                         controller={'rate_hz': RATE, **loop})
         wait_for_counts(our_bag, {'/state': int((seconds + 1) * RATE)}, BAG_WAIT)
         procs.stop(['recorder', 'reference', 'plant', 'controller'])
     skip = min(SKIP, seconds / 2)
@@ -202,8 +209,8 @@ def main(argv=None) -> int:
                     f'first {SKIP:g} s of a run (of a run shorter than {2 * SKIP:g} s, its '
                     'first half)')
     ap.add_argument('--rt-priority', type=int, default=50,
-                    help='SCHED_FIFO priority of plant and controller in the APC runs (0: the '
-                    'default scheduler)')
+                    help='SCHED_FIFO priority of the plant (or the driver) and the controller in '
+                    'every run (0: the default scheduler)')
     a = ap.parse_args(argv)
     if a.seconds < SHORTEST:
         ap.error(f'argument --seconds: must be at least {SHORTEST:g} s (the tracking RMS '
@@ -213,7 +220,7 @@ def main(argv=None) -> int:
         try:
             fig = {'seconds': a.seconds,
                    'apc': apc(dom, tmp, a.seconds, a.rt_priority),
-                   'rig': rig(dom, tmp, a.seconds)}
+                   'rig': rig(dom, tmp, a.seconds, a.rt_priority)}
         except BaseException:
             # the bags and the nodes' logs stay for whoever reads the error
             print(f'python -m ros_ehs.benchmarks realtime: its bags and logs are kept in {tmp}',

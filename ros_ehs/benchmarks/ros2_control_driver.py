@@ -65,11 +65,17 @@ def main() -> int:
                     "cycle once the controller's answer to the last has come (see above)")
     ap.add_argument('--wait-subscribers', type=int, default=1, help='lock-step: start once '
                     '/joint_states has this many subscribers')
+    ap.add_argument('--rt-priority', type=int, default=0, help='SCHED_FIFO priority of the '
+                    "driver's threads, as controller_manager's update loop takes (0: the "
+                    'default scheduler)')
     a = ap.parse_args()
     from ros_ehs.core.model.plant import Plant
     from ros_ehs.core.params import Params
     rclpy.init()
     node = rclpy.create_node('rig_driver')
+    if a.rt_priority > 0:       # after the node: the middleware's threads exist by now
+        from ros_ehs.nodes.scheduling import set_realtime
+        print(set_realtime(a.rt_priority), file=sys.stderr, flush=True)
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     pub = node.create_publisher(JointState, '/joint_states', qos)
     latest = {'cmd': 0.0, 'n': 0, 'max': 0.0}
