@@ -122,10 +122,9 @@ class Specimen:
 
     def force(self, z: float, z_dot: float) -> float:
         """Return the force it carries at piston position ``z`` [m] and speed [m/s] [N]."""
-        if self.broken or not self.k0 > 0.0:     # present and stiffness inlined (per period)
+        if self.broken or not self.present:
             return 0.0
-        a = self.a
-        return self.k0 / (1.0 + self.lam * a * a) * (z - self.z0) + self.c0 * z_dot
+        return self.stiffness * (z - self.z0) + self.c0 * z_dot
 
     def update(self, force: float) -> bool:
         """
@@ -133,7 +132,7 @@ class Specimen:
 
         At a reversal the half cycle just ended grows the crack; a crack of 1 breaks it.
         """
-        if self.broken or not self.k0 > 0.0 or not math.isfinite(force):
+        if self.broken or not self.present or not math.isfinite(force):
             return False
         if self._dir >= 0 and force > self._ext:
             self._ext = force

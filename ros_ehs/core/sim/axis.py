@@ -271,7 +271,7 @@ class SimulatedAxis:
         ``future``, ``stale``, ``not_current``; each counted). In lock-step an applied command
         steps one period.
         """
-        current = self.t0_ns + self.k * self.dt_ns          # self.stamp_ns(), per period
+        current = self.stamp_ns()
         if not math.isfinite(i):
             verdict = 'non_finite'
         elif stamp_ns > current or (stamp_ns == current and self.held):
@@ -509,8 +509,7 @@ class SimulatedAxis:
         load = sp.force(xs[self._iz], xs[self._iv])
         if self._load_noise:
             load += self._load_noise * float(self._rng_load.standard_normal())
-        stamp = self.t0_ns + self.k * self.dt_ns                     # self.stamp_ns()
-        state = AxisState(stamp, z, v, self._A_p * (xs[self._ipa] - xs[self._ipb]),
+        state = AxisState(self.stamp_ns(), z, v, self._A_p * (xs[self._ipa] - xs[self._ipb]),
                           xs[self._ixv] if self._ixv >= 0 else math.nan, self.applied,
                           load if sp.present else math.nan)
         return Sample(state, xs[self._ipa] + npr * e[2], xs[self._ipb] + npr * e[3], load)
