@@ -28,6 +28,9 @@ How the fit works (docs/identification.md):
   state; unmeasured states carry over from the previous segment. Position is compared up
   to a constant per segment, so the noise of the starting sample does not bias the fit.
   Without this, a noisy start offsets the whole open-loop position trace.
+* A cold fit of a record with pressures takes a second start: from its values through 0.1 s
+  segments, then on the record's own segments again; the lower cost wins. The 1 s segments'
+  cost has narrow valleys in the friction that a start from Table 1 can stop in.
 * Parameters are scaled by Table 1's scale gains and bounded by its bounds. The Jacobian is
   a forward difference in scaled units with a step of 1e-3 (the simulator's round-off makes
   scipy's default 1.5e-8 step useless); its columns run in parallel on ``workers``
@@ -67,6 +70,14 @@ __all__ = ['IdentificationResult', 'fit_bounds', 'identify', 'judge', 'multistar
 #: last iterations at 1e-10 moved no value by more than 2e-4 of its standard error.
 _TOL = 1e-8
 _TOL_FIRST = 1e-5
+
+#: Replay segment [s] of the second start a cold fit of a record with pressures takes
+#: (:func:`identify`): restarted from the measured pressures every 0.1 s, the replay cannot
+#: drift far from the data, and its cost has wider valleys than the 1 s segments'.
+SHORT_SEGMENT = 0.1
+#: Two fits whose costs are within this fraction reached one optimum (the sample bag's two
+#: starts: 2864.48 both); only a second start lower by more replaces the first.
+_SAME_COST = 1e-3
 
 
 @dataclass
@@ -303,6 +314,37 @@ def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
     return sol, J, history, njev
 
 
+def _second_start(problem: Problem, short: Problem, sol, J, history, njev, bounds,
+                  cost: str, max_nfev: int, workers: int) -> tuple:
+    """
+    Fit again through ``short``'s segments; return the better fit and a note.
+
+    The record is refitted on ``short`` (the same record in :data:`SHORT_SEGMENT` segments:
+    the replay restarts from the measured pressures that often) from the first fit's values,
+    then on ``problem``'s own segments from that fit's, with the same ``cost``. That fit
+    replaces ``sol`` (with its Jacobian, history and number of Jacobians) when it converged
+    to a cost lower by more than :data:`_SAME_COST`; the note then says so (empty
+    otherwise). The evaluations of both count in ``nfev``.
+
+    Why: the 1 s segments' cost has narrow valleys in the friction (a breakaway a sample
+    early or late shifts the position over the rest of its segment). Cold fits of records
+    with pressures stopped in one with F_sc 10-25 % low, on rigs of the verdict benchmark
+    recorded at 250 Hz-2 kHz (docs/identification.md).
+    """
+    first, _, _, _ = _solve(short, sol.x, bounds, cost, True, max_nfev, workers, None)
+    again = _solve(problem, first.x, bounds, cost, True, max_nfev, workers, None)
+    nfev = sol.nfev + first.nfev + again[0].nfev
+    if again[0].status != 0 and again[0].cost < (1.0 - _SAME_COST) * sol.cost:
+        note = (f'a second start through {SHORT_SEGMENT:g} s segments lowered the cost from '
+                f'{sol.cost:.6g} to {again[0].cost:.6g} (the first fit had stopped in a '
+                'poorer optimum)')
+        sol, J, history, njev = again
+        sol.nfev = nfev
+        return sol, J, history, njev, note
+    sol.nfev = nfev
+    return sol, J, history, njev, ''
+
+
 def _value_notes(xv: dict, se: np.ndarray, free, theta, lo_s, hi_s) -> list[str]:
     """Return the notes on the fitted values: not identifiable, or ended on a bound."""
     notes = []
@@ -360,7 +402,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     warm : bool
         The starting values are a recent estimate of the same system (a live refit): the
         SAE solve starts from them directly, without the SSE stage that brings a cold start
-        close first.
+        close first, nor a cold fit's second start (:data:`SHORT_SEGMENT`).
     verdict : bool
         Judge the fit on held-out data (default, :func:`judge`): refit each half of the
         record warm from the joint values, replay each half with the other's values, and
@@ -385,12 +427,20 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     lo_s, hi_s = lo / sc, hi / sc
     sol, J, history, njev = _solve(problem, theta0, (lo_s, hi_s), cost, warm, max_nfev,
                                    workers, progress)
+    notes = []
+    if not warm and segment is not None and segment > SHORT_SEGMENT and \
+            problem.restarts_pressures():
+        short = Problem(experiments, base, free, model, signals, SHORT_SEGMENT, h)
+        sol, J, history, njev, note = _second_start(problem, short, sol, J, history, njev,
+                                                    (lo_s, hi_s), cost, max_nfev, workers)
+        notes += [note] if note else []
     theta = sol.x
     r = sol.fun
     fitted: dict[str, dict[str, np.ndarray]] = {}
     metrics = fit_metrics(problem, theta, fitted)
-    se, corr, notes, widening = standard_errors(J, r, cost, free, metrics,
-                                                problem.blocks(BLOCK_S))
+    se, corr, se_notes, widening = standard_errors(J, r, cost, free, metrics,
+                                                   problem.blocks(BLOCK_S))
+    notes += se_notes
     se = se * sc
     stderr = {n: float(s) for n, s in zip(free, se)}
     is_settled = sol.status == 0 and settled(history, stderr)

@@ -250,6 +250,10 @@ class Problem:
             outs.append(o)
         return outs
 
+    def restarts_pressures(self) -> bool:
+        """Return whether a segment restarts from measured pressures in some experiment."""
+        return any(self.ipa in ex.measured or ex.load is not None for ex in self.exps)
+
     def cell_force(self, theta: np.ndarray, ex: _Exp) -> np.ndarray:
         """
         Return the load cell the model gives for an experiment: the specimen's force.
