@@ -88,9 +88,10 @@ AGREEMENT = 0.12
 
 #: The slowest state rate whose record the verdict trusts [Hz]. Below it the fit puts the
 #: breakaway friction ``F_sc`` low even when the rig's own (full) model is fitted: measured at
-#: 250 Hz, 8 and 13 % low on two rigs whose halves agreed and whose replay predicted the
-#: held-out half; of the benchmark's 250 Hz rigs (reduced model) 10 of 26 fits had a value
-#: more than 10 % off, against 7 of 114 at 500 Hz-4 kHz.
+#: 250 Hz with pressures, 7, 8 and 9 % low on 3 of 10 rigs (two flagged by this rule alone);
+#: without pressures, clean records' cold fits stopped with F_cc 16 and 37 % high, in poorer
+#: optima. Of the benchmark's 120 reduced fits (seeds 0-59 and 140-199), 9 of the 24 at
+#: 250 Hz had a value more than 10 % off, against 3 of the 96 at 500 Hz-4 kHz.
 MIN_RATE_HZ = 500.0
 
 #: Measured signals whose residual is judged against their sensor noise: a pressure
