@@ -33,6 +33,7 @@ from ros_ehs.core.sim.closed_loop import run_closed_loop
 from ros_ehs.data.bag import bag_counts, open_bag
 from ros_ehs.nodes.processes import loop_closed, loop_placement, node_command, NodeProcesses
 import ros_ehs_msgs_py as c
+from scripts import run_script
 from waits import BOUND, lockstep_complete, status_value, wait_for_bag, wait_value
 import yaml
 
@@ -741,14 +742,12 @@ def test_domain_isolation_env_is_respected(dom):
 
 # -- launch scripts -----------------------------------------------------------------------------
 def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tmp_path):
-    import subprocess
     import sys
     out = tmp_path / 'bench'
-    res = subprocess.run([sys.executable, str(ROOT / 'launch_scripts' / 'bench.py'),
-                          '--mode', 'lockstep', '--duration', '1.0', '--out', str(out),
-                          '--domain-id', str(dom), '--no-noise', '--cpu-affinity',
-                          '--rt-priority', '10'],
-                         capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    res = run_script([sys.executable, str(ROOT / 'launch_scripts' / 'bench.py'),
+                      '--mode', 'lockstep', '--duration', '1.0', '--out', str(out),
+                      '--domain-id', str(dom), '--no-noise', '--cpu-affinity',
+                      '--rt-priority', '10'], cwd=tmp_path, timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
     assert 'bench: done' in res.stdout, res.stdout
     # the summary is what the bag holds (a lock-step resend is a message too: 1001 stamps)
@@ -799,12 +798,11 @@ def test_the_rt_fastdds_profile_is_read_and_carries_the_loop(dom, tmp_path, brok
 
 
 def test_replay_launch_script_plays_a_bag_and_exits(dom, tmp_path):
-    import subprocess
     import sys
     env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
-    res = subprocess.run([sys.executable, str(ROOT / 'launch_scripts' / 'replay.py'),
-                          str(FIXTURES / 'talker.mcap'), '--rate', '10', '--topics', '/topic'],
-                         capture_output=True, text=True, env=env, timeout=120)
+    res = run_script([sys.executable, str(ROOT / 'launch_scripts' / 'replay.py'),
+                      str(FIXTURES / 'talker.mcap'), '--rate', '10', '--topics', '/topic'],
+                     env=env, timeout=120)
     assert res.returncode == 0, res.stderr
     assert 'replay done: /topic 10' in res.stderr + res.stdout
 
@@ -866,12 +864,11 @@ def test_a_reference_waiting_for_the_loop_starts_on_the_plants_ok_only(dom, tmp_
 
 def test_the_bench_reports_a_child_that_exits_at_start_at_once(dom, tmp_path):
     """Too little disk: the recorder refuses, and the bench says so with its error, at once."""
-    import subprocess
     import sys
-    r = subprocess.run([sys.executable, str(ROOT / 'launch_scripts' / 'bench.py'),
-                        '--duration', '5', '--out', str(tmp_path / 'bag'), '--no-machine-probe',
-                        '--min-free-space', str(2 ** 62)], capture_output=True, text=True,
-                       timeout=120, env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
+    r = run_script([sys.executable, str(ROOT / 'launch_scripts' / 'bench.py'),
+                    '--duration', '5', '--out', str(tmp_path / 'bag'), '--no-machine-probe',
+                    '--min-free-space', str(2 ** 62)],
+                   timeout=120, env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
     # at once: the bench saw the child exit (not its start timeout run out)
     assert r.returncode == 1
     assert 'recorder exited with code 2 while the bench was starting' in r.stderr, r.stderr
