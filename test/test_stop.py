@@ -95,6 +95,44 @@ def _in_run(line: str) -> bool:
     return 'ros_common.py' in line and line.endswith(' in run\n')
 
 
+#: a node whose executor's thread receives the SIGINT (the kernel may deliver a process's
+#: signal to any of its threads)
+ON_ANOTHER_THREAD = """
+import signal, sys, threading
+from rclpy.node import Node
+from ros_ehs.nodes import ros_common
+
+
+class Signalled(Node):
+    def __init__(self):
+        super().__init__('signalled')
+        self.tick = self.create_timer(0.01, self.on_tick)     # on the executor's thread
+
+    def on_tick(self):
+        self.tick.cancel()
+        print('signalling', flush=True)
+        signal.pthread_kill(threading.get_ident(), signal.SIGINT)
+
+
+sys.exit(ros_common.run(Signalled, []))
+"""
+
+
+def test_a_signal_delivered_to_another_thread_stops_the_node(dom):
+    """The main thread waits in a read the signal's wake-up fd ends, whatever thread took it."""
+    import subprocess
+    p = subprocess.Popen([sys.executable, '-c', ON_ANOTHER_THREAD], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True,
+                         env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
+    try:
+        assert p.stdout.readline() == 'signalling\n'
+        code = p.wait(BOUND)
+    finally:
+        p.kill()
+        p.wait(BOUND)
+    assert code == 0, p.stderr.read()
+
+
 def test_a_node_that_hangs_after_its_stop_writes_every_threads_stack(dom):
     import subprocess
     p = subprocess.Popen([sys.executable, '-c', STUCK], stdout=subprocess.PIPE,

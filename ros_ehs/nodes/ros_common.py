@@ -255,6 +255,11 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
             pass
 
     previous = {sig: signal.signal(sig, wake) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # The kernel may deliver a signal to any thread (the executor's, the middleware's): the
+    # Python handler then waits for the main thread's next bytecode, and the main thread is
+    # blocked in os.read below. The wake-up fd is written by the C handler on whichever
+    # thread it runs, so the read returns (a node once ignored its SIGINT for good).
+    previous_fd = signal.set_wakeup_fd(wake_w, warn_on_full_buffer=False)
     node = None
     rc = 0
     stuck = False
@@ -334,6 +339,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         faulthandler.unregister(DUMP_SIGNAL)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        signal.set_wakeup_fd(previous_fd)
         os.close(wake_r)
         os.close(wake_w)
         if node is not None and getattr(node, 'busy', False):
