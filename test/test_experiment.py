@@ -11,9 +11,12 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Experiments read from bags: which current the fit replays."""
+"""Experiments read from bags: which current the fit replays, and on which grid."""
+
+from dataclasses import replace
 
 import numpy as np
+from ros_ehs.core.identify.experiment import experiments_from_series, resample, takeover_times
 from ros_ehs.data.bag import BagWriter
 from ros_ehs.data.experiments import load_experiment
 import ros_ehs_msgs_py as c
@@ -36,3 +39,70 @@ def test_identification_prefers_the_applied_current_over_the_command(tmp_path):
     e = load_experiment(tmp_path / 'b')
     np.testing.assert_array_equal(e.i[:-1], applied[1:])   # period k: reported at k + 1
     assert np.all(e.i[299:309] == 0.0)
+
+
+P = 4e-3                  # a 250 Hz driver
+RX = 0.15e-3              # its command arrives this long after the state it answers
+
+
+def _jittered_cycles(n, seed=1):
+    """Return a driver's cycle stamps [s]: it wakes late by up to a fifth of its period."""
+    return np.arange(n) * P + np.random.default_rng(seed).uniform(0.0, 0.2 * P, n)
+
+
+def test_a_delay_is_counted_along_a_drivers_jittered_cycles():
+    """A command received after cycle k and applied at cycle k + 1 takes over at its stamp."""
+    cycles = _jittered_cycles(400)
+    tc = cycles[:-1] + RX
+    on = takeover_times(tc, P - RX, cycles)
+    assert np.max(np.abs(on - cycles[1:])) < 0.02 * P
+    # the wall-clock delay is as far off as the jitter: what the cycles put right
+    assert np.max(np.abs(tc + P - RX - cycles[1:])) > 0.1 * P
+    # continuous and increasing in the delay (the delay scan's cost stays continuous)
+    d = P - RX + np.linspace(-0.5, 0.5, 41) * P
+    moved = np.array([takeover_times(tc[200:201], x, cycles)[0] for x in d])
+    assert np.all(np.diff(moved) > 0) and np.max(np.diff(moved)) < 0.1 * P
+    # uniform cycles, or none: the delay on the clock
+    uniform = np.arange(400) * P
+    np.testing.assert_allclose(takeover_times(tc, 0.01, uniform), tc + 0.01, atol=1e-12)
+    np.testing.assert_array_equal(takeover_times(tc, 0.01, None), tc + 0.01)
+
+
+def test_jittered_samples_are_resampled_by_a_spline():
+    """A straight line between jittered samples errs by the curvature; a spline does not."""
+    ts = _jittered_cycles(400)
+    t = np.arange(400) * (ts[-1] - ts[0]) / 399 + ts[0]
+
+    def z(x):
+        return 0.02 * np.sin(2 * np.pi * 3.0 * x)
+
+    spline = np.max(np.abs(resample(ts, z(ts), t) - z(t)))
+    line = np.max(np.abs(np.interp(t, ts, z(ts)) - z(t)))
+    assert spline < 0.05 * line and spline < 0.1e-6
+    # repeated or too few stamps: a straight line, as np.interp
+    np.testing.assert_array_equal(resample([0.0, 1.0, 1.0, 2.0, 3.0], [0, 1, 2, 3, 4], [0.5]),
+                                  np.interp([0.5], [0.0, 1.0, 1.0, 2.0, 3.0], [0, 1, 2, 3, 4]))
+
+
+def test_a_jittered_drivers_commands_are_averaged_as_the_valve_got_them():
+    """The current of each grid period is the mean of the command the valve held in it."""
+    n = 700
+    cycles = _jittered_cycles(n, seed=3)
+    rng = np.random.default_rng(4)
+    cmd = 0.002 * rng.standard_normal(n)          # command k answers state k
+    ts = np.round((1.0 + cycles) * 1e9).astype(np.int64)
+    z = 0.02 * np.sin(2 * np.pi * 1.0 * cycles)
+    tc = ts + int(RX * 1e9)
+    (e,) = experiments_from_series('rig', ts, z, np.full(n, np.nan), commands=(tc, cmd),
+                                   delay=P - RX)
+    # the truth, on a 1 us grid: command k held from cycle k + 1 to cycle k + 2
+    fine = np.arange(0.0, cycles[-1] - cycles[0], 1e-6)
+    held = cmd[np.clip(np.searchsorted(cycles - cycles[0], fine, side='right') - 2, 0, n - 1)]
+    cut = np.searchsorted(fine, e.t + (e.t0_ns - ts[0]) * 1e-9)
+    truth = np.array([held[a:b].mean() for a, b in zip(cut[:-1], cut[1:])])
+    inner = slice(5, n - 5)
+    err = np.abs(e.i[:-1] - truth)[inner]
+    wall = np.abs(replace(e, cycles=None).with_delay(e.delay).i[:-1] - truth)[inner]
+    # (not exact: the arrival's fraction of its period is measured in a jittered period)
+    assert np.max(err) < 0.1 * np.std(cmd) and np.max(err) < 0.1 * np.max(wall)
+    assert np.max(wall) > 0.5 * np.std(cmd)

@@ -409,6 +409,46 @@ def test_a_segment_restarts_from_measured_pressures_where_a_record_has_them():
     assert restarts(e, replace(e, name='b', p_a=p, p_b=p))       # one run of two has them
 
 
+@pytest.mark.parametrize('settles', [True, False])
+def test_a_second_start_stopped_at_its_limit_is_kept_only_when_its_values_settled(
+        monkeypatch, settles):
+    """
+    A second start stopped at ``max_nfev`` replaces a poorer first fit when it settled.
+
+    As one that converged does (the verdict benchmark's rig 158 stopped at its limit, with
+    cost 612 against 767); stopped before its values settled, it is not taken.
+
+    The sample bag's two starts reach one optimum; here the first fit's cost is raised by
+    1 % and the second start's status set to "stopped at the limit", its history either
+    ending in settled iterations or not.
+    """
+    from ros_ehs.core.identify import estimator
+    from ros_ehs.core.identify.verdict import SETTLE_ITERATIONS
+    real, calls = estimator._solve, []
+
+    def solve(*args):
+        sol, J, history, njev = real(*args)
+        calls.append(sol)
+        if len(calls) == 1:           # the first fit: as if in a poorer optimum
+            sol.cost *= 1.01
+        elif len(calls) == 3:         # the second start's fit on the 1 s segments
+            sol.status = 0
+            history = history + [history[-1]] * (SETTLE_ITERATIONS + 1) if settles \
+                else history[-2:]
+        return sol, J, history, njev
+
+    monkeypatch.setattr(estimator, '_solve', solve)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always', IdentificationWarning)
+        r = identify(load_experiment(SAMPLE), verdict=False)
+    said = [str(w.message) for w in caught if 'second start' in str(w.message)]
+    assert len(calls) == 3
+    if settles:
+        assert r.status == 0 and r.settled and r.cost == calls[2].cost and len(said) == 1
+    else:
+        assert r.status != 0 and r.cost == calls[0].cost and not said
+
+
 def test_a_cold_fit_with_pressures_takes_a_second_start_through_short_segments(
         monkeypatch, tmp_path):
     """

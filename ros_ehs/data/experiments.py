@@ -30,7 +30,7 @@ Time policy:
 * a gap (a missed sample: more than 1.5 periods) splits the recording into runs
   (:func:`load_experiments`), and runs too short to fit are dropped;
 * a run whose stamps jitter (a driver's timestamps: up to a quarter of the period) is
-  resampled onto a uniform grid at its mean period, the position (and velocity) linearly;
+  resampled onto a uniform grid at its mean period by cubic splines through the samples;
 * messages without a header (``Float64``, ``Float64MultiArray``) carry their receive time,
   moved onto the state's clock by the median difference between the states' stamps and their
   receive times (the driver's clock against the recorder's).
@@ -40,15 +40,18 @@ Signals:
 * the current of each period is, when the state reports it (our plant's joint
   ``servo_valve``: what the valve really got, watchdog and late commands included), that
   current; otherwise the command in force, averaged over the period, ``input_delay`` later
-  than its stamp (or receive time) - with ``input_delay`` unknown, the fit estimates it
-  (:func:`ros_ehs.data.identification.run_identification`);
+  than its stamp (or receive time), counted along the driver's cycles where its stamps
+  jitter (a driver acts on a command at a cycle:
+  :func:`ros_ehs.core.identify.experiment.takeover_times`) - with ``input_delay`` unknown,
+  the fit estimates it (:func:`ros_ehs.data.identification.run_identification`);
 * the velocity is the state's when it has one; otherwise it is derived from the position by a
   Savitzky-Golay derivative (quadratic, about 5 ms wide, at least 3 samples) and its noise,
   which the fit's verdict compares the residual with, is the position's noise times that
   filter's gain (``Experiment.noise``), not estimated from the derived signal itself;
-* chamber pressures (or one load pressure) are interpolated onto the grid when mapped, and
-  so is the load cell (``load_cell``, a WrenchStamped's ``load_axis``) when the bag has it
-  and it reads a load (a plant without a specimen publishes a load cell that reads 0).
+* chamber pressures (or one load pressure) are interpolated onto the grid (cubic splines)
+  when mapped, and so is the load cell (``load_cell``, a WrenchStamped's ``load_axis``) when
+  the bag has it and it reads a load (a plant without a specimen publishes a load cell that
+  reads 0).
 """
 
 from __future__ import annotations
