@@ -18,6 +18,7 @@ End to end on a bag a ros2_control driver would record of a rig that is not the 
 written by rosbags.
 """
 
+from dataclasses import replace
 import math
 import warnings
 
@@ -26,7 +27,9 @@ import pytest
 from ros_ehs.core.errors import DataError, IdentificationWarning
 from ros_ehs.core.identify import identify
 from ros_ehs.core.identify.experiment import experiment_from_arrays, state_rate
-from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, median_noise_ratios,
+from ros_ehs.core.identify.problem import SIGNALS
+from ros_ehs.core.identify.verdict import (adequacy, AGREEMENT, halves, judged_rate,
+                                           median_noise_ratios,
                                            MIN_RATE_HZ, PREDICTION_LIMIT, RESTART, restart,
                                            RULES, SENSED_LIMIT,
                                            SETTLE_ITERATIONS, SETTLED, settled, spread)
@@ -198,6 +201,29 @@ def test_a_record_slower_than_the_verdicts_rate_is_not_adequate_and_says_to_reco
     runs = [experiment_from_arrays(f'r{k}', np.arange(600) / rate, 0.01 * s, 0.02 * s, s)
             for k, rate in enumerate((2000.0, 250.0))]
     assert state_rate(runs) == pytest.approx(250.0)
+    assert judged_rate(runs, SIGNALS) == pytest.approx(250.0)
+
+
+def test_the_rate_is_judged_on_the_runs_fitted_without_pressures():
+    """A run whose replay restarts from measured pressures is judged at any rate."""
+    s = np.sin(np.arange(600) / 30.0)
+    p = 1e6 * (1.0 + 0.1 * s)
+
+    def run(rate, **kw):
+        return experiment_from_arrays(f'r{rate:g}', np.arange(600) / rate, 0.01 * s, 0.02 * s,
+                                      s, **kw)
+
+    slow_p = run(250.0, p_a=p, p_b=p)
+    fast = run(2000.0)
+    assert judged_rate([slow_p], SIGNALS) == math.inf
+    assert judged_rate([slow_p, fast], SIGNALS) == pytest.approx(2000.0)
+    # pressures the fit does not use do not count; nor does one chamber
+    assert judged_rate([slow_p], ('z_dot', 'z')) == pytest.approx(250.0)
+    assert judged_rate([run(250.0, p_a=p)], SIGNALS) == pytest.approx(250.0)
+    # a load pressure counts where p_L is fitted
+    load = replace(run(250.0), p_load=p)
+    assert judged_rate([load], SIGNALS) == math.inf
+    assert judged_rate([load], ('z_dot', 'z', 'p_CP', 'p_CT')) == pytest.approx(250.0)
 
 
 def _history(moves: dict, n: int = SETTLE_ITERATIONS + 1) -> list:

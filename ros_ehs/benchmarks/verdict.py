@@ -29,8 +29,9 @@ no model pins them down from such bags). A good fit called not adequate is a fal
 bad fit called adequate a miss. Prints each rig's fits and the confusion matrix per model;
 the last line is one JSON object with ``good_fits``, ``false_alarms`` (and
 ``false_alarms_by_rule``: the rules they failed, from each fit's ``failed``), ``bad_fits``,
-``misses``, the same per model and per state rate (``per_rate``: from and below the
-verdict's :data:`ros_ehs.core.identify.verdict.MIN_RATE_HZ`), and under ``noise_verdict``
+``misses``, the same per model, per state rate (``per_rate``: from and below the
+verdict's :data:`ros_ehs.core.identify.verdict.MIN_RATE_HZ`) and per layout
+(``per_pressures``: recorded with pressures or without), and under ``noise_verdict``
 the same fits judged by the verdict this one replaced (every residual within 2x its sensor
 noise): the yardstick. ``--fits-out FILE`` also writes each fit as a JSON line: the rig's
 layout, each judged parameter's error, the verdict's reasons and its statistics (the
@@ -189,6 +190,9 @@ def main(argv=None) -> int:
     figures['per_rate'] = {
         f'from_{MIN_RATE_HZ:.0f}_hz': confusion([f for f in fits if f['rate_hz'] >= MIN_RATE_HZ]),
         f'below_{MIN_RATE_HZ:.0f}_hz': confusion([f for f in fits if f['rate_hz'] < MIN_RATE_HZ])}
+    figures['per_pressures'] = {
+        'with': confusion([f for f in fits if f['pressures'] != 'none']),
+        'without': confusion([f for f in fits if f['pressures'] == 'none'])}
     # the yardstick, same fits: the residual-against-noise verdict
     figures['noise_verdict'] = confusion(fits, 'noise_verdict')
     figures['rigs'] = a.rigs
@@ -197,6 +201,7 @@ def main(argv=None) -> int:
     print('\nconfusion          good: adequate / not    bad: adequate / not')
     for m, c in [*figures['per_model'].items(),
                  *((k.replace('_', ' '), c) for k, c in figures['per_rate'].items()),
+                 *((f'{k} pressures', c) for k, c in figures['per_pressures'].items()),
                  ('all', figures),
                  ('noise (old)', figures['noise_verdict'])]:
         print(f'{m:12s}  {c["good_fits"] - c["false_alarms"]:12d} / {c["false_alarms"]:<6d}'

@@ -52,12 +52,12 @@ import warnings
 
 import numpy as np
 from ros_ehs.core.errors import IdentificationWarning, InputError, ParameterError
-from ros_ehs.core.identify.experiment import Experiment, state_rate
+from ros_ehs.core.identify.experiment import Experiment
 from ros_ehs.core.identify.problem import _fd_jacobian, CELL, FIT_H, LOAD, Problem, SIGNALS
 from ros_ehs.core.identify.uncertainty import BLOCK_S, standard_errors
 from ros_ehs.core.identify.verdict import (adequacy, fit_metrics, halves, halves_check,
-                                           restart, SETTLE_ITERATIONS, SETTLED, settled,
-                                           SMALL_MODEL_ERROR, worst_noise_ratio)
+                                           judged_rate, restart, SETTLE_ITERATIONS, SETTLED,
+                                           settled, SMALL_MODEL_ERROR, worst_noise_ratio)
 from ros_ehs.core.model.plant import MODELS
 from ros_ehs.core.params import ESTIMATED, Params, preset, spec
 from scipy.optimize import least_squares
@@ -481,7 +481,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     for note in notes:
         warnings.warn(note, IdentificationWarning, stacklevel=2)
     inadequacy, advice, failed = adequacy(int(sol.status), max_nfev, model, invalid, None,
-                                          metrics, is_settled, state_rate(experiments))
+                                          metrics, is_settled, judged_rate(experiments, signals))
     result = IdentificationResult(
         x=xv, x0={n: float(base[n]) for n in free}, params=params, cost=float(sol.cost),
         sae=float(np.sum(np.abs(r))), sse=float(np.sum(r ** 2)), status=int(sol.status),
@@ -568,7 +568,7 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
     result.halves = halves_check(parts, refits, result.x, problem_of)
     result.inadequacy, result.advice, result.failed = adequacy(
         result.status, max_nfev, result.model, '', result.halves, result.metrics, result.settled,
-        state_rate(experiments))
+        judged_rate(experiments, signals))
     result.adequate = not result.inadequacy
     result.wall_s += time.perf_counter() - t0
     return result
