@@ -198,12 +198,12 @@ def main(argv=None) -> int:
     figures['rigs'] = a.rigs
     figures['seconds'] = a.seconds
     figures['fit_s_median'] = round(float(np.median([f['wall_s'] for f in fits])), 2)
-    print('\nconfusion          good: adequate / not    bad: adequate / not')
+    print('\nconfusion                good: adequate / not    bad: adequate / not')
     for m, c in [*figures['per_model'].items(),
                  *((k.replace('_', ' '), c) for k, c in figures['per_rate'].items()),
                  *((f'{k} pressures', c) for k, c in figures['per_pressures'].items()),
                  ('all', figures),
                  ('noise (old)', figures['noise_verdict'])]:
-        print(f'{m:12s}  {c["good_fits"] - c["false_alarms"]:12d} / {c["false_alarms"]:<6d}'
+        print(f'{m:18s}  {c["good_fits"] - c["false_alarms"]:12d} / {c["false_alarms"]:<6d}'
               f'   {c["misses"]:10d} / {c["bad_fits"] - c["misses"]}')
     return report(figures)

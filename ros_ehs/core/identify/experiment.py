@@ -366,18 +366,25 @@ def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
         noise['z_dot'], derived = noise['z'] * gain, ('z_dot',)
     pa = pb = pl = None
     if rec.pressures:
-        vals = [resample((tp - t0_ns) * 1e-9, pv, t) for tp, pv in rec.pressures]
+        vals = [resample(*_near(tp, pv, ts, t0_ns), t) for tp, pv in rec.pressures]
         if rec.load:
             pl = vals[0]
         else:
             pa, pb = vals
     cell = None
     if rec.cell is not None and rec.cell[0].size >= 2:
-        cell = resample((rec.cell[0] - t0_ns) * 1e-9, rec.cell[1], t)
+        cell = resample(*_near(*rec.cell, ts, t0_ns), t)
     e = experiment_from_arrays(name, t, c, z, v, pa, pb)
     return replace(e, noise=noise, derived=derived, commands=commands, delay=rec.delay,
                    p_load=pl, t0_ns=t0_ns, after_gap=a > 0, load_cell=cell,
                    cycles=None if commands is None else cycles)
+
+
+def _near(tx: np.ndarray, vx: np.ndarray, ts: np.ndarray, t0_ns: int) -> tuple:
+    """Return the samples ``tx`` [ns] / ``vx`` over stamps ``ts`` (4 beyond each end), [s]."""
+    a = max(0, int(np.searchsorted(tx, ts[0])) - 4)
+    b = int(np.searchsorted(tx, ts[-1], side='right')) + 4
+    return (tx[a:b] - t0_ns) * 1e-9, vx[a:b]
 
 
 def run_bounds(ts: np.ndarray) -> tuple[list[tuple[int, int]], list[int]]:
