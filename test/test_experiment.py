@@ -16,6 +16,8 @@
 from dataclasses import replace
 
 import numpy as np
+import pytest
+from ros_ehs.core.errors import DataError
 from ros_ehs.core.identify.experiment import experiments_from_series, resample, takeover_times
 from ros_ehs.data.bag import BagWriter
 from ros_ehs.data.experiments import load_experiment
@@ -106,3 +108,22 @@ def test_a_jittered_drivers_commands_are_averaged_as_the_valve_got_them():
     # (not exact: the arrival's fraction of its period is measured in a jittered period)
     assert np.max(err) < 0.1 * np.std(cmd) and np.max(err) < 0.1 * np.max(wall)
     assert np.max(wall) > 0.5 * np.std(cmd)
+
+
+def test_a_value_that_is_not_finite_in_jittered_states_is_named_not_splined():
+    """A NaN position among a driver's jittered states: the loader's own error, at its time."""
+    n = 700
+    cycles = _jittered_cycles(n, seed=3)
+    ts = np.round((1.0 + cycles) * 1e9).astype(np.int64)
+    z = 0.02 * np.sin(2 * np.pi * 1.0 * cycles)
+    z[300] = np.nan
+    cmd = (ts + int(RX * 1e9), 0.002 * np.sin(np.arange(n) / 20.0))
+    with pytest.raises(DataError, match=r'rig: `z` is not finite at t = 1\.19'):
+        experiments_from_series('rig', ts, z, np.full(n, np.nan), commands=cmd, delay=P - RX)
+    # a pressure's NaN stays where it was, as a straight line leaves it: not over the run
+    z[300] = 0.0
+    p = 1e6 * (1.0 + 0.1 * np.sin(cycles))
+    p[300] = np.nan
+    (e,) = experiments_from_series('rig', ts, z, np.full(n, np.nan), commands=cmd,
+                                   delay=P - RX, pressures=[(ts, p), (ts, p)])
+    assert 1 <= int(np.isnan(e.p_a).sum()) <= 2

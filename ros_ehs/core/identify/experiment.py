@@ -177,11 +177,13 @@ def resample(ts: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
     between samples is the signal's curvature times the jitter (at 250 Hz, 1.3 um of a
     piston accelerating at 1 m/s^2 and 0.8 ms off), a spline's is of the fourth order in
     the period. Beyond the samples it holds the end values; with fewer than four distinct
-    stamps, or stamps that repeat, it is a straight line.
+    stamps, stamps that repeat, or a value that is not finite, it is a straight line (a NaN
+    then stays where it was, for the checks downstream to name it: a spline would spread it,
+    or fail in scipy).
     """
     ts = np.asarray(ts, dtype=float)
     y = np.asarray(y, dtype=float)
-    if ts.size < 4 or not np.all(np.diff(ts) > 0):
+    if ts.size < 4 or not np.all(np.diff(ts) > 0) or not np.all(np.isfinite(y)):
         return np.interp(t, ts, y)
     from scipy.interpolate import CubicSpline
     return CubicSpline(ts, y)(np.clip(t, ts[0], ts[-1]))
