@@ -75,10 +75,10 @@ RULES = {
 
 #: Held-out prediction: a half replayed with the other half's values may leave a residual RMS
 #: up to this factor of its own fit's. Measured on full-model rigs (benchmark ``verdict``):
-#: the reduced model's good fits 0.7-1.15, the simplified model's fits 1.3-1.6. (Since the
-#: loader resamples a driver's jittered states by splines, a half's own fit of the velocity is
-#: closer, and 3 of the 46 good fits with pressures at 500 Hz-4 kHz read 1.33-1.45 on it:
-#: false alarms, docs/identification.md.)
+#: the reduced model's good fits 0.7-1.15, the simplified model's fits 1.3-1.6. (With a
+#: driver's jittered states resampled by splines a half's own fit of the velocity is close,
+#: and 3 of the 46 good fits with pressures at 500 Hz-4 kHz read 1.33-1.45 on it: false
+#: alarms, docs/identification.md.)
 PREDICTION_LIMIT = 1.25
 
 #: Agreement: the halves' values of a parameter may differ by this fraction of the joint value.
