@@ -35,8 +35,8 @@ verdict's :data:`ros_ehs.core.identify.verdict.MIN_RATE_HZ`) and per layout
 the same fits judged by the verdict this one replaced (every residual within 2x its sensor
 noise): the yardstick. ``--fits-out FILE`` also writes each fit as a JSON line: the rig's
 layout, each judged parameter's error, the verdict's reasons and its statistics (the
-held-out check's prediction ratios and the halves' disagreement, the sensed signals' noise
-ratios), so another rule can be tried on the same fits without fitting them again.
+held-out check's added residuals and their ratios, the halves' disagreement, the sensed
+signals' noise ratios), so another rule can be tried on the same fits without fitting them again.
 Targets: false alarms at most 5 % of the good fits, no miss, every simplified fit of a rig
 away from Table 1 that is bad caught.
 """
