@@ -278,8 +278,11 @@ def spread(first: float, second: float, whole: float) -> float:
 #: The halves' mean this far from the whole record's value of a parameter (a fraction of it)
 #: starts a second fit of the whole record from that mean (:func:`restart`). A rule of the
 #: fit, not a limit of the verdict: kept apart from :data:`AGREEMENT`, so that judging the
-#: halves more or less strictly does not change which fits are refitted.
-RESTART = 0.06
+#: halves more or less strictly does not change which fits are refitted. Measured (benchmark
+#: ``verdict``, seeds 0-59 and 140-199): at 4 % rather than 6 % about 16 more of the 120
+#: reduced fits are refitted, and two bad fits of position-only records become good (F_sc
+#: 11.6 % low at 1 kHz to 3.6 %, F_cc 11.3 % off at 250 Hz to 2.3 %), no fit worse.
+RESTART = 0.04
 
 
 def restart(first: dict[str, float], second: dict[str, float],
