@@ -339,8 +339,8 @@ def halves_check(parts: Sequence[Sequence[Experiment]], refits: Sequence, joint:
     :class:`Problem` that replays ``experiments`` with ``params`` (same model and settings).
     Keys: ``prediction`` (per signal, the median over the runs of both halves of the residual
     the other half's values add to a run's own fit, :func:`added_residual`, in the signal's
-    spread), ``prediction_ratio`` (the same medians of the ratio of the two residual RMS,
-    reported), ``judged``
+    spread), ``prediction_ratio`` (the same medians of the ratio of the two residual RMS;
+    the verdict reads both), ``judged``
     (the signals the verdict reads), ``halves`` (each half's values and sample count) and
     ``disagreement`` (per parameter, the spread of the two halves' values and the joint one,
     as a fraction of the joint value).
