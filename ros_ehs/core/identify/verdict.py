@@ -477,9 +477,8 @@ def why_adequate(check: dict) -> str:
     parts = []
     if pred:
         worst = max(pred, key=pred.get)
-        ratio = check.get('prediction_ratio', {}).get(worst, math.nan)
         parts.append(f'predicts the other half within {100 * pred[worst]:.1f} % of the '
-                     f'signal, {ratio:.2f}x its own fit ({worst})')
+                     f"signal, {check['prediction_ratio'][worst]:.2f}x its own fit ({worst})")
     if agree:
         worst = max(agree, key=agree.get)
         parts.append(f'halves agree within {100 * agree[worst]:.1f} % ({worst})')
