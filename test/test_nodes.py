@@ -554,14 +554,18 @@ def test_bad_messages_crash_nothing(dom, tmp_path, ros):
         # the nodes counted them, and go on answering
         wait_value(procs, c.PLANT_STATUS, 'bad_commands', 1)
         wait_value(procs, c.CONTROLLER_STATUS, 'bad', 1)
-        n = len(states)
-        assert ros.spin(until=lambda: len(states) > n + 100, timeout=BOUND)
+        # and the plant goes on stating: a count of its own states (ours are in `states` too),
+        # not of a time's worth (how many reach a busy test process in a second is the machine's)
+
+        def plants():
+            return sum('spool' in m.name for m in states)
+        n = plants()
+        assert ros.spin(until=lambda: plants() >= n + 200, timeout=BOUND), (n, plants())
         assert procs['plant'].alive() and procs['controller'].alive()
         procs.stop(['controller', 'plant'])
     f = procs['plant'].figures()
     assert f['bad_commands'] > 0
     ours = [c.state_from_msg(m) for m in states if 'spool' in m.name]
-    assert len(ours) > 500
     assert all(math.isfinite(s.z) and math.isfinite(s.z_dot) and math.isfinite(s.force)
                for s in ours)
     assert all(abs(s.i) <= 2 * Params()['i_rated'] for s in ours)   # 1e308 was clamped
