@@ -347,23 +347,6 @@ def test_a_wait_for_counts_returns_them_or_says_what_the_bag_held(tmp_path):
     w.close()
 
 
-def test_experiment_rejects_non_finite_and_irregular_samples():
-    from ros_ehs.core.identify.experiment import experiment_from_arrays
-    t = np.arange(1000) * 1e-3
-    i = 1e-3 * np.sin(t * 6.28)
-    z = 0.04 * np.sin(t * 6.28)
-    v = np.gradient(z, t)
-    v_nan = v.copy()
-    v_nan[500] = np.nan
-    with pytest.raises(DataError, match=r'`v` is not finite at t = 0.5 s'):
-        experiment_from_arrays('x', t, i, z, v_nan)
-    t_gap = t.copy()
-    t_gap[600:] += 0.05
-    with pytest.raises(DataError, match='not on a uniform grid'):
-        experiment_from_arrays('x', t_gap, i, z, v)
-    assert experiment_from_arrays('x', t, i, z, v).dt == pytest.approx(1e-3)
-
-
 def _without_states(bag, out, drop):
     """Copy ``bag`` (1 kHz from t = 1 s) to ``out`` without the states k where drop(k)."""
     with BagWriter(out) as w:

@@ -18,7 +18,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from ros_ehs.core.errors import DataError
-from ros_ehs.core.identify.experiment import experiments_from_series, resample, takeover_times
+from ros_ehs.core.identify.experiment import (experiment_from_arrays, experiments_from_series,
+                                              resample, takeover_times)
 from ros_ehs.data.bag import BagWriter
 from ros_ehs.data.experiments import load_experiment
 import ros_ehs_msgs_py as c
@@ -120,10 +121,43 @@ def test_a_value_that_is_not_finite_in_jittered_states_is_named_not_splined():
     cmd = (ts + int(RX * 1e9), 0.002 * np.sin(np.arange(n) / 20.0))
     with pytest.raises(DataError, match=r'rig: `z` is not finite at t = 1\.19'):
         experiments_from_series('rig', ts, z, np.full(n, np.nan), commands=cmd, delay=P - RX)
-    # a pressure's NaN stays where it was, as a straight line leaves it: not over the run
+    # a pressure's or a load cell's NaN is named too, at its time: a straight line leaves it
+    # where it was (a spline would spread it over the run, or fail in scipy)
     z[300] = 0.0
     p = 1e6 * (1.0 + 0.1 * np.sin(cycles))
-    p[300] = np.nan
+    bad = p.copy()
+    bad[300] = np.nan
+    for kw, signal in [({'pressures': [(ts, p), (ts, bad)]}, 'p_b'),
+                       ({'pressures': [(ts, bad)], 'load': True}, 'p_load'),
+                       ({'pressures': [(ts, p), (ts, p)], 'cell': (ts, bad)}, 'load_cell')]:
+        with pytest.raises(DataError, match=rf'rig: `{signal}` is not finite at t = 1\.19'):
+            experiments_from_series('rig', ts, z, np.full(n, np.nan), commands=cmd,
+                                    delay=P - RX, **kw)
+    # and the same record without the NaN is read (the checks above name nothing else)
     (e,) = experiments_from_series('rig', ts, z, np.full(n, np.nan), commands=cmd,
-                                   delay=P - RX, pressures=[(ts, p), (ts, p)])
-    assert 1 <= int(np.isnan(e.p_a).sum()) <= 2
+                                   delay=P - RX, pressures=[(ts, p), (ts, p)], cell=(ts, p))
+    assert np.all(np.isfinite(e.p_a)) and np.all(np.isfinite(e.load_cell))
+
+
+def test_an_experiment_names_a_sample_not_finite_a_misshapen_signal_and_an_irregular_grid():
+    t = np.arange(1000) * 1e-3
+    i = 1e-3 * np.sin(t * 6.28)
+    z = 0.04 * np.sin(t * 6.28)
+    v = np.gradient(z, t)
+    v_nan = v.copy()
+    v_nan[500] = np.nan
+    with pytest.raises(DataError, match=r'x: `v` is not finite at t = 0\.5 s'):
+        experiment_from_arrays('x', t, i, z, v_nan)
+    p = np.full(t.shape, 1e7)
+    p_inf = p.copy()
+    p_inf[500] = np.inf
+    with pytest.raises(DataError, match=r'x: `p_a` is not finite at t = 0\.5 s'):
+        experiment_from_arrays('x', t, i, z, v, p_inf, p)
+    with pytest.raises(DataError, match=r'x: `p_b` has shape \(999,\), `t` has \(1000,\)'):
+        experiment_from_arrays('x', t, i, z, v, p, p[1:])
+    t_gap = t.copy()
+    t_gap[600:] += 0.05
+    with pytest.raises(DataError, match='not on a uniform grid'):
+        experiment_from_arrays('x', t_gap, i, z, v)
+    e = experiment_from_arrays('x', t, i, z, v, p, p)
+    assert e.dt == pytest.approx(1e-3) and e.p_a is not None and e.p_b is not None

@@ -10,7 +10,9 @@ clear message, and reading never changes the bag.
 
 import hashlib
 import json
+import math
 from pathlib import Path
+import re
 import shutil
 import subprocess
 import sys
@@ -385,6 +387,45 @@ def test_symmetric_jitter_is_kept_and_states_before_the_first_command_are_not_a_
     assert len(runs) == 1 and 'off-grid' not in runs[0].name
     assert runs[0].t.size == pytest.approx(2500, abs=3)      # from the first command on
     assert (runs[0].t0_ns - 10**9) * 1e-9 == pytest.approx(1.5, abs=2e-3)
+
+
+def test_a_pressure_sample_that_is_not_finite_is_one_clear_error_naming_it(tmp_path):
+    """A driver's transducer dropout (NaN) in a rosbags-written bag: named, the bag untouched."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    n, fs = 3000, 1000.0
+    with Writer(tmp_path / 'b', version=9) as w:
+        cs = w.add_connection('/joint_states', 'sensor_msgs/msg/JointState', typestore=ts)
+        cc = w.add_connection('/cmd', 'std_msgs/msg/Float64MultiArray', typestore=ts)
+        cp = [w.add_connection(f'/p_{x}', 'sensor_msgs/msg/FluidPressure', typestore=ts)
+              for x in 'ab']
+        for k in range(n):
+            t, ns = k / fs, 10**9 + k * 10**6
+            w.write(cs, ns + 100_000, _joint_state(ts, ns, ['z'], [0.02 * np.sin(2 * np.pi * t)]))
+            a = T['std_msgs/msg/Float64MultiArray'](
+                layout=T['std_msgs/msg/MultiArrayLayout'](dim=[], data_offset=0),
+                data=np.array([0.005 * np.cos(2 * np.pi * t)]))
+            w.write(cc, ns + 300_000, ts.serialize_cdr(a, a.__msgtype__))
+            for j, conn in enumerate(cp):
+                p = T['sensor_msgs/msg/FluidPressure'](
+                    header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
+                        sec=int(ns // 10**9), nanosec=int(ns % 10**9)), frame_id=''),
+                    fluid_pressure=math.nan if (j, k) == (1, 1700) else 1e7 + 1e6 * np.sin(t),
+                    variance=0.0)
+                w.write(conn, ns + 200_000, ts.serialize_cdr(p, p.__msgtype__))
+    rig = tmp_path / 'rig.yaml'
+    rig.write_text('state: /joint_states\njoint: z\ncommand: /cmd\npressure_p: /p_a\n'
+                   'pressure_t: /p_b\ninput_delay: 0.0\n')
+    before = _digest(tmp_path / 'b')
+    p = subprocess.run([sys.executable, '-m', 'ros_ehs.tools.cli', 'identify',
+                        str(tmp_path / 'b'), '--topics', str(rig), '--out', str(tmp_path / 'id'),
+                        '--no-figures', '--quiet'], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 2, p.stdout[-2000:] + p.stderr[-2000:]
+    # at the run's time: it starts with the first command, received 0.3 ms after the first state
+    assert re.search(r'error: b: `p_b` is not finite at t = 1\.699 s', p.stderr), p.stderr
+    assert 'Traceback' not in p.stderr and _digest(tmp_path / 'b') == before
 
 
 def test_the_cli_refuses_a_bad_input_delay_by_name(tmp_path):

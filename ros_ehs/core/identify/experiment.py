@@ -48,9 +48,9 @@ from ros_ehs.core.errors import DataError
 from ros_ehs.core.noise import noise_sigma
 
 __all__ = ['Experiment', 'MIN_SAMPLES', 'NoExcitation', 'Series', 'cut_experiment',
-           'derivative_coefficients',
-           'experiment_from_arrays', 'experiments_from_series', 'on_grid', 'resample',
-           'run_bounds', 'sorted_by_time', 'split_runs', 'state_rate', 'takeover_times']
+           'derivative_coefficients', 'experiment_from_arrays', 'experiments_from_series',
+           'on_grid', 'require_finite', 'resample', 'run_bounds', 'sorted_by_time', 'split_runs',
+           'state_rate', 'takeover_times']
 
 #: Fewer state samples than this is "too little data" for a 7-parameter fit.
 MIN_SAMPLES = 500
@@ -229,18 +229,35 @@ def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experim
         k = int(np.argmax(np.abs(dts - dt)))
         raise DataError(f'{name}: samples are not on a uniform grid (period {dt:g} s, but '
                         f'{dts[k]:g} s between t = {t[k]:g} and {t[k + 1]:g} s)')
-    for k, a in arrs.items():
-        if not np.all(np.isfinite(a)):
-            j = int(np.flatnonzero(~np.isfinite(a))[0])
-            raise DataError(f'{name}: `{k}` is not finite at t = {t[j]:g} s')
+    require_finite(name, t, arrs)
     if np.ptp(arrs['i']) < 1e-5 or np.ptp(arrs['z']) < 1e-4:
         raise NoExcitation(
             f'{name}: no excitation: the current spans {np.ptp(arrs["i"]):.3g} A and the '
             f'piston {np.ptp(arrs["z"]):.3g} m (need a moving piston, e.g. a 1 Hz sine of a '
             'few cm)')
-    pa = None if p_a is None else np.asarray(p_a, dtype=float)
-    pb = None if p_b is None else np.asarray(p_b, dtype=float)
-    return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], pa, pb)
+    sensed = {k: np.asarray(a, dtype=float) for k, a in (('p_a', p_a), ('p_b', p_b))
+              if a is not None}
+    for k, a in sensed.items():
+        if a.shape != t.shape:
+            raise DataError(f'{name}: `{k}` has shape {a.shape}, `t` has {t.shape}')
+    require_finite(name, t, sensed)
+    return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], sensed.get('p_a'),
+                      sensed.get('p_b'))
+
+
+def require_finite(name: str, t: np.ndarray, signals: dict) -> None:
+    """
+    Raise :class:`DataError` naming the first signal of ``signals`` with a value not finite.
+
+    A NaN or infinite sample (a sensor's dropout, a driver's unset interface) is named with
+    its time ``t`` [s], for every signal a fit reads: the position and velocity, the current,
+    the pressures and the load cell. Let through, a NaN pressure would reach the fit as a
+    residual of NaN (its noise NaN too), and the fit would stop nowhere in particular.
+    """
+    for k, a in signals.items():
+        if a is not None and not np.all(np.isfinite(a)):
+            j = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise DataError(f'{name}: `{k}` is not finite at t = {t[j]:g} s')
 
 
 def state_rate(experiments) -> float:
@@ -366,16 +383,23 @@ def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
         v = savgol_filter(z, w, 2, deriv=1, delta=dt, mode='interp')
         gain = float(np.sqrt(np.sum(savgol_coeffs(w, 2, deriv=1) ** 2))) / dt
         noise['z_dot'], derived = noise['z'] * gain, ('z_dot',)
+
+    def sensed(key: str, tx: np.ndarray, vx: np.ndarray) -> np.ndarray:
+        near = _near(tx, vx, ts, t0_ns)       # named at the sample's own time, not the grid's
+        require_finite(name, near[0], {key: near[1]})
+        return resample(*near, t)
+
     pa = pb = pl = None
     if rec.pressures:
-        vals = [resample(*_near(tp, pv, ts, t0_ns), t) for tp, pv in rec.pressures]
+        vals = [sensed(k, tp, pv) for k, (tp, pv) in
+                zip(('p_load',) if rec.load else ('p_a', 'p_b'), rec.pressures)]
         if rec.load:
             pl = vals[0]
         else:
             pa, pb = vals
     cell = None
     if rec.cell is not None and rec.cell[0].size >= 2:
-        cell = resample(*_near(*rec.cell, ts, t0_ns), t)
+        cell = sensed('load_cell', *rec.cell)
     e = experiment_from_arrays(name, t, c, z, v, pa, pb)
     return replace(e, noise=noise, derived=derived, commands=commands, delay=rec.delay,
                    p_load=pl, t0_ns=t0_ns, after_gap=a > 0, load_cell=cell,
