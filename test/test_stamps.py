@@ -353,9 +353,13 @@ def test_seeded_fuzz_of_messages_and_parameters_leaves_the_loop_answering(dom, t
         assert ros.spin(until=lambda: all(f.done() for f in futs), timeout=BOUND)
         states.clear()
         _answers_go_on(ros, diag)           # and the loop answers on
-        # the plant's (a fuzzed state still on its way may come after the clear)
-        ours = [c.state_from_msg(m) for m in states
-                if list(m.name) == ['piston', 'spool', 'servo_valve']]
+
+        def plants():   # the plant's (a fuzzed state still on its way may come after the clear)
+            return [m for m in states if list(m.name) == ['piston', 'spool', 'servo_valve']]
+        # and we hear it: a count of its states, not of a time's worth (how many of the loop's
+        # reach a busy test process is the machine's)
+        assert ros.spin(until=lambda: len(plants()) > 100, timeout=BOUND), len(plants())
+        ours = [c.state_from_msg(m) for m in plants()]
         alive = {n: procs[n].alive() for n in ('plant', 'controller')}
         procs.stop(['controller', 'plant'])
     logs = procs['plant'].output() + procs['controller'].output()
