@@ -13,6 +13,10 @@
 # limitations under the License.
 """Plant physics: each test checks a property that a wrong model would fail."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -356,3 +360,41 @@ def test_compile_kernels_leaves_every_entry_point_compiled_for_contiguous_arrays
         assert any(all(a.layout == 'C' and str(a.dtype) == 'float64'
                        for a in sig if str(a.dtype) != 'int64') for sig in arrays), \
             (kernel.__name__, kernel.signatures)
+
+
+#: each model's replay of a record, as a digest of its states' bits, in the order given
+_REPLAY_DIGESTS = """
+import hashlib, sys
+import numpy as np
+from ros_ehs.core.model import Plant
+from ros_ehs.core.params import preset
+t = np.arange(1500) * 1e-3
+u = 0.008 * np.sin(2 * np.pi * 1.5 * t) + 0.002 * np.sign(np.sin(2 * np.pi * 7 * t))
+for model in sys.argv[1:]:
+    x = Plant(preset('table1_estimated'), model).simulate(1e-3, u).x
+    print(model, hashlib.sha256(x.tobytes()).hexdigest())
+"""
+
+
+def test_a_replay_is_the_same_to_the_bit_whatever_numba_built_first_and_for_which_cpu(tmp_path):
+    """
+    Two cold builds of the kernels replay a record to the same bits.
+
+    One for this CPU with the models in one order, one for a generic CPU (no FMA, no AVX) in
+    the other. A fit's path through its optimizer can fork on a replay's last bits, so the
+    same record must replay the same from any build.
+    """
+    models = ['full', 'reduced', 'simplified']
+
+    def digests(cache, order, cpu):
+        env = {k: v for k, v in os.environ.items() if k != 'NUMBA_CPU_NAME'}
+        env.update({'NUMBA_CACHE_DIR': str(tmp_path / cache), **cpu})
+        out = subprocess.run([sys.executable, '-c', _REPLAY_DIGESTS, *order],
+                             capture_output=True, text=True, timeout=600, env=env)
+        assert out.returncode == 0, out.stderr[-2000:]
+        got = dict(line.split() for line in out.stdout.strip().splitlines())
+        assert list(got) == order
+        return got
+
+    here = digests('host', models, {})
+    assert digests('generic', models[::-1], {'NUMBA_CPU_NAME': 'generic'}) == here
