@@ -289,10 +289,9 @@ def spread(first: float, second: float, whole: float) -> float:
 #: fit, not a limit of the verdict: kept apart from :data:`AGREEMENT`, so that judging the
 #: halves more or less strictly does not change which fits are refitted. Measured (benchmark
 #: ``verdict``, seeds 0-59 and 140-199): at 4 % rather than 6 % about 16 more of the 120
-#: reduced fits are refitted, and two bad fits of position-only records become good (F_sc
-#: 11.6 % low at 1 kHz to 3.5 %, F_cc 11.3 % off at 250 Hz to 2.3 %), no fit worse (kernels
-#: built for AVX2/FMA; with a generic build the first of the two stops at 11.9 %:
-#: docs/identification.md).
+#: reduced fits are refitted, no fit worse: a 250 Hz position-only record's cost falls from
+#: 225 to 146 (all five values within 2.4 %), a 1 kHz one's from 6241 (F_sc 11.6 % low) to
+#: 4794 (F_cc 9.1 % low): docs/identification.md.
 RESTART = 0.04
 
 
