@@ -251,8 +251,8 @@ def require_finite(name: str, t: np.ndarray, signals: dict) -> None:
 
     A NaN or infinite sample (a sensor's dropout, a driver's unset interface) is named with
     its time ``t`` [s], for every signal a fit reads: the position and velocity, the current,
-    the pressures and the load cell. Let through, a NaN pressure would reach the fit as a
-    residual of NaN (its noise NaN too), and the fit would stop nowhere in particular.
+    the pressures and the load cell. Let through, one NaN pressure made that signal's noise
+    NaN, and so its whole residual a constant penalty: the fit dropped it without a word.
     """
     for k, a in signals.items():
         if a is not None and not np.all(np.isfinite(a)):
