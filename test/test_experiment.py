@@ -139,6 +139,26 @@ def test_a_value_that_is_not_finite_in_jittered_states_is_named_not_splined():
     assert np.all(np.isfinite(e.p_a)) and np.all(np.isfinite(e.load_cell))
 
 
+def test_a_run_that_does_not_move_is_skipped_whatever_its_pressures_hold():
+    """The hold before a test, its transducer dropping out: skipped as still, not an error."""
+    n = 1200
+    ts = 10**9 + np.arange(2 * n) * 10**6
+    ts[n:] += 50 * 10**6                                   # a gap: two runs
+    k = np.arange(2 * n)
+    moving = k >= n
+    z = np.where(moving, 0.02 * np.sin(2 * np.pi * (k - n) / 1000.0), 0.0)
+    i = np.where(moving, 0.002 * np.cos(2 * np.pi * (k - n) / 1000.0), 0.0)
+    p = np.full(2 * n, 1e7)
+    p[300] = np.nan                                         # in the hold
+    (e,) = experiments_from_series('rig', ts, z, np.full(2 * n, np.nan), applied=i,
+                                   pressures=[(ts, p), (ts, p)])
+    assert e.name == 'rig [2/2]' and np.all(np.isfinite(e.p_a))
+    p[n + 300] = np.nan                                     # and in the moving run: named
+    with pytest.raises(DataError, match=r'rig \[2/2\]: `p_a` is not finite at t = 0\.3 s'):
+        experiments_from_series('rig', ts, z, np.full(2 * n, np.nan), applied=i,
+                                pressures=[(ts, p), (ts, p)])
+
+
 def test_an_experiment_names_a_sample_not_finite_a_misshapen_signal_and_an_irregular_grid():
     t = np.arange(1000) * 1e-3
     i = 1e-3 * np.sin(t * 6.28)

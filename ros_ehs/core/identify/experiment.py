@@ -216,7 +216,9 @@ def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experim
     t = np.asarray(t, dtype=float)
     arrs = {'i': np.asarray(i, dtype=float), 'z': np.asarray(z, dtype=float),
             'v': np.asarray(v, dtype=float)}
-    for k, a in arrs.items():
+    sensed = {k: np.asarray(a, dtype=float) for k, a in (('p_a', p_a), ('p_b', p_b))
+              if a is not None}
+    for k, a in {**arrs, **sensed}.items():
         if a.shape != t.shape:
             raise DataError(f'{name}: `{k}` has shape {a.shape}, `t` has {t.shape}')
     n = t.size
@@ -235,12 +237,7 @@ def experiment_from_arrays(name: str, t, i, z, v, p_a=None, p_b=None) -> Experim
             f'{name}: no excitation: the current spans {np.ptp(arrs["i"]):.3g} A and the '
             f'piston {np.ptp(arrs["z"]):.3g} m (need a moving piston, e.g. a 1 Hz sine of a '
             'few cm)')
-    sensed = {k: np.asarray(a, dtype=float) for k, a in (('p_a', p_a), ('p_b', p_b))
-              if a is not None}
-    for k, a in sensed.items():
-        if a.shape != t.shape:
-            raise DataError(f'{name}: `{k}` has shape {a.shape}, `t` has {t.shape}')
-    require_finite(name, t, sensed)
+    require_finite(name, t, sensed)       # a run that does not move is named first
     return Experiment(name, t - t[0], arrs['i'], arrs['z'], arrs['v'], sensed.get('p_a'),
                       sensed.get('p_b'))
 
@@ -384,25 +381,20 @@ def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
         gain = float(np.sqrt(np.sum(savgol_coeffs(w, 2, deriv=1) ** 2))) / dt
         noise['z_dot'], derived = noise['z'] * gain, ('z_dot',)
 
-    def sensed(key: str, tx: np.ndarray, vx: np.ndarray) -> np.ndarray:
-        near = _near(tx, vx, ts, t0_ns)       # named at the sample's own time, not the grid's
-        require_finite(name, near[0], {key: near[1]})
-        return resample(*near, t)
-
-    pa = pb = pl = None
-    if rec.pressures:
-        vals = [sensed(k, tp, pv) for k, (tp, pv) in
-                zip(('p_load',) if rec.load else ('p_a', 'p_b'), rec.pressures)]
-        if rec.load:
-            pl = vals[0]
-        else:
-            pa, pb = vals
-    cell = None
+    # the sensed signals' own samples over the run: a run that does not move is named first
+    # (split_runs skips it, whatever its pressures), then a sample that is not finite, at its
+    # own time rather than the grid's
+    raw = dict(zip(('p_load',) if rec.load else ('p_a', 'p_b'),
+                   (_near(tp, pv, ts, t0_ns) for tp, pv in rec.pressures)))
     if rec.cell is not None and rec.cell[0].size >= 2:
-        cell = sensed('load_cell', *rec.cell)
-    e = experiment_from_arrays(name, t, c, z, v, pa, pb)
+        raw['load_cell'] = _near(*rec.cell, ts, t0_ns)
+    e = experiment_from_arrays(name, t, c, z, v)
+    for key, (tx, vx) in raw.items():
+        require_finite(name, tx, {key: vx})
+    grid = {key: resample(tx, vx, t) for key, (tx, vx) in raw.items()}
     return replace(e, noise=noise, derived=derived, commands=commands, delay=rec.delay,
-                   p_load=pl, t0_ns=t0_ns, after_gap=a > 0, load_cell=cell,
+                   p_a=grid.get('p_a'), p_b=grid.get('p_b'), p_load=grid.get('p_load'),
+                   t0_ns=t0_ns, after_gap=a > 0, load_cell=grid.get('load_cell'),
                    cycles=None if commands is None else cycles)
 
 
