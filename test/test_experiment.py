@@ -111,6 +111,34 @@ def test_a_jittered_drivers_commands_are_averaged_as_the_valve_got_them():
     assert np.max(wall) > 0.5 * np.std(cmd)
 
 
+def test_a_jittered_drivers_commands_are_held_in_pieces_where_they_took_over():
+    """Cut in pieces, a period's current changes where the command took over, not on average."""
+    n, per = 700, 8
+    cycles = _jittered_cycles(n, seed=3)
+    cmd = 0.002 * np.random.default_rng(4).standard_normal(n)
+    ts = np.round((1.0 + cycles) * 1e9).astype(np.int64)
+    (e,) = experiments_from_series('rig', ts, 0.02 * np.sin(2 * np.pi * cycles),
+                                   np.full(n, np.nan), commands=(ts + int(RX * 1e9), cmd),
+                                   delay=P - RX)
+    fine = np.arange(0.0, cycles[-1] - cycles[0], 1e-6)
+    held = cmd[np.clip(np.searchsorted(cycles - cycles[0], fine, side='right') - 2, 0, n - 1)]
+    edges = np.interp(np.arange((e.t.size - 1) * per + 1) / per, np.arange(e.t.size), e.t)
+    cut = np.searchsorted(fine, edges + (e.t0_ns - ts[0]) * 1e-9)
+    truth = np.array([held[a:b].mean() for a, b in zip(cut[:-1], cut[1:])])
+    inner = slice(5 * per, -5 * per)
+    pieces = e.held(per)
+    err = np.abs(pieces - truth)[inner]
+    whole = np.abs(np.repeat(e.i[:-1], per) - truth)[inner]
+    # (a piece holding a takeover errs by the takeover's error, as test_a_jittered... above)
+    assert np.mean(err) < 0.05 * np.mean(whole) and np.max(err) < 0.2 * np.max(whole)
+    # the pieces' mean is the period's current; one piece is the period; a current the valve
+    # got (no command series) is repeated
+    np.testing.assert_allclose(pieces.reshape(-1, per).mean(axis=1), e.i[:-1], rtol=0,
+                               atol=1e-12 * np.max(np.abs(cmd)))
+    np.testing.assert_array_equal(e.held(1), e.i[:-1])
+    np.testing.assert_array_equal(replace(e, commands=None).held(4), np.repeat(e.i[:-1], 4))
+
+
 def test_a_value_that_is_not_finite_in_jittered_states_is_named_not_splined():
     """A NaN position among a driver's jittered states: the loader's own error, at its time."""
     n = 700

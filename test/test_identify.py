@@ -390,6 +390,41 @@ def test_a_derived_velocity_is_compared_through_the_derivative_that_derived_it()
     assert np.max(np.abs(om[h:-h, iv] - od[h:-h, iv])) > 1e-6
 
 
+def test_a_jittered_drivers_command_is_replayed_from_where_it_took_over(monkeypatch):
+    """
+    The replay holds each 4 ms sample's command in 0.5 ms pieces (``problem.PIECE``).
+
+    A 250 Hz driver that wakes up to a fifth of a period late applies each command at its
+    cycle; held as the sample's mean, the rig's own model replays it worse than cut in
+    pieces where the takeover fell: at the truth, on the derived velocity and the position.
+    """
+    from ros_ehs.core.identify import problem as pr
+    from ros_ehs.core.identify.experiment import experiments_from_series
+    from ros_ehs.core.model import Plant
+    period, rx, h, n = 4e-3, 0.15e-3, 1e-4, 1000
+    rng = np.random.default_rng(8)
+    cycles = np.arange(n) * period + rng.uniform(0.0, 0.2 * period, n)
+    cmd = 0.006 * np.sin(2 * np.pi * cycles) + 0.002 * rng.standard_normal(n)
+    # the rig, 0.1 ms steps: command k acts from cycle k + 1
+    k = np.searchsorted(cycles, np.arange(int(cycles[-1] / h)) * h, side='right') - 2
+    rig = Plant(TRUE, 'reduced', h=h)
+    x = rig.simulate(h, np.where(k >= 0, cmd[np.clip(k, 0, n - 1)], 0.0)).x
+    z = np.interp(cycles, np.arange(x.shape[0]) * h, x[:, rig.state_names.index('z')])
+    ts = np.round((1.0 + cycles) * 1e9).astype(np.int64)
+    (e,) = experiments_from_series('rig', ts[:-2], z[:-2], np.full(n - 2, np.nan),
+                                   commands=(ts + int(rx * 1e9), cmd), delay=period - rx)
+
+    def replay():
+        p = pr.Problem([e], TRUE, ESTIMATED, 'reduced', ('z_dot', 'z'), 1.0, None)
+        r = p.residual_parts(np.array([TRUE[n] for n in ESTIMATED]) / p.scale)[0]
+        return p.exps[0].per, np.sqrt(np.mean(r[50:] ** 2, axis=0)) * p.exps[0].sigma
+
+    per, pieces = replay()
+    monkeypatch.setattr(pr, 'PIECE', 1.0)
+    assert per == 8 and replay()[0] == 1
+    assert np.all(pieces < 0.6 * replay()[1]), (pieces, replay()[1])
+
+
 def test_a_segment_restarts_from_measured_pressures_where_a_record_has_them():
     from dataclasses import replace
 

@@ -355,11 +355,49 @@ def test_compile_kernels_leaves_every_entry_point_compiled_for_contiguous_arrays
     from ros_ehs.core.model import kernels as K
     from ros_ehs.core.model.plant import compile_kernels
     compile_kernels()
-    for kernel in (K.rhs, K.advance_ws, K.simulate):
+    for kernel in (K.rhs, K.advance_ws, K.simulate, K.simulate_pieces):
         arrays = [[a for a in sig if getattr(a, 'layout', None)] for sig in kernel.signatures]
         assert any(all(a.layout == 'C' and str(a.dtype) == 'float64'
                        for a in sig if str(a.dtype) != 'int64') for sig in arrays), \
             (kernel.__name__, kernel.signatures)
+
+
+@pytest.mark.parametrize('model', ['full', 'reduced', 'simplified'])
+def test_a_sample_held_in_pieces_is_the_same_to_the_bit_as_the_pieces_held_as_samples(model):
+    """
+    ``simulate_pieces`` holds piece j of sample k for its share of the substeps.
+
+    It is ``simulate`` on the pieces' own grid with the Jacobian refreshed once a sample: the
+    same bits at every sample; with each sample's pieces alike it is ``simulate`` itself, and
+    a takeover within a sample ends elsewhere than the sample's mean held whole.
+    """
+    from ros_ehs.core.model import kernels as K
+    plant = Plant(preset('table1_estimated'), model)
+    x0 = plant.equilibrium()
+    dt, nsub, n = 1e-3, 8, 300
+    t = np.arange(n * 4) * dt / 4
+    fine = np.column_stack([0.008 * np.sin(2 * np.pi * 2.0 * t) +
+                            0.003 * np.sign(np.sin(2 * np.pi * 9.0 * t + 0.3)), np.zeros(t.size)])
+
+    def pieces(u, per):
+        out = np.empty((n + 1, plant.n))
+        assert K.simulate_pieces(plant._id, x0.copy(), u, per, plant._c, dt, nsub,
+                                 plant._xscale, 1, out) == n + 1
+        return out
+
+    for per in (2, 4):
+        u = fine[::4 // per]
+        grid = np.empty((n * per + 1, plant.n))
+        K.simulate(plant._id, x0.copy(), u, plant._c, dt / per, nsub // per, plant._xscale, per,
+                   grid)
+        np.testing.assert_array_equal(pieces(u, per), grid[::per])
+    whole = fine[::4]
+    held = np.empty((n + 1, plant.n))
+    K.simulate(plant._id, x0.copy(), whole, plant._c, dt, nsub, plant._xscale, 1, held)
+    np.testing.assert_array_equal(pieces(np.repeat(whole, 4, axis=0), 4), held)
+    mean = np.repeat(fine.reshape(n, 4, 2).mean(axis=1), 4, axis=0)
+    iz = plant.state_names.index('z')
+    assert np.max(np.abs(pieces(fine, 4)[:, iz] - pieces(mean, 4)[:, iz])) > 1e-6
 
 
 #: each model's replay of a record, as a digest of its states' bits, in the order given

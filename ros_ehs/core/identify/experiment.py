@@ -132,6 +132,22 @@ class Experiment:
                        commands=commands, t0_ns=self.t0_ns + int(round(t0 * 1e9)),
                        after_gap=self.after_gap or a > 0)
 
+    def held(self, per: int) -> np.ndarray:
+        """
+        Return the current held over each period in ``per`` equal pieces: (N * per,) [A].
+
+        Piece j of period k is the mean of the command in force over it (from the commands,
+        ``delay`` later along the ``cycles``, as ``i`` is built); ``per`` = 1 is ``i``'s
+        periods. Where ``i`` is the current the valve got (no command series), each period's
+        is repeated.
+        """
+        n = self.t.size - 1
+        if per == 1 or self.commands is None:
+            return np.repeat(self.i[:-1], per)
+        edges = np.interp(np.arange(n * per + 1) / per, np.arange(n + 1), self.t)
+        tc, vc = self.commands
+        return _held_average(tc, vc, edges, self.delay, self.cycles)[:-1]
+
     def with_delay(self, delay: float) -> 'Experiment':
         """Return this run with the current rebuilt from its commands ``delay`` [s] later."""
         if self.commands is None:

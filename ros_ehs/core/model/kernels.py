@@ -694,16 +694,34 @@ def simulate(model, x0, u, c, dt, nsub, xscale, jac_every, out):
     The Jacobian is refreshed every ``jac_every`` samples. Returns the index of the first
     non-finite state (N+1 when all are finite).
     """
+    return simulate_pieces(model, x0, u, 1, c, dt, nsub, xscale, jac_every, out)
+
+
+@njit(**_JIT)
+def simulate_pieces(model, x0, u, per, c, dt, nsub, xscale, jac_every, out):
+    """
+    :func:`simulate` with each sample's input held in ``per`` pieces (``per`` divides ``nsub``).
+
+    ``u`` (N * per, 2): piece j of sample k, ``u[k * per + j]``, is held for ``nsub // per``
+    substeps; ``out`` (N+1, n) gets the states at the samples. A command that takes over
+    between two samples (a jittered driver's) then acts from its piece rather than spread
+    over the sample. The Jacobian is refreshed at the first piece of every ``jac_every``-th
+    sample, as :func:`simulate` does.
+    """
     n = x0.shape[0]
     x = x0.copy()
     w = np.empty((n, n))
     piv = np.empty(n, dtype=np.int64)
     out[0, :] = x
     h = dt / nsub
-    for k in range(u.shape[0]):
-        advance_ws(model, x, u[k], c, h, nsub, xscale, w, piv, k % jac_every == 0)
+    sub = nsub // per
+    samples = u.shape[0] // per
+    for k in range(samples):
+        for j in range(per):
+            advance_ws(model, x, u[k * per + j], c, h, sub, xscale, w, piv,
+                       j == 0 and k % jac_every == 0)
         for r in range(n):
             if not math.isfinite(x[r]):
                 return k + 1
         out[k + 1, :] = x
-    return u.shape[0] + 1
+    return samples + 1

@@ -130,6 +130,9 @@ def compile_kernels(params: Params | None = None) -> None:
         plant.dynamics(0.0, x, u)
         plant.step(x, u, 1e-3)
         plant.simulate(1e-3, np.tile(u, (3, 1)), x)
+        # the fit's replay of a command held in pieces of a sample (identify.problem)
+        K.simulate_pieces(plant._id, x, np.tile(u, (6, 1)), 2, plant._c, 1e-3, 2,
+                          plant._xscale, plant.jac_every, np.empty((4, plant.n)))
 
 
 def _newton(resid, y: np.ndarray) -> np.ndarray | None:
