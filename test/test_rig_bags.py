@@ -99,21 +99,18 @@ def test_the_reduced_model_identifies_the_full_model_rig_from_its_bag(rig_bags, 
         # verdict says so (docs/identification.md)
         assert all('p_L' in r.metrics[e.name] for e in runs)
         assert r.adequate or all('p_L residual' in w for w in r.inadequacy), r.inadequacy
-    elif lay.rate_hz < MIN_RATE_HZ:
+    elif lay.rate_hz == MIN_RATE_HZ:
         # with its pressures a 250 Hz record is judged as any other is; fitted from the
-        # position alone, below the verdict's rate the friction is not to be trusted: said,
-        # with what to record instead
+        # position alone it is judged too (the slowest rate the verdict is tested at), the
+        # friction the least certain of the five: within 10 % (F_cc 5.2 % low here)
         assert r.adequate, r.inadequacy
         alone = load_experiments(bag, topics=lay.topic_map(
             truth['input_delay']).without_pressures())
         with warnings.catch_warnings():
             warnings.simplefilter('ignore', IdentificationWarning)
             ra = identify(alone, model='reduced')
-        assert 'rate' in ra.failed and not ra.adequate
-        assert any('recorded at 250 Hz' in w and 'without pressures' in w
-                   for w in ra.inadequacy), ra.inadequacy
-        assert any('record the chamber pressures, or the states at 500 Hz or faster' in a
-                   for a in ra.advice), ra.advice
+        assert 'rate' not in ra.failed
+        assert max(abs(ra.x[n] / TRUTH[n] - 1.0) for n in FIVE) < 0.10, ra.x
     else:
         assert r.adequate, r.inadequacy
 

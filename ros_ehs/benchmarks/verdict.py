@@ -29,8 +29,7 @@ no model pins them down from such bags). A good fit called not adequate is a fal
 bad fit called adequate a miss. Prints each rig's fits and the confusion matrix per model;
 the last line is one JSON object with ``good_fits``, ``false_alarms`` (and
 ``false_alarms_by_rule``: the rules they failed, from each fit's ``failed``), ``bad_fits``,
-``misses``, the same per model, per state rate (``per_rate``: from and below the
-verdict's :data:`ros_ehs.core.identify.verdict.MIN_RATE_HZ`) and per layout
+``misses``, the same per model, per state rate (``per_rate``) and per layout
 (``per_pressures``: recorded with pressures or without), and under ``noise_verdict``
 the same fits judged by the verdict this one replaced (every residual within 2x its sensor
 noise): the yardstick. ``--fits-out FILE`` also writes each fit as a JSON line: the rig's
@@ -54,13 +53,15 @@ from ros_ehs.benchmarks import count, positive, report
 from ros_ehs.core.control.waveforms import Chirp, Sine
 from ros_ehs.core.errors import IdentificationWarning
 from ros_ehs.core.identify import identify
-from ros_ehs.core.identify.verdict import median_noise_ratios, MIN_RATE_HZ
+from ros_ehs.core.identify.verdict import median_noise_ratios
 from ros_ehs.core.params import ESTIMATED, preset
 
 #: the parameters a fit is judged good or bad on
 JUDGED = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')
 GOOD, BAD = 0.05, 0.10
 MODELS = ('reduced', 'simplified')
+#: the state rates a rig is recorded at [Hz]
+RATES = (250.0, 500.0, 1000.0, 2000.0, 4000.0)
 
 
 class _Reference:
@@ -81,7 +82,7 @@ def draw_rig(k: int, seconds: float) -> dict:
     rng = np.random.default_rng(1000 + k)
     base = preset('table1_estimated')
     truth = base.replace(**{n: float(base[n] * rng.uniform(0.75, 1.25)) for n in ESTIMATED})
-    rate = float(rng.choice([250.0, 500.0, 1000.0, 2000.0, 4000.0]))
+    rate = float(rng.choice(RATES))
     quantum = float(np.exp(rng.uniform(math.log(0.1e-6), math.log(5e-6))))
     noise = float(np.exp(rng.uniform(math.log(0.5e-6), math.log(5e-6))))
     pressures = str(rng.choice(['fluid', 'none']))
@@ -186,10 +187,8 @@ def main(argv=None) -> int:
     figures = confusion(fits)
     figures['per_model'] = {m: confusion([f for f in fits if f['model'] == m])
                             for m in MODELS}
-    # the records the verdict trusts for their rate, and those it flags for it
-    figures['per_rate'] = {
-        f'from_{MIN_RATE_HZ:.0f}_hz': confusion([f for f in fits if f['rate_hz'] >= MIN_RATE_HZ]),
-        f'below_{MIN_RATE_HZ:.0f}_hz': confusion([f for f in fits if f['rate_hz'] < MIN_RATE_HZ])}
+    figures['per_rate'] = {f'{r:.0f}_hz': confusion([f for f in fits if f['rate_hz'] == r])
+                           for r in RATES}
     figures['per_pressures'] = {
         'with': confusion([f for f in fits if f['pressures'] != 'none']),
         'without': confusion([f for f in fits if f['pressures'] == 'none'])}
