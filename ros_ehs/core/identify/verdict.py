@@ -112,7 +112,7 @@ AGREEMENT = 0.12
 #: than 10 % off, one of which passed every other rule, and 6 more were 5-10 % off, so the
 #: limit was 500 Hz; with it held in pieces where the driver's cycles put its takeover
 #: (:data:`PIECE <ros_ehs.core.identify.problem.PIECE>`), 8 are within 5 %, the 2 more than
-#: 10 % off are flagged by other rules, and a 500 Hz limit would flag only good fits.
+#: 10 % off are flagged by other rules, and a 500 Hz limit would add no catch and flag the 8.
 MIN_RATE_HZ = 250.0
 
 
