@@ -225,7 +225,6 @@ class Problem:
                                   else None, per, nsub))
         self.ipa, self.ipb = self.names.index('p_CP'), self.names.index('p_CT')
         self.iz, self.iv = self.names.index('z'), self.names.index('z_dot')
-        self.nsub = [ex.nsub for ex in self.exps]
         self.nfev = 0
         self._last: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -262,7 +261,7 @@ class Problem:
         d.update(self.values(theta))
         c = coefficients(d)
         outs = []
-        for ex, nsub in zip(self.exps, self.nsub):
+        for ex in self.exps:
             n = ex.u.shape[0] // ex.per
             o = np.empty((n + 1, len(self.names)))
             x = ex.x0.copy()
@@ -273,7 +272,7 @@ class Problem:
                     self._split(x, float(ex.load[k0]))
                 buf = o[k0:k1 + 1]
                 ok = K.simulate_pieces(self.mid, x.copy(), ex.u[k0 * ex.per:k1 * ex.per], ex.per,
-                                       c, ex.dt, nsub, self.xscale, self.jac_every, buf)
+                                       c, ex.dt, ex.nsub, self.xscale, self.jac_every, buf)
                 if ok <= k1 - k0:
                     buf[ok:] = np.nan
                 x = buf[-1].copy()
