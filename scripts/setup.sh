@@ -29,6 +29,7 @@ fi
   "$root/launch_scripts" > /dev/null
 # numba compiles the model's kernels at their first call and caches them where env.sh says:
 # compile them here, once, so the first node does not (a fresh cache takes ~10 s; a warm one
-# loads in under a second, and a changed kernels.py is compiled again)
+# loads in under a second; a change to the kernels' sources or options compiles them into a
+# new directory: kernels.CACHE_DIR)
 (source "$root/scripts/env.sh" &&
   python -c 'from ros_ehs.core.model.plant import compile_kernels; compile_kernels()')

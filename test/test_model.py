@@ -404,13 +404,18 @@ def test_a_sample_held_in_pieces_is_the_same_to_the_bit_as_the_pieces_held_as_sa
 _REPLAY_DIGESTS = """
 import hashlib, sys
 import numpy as np
-from ros_ehs.core.model import Plant
+from ros_ehs.core.model import kernels as K, Plant
 from ros_ehs.core.params import preset
 t = np.arange(1500) * 1e-3
 u = 0.008 * np.sin(2 * np.pi * 1.5 * t) + 0.002 * np.sign(np.sin(2 * np.pi * 7 * t))
 for model in sys.argv[1:]:
-    x = Plant(preset('table1_estimated'), model).simulate(1e-3, u).x
-    print(model, hashlib.sha256(x.tobytes()).hexdigest())
+    plant = Plant(preset('table1_estimated'), model)
+    x = plant.simulate(1e-3, u).x
+    # the fit's replay of a command held in two pieces of each 2 ms sample
+    held = np.empty((751, plant.n))
+    K.simulate_pieces(plant._id, x[0].copy(), np.column_stack([u, 0 * u]), 2, plant._c, 2e-3,
+                      8, plant._xscale, 1, held)
+    print(model, hashlib.sha256(x.tobytes() + held.tobytes()).hexdigest())
 """
 
 
@@ -436,3 +441,54 @@ def test_a_replay_is_the_same_to_the_bit_whatever_numba_built_first_and_for_whic
 
     here = digests('host', models, {})
     assert digests('generic', models[::-1], {'NUMBA_CPU_NAME': 'generic'}) == here
+
+
+def test_the_kernels_cache_is_named_by_their_sources_options_and_numba():
+    """Any change to a source file, to the options or to numba's version names another cache."""
+    from ros_ehs.core.model import kernels as K
+    tag = K.build_tag(K._SOURCES, K._JIT, '0.68.1')
+    assert K.build_tag(K._SOURCES, K._JIT, '0.68.1') == tag
+    assert K.build_tag(K._SOURCES, {**K._JIT, 'fastmath': True}, '0.68.1') != tag
+    assert K.build_tag(K._SOURCES, K._JIT, '0.69.0') != tag
+    assert K.build_tag(K._SOURCES[:-1], K._JIT, '0.68.1') != tag
+    # every kernel, and the helper compiled from smooth.py, is cached under this build's name
+    dispatchers = [v for v in vars(K).values() if hasattr(v, 'py_func')]
+    assert len(dispatchers) > 20
+    for disp in dispatchers:
+        assert disp._cache._impl.locator.get_cache_path().startswith(K.CACHE_DIR + os.sep)
+
+
+#: compile smooth_clip as a build with other options would have, into NUMBA_CACHE_DIR
+_FOREIGN_BUILD = """
+from numba import njit
+from ros_ehs.core.model.smooth import smooth_clip
+njit(cache=True, fastmath=True)(smooth_clip)(3.0, 1.0)
+"""
+
+#: the kernels' smooth_clip: did it load from the cache or compile?
+_OWN_BUILD = """
+from ros_ehs.core.model import kernels as K
+K._smooth_clip(3.0, 1.0)
+stats = K._smooth_clip.stats
+print(sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
+"""
+
+
+def test_a_cached_kernel_built_with_other_options_is_not_loaded(tmp_path):
+    """
+    An entry of smooth.py's ``smooth_clip`` built with other options is compiled again.
+
+    numba keys that entry on smooth.py alone; loading it for the kernels changed the last bits
+    of every replay. The kernels' own build, cached, is loaded the second time.
+    """
+    env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path)}
+
+    def run(script):
+        out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                             timeout=600, env=env)
+        assert out.returncode == 0, out.stderr[-2000:]
+        return out.stdout.split()
+
+    assert run(_FOREIGN_BUILD) == []
+    assert run(_OWN_BUILD) == ['0', '1']
+    assert run(_OWN_BUILD) == ['1', '0']

@@ -30,11 +30,16 @@ load string is a spring and damper: the specimen's stiffness ``k_L`` and damping
 carrying no load at the piston position ``z_L`` (its installed position).
 """
 
+import hashlib
 import math
+import os
 
+import numba
 from numba import njit
 import numpy as np
 
+from ros_ehs.core.model import coefficients as _coefficients_module
+from ros_ehs.core.model import smooth as _smooth_module
 from ros_ehs.core.model.coefficients import (C_A0, C_A2V, C_AN, C_AP, C_AS, C_BA, C_BETA_E,
                                              C_BETA_P, C_BS, C_CC, C_CD, C_CD0, C_CDF, C_CL, C_CLR,
                                              C_CSV, C_EPSV, C_FCC, C_FSC, C_GV0, C_JA, C_KA, C_KC,
@@ -61,13 +66,57 @@ N_REDUCED = 6
 #: not at the compiler's mercy (``fastmath`` lets it assume there is none).
 _JIT = {'cache': True, 'nogil': True, 'fastmath': False, 'error_model': 'numpy'}
 
+#: the source files the kernels' machine code is built from: this one, the helper it compiles
+#: (:mod:`~ros_ehs.core.model.smooth`) and the coefficient indices it freezes in as
+#: constants (:mod:`~ros_ehs.core.model.coefficients`)
+_SOURCES = (__file__, _smooth_module.__file__, _coefficients_module.__file__)
+
+
+def build_tag(sources, jit_options, numba_version) -> str:
+    """
+    Return a digest of everything a cached kernel's machine code depends on.
+
+    numba invalidates a cache entry only when the source file of that very function changes;
+    not when the options it is compiled with change, nor when a function it calls (in
+    another file) or a constant it freezes in does. ``smooth_clip`` lives in ``smooth.py``
+    and is compiled here with :data:`_JIT`, so a cache entry built with other options was
+    loaded for a new build and changed the last bits of every replay (a fit's path through
+    its optimizer can fork on them). Every kernel is therefore cached in a directory named by
+    this digest of the files ``sources``, ``jit_options`` and ``numba_version``: a change to
+    any of them compiles into a new, empty directory.
+    """
+    digest = hashlib.sha256(repr((sorted(jit_options.items()), numba_version)).encode())
+    for path in sources:
+        with open(path, 'rb') as f:
+            digest.update(hashlib.sha256(f.read()).digest())
+    return digest.hexdigest()[:16]
+
+
+#: where this build's kernels are cached: a directory named by :func:`build_tag` in
+#: ``NUMBA_CACHE_DIR`` (``scripts/env.sh``), else in this package's ``__pycache__`` (where
+#: numba would put them); where neither is writable, numba falls back to its own locations
+_CACHE_BASE = numba.config.CACHE_DIR or os.path.join(os.path.dirname(__file__), '__pycache__')
+CACHE_DIR = os.path.join(_CACHE_BASE, 'kernels-' + build_tag(_SOURCES, _JIT, numba.__version__))
+
+
+def _kernel(func):
+    """Return ``func`` compiled with :data:`_JIT`, cached in :data:`CACHE_DIR`."""
+    # numba's cache locator reads its directory from numba.config when the function is
+    # decorated (njit(cache=True) creates the cache there), not later
+    base = numba.config.CACHE_DIR
+    numba.config.CACHE_DIR = CACHE_DIR
+    try:
+        return njit(**_JIT)(func)
+    finally:
+        numba.config.CACHE_DIR = base
+
 
 #: :func:`ros_ehs.core.model.smooth.smooth_clip`, compiled
-_smooth_clip = njit(**_JIT)(smooth_clip)
+_smooth_clip = _kernel(smooth_clip)
 
 
 # --- valve opening law --------------------------------------------------------------------
-@njit(**_JIT)
+@_kernel
 def edge_gap(x, clr, rc):
     """
     Minimum gap [m] of one metering edge opened by ``x`` [m] (x < 0: overlapped).
@@ -87,7 +136,7 @@ def edge_gap(x, clr, rc):
     return math.sqrt(s * s + q * q) - rc
 
 
-@njit(**_JIT)
+@_kernel
 def sroot(dp, p_cr, smooth):
     """Signed square root of a pressure drop, smoothed near zero: dp / (dp^2 + p_cr^2)^(1/4)."""
     if smooth > 0.5:
@@ -97,14 +146,14 @@ def sroot(dp, p_cr, smooth):
     return -math.sqrt(-dp)
 
 
-@njit(**_JIT)
+@_kernel
 def _sabs(v, eps, smooth):
     if smooth > 0.5:
         return math.sqrt(v * v + eps * eps) - eps
     return abs(v)
 
 
-@njit(**_JIT)
+@_kernel
 def soft_clip(f, lim, smooth):
     """Clip ``f`` to +-``lim``; smooth (see :func:`smooth_clip`) when ``smooth`` > 0.5."""
     if smooth > 0.5:
@@ -112,7 +161,7 @@ def soft_clip(f, lim, smooth):
     return min(max(f, -lim), lim)
 
 
-@njit(**_JIT)
+@_kernel
 def _sign(v, eps, smooth):
     if smooth > 0.5:
         return math.tanh(v / eps)
@@ -123,7 +172,7 @@ def _sign(v, eps, smooth):
     return 0.0
 
 
-@njit(**_JIT)
+@_kernel
 def main_stage_flows(xv, pA, pB, c):
     """Flows [m^3/s] into chambers P and T for spool position ``xv`` (4 edges, eq. (3))."""
     k = c[C_CD] * c[C_W] * math.sqrt(2.0 / c[C_RHO])
@@ -137,7 +186,7 @@ def main_stage_flows(xv, pA, pB, c):
 
 
 # --- Stribeck friction, eqs. (14)-(15) ----------------------------------------------------
-@njit(**_JIT)
+@_kernel
 def friction(v, f_oc, c):
     """
     Friction force [N] on the piston at speed ``v`` with other forces ``f_oc``.
@@ -160,7 +209,7 @@ def friction(v, f_oc, c):
     return -((1.0 - xi) * soft_clip(f_hold, c[C_FSC], sm) + xi * _sign(v, eps, sm) * c[C_FCC])
 
 
-@njit(**_JIT)
+@_kernel
 def _stop(pos, vel, limit, k, m):
     """Force of a stiff, damped end stop at +-limit (zero inside)."""
     if pos > limit:
@@ -172,7 +221,7 @@ def _stop(pos, vel, limit, k, m):
     return -k * pen - 1.4 * math.sqrt(k * m) * vel
 
 
-@njit(**_JIT)
+@_kernel
 def _cylinder(pA, pB, zd, z, qa, qb, f_load, c, out, o):
     """Chamber pressures and piston (last four equations of eq. (3)), into out[o:o+4]."""
     ap = c[C_AP]
@@ -188,7 +237,7 @@ def _cylinder(pA, pB, zd, z, qa, qb, f_load, c, out, o):
     out[o + 3] = zd
 
 
-@njit(**_JIT)
+@_kernel
 def rhs_full(x, u, c, out):
     """Full 10-state model, eq. (3), into ``out``."""
     thd, th, p1, p2, xvd, xv, pA, pB, zd, z = (x[0], x[1], x[2], x[3], x[4], x[5], x[6],
@@ -240,14 +289,14 @@ def rhs_full(x, u, c, out):
     _cylinder(pA, pB, zd, z, qa, qb, f_load, c, out, 6)
 
 
-@njit(**_JIT)
+@_kernel
 def spool_static(i, c):
     """Spool position of the simplified model, x = K_x i, held inside its end stops."""
     xv = c[C_KX] * i
     return min(max(xv, -c[C_XVMAX]), c[C_XVMAX])
 
 
-@njit(**_JIT)
+@_kernel
 def rhs_simplified(x, u, c, out):
     """Simplified 4-state model, eqs. (6)-(8) with the valve opening law, into ``out``."""
     pA, pB, zd, z = x[0], x[1], x[2], x[3]
@@ -260,7 +309,7 @@ def rhs_simplified(x, u, c, out):
     _cylinder(pA, pB, zd, z, qa, qb, u[1], c, out, 0)
 
 
-@njit(**_JIT)
+@_kernel
 def spool_reduced(i, pA, pB, c):
     """
     Steady spool position [m] of the full model at current ``i`` and load ``pA - pB``.
@@ -275,7 +324,7 @@ def spool_reduced(i, pA, pB, c):
     return min(max(xv, -c[C_XVMAX]), c[C_XVMAX])
 
 
-@njit(**_JIT)
+@_kernel
 def rhs_reduced(x, u, c, out):
     """
     Reduced 6-state model: the valve as a second-order lag on :func:`spool_reduced`.
@@ -289,7 +338,7 @@ def rhs_reduced(x, u, c, out):
     _cylinder(pA, pB, zd, z, qa, qb, u[1], c, out, 2)
 
 
-@njit(**_JIT)
+@_kernel
 def rhs(model, x, u, c, out):
     """Dispatch to the full (0), simplified (1) or reduced (2) right-hand side."""
     if model == FULL:
@@ -300,7 +349,7 @@ def rhs(model, x, u, c, out):
         rhs_reduced(x, u, c, out)
 
 
-@njit(**_JIT)
+@_kernel
 def _null_pilot_pressure(c):
     """Pilot chamber pressure [Pa] at null: inlet orifice flow = nozzle flow (bisection)."""
     pcr, sm = c[C_PCR], c[C_SMOOTH]
@@ -331,7 +380,7 @@ def coefficients(p, smooth: bool = True) -> np.ndarray:
     return c
 
 
-@njit(**_JIT)
+@_kernel
 def valve_reduction(c):
     """
     Fill the reduced model's valve coefficients of ``c`` from the full model's valve.
@@ -396,7 +445,7 @@ def valve_reduction(c):
 
 
 # --- the simplified model's exact state Jacobian ------------------------------------------
-@njit(**_JIT)
+@_kernel
 def _dsroot(dp, p_cr, smooth):
     """Return the derivative of :func:`sroot` by the pressure drop."""
     if smooth > 0.5:
@@ -405,7 +454,7 @@ def _dsroot(dp, p_cr, smooth):
     return 0.5 / math.sqrt(max(abs(dp), 1e-300))
 
 
-@njit(**_JIT)
+@_kernel
 def _dsoft_clip(f, lim, smooth):
     """Return the derivative of :func:`soft_clip` by ``f``."""
     if smooth > 0.5:
@@ -415,7 +464,7 @@ def _dsoft_clip(f, lim, smooth):
     return 1.0 if -lim < f < lim else 0.0
 
 
-@njit(**_JIT)
+@_kernel
 def _flows_jacobian(xv, pA, pB, c, linear):
     """
     Main-stage flows and their derivatives: ``qa, qb, dqa/dpA, dqb/dpB, dqa/dxv, dqb/dxv``.
@@ -444,7 +493,7 @@ def _flows_jacobian(xv, pA, pB, c, linear):
     return qa, qb, dqa, dqb, k * (ea * sa1 - eb * sa2), k * (eb * sb1 - ea * sb2)
 
 
-@njit(**_JIT)
+@_kernel
 def _dedge(x, clr, rc):
     """Return the derivative of :func:`edge_gap` by the opening ``x``."""
     if x <= -rc:
@@ -454,7 +503,7 @@ def _dedge(x, clr, rc):
     return s / math.sqrt(s * s + q * q)
 
 
-@njit(**_JIT)
+@_kernel
 def _cylinder_jacobian(pA, pB, zd, z, qa, qb, dqa, dqb, f_load, c, out, jac, o):
     """
     Write :func:`_cylinder` into ``out[o:o+4]`` and its derivatives into ``jac``.
@@ -528,7 +577,7 @@ def _cylinder_jacobian(pA, pB, zd, z, qa, qb, dqa, dqb, f_load, c, out, jac, o):
     out[o + 3] = zd
 
 
-@njit(**_JIT)
+@_kernel
 def rhs_jacobian_simplified(x, u, c, out, jac):
     """
     :func:`rhs_simplified` into ``out`` and its exact ``d/dx`` into ``jac`` (4, 4), at once.
@@ -542,7 +591,7 @@ def rhs_jacobian_simplified(x, u, c, out, jac):
     _cylinder_jacobian(x[0], x[1], x[2], x[3], qa, qb, dqa, dqb, u[1], c, out, jac, 0)
 
 
-@njit(**_JIT)
+@_kernel
 def rhs_jacobian_reduced(x, u, c, out, jac):
     """:func:`rhs_reduced` and its exact ``d/dx`` (6, 6), as :func:`rhs_jacobian_simplified`."""
     xvd, xv, pA, pB, zd, z = x[0], x[1], x[2], x[3], x[4], x[5]
@@ -575,7 +624,7 @@ def rhs_jacobian_reduced(x, u, c, out, jac):
 
 
 # --- fixed-step linearly implicit integrator ---------------------------------------------
-@njit(**_JIT)
+@_kernel
 def _jacobian(model, x, u, c, f0, xscale, jac, xt, ft):
     n = x.shape[0]
     for j in range(n):
@@ -587,7 +636,7 @@ def _jacobian(model, x, u, c, f0, xscale, jac, xt, ft):
             jac[r, j] = (ft[r] - f0[r]) / dx
 
 
-@njit(**_JIT)
+@_kernel
 def _lu_factor(a, piv):
     """In-place LU with partial pivoting (small dense matrices)."""
     n = a.shape[0]
@@ -612,7 +661,7 @@ def _lu_factor(a, piv):
                 a[r, j] -= f * a[k, j]
 
 
-@njit(**_JIT)
+@_kernel
 def _lu_solve(a, piv, b):
     n = a.shape[0]
     for k in range(n):
@@ -636,7 +685,7 @@ def _lu_solve(a, piv, b):
 GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 
-@njit(**_JIT)
+@_kernel
 def advance_ws(model, x, u, c, h, nsub, xscale, w, piv, refresh):
     """
     Advance ``x`` in place by ``nsub`` steps of ``h`` seconds with input ``u`` held.
@@ -686,7 +735,7 @@ def advance_ws(model, x, u, c, h, nsub, xscale, w, piv, refresh):
             x[r] += h * (1.5 * k1[r] + 0.5 * k2[r])
 
 
-@njit(**_JIT)
+@_kernel
 def simulate(model, x0, u, c, dt, nsub, xscale, jac_every, out):
     """
     Batch simulation: ``u`` (N, 2) held for ``dt`` each; ``out`` (N+1, n) gets the states.
@@ -697,7 +746,7 @@ def simulate(model, x0, u, c, dt, nsub, xscale, jac_every, out):
     return simulate_pieces(model, x0, u, 1, c, dt, nsub, xscale, jac_every, out)
 
 
-@njit(**_JIT)
+@_kernel
 def simulate_pieces(model, x0, u, per, c, dt, nsub, xscale, jac_every, out):
     """
     :func:`simulate` with each sample's input held in ``per`` pieces (``per`` divides ``nsub``).
