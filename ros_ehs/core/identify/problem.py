@@ -120,12 +120,12 @@ class _Exp:
 #: <ros_ehs.core.identify.experiment.takeover_times>`), so between two of the fit's samples
 #: on their uniform grid; held as the sample's mean, a takeover 0.8 ms into a 4 ms sample
 #: acts as if it were spread over it. Measured (benchmark ``verdict``, seeds 0-59 and
-#: 140-199, the reduced model, states jittered by up to a fifth of a period): held whole,
-#: the breakaway friction F_cc of the 13 records at 250 Hz without pressures came out 5.9 %
-#: low (median; 1.2-1.6 % at 2-4 kHz) and 3 fits were more than 10 % off; held in 0.5 ms
-#: pieces 0.1 % (2 more than 10 % off), at 500 Hz 1.5 % against 3.1 %, and 102 of the 120
-#: reduced fits were within 5 % against 95, in the same median time. A sample of 0.5 ms or
-#: less (2 kHz and faster) is held whole, as before.
+#: 140-199, the reduced model, states jittered by up to a fifth of a period, the 13 records
+#: at 250 Hz without pressures): held whole, the breakaway friction F_cc came out 5.9 % low
+#: (median; 1.2-1.4 % at 2-4 kHz), 4 fits were within 5 % on all five values and 4 more than
+#: 10 % off, one of them called adequate; held in 0.5 ms pieces, 0.1 % low, 8 within 5 % and
+#: 4 more than 10 % off, all four flagged. A sample of 0.5 ms or less (2 kHz and faster) is
+#: held whole.
 PIECE = 0.5e-3
 
 

@@ -88,10 +88,11 @@ PREDICTION_RATIO = 1.25
 #: so a close fit reads 1.25-1.45x for an added 0.3-0.6 % of the signal (the velocity of 4
 #: good fits with pressures at 1-2 kHz, their own residual 0.4-0.7 % of it); the added
 #: residual reads 5-6 % on position-only records whose own velocity residual is 20-30 % of the
-#: signal, for a ratio of 1.02-1.04 (2 good fits at 0.5-1 kHz). Measured (benchmark
-#: ``verdict``, reduced fits, seeds 0-59, 140-199 / 200-279): the ratio alone flagged 12 of 99
-#: / 8 of 64 good fits, the added residual alone 9 / 10, both 9 / 7; the prediction flags the
-#: same fits that are not good as the ratio alone (12 / 5), each also caught by another rule.
+#: signal, for a ratio of 1.02-1.04 (2 good fits at 0.5-1 kHz; both examples judged per run).
+#: Measured per replay segment (benchmark ``verdict``, seeds 0-59 and 140-199): of the 101
+#: good reduced fits with a held-out check the ratio alone would flag 4, the added residual
+#: alone 5, both none; no reduced fit fails the prediction, 7 of the 120 simplified fits do
+#: (each also failing another rule).
 PREDICTION_LIMIT = 0.01
 
 #: Agreement: the halves' values of a parameter may differ by this fraction of the joint value.
