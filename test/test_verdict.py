@@ -150,21 +150,17 @@ def test_the_position_is_reported_but_not_judged_on_held_out_data():
     assert why == []
 
 
-def _nrmse(x):
-    return {'nrmse': x, 'rms': x}
-
-
 def test_the_added_residual_is_what_the_other_values_add_in_quadrature_to_the_own_fit():
     """A close own fit that the other half's values predict 1.4x worse adds little."""
     # own 0.3 % of the signal, other 0.42 %: 1.4x, adds 0.29 % (a good fit of a clean record)
-    assert added_residual(_nrmse(0.003), _nrmse(0.0042)) == pytest.approx(0.00294, rel=1e-3)
-    assert added_residual(_nrmse(0.003), _nrmse(0.0042)) < PREDICTION_LIMIT
+    assert added_residual(0.003, 0.0042) == pytest.approx(0.00294, rel=1e-3)
+    assert added_residual(0.003, 0.0042) < PREDICTION_LIMIT
     # own 10 % of the signal (a model error), other 11 %: only 1.1x, yet adds 4.6 %
-    assert added_residual(_nrmse(0.10), _nrmse(0.11)) == pytest.approx(0.0458, rel=1e-3)
-    assert added_residual(_nrmse(0.10), _nrmse(0.11)) > PREDICTION_LIMIT
+    assert added_residual(0.10, 0.11) == pytest.approx(0.0458, rel=1e-3)
+    assert added_residual(0.10, 0.11) > PREDICTION_LIMIT
     # the other values fit as well or better: nothing added
-    assert added_residual(_nrmse(0.05), _nrmse(0.04)) == 0.0
-    assert added_residual(_nrmse(0.05), _nrmse(float('nan'))) == float('inf')
+    assert added_residual(0.05, 0.04) == 0.0
+    assert added_residual(0.05, float('nan')) == float('inf')
 
 
 def test_the_spread_counts_halves_that_agree_with_each_other_but_not_with_the_whole():

@@ -346,17 +346,17 @@ def restart(first: dict[str, float], second: dict[str, float],
     return mean if apart else None
 
 
-def added_residual(own: dict[str, float], other: dict[str, float]) -> float:
+def added_residual(own: float, other: float) -> float:
     """
-    Return the residual a replay with other values adds to a run's own fit, in signal spreads.
+    Return the residual a replay with other values adds to its own fit, in signal spreads.
 
-    ``own``, ``other``: one signal's metrics (:func:`fit_metrics`) of the same run replayed
-    with its own fit's values and with the other half's; ``sqrt(other^2 - own^2)`` of their
-    NRMSE (the residual RMS over the signal's standard deviation), 0 when the other values
-    fit as well or better: the error the other values add to the model's own, independent of
-    each other when the values describe the rig.
+    ``own``, ``other``: one signal's residual RMS over its spread (:func:`segment_errors`) in
+    the same replay segment replayed with its own fit's values and with the other half's;
+    ``sqrt(other^2 - own^2)``, 0 when the other values fit as well or better: the error the
+    other values add to the model's own, independent of each other when the values describe
+    the rig.
     """
-    a, b = float(own['nrmse']), float(other['nrmse'])
+    a, b = float(own), float(other)
     if not (math.isfinite(a) and math.isfinite(b)):
         return math.inf
     return math.sqrt(max(b * b - a * a, 0.0))
@@ -399,8 +399,7 @@ def halves_check(parts: Sequence[Sequence[Experiment]], refits: Sequence, joint:
                 for r, o in zip(m, theirs[name]):
                     if r == 0.0 and o == 0.0:    # nothing compared in this segment
                         continue
-                    added.setdefault(name, []).append(
-                        added_residual({'nrmse': r}, {'nrmse': o}))
+                    added.setdefault(name, []).append(added_residual(r, o))
                     ratios.setdefault(name, []).append(
                         o / r if r > 0 and math.isfinite(o) else math.inf)
     prediction = {name: float(np.median(v)) for name, v in added.items()}
