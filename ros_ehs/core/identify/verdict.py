@@ -109,11 +109,12 @@ AGREEMENT = 0.12
 #: the slowest it is tested at. A replay of position alone carries the chamber pressures
 #: open-loop, and the slower the record the more a breakaway falls between samples. Measured
 #: (benchmark ``verdict``, seeds 0-59 and 140-199, the reduced model, the 13 records at 250 Hz
-#: without pressures): with the command held whole over each sample, 3 fits had a value more
-#: than 10 % off, one of which passed every other rule, and 6 more were 5-10 % off, so the
-#: limit was 500 Hz; with it held in pieces where the driver's cycles put its takeover
-#: (:data:`PIECE <ros_ehs.core.identify.problem.PIECE>`), 8 are within 5 %, the 4 more than
-#: 10 % off are flagged by other rules, and a 500 Hz limit would add no catch and flag the 8.
+#: without pressures): with the command held whole over each sample, 4 fits have a value more
+#: than 10 % off, one of which passes every other rule, and 5 more are 5-10 % off, which would
+#: need a 500 Hz limit; held in pieces where the driver's cycles put its takeover
+#: (:data:`PIECE <ros_ehs.core.identify.problem.PIECE>`), as the fit does, 8 are within 5 %,
+#: the 4 more than 10 % off are flagged by other rules, and a 500 Hz limit would add no catch
+#: and flag the 8.
 MIN_RATE_HZ = 250.0
 
 
