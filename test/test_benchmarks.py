@@ -191,7 +191,29 @@ def test_each_benchmark_runs_short_and_ends_with_its_json(bench, dom, tmp_path):
     if bench == 'verdict':      # each fit a JSON line, with what its verdict judged
         rows = [json.loads(x) for x in (tmp_path / 'fits.jsonl').read_text().splitlines()]
         assert [(r['rig'], r['model']) for r in rows] == [(12, 'reduced'), (12, 'simplified')]
-        assert all({'errors', 'reasons', 'failed', 'held_out', 'noise_ratio'} <= set(r)
-                   for r in rows)
+        assert all({'errors', 'reasons', 'failed', 'held_out', 'noise_ratio', 'restart'}
+                   <= set(r) for r in rows)
         assert all(len(r['failed']) == len(r['reasons']) for r in rows)
         assert 'false_alarms_by_rule' in last
+        assert set(last['restarts']) == {'reduced', 'simplified'}
+
+
+def test_the_verdict_benchmark_counts_what_the_second_start_did():
+    """Kept second starts counted closer or farther by the worst error, and kinds moved."""
+    from ros_ehs.benchmarks.verdict import restarts
+
+    def fit(worst, kind, first=None, kept=True):
+        restart = {} if first is None else {
+            'kept': kept, 'first_errors': {'F_cc': first, 'c_c': 0.01},
+            'first_kind': 'good' if abs(first) <= 0.05 else 'bad' if abs(first) > 0.1
+            else 'between'}
+        return {'worst_error': worst, 'kind': kind, 'restart': restart}
+
+    fits = [fit(0.02, 'good'),                          # not run
+            fit(0.04, 'good', first=-0.12),             # bad -> good, closer
+            fit(0.086, 'between', first=-0.056),        # farther, same kind
+            fit(0.03, 'good', first=0.03, kept=False),  # ran, not kept
+            fit(0.109, 'bad', first=0.093)]             # farther, between -> bad
+    assert restarts(fits) == {'ran': 4, 'kept': 3, 'closer': 1, 'farther': 2,
+                              'moves': {'bad->good': 1, 'between->bad': 1}}
+    assert restarts([]) == {'ran': 0, 'kept': 0, 'closer': 0, 'farther': 0, 'moves': {}}

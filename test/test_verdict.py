@@ -19,7 +19,9 @@ written by rosbags.
 """
 
 from dataclasses import replace
+import json
 import math
+from pathlib import Path
 import warnings
 
 import numpy as np
@@ -428,3 +430,48 @@ def test_median_noise_ratios_are_per_signal_over_the_runs_that_have_it():
                'r2': {'z': {'noise_ratio': 9.0}, 'p_CP': {'noise_ratio': 1.0}}}
     assert median_noise_ratios(metrics) == {'z': 2.0, 'p_CP': 2.0}
     assert median_noise_ratios({}) == {}
+
+
+@pytest.mark.parametrize('start, first_cost, kept', [
+    ('apart', 1.01, True),      # the first fit had stopped in a poorer optimum
+    ('apart', 0.99, False),     # the first fit was the better optimum
+    ('invalid', 1.01, False),   # the halves' mean is not a valid set: no second fit
+])
+def test_the_second_start_from_the_halves_is_recorded_whether_kept_or_not(
+        monkeypatch, start, first_cost, kept):
+    """
+    ``restart`` holds where the second start began, both fits and which one is the result.
+
+    So that a program counts how often it ran and what it changed, without reading warnings.
+    The sample bag's halves agree with the whole record; here they are made to point 3 %
+    above its F_cc (or to a mean with F_cc above F_sc), and the first fit's cost is raised or
+    lowered by 1 % so that the second fit, which reaches the same optimum, is kept or not.
+    """
+    from ros_ehs.core.identify import estimator
+    from ros_ehs.data.experiments import load_experiment
+    exps = load_experiment(Path(__file__).resolve().parents[1] / 'bags' / 'sample_sine_1hz')
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)
+        r = identify(exps, verdict=False)
+    first = dict(r.x)
+    r.cost *= first_cost
+    cost = r.cost
+    f_cc = first['F_sc'] * 2 if start == 'invalid' else first['F_cc'] * 1.03
+    monkeypatch.setattr(estimator, 'restart', lambda a, b, whole: {**whole, 'F_cc': f_cc})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always', IdentificationWarning)
+        j = estimator.judge(r, exps)
+    rec = j.restart
+    assert rec['start'] == {**first, 'F_cc': f_cc}
+    assert rec['first'] == {'cost': cost, 'values': first}
+    assert rec['kept'] is kept
+    if start == 'invalid':
+        assert rec['second'] is None
+    else:
+        assert set(rec['second']) == {'cost', 'values', 'status', 'settled'}
+        assert (rec['second']['cost'] < cost) is kept
+    assert dict(j.x) == (rec['second']['values'] if kept else first)
+    said = [str(w.message) for w in caught if 'mean of the halves' in str(w.message)]
+    assert len(said) == int(kept)
+    assert j.summary()['restart'] == rec
+    assert json.loads(json.dumps(j.summary()['restart'], default=float)) == rec

@@ -32,7 +32,8 @@ the last line is one JSON object with ``good_fits``, ``false_alarms`` (and
 ``misses``, the same per model, per state rate (``per_rate``) and per layout
 (``per_pressures``: recorded with pressures or without), and under ``noise_verdict``
 the same fits judged by the verdict this one replaced (every residual within 2x its sensor
-noise): the yardstick. ``--fits-out FILE`` also writes each fit as a JSON line: the rig's
+noise): the yardstick, and under ``restarts`` per model what the second start from the
+halves did (:func:`restarts`). ``--fits-out FILE`` also writes each fit as a JSON line: the rig's
 layout, each judged parameter's error, the verdict's reasons and its statistics (the
 held-out check's added residuals and their ratios, the halves' disagreement, the sensed
 signals' noise ratios), so another rule can be tried on the same fits without fitting them again.
@@ -104,16 +105,46 @@ def _fit(exps, model: str, truth) -> dict:
     # the yardstick: the verdict before this one, every residual within 2x its sensor noise
     # and the solver converged
     noise = all(m['noise_ratio'] <= 2.0 for sig in r.metrics.values() for m in sig.values())
-    kind = 'good' if worst <= GOOD else 'bad' if worst > BAD else 'between'
-    return {'model': model, 'kind': kind, 'worst_error': worst,
+    restarted = {}
+    if r.restart:           # the second start from the halves ran: what it began from
+        first = {n: r.restart['first']['values'][n] / truth[n] - 1.0 for n in JUDGED}
+        restarted = {'kept': r.restart['kept'], 'first_errors': first,
+                     'first_kind': _kind(max(abs(e) for e in first.values()))}
+    return {'model': model, 'kind': _kind(worst), 'worst_error': worst,
             'worst_parameter': max(err, key=lambda n: abs(err[n])), 'adequate': r.adequate,
             'noise_verdict': noise and r.status != 0,
             'reason': r.inadequacy[0] if r.inadequacy else '',
             'prediction': r.halves.get('prediction', {}), 'wall_s': time.perf_counter() - t0,
             'errors': err, 'reasons': list(r.inadequacy), 'failed': list(r.failed),
             'held_out': r.halves,
-            'status': r.status, 'settled': r.settled,
+            'status': r.status, 'settled': r.settled, 'restart': restarted,
             'noise_ratio': median_noise_ratios(r.metrics)}
+
+
+def _kind(worst: float) -> str:
+    return 'good' if worst <= GOOD else 'bad' if worst > BAD else 'between'
+
+
+def restarts(fits: list) -> dict:
+    """
+    Return what the second start from the halves did to ``fits``' values.
+
+    ``ran``: fits whose halves pointed elsewhere (``verdict.restart``); ``kept``: those whose
+    second fit is the result; of those, ``closer`` and ``farther``: the worst of the five
+    errors fell or rose; ``moves``: how often a kind went to another (``between->good``).
+    """
+    ran = [f for f in fits if f.get('restart')]
+    kept = [f for f in ran if f['restart']['kept']]
+    moves: dict[str, int] = {}
+    closer = 0
+    for f in kept:
+        first = max(abs(e) for e in f['restart']['first_errors'].values())
+        closer += f['worst_error'] < first
+        if f['restart']['first_kind'] != f['kind']:
+            key = f"{f['restart']['first_kind']}->{f['kind']}"
+            moves[key] = moves.get(key, 0) + 1
+    return {'ran': len(ran), 'kept': len(kept), 'closer': closer,
+            'farther': len(kept) - closer, 'moves': moves}
 
 
 def confusion(fits: list, key: str = 'adequate') -> dict:
@@ -194,6 +225,7 @@ def main(argv=None) -> int:
         'without': confusion([f for f in fits if f['pressures'] == 'none'])}
     # the yardstick, same fits: the residual-against-noise verdict
     figures['noise_verdict'] = confusion(fits, 'noise_verdict')
+    figures['restarts'] = {m: restarts([f for f in fits if f['model'] == m]) for m in MODELS}
     figures['rigs'] = a.rigs
     figures['seconds'] = a.seconds
     figures['fit_s_median'] = round(float(np.median([f['wall_s'] for f in fits])), 2)
@@ -205,4 +237,8 @@ def main(argv=None) -> int:
                  ('noise (old)', figures['noise_verdict'])]:
         print(f'{m:18s}  {c["good_fits"] - c["false_alarms"]:12d} / {c["false_alarms"]:<6d}'
               f'   {c["misses"]:10d} / {c["bad_fits"] - c["misses"]}')
+    for m, c in figures['restarts'].items():
+        print(f'second start from the halves, {m}: ran on {c["ran"]}, kept on {c["kept"]} '
+              f'({c["closer"]} closer to the truth, {c["farther"]} farther; kinds moved: '
+              f'{c["moves"] or "none"})')
     return report(figures)

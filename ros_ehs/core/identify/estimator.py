@@ -135,6 +135,12 @@ class IdentificationResult:
     #: the check on the record's halves the verdict read (``verdict.halves_check``); empty
     #: when the fit was asked not to run it (``verdict=False``) or it could not run
     halves: dict = field(default_factory=dict)
+    #: the second start from the halves (``verdict.restart``) when it ran: ``start`` (the
+    #: halves' mean it started from), ``first`` (the first fit's ``cost`` and ``values``),
+    #: ``second`` (the second fit's ``cost``, ``values``, ``status`` and ``settled``; None
+    #: when its start or its end is not a valid set) and ``kept`` (the second fit is the
+    #: result); empty when the halves did not point elsewhere
+    restart: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """Return a JSON-ready summary."""
@@ -155,7 +161,8 @@ class IdentificationResult:
             'stderr_widening': self.stderr_widening, 'settled': self.settled,
             'starts': self.starts,
             'excitation': self.excitation, 'input_delay': self.input_delay,
-            'halves': self.halves, 'fit': self.metrics, 'noise_sigma': self.sigma,
+            'halves': self.halves, 'restart': self.restart, 'fit': self.metrics,
+            'noise_sigma': self.sigma,
             'warnings': self.warnings,
             'history': self.history,
         }
@@ -549,8 +556,14 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
                 again = identify(experiments, base=result.params.replace(**mean), **kwargs)
             except ParameterError:          # the halves' mean is not a valid set
                 again = None
-        if again is not None and again.params is not None and again.cost < result.cost and (
-                again.status != 0 or again.settled):
+        second = None if again is None or again.params is None else {
+            'cost': again.cost, 'values': dict(again.x), 'status': again.status,
+            'settled': again.settled}
+        kept = second is not None and again.cost < result.cost and (
+            again.status != 0 or again.settled)
+        record = {'start': dict(mean), 'first': {'cost': result.cost, 'values': dict(result.x)},
+                  'second': second, 'kept': kept}
+        if kept:
             note = (f"refitted from the mean of the halves' values: the cost fell from "
                     f'{result.cost:.6g} to {again.cost:.6g} (the first fit of the whole record '
                     'had stopped in a poorer optimum)')
@@ -560,6 +573,7 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
             again.nfev += result.nfev
             again.x0 = result.x0
             result = again
+        result.restart = record
     step = FIT_H[result.model] if h is None else h
 
     def problem_of(exps, p):
