@@ -18,7 +18,7 @@ setup(
          glob('launch_scripts/*.py') + glob('launch_scripts/*.xml')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'pyyaml', 'matplotlib', 'psutil',
-                      'mcap', 'mcap-ros2-support', 'aiohttp', 'rosbags'],
+                      'mcap', 'mcap-ros2-support', 'aiohttp', 'rosbags', 'threadpoolctl'],
     extras_require={'test': ['pytest']},
     zip_safe=False,
     maintainer='ros_ehs maintainers',

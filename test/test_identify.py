@@ -520,3 +520,29 @@ def test_a_cold_fit_with_pressures_takes_a_second_start_through_short_segments(
     assert len(said) == 1 and f'from {first.cost:.6g} to {r.cost:.6g}' in said[0], said
     assert not first_said and r.nfev > first.nfev
     assert said[0] in r.warnings
+
+
+def test_a_fit_runs_its_linear_algebra_on_one_blas_thread(monkeypatch):
+    """
+    Whatever the process set, a fit's BLAS runs on ``BLAS_THREADS``, and is given back after.
+
+    How OpenBLAS splits a product over its threads depends on the process's history: the same
+    bag fitted in two processes came out 2.6 % apart on F_cc (docs/identification.md).
+    """
+    from threadpoolctl import threadpool_info, threadpool_limits
+    from ros_ehs.core.identify import estimator
+    real, seen = estimator.least_squares, []
+
+    def least_squares(*args, **kwargs):
+        seen.append({i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'})
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(estimator, 'least_squares', least_squares)
+    e = load_experiment(SAMPLE)
+    with threadpool_limits(limits=2, user_api='blas'):
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', IdentificationWarning)
+            identify(e, verdict=False, max_nfev=3)
+        after = {i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'}
+    assert seen and all(s == {estimator.BLAS_THREADS} for s in seen), seen
+    assert after == {2}

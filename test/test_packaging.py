@@ -27,7 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: the rosdep key of each module from outside the package that it imports (the keys are
 #: rosdistro's: rosdep/base.yaml, python.yaml, and the ROS packages of the same name); None:
-#: only a benchmark needs it, installed from requirements.txt (no rosdep key exists)
+#: no rosdep key exists, and only a benchmark needs it (installed from requirements.txt) or
+#: pip installs it with the package (PIP_ONLY)
 ROSDEP = {
     **{m: m for m in ('rclpy', 'ament_index_python', 'domain_coordinator', 'rcl_interfaces',
                       'diagnostic_msgs', 'geometry_msgs', 'rosgraph_msgs', 'sensor_msgs',
@@ -36,7 +37,12 @@ ROSDEP = {
     'numba': 'python3-numba', 'matplotlib': 'python3-matplotlib', 'psutil': 'python3-psutil',
     'aiohttp': 'python3-aiohttp', 'mcap': 'mcap-ros2-support',
     'mcap_ros2': 'mcap-ros2-support', 'rosbags': 'python3-rosbags-pip',
-    'playwright': None}
+    'playwright': None, 'threadpoolctl': None}
+
+#: modules the package needs at run time that rosdistro has no key for (Debian packages
+#: threadpoolctl as python3-threadpoolctl, rosdistro does not): pip installs them, from
+#: setup.py's install_requires (and requirements.txt, pinned)
+PIP_ONLY = {'threadpoolctl'}
 
 
 def _imports() -> dict[str, set[str]]:
@@ -70,6 +76,17 @@ def test_package_xml_names_every_module_the_package_imports():
     needed = {ROSDEP[m] for m in imports} - {None}
     assert needed <= declared, f'package.xml lacks {sorted(needed - declared)}'
     assert declared <= needed, f'package.xml names what nothing imports: {declared - needed}'
+
+
+def test_modules_without_a_rosdep_key_are_installed_by_pip():
+    import re
+    imports = _imports()
+    setup = (ROOT / 'setup.py').read_text()
+    pinned = (ROOT / 'requirements.txt').read_text()
+    for m in PIP_ONLY:
+        assert m in imports and ROSDEP[m] is None, m
+        assert f"'{m}'" in setup, f'setup.py install_requires lacks {m}'
+        assert re.search(rf'^{m}==', pinned, re.M), f'requirements.txt does not pin {m}'
 
 
 def _console_scripts():
