@@ -524,25 +524,35 @@ def test_a_cold_fit_with_pressures_takes_a_second_start_through_short_segments(
 
 def test_a_fit_runs_its_linear_algebra_on_one_blas_thread(monkeypatch):
     """
-    Whatever the process set, a fit's BLAS runs on ``BLAS_THREADS``, and is given back after.
+    Whatever the process set, a fit's solve and standard errors run on ``BLAS_THREADS``.
 
     How OpenBLAS splits a product over its threads depends on the process's history: the same
-    bag fitted in two processes came out 2.6 % apart on F_cc (docs/identification.md).
+    bag fitted in two processes came out 2.6 % apart on F_cc (docs/identification.md). The
+    limit is given back after, and the fit's warnings still name the caller's line.
     """
     from threadpoolctl import threadpool_info, threadpool_limits
-    from ros_ehs.core.identify import estimator
-    real, seen = estimator.least_squares, []
+    from ros_ehs.core.identify import estimator, uncertainty
+    seen = []
 
-    def least_squares(*args, **kwargs):
-        seen.append({i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'})
-        return real(*args, **kwargs)
+    def blas():
+        return {i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'}
 
-    monkeypatch.setattr(estimator, 'least_squares', least_squares)
+    def spy(real):
+        def call(*args, **kwargs):
+            seen.append((real.__name__, blas()))
+            return real(*args, **kwargs)
+        return call
+
+    monkeypatch.setattr(estimator, 'least_squares', spy(estimator.least_squares))
+    monkeypatch.setattr(estimator, 'standard_errors', spy(uncertainty.standard_errors))
     e = load_experiment(SAMPLE)
     with threadpool_limits(limits=2, user_api='blas'):
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore', IdentificationWarning)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always', IdentificationWarning)
             identify(e, verdict=False, max_nfev=3)
-        after = {i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'}
-    assert seen and all(s == {estimator.BLAS_THREADS} for s in seen), seen
+        after = blas()
+    assert {name for name, _ in seen} == {'least_squares', 'standard_errors'}, seen
+    assert all(threads == {estimator.BLAS_THREADS} for _, threads in seen), seen
     assert after == {2}
+    assert caught and all(w.filename == __file__ for w in caught), \
+        [(w.filename, str(w.message)[:40]) for w in caught]

@@ -82,13 +82,15 @@ SHORT_SEGMENT = 0.1
 #: starts: 2864.48 both); only a second start lower by more replaces the first.
 _SAME_COST = 1e-3
 
-#: BLAS threads of a fit (:func:`identify`, and so of the halves' refits and every other fit
-#: built on it). numpy and scipy each bring an OpenBLAS that splits a product over every core,
-#: and how it splits depends on what the process did before: the same 2 kHz position-only bag
-#: (the verdict benchmark's rig 301) came out with F_cc 787.4 or 808.1 N depending on the
-#: order its modules were imported, the iterations equal to the bit up to the fourth. A fit's
-#: matrices are a few thousand residuals by seven columns, where threads buy nothing, and
-#: the Jacobian's columns already run on ``workers`` threads.
+#: BLAS threads of a fit's solve and of its standard errors (:func:`identify`, and so of the
+#: halves' refits and every other fit built on it; set around those two functions rather than
+#: around :func:`identify`, so that its warnings still name the caller's line). numpy and
+#: scipy each bring an OpenBLAS that splits a product over every core, and how it splits
+#: depends on what the process did before: the same 2 kHz position-only bag (the verdict
+#: benchmark's rig 301) came out with F_cc 787.4 or 808.1 N depending on the order its
+#: modules were imported, the iterations equal to the bit up to the fourth. A fit's matrices
+#: are a few thousand residuals by seven columns, where threads buy nothing, and the
+#: Jacobian's columns already run on ``workers`` threads.
 BLAS_THREADS = 1
 
 
@@ -274,6 +276,7 @@ def _bounds(free, base):
     return np.array(lo), np.array(hi)
 
 
+@threadpool_limits.wrap(limits=BLAS_THREADS, user_api='blas')
 def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
            max_nfev: int, workers: int, progress) -> tuple:
     """
@@ -367,6 +370,7 @@ def _second_start(problem: Problem, short: Problem, sol, J, history, njev, bound
     return sol, J, history, njev, ''
 
 
+@threadpool_limits.wrap(limits=BLAS_THREADS, user_api='blas')
 def _stderr(problem: Problem, sol, J: np.ndarray, cost: str,
             fitted: dict | None = None) -> tuple:
     """Return the fit metrics and :func:`standard_errors`'s figures of ``sol`` (scaled)."""
@@ -398,7 +402,6 @@ def _value_notes(xv: dict, se: np.ndarray, free, theta, lo_s, hi_s) -> list[str]
     return notes
 
 
-@threadpool_limits.wrap(limits=BLAS_THREADS, user_api='blas')
 def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simplified',
              signals: Sequence[str] = SIGNALS, cost: str = 'sae', base: Params | None = None,
              x0: dict[str, float] | None = None, segment: float | None = 1.0,
