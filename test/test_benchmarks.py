@@ -204,9 +204,7 @@ def test_the_verdict_benchmark_counts_what_the_second_start_did():
 
     def fit(worst, kind, first=None, kept=True):
         restart = {} if first is None else {
-            'kept': kept, 'first_errors': {'F_cc': first, 'c_c': 0.01},
-            'first_kind': 'good' if abs(first) <= 0.05 else 'bad' if abs(first) > 0.1
-            else 'between'}
+            'kept': kept, 'first_errors': {'F_cc': first, 'c_c': 0.01}}
         return {'worst_error': worst, 'kind': kind, 'restart': restart}
 
     fits = [fit(0.02, 'good'),                          # not run

@@ -107,9 +107,9 @@ def _fit(exps, model: str, truth) -> dict:
     noise = all(m['noise_ratio'] <= 2.0 for sig in r.metrics.values() for m in sig.values())
     restarted = {}
     if r.restart:           # the second start from the halves ran: what it began from
-        first = {n: r.restart['first']['values'][n] / truth[n] - 1.0 for n in JUDGED}
-        restarted = {'kept': r.restart['kept'], 'first_errors': first,
-                     'first_kind': _kind(max(abs(e) for e in first.values()))}
+        restarted = {'kept': r.restart['kept'],
+                     'first_errors': {n: r.restart['first']['values'][n] / truth[n] - 1.0
+                                      for n in JUDGED}}
     return {'model': model, 'kind': _kind(worst), 'worst_error': worst,
             'worst_parameter': max(err, key=lambda n: abs(err[n])), 'adequate': r.adequate,
             'noise_verdict': noise and r.status != 0,
@@ -140,8 +140,8 @@ def restarts(fits: list) -> dict:
     for f in kept:
         first = max(abs(e) for e in f['restart']['first_errors'].values())
         closer += f['worst_error'] < first
-        if f['restart']['first_kind'] != f['kind']:
-            key = f"{f['restart']['first_kind']}->{f['kind']}"
+        if _kind(first) != f['kind']:
+            key = f"{_kind(first)}->{f['kind']}"
             moves[key] = moves.get(key, 0) + 1
     return {'ran': len(ran), 'kept': len(kept), 'closer': closer,
             'farther': len(kept) - closer, 'moves': moves}
