@@ -38,8 +38,8 @@ How the fit works (docs/identification.md):
 * ``cost='sae'`` (the paper) is the pseudo-Huber ``soft_l1`` loss with ``f_scale`` 0.1 noise
   sigma: |r| to within 5 % above 0.1 sigma, smooth for the Gauss-Newton model at zero.
   ``cost='sse'`` is plain least squares.
-* The same record gives the same fit to the bit in any process: the linear algebra runs on
-  one BLAS thread (:data:`BLAS_THREADS`).
+* The same record gives the same fit to the bit in any process: the solve and the standard
+  errors run on one BLAS thread (:data:`BLAS_THREADS`).
 """
 
 from __future__ import annotations
