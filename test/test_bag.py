@@ -360,7 +360,7 @@ def _without_states(bag, out, drop):
 
 
 def test_missing_samples_split_the_record_into_runs(tmp_path):
-    from ros_ehs.core.identify.experiment import MIN_SAMPLES
+    from ros_ehs.core.identify.experiment import BRIDGE, MIN_SAMPLES
     from ros_ehs.data.experiments import load_experiments
     bag = _write(tmp_path / 'gappy', n=2000)
     # rewrite without states 700..849 (a recorder that missed 150 ms)
@@ -372,10 +372,19 @@ def test_missing_samples_split_the_record_into_runs(tmp_path):
     assert [r.name for r in runs] == ['holed [1/2]', 'holed [2/2]']
     assert [r.t.size for r in runs] == [700, 1150]
     assert runs[1].z[0] == pytest.approx(0.001 * 850)         # starts after the gap
-    # runs shorter than MIN_SAMPLES are dropped; none left is a clear error
+    # a state or two missed in a row are bridged: one run on the whole grid, the missed
+    # positions between their neighbours'
+    assert BRIDGE == 2
+    for name, drop in (('once', lambda k: k % 400 == 7), ('twice', lambda k: k % 400 in (7, 8))):
+        bridged = _without_states(b, tmp_path / name, drop)
+        for e in (load_experiment(bridged), *load_experiments(bridged)):
+            assert e.name == name and e.t.size == 2000 and e.dt == pytest.approx(1e-3)
+            np.testing.assert_allclose(e.z, 0.001 * np.arange(2000), rtol=0, atol=1e-12)
+    # three missed in a row split it; runs shorter than MIN_SAMPLES are dropped; none left is
+    # a clear error
     assert MIN_SAMPLES > 100
-    short = _without_states(b, tmp_path / 'short', lambda k: k % 400 == 0)
-    with pytest.raises(DataError, match='longest run without missing samples has 399'):
+    short = _without_states(b, tmp_path / 'short', lambda k: k % 400 < 3)
+    with pytest.raises(DataError, match='longest run without missing samples has 397'):
         load_experiments(short)
 
 

@@ -139,6 +139,49 @@ def test_a_jittered_drivers_commands_are_held_in_pieces_where_they_took_over():
     np.testing.assert_array_equal(replace(e, commands=None).held(4), np.repeat(e.i[:-1], 4))
 
 
+def test_a_missed_state_or_two_are_bridged_three_split_the_run():
+    """A driver's lost states: the run goes on over one or two, on its cycles; three cut it."""
+    n = 2400
+    cycles = _jittered_cycles(n, seed=5)
+    cmd = 0.002 * np.random.default_rng(6).standard_normal(n)
+
+    def z(x):
+        return 0.02 * np.sin(2 * np.pi * 1.0 * x)
+
+    ts = np.round((1.0 + cycles) * 1e9).astype(np.int64)
+    kept = np.ones(n, bool)
+    kept[[400, 900, 901, 1700, 1701, 1702]] = False       # one, two, then three in a row
+    first, second = experiments_from_series(
+        'rig', ts[kept], z(cycles[kept]), np.full(kept.sum(), np.nan),
+        commands=(ts + int(RX * 1e9), cmd), delay=P - RX)
+    assert (first.name, second.name) == ('rig [1/2]', 'rig [2/2]') and second.after_gap
+    # the first run holds every cycle up to the three missed, the missed ones on its grid
+    k0 = round((first.t0_ns - ts[0]) * 1e-9 / P)          # the samples before the first command
+    assert first.t.size == 1700 - k0 and second.t.size == n - 1703
+    assert first.cycles.size == 1700 and abs(first.dt / P - 1.0) < 1e-3
+    at = np.interp(first.t + (first.t0_ns - ts[0]) * 1e-9, cycles - cycles[0], cycles)
+    assert np.max(np.abs(first.z - z(at))) < 0.2e-6         # a spline over the missed states
+    # the missed cycles sit between their neighbours; the rest are the stamps
+    c = first.cycles - first.cycles[0] + cycles[0]
+    assert np.max(np.abs(np.delete(c - cycles[:1700], [400, 900, 901]))) < 1e-9
+    assert np.max(np.abs(c - cycles[:1700])) < 0.2 * P
+    # the current of each period as the valve got it, over the missed states too
+    fine = np.arange(0.0, cycles[1699] - cycles[0], 1e-6)
+    held = cmd[np.clip(np.searchsorted(cycles - cycles[0], fine, side='right') - 2, 0, n - 1)]
+    cut = np.searchsorted(fine, first.t + (first.t0_ns - ts[0]) * 1e-9)
+    truth = np.array([held[a:b].mean() for a, b in zip(cut[:-1], cut[1:])])
+    err = np.abs(first.i[:-2] - truth[:-1])[5:]
+    assert np.median(err) < 0.02 * np.std(cmd) and np.max(err) < 0.3 * np.std(cmd)
+    # a state-rate grid without jitter (our plant's, with the current it applied): one missed
+    exact = np.arange(1200) * 10**6 + 10**9
+    i = 0.002 * np.sin(np.arange(1200) * 0.01)
+    keep = np.arange(1200) != 600
+    (e,) = experiments_from_series('own', exact[keep], z(exact[keep] * 1e-9),
+                                   np.full(1199, np.nan), applied=i[keep])
+    assert e.t.size == 1200 and e.dt == 1e-3 and e.cycles is None and e.commands is None
+    assert abs(e.z[600] - z(1.6)) < 1e-9 and abs(e.i[599] - i[600]) < 1e-7
+
+
 def test_a_value_that_is_not_finite_in_jittered_states_is_named_not_splined():
     """A NaN position among a driver's jittered states: the loader's own error, at its time."""
     n = 700

@@ -84,8 +84,8 @@ def _digest(path: Path) -> str:
 def test_the_reduced_model_identifies_the_full_model_rig_from_its_bag(rig_bags, name):
     bag, lay, truth = rig_bags[name]
     runs = load_experiments(bag, topics=lay.topic_map(truth['input_delay']))
-    assert sum(e.t.size for e in runs) >= 0.9 * truth['samples']
-    assert min(2, lay.lost + 1) <= len(runs) <= lay.lost + 1   # a lost sample splits it
+    # a lost sample is bridged: one run on the driver's whole grid from the first command on
+    assert len(runs) == 1 and runs[0].t.size >= 0.9 * (truth['samples'] + lay.lost)
     assert all(abs(e.dt * lay.rate_hz - 1.0) < 0.01 for e in runs)
     assert all((e.derived == ()) == lay.velocity for e in runs)
     with warnings.catch_warnings():
@@ -101,15 +101,16 @@ def test_the_reduced_model_identifies_the_full_model_rig_from_its_bag(rig_bags, 
         assert r.adequate or all('p_L residual' in w for w in r.inadequacy), r.inadequacy
     elif lay.rate_hz == MIN_RATE_HZ:
         # with its pressures a 250 Hz record is judged as any other is; fitted from the
-        # position alone it is judged too (the slowest rate the verdict is tested at), the
-        # friction the least certain of the five: within 10 % (F_cc 5.2 % low here)
+        # position alone it is judged too (the slowest rate the verdict is tested at), its
+        # halves held to SLOW_AGREEMENT, the friction the least certain of the five: within
+        # 10 % (F_cc 5.2 % low here, the halves within 1.1 %)
         assert r.adequate, r.inadequacy
         alone = load_experiments(bag, topics=lay.topic_map(
             truth['input_delay']).without_pressures())
         with warnings.catch_warnings():
             warnings.simplefilter('ignore', IdentificationWarning)
             ra = identify(alone, model='reduced')
-        assert 'rate' not in ra.failed
+        assert ra.adequate, ra.inadequacy
         assert max(abs(ra.x[n] / TRUTH[n] - 1.0) for n in FIVE) < 0.10, ra.x
     else:
         assert r.adequate, r.inadequacy
@@ -308,7 +309,7 @@ def test_the_identify_node_reads_a_rig_bag_through_its_topic_map(rig_bags, tmp_p
         assert p.popen.wait(300) in (0, 1), p.output()[-3000:]
     s = json.loads((out / 'summary.json').read_text())
     assert s['input_delay'] == {'value_s': 0.0003, 'estimated': False}   # from the file
-    assert len(s['fit']) >= 2                    # the runs of the joint the option named
+    assert list(s['fit']) == [bag.name]          # the run of the joint the option named
 
 
 @pytest.mark.ros

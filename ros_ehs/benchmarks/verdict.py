@@ -18,10 +18,10 @@ Each rig is the full model with Table 1's seven estimated parameters drawn at ra
 +-25 %, recorded in closed loop as a ros2_control driver records it and written by rosbags
 (:func:`ros_ehs.data.rig_bag.record_rig_bag`): JointState position only at 250 Hz-4 kHz, an
 encoder quantised 0.1-5 um with 0.5-5 um noise (both log-uniform), stamp jitter of 20 % of a
-period, 0.2 % of the states lost (each loss splits the record into runs), chamber pressures
-at up to 1 kHz or none, commands timed by receive time. The reference is a sine (10-30 mm,
-0.5-1.5 Hz) with a 1-4 mm chirp from 1 to 15 Hz on top. Each bag is fitted with the reduced
-model and with the default (simplified) one.
+period, 0.2 % of the states lost at random (the fit's run goes on over them), chamber
+pressures at up to 1 kHz or none, commands timed by receive time. The reference is a sine
+(10-30 mm, 0.5-1.5 Hz) with a 1-4 mm chirp from 1 to 15 Hz on top. Each bag is fitted with
+the reduced model and with the default (simplified) one.
 
 A fit is **good** when all five of d_c, F_cc, F_sc, l_iac and c_c are within 5 % of the truth,
 **bad** when any is beyond 10 % (r_c and x_bias, the valve's null shape, are not counted:

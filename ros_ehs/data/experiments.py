@@ -27,7 +27,8 @@ Time policy:
   kept once, and a state closer than 0.45 of the median period to the one before it (a stray
   publisher, another clock) is dropped, the experiment's name says how many (a driver's
   jitter of a quarter period either way brings two states within 0.5 of it: kept);
-* a gap (a missed sample: more than 1.5 periods) splits the recording into runs
+* a run goes on over one or two missed samples (:data:`BRIDGE
+  <ros_ehs.core.identify.experiment.BRIDGE>`); a longer gap splits the recording into runs
   (:func:`load_experiments`), and runs too short to fit are dropped;
 * a run whose stamps jitter (a driver's timestamps: up to a quarter of the period) is
   resampled onto a uniform grid at its mean period by cubic splines through the samples;
@@ -224,7 +225,10 @@ def load_experiment(path: str | os.PathLike, *, topics: TopicMap | None = None,
                     bag: Bag | None = None, start: float | None = None,
                     end: float | None = None) -> Experiment:
     """
-    Read one experiment from the bag at ``path`` (the whole recording, which must have no gap).
+    Read one experiment from the bag at ``path``: the whole recording, on one grid.
+
+    The recording must have no gap of more than :data:`BRIDGE
+    <ros_ehs.core.identify.experiment.BRIDGE>` missed samples.
 
     ``topics`` says where the signals are (default: the contract; ``state``, ``command``,
     ``pressure_p``, ``pressure_t`` are shorthands for a contract-like map). Pressures are
@@ -263,10 +267,12 @@ def load_experiments(path: str | os.PathLike, *, topics: TopicMap | None = None,
     Read the contiguous runs of the bag at ``path``: one experiment per run.
 
     A best-effort recorder can miss states (a busy machine, a full queue), which leaves a gap
-    in the sample grid; each gap splits the recording, and runs shorter than
-    :data:`MIN_SAMPLES` are dropped, as are runs in which the piston does not move (a hold
-    before the trajectory started) when another run does. Names get ``[k/n]`` when there is
-    more than one run. ``topics``, ``start``/``end``: as in :func:`load_experiment`.
+    in the sample grid; a run goes on over one or two missed states (:data:`BRIDGE
+    <ros_ehs.core.identify.experiment.BRIDGE>`), a longer gap splits the recording, and runs
+    shorter than :data:`MIN_SAMPLES` are dropped, as are runs in which the piston does not
+    move (a hold before the trajectory started) when another run does. Names get ``[k/n]``
+    when there is more than one run. ``topics``, ``start``/``end``: as in
+    :func:`load_experiment`.
     """
     rec = _read(path, _topic_map(topics, state, command, pressure_p, pressure_t), bag, start,
                 end)

@@ -21,9 +21,10 @@ identifier from the running loop):
 
 * states closer than 0.45 of the median period to the one kept before them are dropped (a
   stray publisher, another clock); the experiment's name says how many;
-* a gap (a missed sample: more than 1.5 periods) splits the series into runs, and runs too
-  short to fit (:data:`MIN_SAMPLES`) are dropped, as are runs in which the piston does not
-  move when another run does;
+* a run goes on over a missed sample or two (:data:`BRIDGE`): its grid holds them, filled
+  by the splines through the samples either side; a longer gap splits the series into runs,
+  and runs too short to fit (:data:`MIN_SAMPLES`) are dropped, as are runs in which the
+  piston does not move when another run does;
 * a run whose stamps jitter (a driver's timestamps) is resampled onto a uniform grid at its
   mean period by cubic splines through the samples (:func:`resample`), the position (and
   velocity) as the pressures and the load cell;
@@ -54,6 +55,10 @@ __all__ = ['Experiment', 'MIN_SAMPLES', 'NoExcitation', 'Series', 'cut_experimen
 
 #: Fewer state samples than this is "too little data" for a 7-parameter fit.
 MIN_SAMPLES = 500
+#: The most samples missed in a row that a run goes on over (more split the record): the
+#: replay integrates across them, the grid filled by the splines through the samples either
+#: side.
+BRIDGE = 2
 #: Width of the Savitzky-Golay derivative that derives a missing velocity [s] (>= 5 samples).
 DERIVATIVE_WIDTH = 5.0e-3
 
@@ -344,9 +349,14 @@ def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
     ts = rec.ts[a:b]
     span = (ts - ts[0]) * 1e-9
     dts = np.diff(span)
-    dt = float(span[-1] / (span.size - 1)) if span.size > 1 else 1e-3
     z, v, applied = rec.z[a:b], rec.v[a:b], rec.applied[a:b]
-    exact = dts.size == 0 or float(np.max(np.abs(dts - np.median(dts)))) <= 1e-6 * dt
+    # each stamp's cycle: a gap of k + 1 periods is k missed samples (BRIDGE at most)
+    period = float(np.median(dts)) if dts.size else 1e-3
+    steps = np.maximum(1, np.rint(dts / period)).astype(np.int64)
+    idx = np.concatenate([[0], np.cumsum(steps)])
+    n_grid = int(idx[-1]) + 1
+    dt = float(span[-1] / (n_grid - 1)) if span.size > 1 else 1e-3
+    exact = dts.size == 0 or float(np.max(np.abs(dts - steps * period))) <= 1e-6 * period
     # each measured signal's noise, on its raw samples, before the grid averages neighbours
     noise = {'z': noise_sigma(z, span)}
     if np.all(np.isfinite(v)):
@@ -361,14 +371,17 @@ def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
         if m.sum() >= 8:
             noise[key] = noise_sigma(pv[m], (tp[m] - ts[0]) * 1e-9)
     cycles = None
-    if exact:
+    if exact and n_grid == span.size:
         t = span
-    else:        # a driver's jittered stamps: onto a uniform grid at the mean period
-        t = np.arange(span.size) * dt
+    else:        # a driver's jittered stamps, or missed samples: onto a uniform grid
+        t = np.arange(n_grid) * dt
         z = resample(span, z, t)
         v = resample(span, v, t) if np.all(np.isfinite(v)) else np.full(t.shape, np.nan)
-        applied = np.full(t.shape, np.nan)
-        cycles = span
+        if exact:        # the missed samples' current: between their neighbours'
+            applied = np.interp(np.arange(n_grid), idx, applied)
+        else:            # the driver's cycles, a missed sample's where it would have been
+            applied = np.full(t.shape, np.nan)
+            cycles = np.interp(np.arange(n_grid), idx, span)
     t0_ns = int(ts[0])
     commands = None
     if applied.size > 1 and np.all(np.isfinite(applied)):
@@ -383,8 +396,8 @@ def cut_experiment(rec: Series, a: int, b: int, name: str) -> Experiment:
             raise NoExcitation(f'{name}: {k0} of its {t.size} samples come before the first '
                                'command; too few are left')
         if k0:
+            t0_ns += int(round(float(t[k0]) * 1e9))
             t, z, v = t[k0:] - t[k0], z[k0:], v[k0:]
-            t0_ns += int(round(span[k0] * 1e9)) if exact else int(round(k0 * dt * 1e9))
             shift = (t0_ns - int(ts[0])) * 1e-9
             commands = (tc - shift, rec.vc)
             cycles = None if cycles is None else cycles - shift
@@ -424,7 +437,8 @@ def _near(tx: np.ndarray, vx: np.ndarray, ts: np.ndarray, t0_ns: int) -> tuple:
 def run_bounds(ts: np.ndarray) -> tuple[list[tuple[int, int]], list[int]]:
     """Return the (start, end) index pairs of the gapless runs of stamps ``ts``, and the cuts."""
     d = np.diff(ts)
-    cuts = np.flatnonzero(d > 1.5 * np.median(d)) + 1 if d.size else np.array([], int)
+    cuts = np.flatnonzero(d > (BRIDGE + 1.5) * np.median(d)) + 1 if d.size else \
+        np.array([], int)
     edges = [0, *cuts.tolist(), ts.size]
     return list(zip(edges[:-1], edges[1:])), cuts.tolist()
 
