@@ -138,6 +138,11 @@ SLOW_AGREEMENT = 0.05
 QUARTERS = 4
 
 
+def _below(rate_hz: float, limit_hz: float) -> bool:
+    """Return whether ``rate_hz`` is below ``limit_hz`` (a driver's mean period is not exact)."""
+    return rate_hz < 0.98 * limit_hz
+
+
 def judged_rate(experiments, signals) -> float:
     """
     Return the slowest state rate [Hz] of the runs fitted without pressures (inf: none).
@@ -453,7 +458,7 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
     why: list[str] = []
     advice: list[str] = []
     failed: list[str] = []
-    if rate_hz < 0.98 * MIN_RATE_HZ:         # a driver's mean period is not exact
+    if _below(rate_hz, MIN_RATE_HZ):
         failed.append('rate')
         why.append(f'the states were recorded at {rate_hz:.0f} Hz, below {MIN_RATE_HZ:.0f} Hz, '
                    'without pressures: the verdict is not tested so slow, where a breakaway '
@@ -495,7 +500,7 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
                            f'segments; limits {PREDICTION_RATIO:g}x and '
                            f'{100 * PREDICTION_LIMIT:g} %): the values describe the data they '
                            'were fitted to, not the rig')
-        slow = rate_hz < 0.98 * SLOW_RATE_HZ
+        slow = _below(rate_hz, SLOW_RATE_HZ)
         limit = SLOW_AGREEMENT if slow else AGREEMENT
         loose = [n for n, d in check['disagreement'].items()
                  if n not in NULL_SHAPE and d > limit]
