@@ -350,14 +350,26 @@ def test_killing_the_controller_trips_the_watchdog_within_3_periods(dom, tmp_pat
     assert (t[-1] - last_nonzero) / 1e9 >= 1.0, (
         (t[-1] - last_nonzero) / 1e9, i[-5:].tolist(), f,
         [(x.stamp_ns - t[0], x.i) for x in cmds if x.stamp_ns > t[-1] - 1_000_000_000])
-    # a held command repeats its value, so take the latest one stamped before it was applied
+    # the current the valve had last is one the controller sent for a state no later than the
+    # one that carries it (the stamp policy refuses an answer from the future). How many periods
+    # after that state's stamp the valve was zeroed is not bounded here: it adds the controller's
+    # own lateness to the watchdog's 3 periods (a command answering an old state is applied on
+    # arrival, correctly) and what the best-effort recorder missed: 36 periods once in a loaded
+    # full run, and the bag cannot tell the two apart.
+    # The rule counts from the command's arrival, in the plant's figures above, and without a
+    # clock in test_sim_axis.
     applied = [x.stamp_ns for x in cmds if x.i == i[k] and x.stamp_ns <= last_nonzero]
-    last_cmd = max(applied) if applied else max(x.stamp_ns for x in cmds if x.i != 0.0)
-    # counted in the plant's periods (its recorded states), not in stamp time: a plant held
-    # longer than its catch-up moves its grid on, a gap in the stamps (3 s once, held at the
-    # kill, in a full run: the last command applied at the first period after it, correctly)
-    periods = k - np.searchsorted(t, last_cmd)
-    assert 0 <= periods <= 20, (periods, (last_nonzero - last_cmd) / 1e6, len(applied), f)
+    assert applied, (i[k], [(x.stamp_ns - t[0], x.i) for x in cmds[-20:]])
+    # the trip is in the bag too: the plant's recorded diagnostics end tripped, with the same
+    # latency rule, stamped after the last state the valve had current in
+    plant = [s for _, m in bagr.decoded(['/diagnostics']) for s in c.statuses_from_msg(m)
+             if s.name == c.PLANT_STATUS]
+    tripped = [s for s in plant if s.values['watchdog'] == 'tripped']
+    assert plant[-1].values['watchdog'] == 'tripped', plant[-1]
+    assert tripped[-1].stamp_ns > last_nonzero
+    v = tripped[-1].values
+    assert float(v['watchdog_latency_ms']) - max(0.0, float(v['watchdog_tick_late_ms'])) \
+        <= 3.0 + 1e-3, v
 
 
 @contextlib.contextmanager
