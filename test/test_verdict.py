@@ -317,7 +317,13 @@ def test_a_slow_record_without_pressures_is_held_to_the_tighter_agreement():
     assert failed == ['agreement:F_cc']
     assert f'(limit {100 * SLOW_AGREEMENT:g} %, states at {MIN_RATE_HZ:.0f} Hz without ' \
         'pressures)' in why[0], why
+    assert any('record the chamber pressures' in a and f'or the states at {SLOW_RATE_HZ:.0f} '
+               'Hz or faster' in a for a in advice), advice
+    # a faster record that fails the usual limit is not told to record faster
+    _, advice, _ = adequacy(1, 100, 'reduced', '', _check(disagreement={'F_cc': 2 * AGREEMENT}),
+                            _metrics(), rate_hz=2 * SLOW_RATE_HZ)
     assert any('record the chamber pressures' in a for a in advice), advice
+    assert not any('Hz or faster' in a for a in advice), advice
     # at SLOW_RATE_HZ (a driver's mean period a little off it), or with pressures (rate inf),
     # the same halves pass; the null shape is judged by neither limit
     for rate in (0.99 * SLOW_RATE_HZ, math.inf):
