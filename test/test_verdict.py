@@ -31,7 +31,7 @@ from ros_ehs.core.identify import identify
 from ros_ehs.core.identify.experiment import experiment_from_arrays, state_rate
 from ros_ehs.core.identify.problem import SIGNALS
 from ros_ehs.core.identify.verdict import (added_residual, adequacy, AGREEMENT, halves,
-                                           judged_rate, median_noise_ratios,
+                                           judged_rate, LEAD_IN, median_noise_ratios,
                                            MIN_RATE_HZ, PREDICTION_LIMIT, PREDICTION_RATIO,
                                            QUARTERS, RESTART, restart,
                                            RULES, SENSED_LIMIT, SETTLE_ITERATIONS, SETTLED,
@@ -53,28 +53,82 @@ def _run(name, n, t0=0.0):
 def test_halves_take_alternate_quarters_of_a_single_run_each_after_a_cut_mid_motion():
     e = _run('a', 1001)
     first, second = halves([e])
-    assert QUARTERS == 4
-    assert [x.name for x in first] == ['a[0:250]', 'a[500:750]']
-    assert [x.name for x in second] == ['a[250:500]', 'a[750:1001]']
+    lead = round(LEAD_IN / 1e-3)
+    assert QUARTERS == 4 and lead == 200
+    # each piece after a cut is replayed from LEAD_IN before it, its warm-up not compared
+    assert [x.name for x in first] == ['a[0:250]', 'a[300:750]']
+    assert [x.name for x in second] == ['a[50:500]', 'a[550:1001]']
+    assert [x.warmup for x in first] == [0, lead] and [x.warmup for x in second] == [lead] * 2
     assert first[0].t[0] == 0.0 and second[0].t[0] == 0.0        # each on its own clock
-    assert second[0].z[0] == e.z[250] and second[0].t0_ns == e.t0_ns + 250_000_000
+    assert second[0].z[lead] == e.z[250] and second[0].t0_ns == e.t0_ns + 50_000_000
     assert not first[0].after_gap and all(x.after_gap for x in first[1:] + second)
+    # the compared samples are the quarters
+    assert [sum(x.t.size - x.warmup for x in h) for h in (first, second)] == [500, 501]
 
 
 def test_halves_keep_whole_runs_and_cut_only_those_holding_a_quarter():
     runs = [_run('a', 600), _run('b', 600), _run('c', 600)]
     first, second = halves(runs)
-    assert [x.name for x in first] == ['a[0:450]', 'b[300:600]', 'c[0:150]']
-    assert [x.name for x in second] == ['a[450:600]', 'b[0:300]', 'c[150:600]']
-    assert sum(x.t.size for x in first) == sum(x.t.size for x in second) == 900
+    # a lead-in goes back at most to its run's start (150 samples in c)
+    assert [(x.name, x.warmup) for x in first] == [('a[0:450]', 0), ('b[100:600]', 200),
+                                                   ('c[0:150]', 0)]
+    assert [(x.name, x.warmup) for x in second] == [('a[250:600]', 200), ('b[0:300]', 0),
+                                                    ('c[0:600]', 150)]
+    assert sum(x.t.size - x.warmup for x in first) == \
+        sum(x.t.size - x.warmup for x in second) == 900
     first, second = halves([_run(k, 500) for k in 'abcd'])
     assert [x.name for x in first] == ['a', 'c'] and [x.name for x in second] == ['b', 'd']
-    assert not any(x.after_gap for x in first + second)
+    assert not any(x.after_gap or x.warmup for x in first + second)
+
+
+def test_a_piece_cut_mid_motion_reaches_its_cut_with_the_pressures_its_lead_in_carried():
+    """
+    Without pressure sensors a replay carries the pressures open-loop from its start.
+
+    Started at the cut, a piece of the reduced model's own record, replayed at the truth,
+    begins from the equilibrium guess and its velocity is off by mm/s (5 mm/s RMS over its
+    first 50 ms); replayed from its lead-in, the pressures reach the cut as the model carried
+    them, and the piece replays as its record (0.01 mm/s). The lead-in is not compared.
+    """
+    from ros_ehs.core.identify.problem import Problem
+    from ros_ehs.core.model import Plant
+    truth, dt, sub = preset('table1_estimated'), 1e-3, 10
+    t = np.arange(2001) * dt
+    i = 0.006 * np.sin(2 * np.pi * 2 * t)
+    rig = Plant(truth, 'reduced', h=dt / sub)
+    x = rig.simulate(dt / sub, np.repeat(i[:-1], sub)).x[::sub]
+    z, v = (x[:, rig.state_names.index(n)] for n in ('z', 'z_dot'))
+    e = experiment_from_arrays('rig', t, i, z, v)
+    _, (piece, _) = halves([e])              # the second quarter, after the cut at 500
+    assert piece.warmup == round(LEAD_IN / dt) and piece.z[piece.warmup] == z[500]
+
+    def first_velocity_residual(ex):
+        p = Problem([ex], truth, ('c_c',), 'reduced', ('z_dot', 'z'), 1.0, None)
+        r = p.residual_parts(np.array([truth['c_c']]) / p.scale)[0]
+        assert r.shape[0] == ex.t.size - ex.warmup       # the lead-in is not compared
+        return float(np.sqrt(np.mean(r[:50, 0] ** 2))) * p.exps[0].sigma[0]
+
+    led = first_velocity_residual(piece)
+    guessed = first_velocity_residual(e.window(500, 1000))
+    assert guessed > 1e-3 and led < 0.01 * guessed, (led, guessed)
 
 
 def test_a_window_of_a_run_is_refused_when_it_holds_fewer_than_two_samples():
     with pytest.raises(DataError, match=r'a: samples 5:6 of 600 are not a run'):
         _run('a', 600).window(5, 6)
+
+
+def test_a_window_keeps_what_is_left_of_a_warm_up_and_a_problem_refuses_one_too_long():
+    from dataclasses import replace
+
+    from ros_ehs.core.identify.problem import Problem
+    e = replace(_run('a', 600), warmup=100)
+    assert e.window(40, 600).warmup == 60 and e.window(100, 600).warmup == 0
+    truth = preset('table1_estimated')
+    Problem([replace(e, warmup=598)], truth, ('c_c',), 'reduced', SIGNALS, 1.0, None)
+    with pytest.raises(DataError, match=r'a: a warm-up of 599 samples leaves fewer than 2 of '
+                                        r'600 to compare'):
+        Problem([replace(e, warmup=599)], truth, ('c_c',), 'reduced', SIGNALS, 1.0, None)
 
 
 def test_a_window_moves_the_command_series_onto_its_own_clock():
@@ -209,7 +263,7 @@ def _halves(monkeypatch, errors):
     fits = [base.replace(F_cc=base['F_cc'] * f, r_c=base['r_c'] * g, x_bias=b)
             for f, g, b in ((1.0, 1.0, 1e-8), (1.02, 0.06, -2e-8))]
     refits = [SimpleNamespace(params=p, x=p.subset(free)) for p in fits]
-    parts = [[SimpleNamespace(t=np.zeros(n))] for n in (600, 700)]
+    parts = [[SimpleNamespace(t=np.zeros(n), warmup=0)] for n in (600, 700)]
     replayed = []
 
     def problem_of(exps, params):

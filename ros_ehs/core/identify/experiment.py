@@ -96,6 +96,10 @@ class Experiment:
     #: the load cell [N] on the grid, where the run recorded one (a specimen's force)
     load_cell: np.ndarray | None = None
     cycles: np.ndarray | None = None
+    #: the first ``warmup`` samples are replayed, not compared: they carry the states no
+    #: sensor measured (the pressures of a record without them) into the samples after,
+    #: where a piece cut from a run mid-motion would otherwise start from a guess
+    warmup: int = 0
 
     @property
     def dt(self) -> float:
@@ -135,7 +139,7 @@ class Experiment:
                        z=cut(self.z), v=cut(self.v), p_a=cut(self.p_a), p_b=cut(self.p_b),
                        p_load=cut(self.p_load), load_cell=cut(self.load_cell),
                        commands=commands, t0_ns=self.t0_ns + int(round(t0 * 1e9)),
-                       after_gap=self.after_gap or a > 0)
+                       after_gap=self.after_gap or a > 0, warmup=max(0, self.warmup - a))
 
     def held(self, per: int) -> np.ndarray:
         """

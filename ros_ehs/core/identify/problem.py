@@ -30,6 +30,7 @@ import math
 from typing import Sequence
 
 import numpy as np
+from ros_ehs.core.errors import DataError
 from ros_ehs.core.identify.experiment import derivative_coefficients, Experiment
 from ros_ehs.core.model import kernels as K
 from ros_ehs.core.model.kernels import coefficients
@@ -81,6 +82,7 @@ class _Exp:
     derivative: np.ndarray | None = None   # the filter that derived the velocity (None: measured)
     per: int = 1                 # pieces each sample's input is held in (``u`` has N * per rows)
     nsub: int = 1                # integration steps a sample
+    warmup: int = 0              # leading samples replayed, not compared (a segment of their own)
 
     def segments(self):
         """Yield (first, end) sample indices of each replay segment; the last ends at N+1."""
@@ -208,7 +210,12 @@ class Problem:
             if getattr(e, 'after_gap', False):      # it starts mid-motion
                 x0 = plant.settle_valve(x0, float(e.i[0]))
             seg = max(1, int(round(segment / e.dt))) if segment else e.t.size
-            edges = list(range(0, e.t.size - 1, seg)) + [e.t.size]
+            # a warm-up is a segment of its own: the compared samples re-anchor where it ends
+            w = int(getattr(e, 'warmup', 0))
+            if not 0 <= w < e.t.size - 1:
+                raise DataError(f'{e.name}: a warm-up of {w} samples leaves fewer than 2 of '
+                                f'{e.t.size} to compare')
+            edges = [0] * (w > 0) + list(range(w, e.t.size - 1, seg)) + [e.t.size]
             if not getattr(e, 'after_gap', False) and e.dt <= 1.01 * BREAKAWAY_DT:
                 edges = _with_breakaway(edges, e.z)
             cell = getattr(e, 'load_cell', None) if CELL in signals else None
@@ -222,7 +229,7 @@ class Problem:
                                   None if cell is None else np.column_stack([e.z, e.v]),
                                   derivative_coefficients(e.dt)
                                   if 'z_dot' in use and 'z_dot' in getattr(e, 'derived', ())
-                                  else None, per, nsub))
+                                  else None, per, nsub, w))
         self.ipa, self.ipb = self.names.index('p_CP'), self.names.index('p_CT')
         self.iz, self.iv = self.names.index('z'), self.names.index('z_dot')
         self.nfev = 0
@@ -315,6 +322,7 @@ class Problem:
                                      ex.load_sigma])
             if ex.cell is not None:
                 r = np.column_stack([r, (self.cell_force(theta, ex) - ex.cell) / ex.cell_sigma])
+            r = r[ex.warmup:]
             bad = ~np.isfinite(r)
             if bad.any():
                 r[bad] = 1e3     # diverged: a large, finite penalty keeps TRF going
@@ -325,7 +333,7 @@ class Problem:
         """Label of each entry of :meth:`residual`: its experiment's ``seconds``-long block."""
         out, first = [], 0
         for ex in self.exps:
-            n = ex.y.shape[0]
+            n = ex.y.shape[0] - ex.warmup
             per = max(1, int(round(seconds / ex.dt)))
             b = np.arange(n) // per
             out.append(np.repeat(first + b, len(ex.measured) + (ex.load is not None) +
