@@ -336,14 +336,15 @@ def halves(experiments: Sequence[Experiment]) -> tuple[list[Experiment], list[Ex
         n = e.t.size
         edges = [0, *(c - seen for c in cuts if seen < c < seen + n), n]
         for a, b in zip(edges[:-1], edges[1:]):
-            if b - a >= 2:
-                quarter = sum(seen + a >= c for c in cuts)
-                if (a, b) == (0, n):
-                    parts[quarter % 2].append(e)
-                    continue
+            if b - a < 2:
+                continue
+            half = parts[sum(seen + a >= c for c in cuts) % 2]     # the quarter's half
+            if (a, b) == (0, n):
+                half.append(e)
+            else:
                 lead = min(a, int(round(LEAD_IN / e.dt)))
                 piece = e.window(a - lead, b)
-                parts[quarter % 2].append(replace(piece, warmup=max(piece.warmup, lead)))
+                half.append(replace(piece, warmup=max(piece.warmup, lead)))
         seen += n
     return parts
 
