@@ -129,6 +129,8 @@ def test_a_window_keeps_what_is_left_of_a_warm_up_and_a_problem_refuses_one_too_
     with pytest.raises(DataError, match=r'a: a warm-up of 599 samples leaves fewer than 2 of '
                                         r'600 to compare'):
         Problem([replace(e, warmup=599)], truth, ('c_c',), 'reduced', SIGNALS, 1.0, None)
+    with pytest.raises(DataError, match=r'a: `warmup` = -1 samples must be >= 0'):
+        Problem([replace(e, warmup=-1)], truth, ('c_c',), 'reduced', SIGNALS, 1.0, None)
 
 
 def test_a_window_moves_the_command_series_onto_its_own_clock():

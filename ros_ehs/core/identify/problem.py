@@ -212,7 +212,9 @@ class Problem:
             seg = max(1, int(round(segment / e.dt))) if segment else e.t.size
             # a warm-up is a segment of its own: the compared samples re-anchor where it ends
             w = int(getattr(e, 'warmup', 0))
-            if not 0 <= w < e.t.size - 1:
+            if w < 0:
+                raise DataError(f'{e.name}: `warmup` = {w} samples must be >= 0')
+            if w >= e.t.size - 1:
                 raise DataError(f'{e.name}: a warm-up of {w} samples leaves fewer than 2 of '
                                 f'{e.t.size} to compare')
             edges = [0] * (w > 0) + list(range(w, e.t.size - 1, seg)) + [e.t.size]
