@@ -18,6 +18,7 @@ End to end on a bag a ros2_control driver would record of a rig that is not the 
 written by rosbags.
 """
 
+import copy
 from dataclasses import replace
 import json
 import math
@@ -31,12 +32,12 @@ from ros_ehs.core.identify import identify
 from ros_ehs.core.identify.experiment import experiment_from_arrays, state_rate
 from ros_ehs.core.identify.problem import SIGNALS
 from ros_ehs.core.identify.verdict import (added_residual, adequacy, AGREEMENT, halves,
-                                           judged_rate, LEAD_IN, median_noise_ratios,
-                                           MIN_RATE_HZ, PREDICTION_LIMIT, PREDICTION_RATIO,
-                                           QUARTERS, RESTART, restart,
+                                           jackknife, JACKKNIFE_LIMIT, judged_on_jackknife,
+                                           judged_rate, LEAD_IN, leave_one_out,
+                                           median_noise_ratios, MIN_RATE_HZ, PREDICTION_LIMIT,
+                                           PREDICTION_RATIO, QUARTERS, RESTART, restart,
                                            RULES, SENSED_LIMIT, SETTLE_ITERATIONS, SETTLED,
-                                           settled, SLOW_AGREEMENT, SLOW_RATE_HZ, spread,
-                                           why_adequate)
+                                           settled, SLOW_RATE_HZ, spread, why_adequate)
 from ros_ehs.core.params import preset
 
 FIVE = ('d_c', 'F_cc', 'F_sc', 'l_iac', 'c_c')
@@ -79,6 +80,32 @@ def test_halves_keep_whole_runs_and_cut_only_those_holding_a_quarter():
     first, second = halves([_run(k, 500) for k in 'abcd'])
     assert [x.name for x in first] == ['a', 'c'] and [x.name for x in second] == ['b', 'd']
     assert not any(x.after_gap or x.warmup for x in first + second)
+
+
+def test_the_record_without_each_quarter_joins_the_quarters_around_the_gap():
+    e = _run('a', 1000)
+    parts = leave_one_out([e])
+    lead = round(LEAD_IN / 1e-3)
+    assert len(parts) == QUARTERS
+    assert [[(x.name, x.warmup) for x in p] for p in parts] == [
+        [('a[50:1000]', lead)],                          # after the gap, from its lead-in
+        [('a[0:250]', 0), ('a[300:1000]', lead)],
+        [('a[0:500]', 0), ('a[550:1000]', lead)],
+        [('a[0:750]', 0)]]                               # from the run's start: no lead-in
+    assert all(sum(x.t.size - x.warmup for x in p) == 750 for p in parts)
+    # whole runs stay whole; only a run holding an edge of the gap is cut
+    parts = leave_one_out([_run(k, 500) for k in 'abcd'])
+    assert [[x.name for x in p] for p in parts] == [
+        ['b', 'c', 'd'], ['a', 'c', 'd'], ['a', 'b', 'd'], ['a', 'b', 'c']]
+
+
+def test_the_jackknife_is_the_spread_of_the_refits_without_each_quarter():
+    values = [{'F_cc': v, 'r_c': 1.0} for v in (1.0, 1.0, 1.0, 1.4)]
+    got = jackknife(values, {'F_cc': 1.1, 'r_c': 0.0})
+    # sqrt((K - 1) / K * sum((v - mean)^2)) over the whole value: sqrt(0.75 * 0.12) / 1.1
+    assert got['stderr']['F_cc'] == pytest.approx(0.3 / 1.1)
+    assert got['stderr']['r_c'] == float('inf')             # a whole value of 0
+    assert got['values'] == values and got['values'][0] is not values[0]
 
 
 def test_a_piece_cut_mid_motion_reaches_its_cut_with_the_pressures_its_lead_in_carried():
@@ -350,42 +377,69 @@ def test_an_invalid_set_and_a_stop_at_the_limit_are_not_adequate_without_a_check
     assert any('max_nfev' in a for a in advice)
 
 
+def _spread_of(**stderr):
+    stderr = {'d_c': 0.01, 'r_c': 0.9, 'F_cc': 0.01, **stderr}
+    return {'stderr': stderr, 'values': [dict.fromkeys(stderr, 1.0 + 0.01 * k)
+                                         for k in range(QUARTERS)]}
+
+
 def test_each_reason_comes_with_the_rule_it_failed_in_its_order():
     check = _check(prediction={'z_dot': 0.2, 'p_CP': 0.2}, ratio={'z_dot': 2.0, 'p_CP': 2.0},
                    disagreement={'F_cc': 0.5, 'd_c': 0.5, 'r_c': 0.9})
     why, _, failed = adequacy(0, 7, 'reduced', 'F_cc above F_sc', check,
                               _metrics(p_CP=SENSED_LIMIT + 1.0, p_CT=1.0),
-                              rate_hz=0.5 * MIN_RATE_HZ)
+                              rate_hz=0.5 * MIN_RATE_HZ, spread_of=_spread_of(F_cc=0.5, d_c=0.5))
     assert failed == ['rate', 'solver', 'invalid', 'sensed:p_CP', 'prediction:z_dot',
-                      'prediction:p_CP', 'agreement:d_c', 'agreement:F_cc']
+                      'prediction:p_CP', 'jackknife:d_c', 'jackknife:F_cc']
     assert len(why) == len(failed)
     assert {f.split(':')[0] for f in failed} <= set(RULES)
     assert 'p_CP' in why[3] and 'z_dot' in why[4] and 'd_c' in why[6] and 'F_cc' in why[7]
 
 
-def test_a_slow_record_without_pressures_is_held_to_the_tighter_agreement():
-    """Below SLOW_RATE_HZ without pressures the halves must agree within SLOW_AGREEMENT."""
-    assert SLOW_AGREEMENT < AGREEMENT and MIN_RATE_HZ < SLOW_RATE_HZ
-    between = 0.5 * (SLOW_AGREEMENT + AGREEMENT)
-    check = _check(disagreement={'F_cc': between, 'r_c': 0.9})
-    why, advice, failed = adequacy(1, 100, 'reduced', '', check, _metrics(),
-                                   rate_hz=MIN_RATE_HZ)
-    assert failed == ['agreement:F_cc']
-    assert f'(limit {100 * SLOW_AGREEMENT:g} %, states at {MIN_RATE_HZ:.0f} Hz without ' \
-        'pressures)' in why[0], why
+def test_a_slow_record_without_pressures_is_judged_on_its_jackknife_not_its_halves():
+    """Below SLOW_RATE_HZ without pressures the jackknife is read, the halves' agreement not."""
+    assert MIN_RATE_HZ < SLOW_RATE_HZ and judged_on_jackknife(MIN_RATE_HZ)
+    apart = _check(disagreement={'F_cc': 2 * AGREEMENT, 'r_c': 0.9})
+    over = _spread_of(F_cc=2 * JACKKNIFE_LIMIT)
+    why, advice, failed = adequacy(1, 100, 'reduced', '', apart, _metrics(),
+                                   rate_hz=MIN_RATE_HZ, spread_of=over)
+    assert failed == ['jackknife:F_cc']
+    assert 'F_cc = 1 to 1.03, the whole 1.05: a standard error of ' \
+        f'{200 * JACKKNIFE_LIMIT:.1f} % (jackknife; limit {100 * JACKKNIFE_LIMIT:g} %, ' \
+        f'states at {MIN_RATE_HZ:.0f} Hz without pressures)' in why[0], why
     assert any('record the chamber pressures' in a and f'or the states at {SLOW_RATE_HZ:.0f} '
                'Hz or faster' in a for a in advice), advice
-    # a faster record that fails the usual limit is not told to record faster
-    _, advice, _ = adequacy(1, 100, 'reduced', '', _check(disagreement={'F_cc': 2 * AGREEMENT}),
-                            _metrics(), rate_hz=2 * SLOW_RATE_HZ)
-    assert any('record the chamber pressures' in a for a in advice), advice
-    assert not any('Hz or faster' in a for a in advice), advice
-    # at SLOW_RATE_HZ (a driver's mean period a little off it), or with pressures (rate inf),
-    # the same halves pass; the null shape is judged by neither limit
-    for rate in (0.99 * SLOW_RATE_HZ, math.inf):
-        assert adequacy(1, 100, 'reduced', '', check, _metrics(), rate_hz=rate) == ([], [], [])
-    assert adequacy(1, 100, 'reduced', '', _check(disagreement={'F_cc': 0.9 * SLOW_AGREEMENT}),
-                    _metrics(), rate_hz=MIN_RATE_HZ) == ([], [], [])
+    assert any('each quarter of the record shows F_cc' in a for a in advice), advice
+    # halves far apart do not fail a slow record whose jackknife is within its limit; the
+    # null shape is not judged, and a standard error that is not a number fails
+    assert adequacy(1, 100, 'reduced', '', apart, _metrics(), rate_hz=MIN_RATE_HZ,
+                    spread_of=_spread_of(F_cc=0.9 * JACKKNIFE_LIMIT)) == ([], [], [])
+    assert adequacy(1, 100, 'reduced', '', apart, _metrics(), rate_hz=MIN_RATE_HZ,
+                    spread_of=_spread_of(F_cc=math.nan))[2] == ['jackknife:F_cc']
+    # a slow record with a held-out check must bring its jackknife
+    with pytest.raises(ValueError, match='judged on its jackknife: pass `spread_of`'):
+        adequacy(1, 100, 'reduced', '', apart, _metrics(), rate_hz=MIN_RATE_HZ)
+
+
+def test_a_faster_record_or_one_with_pressures_is_judged_on_its_halves():
+    assert not judged_on_jackknife(0.99 * SLOW_RATE_HZ)     # a driver's period a hair off
+    apart = _check(disagreement={'F_cc': 2 * AGREEMENT})
+    for rate in (0.99 * SLOW_RATE_HZ, 2 * SLOW_RATE_HZ, math.inf):
+        assert not judged_on_jackknife(rate)
+        _, advice, failed = adequacy(1, 100, 'reduced', '', apart, _metrics(), rate_hz=rate,
+                                     spread_of=_spread_of())
+        assert failed == ['agreement:F_cc']
+        # ... and is not told to record faster
+        assert any('record the chamber pressures' in a for a in advice), advice
+        assert not any('Hz or faster' in a for a in advice), advice
+        assert adequacy(1, 100, 'reduced', '', _check(), _metrics(), rate_hz=rate,
+                        spread_of=_spread_of(F_cc=2 * JACKKNIFE_LIMIT)) == ([], [], [])
+
+
+def test_an_adequate_slow_record_says_its_jackknife_not_its_halves():
+    why = why_adequate(_check(disagreement={'F_cc': 0.3}), _spread_of(F_cc=0.021))
+    assert why.endswith('standard errors within 2.1 % (F_cc, jackknife)'), why
+    assert 'halves agree' not in why
 
 
 def test_halves_that_both_leave_the_whole_for_one_side_say_where_to_refit_it():
@@ -560,3 +614,41 @@ def test_the_second_start_from_the_halves_is_recorded_whether_kept_or_not(
     assert len(said) == int(kept)
     assert j.summary()['restart'] == rec
     assert json.loads(json.dumps(j.summary()['restart'], default=float)) == rec
+
+
+def test_a_slow_record_without_pressures_is_refitted_without_each_quarter(monkeypatch):
+    """
+    ``judge`` runs the jackknife where the verdict reads it, and stops at a refit not valid.
+
+    The sample bag (with pressures) is made to read as a slow record without them
+    (``judged_on_jackknife``), so that its four refits run on a record the test owns.
+    """
+    from ros_ehs.core.identify import estimator
+    from ros_ehs.data.experiments import load_experiment
+    exps = load_experiment(Path(__file__).resolve().parents[1] / 'bags' / 'sample_sine_1hz')
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)
+        r = identify(exps, verdict=False)
+    assert not copy.deepcopy(r).jackknife
+    monkeypatch.setattr(estimator, 'judged_on_jackknife', lambda rate_hz: True)
+    monkeypatch.setattr(estimator, 'restart', lambda a, b, whole: None)
+    j = estimator.judge(copy.deepcopy(r), exps)
+    assert [len(v) for v in j.jackknife['values']] == [len(r.free)] * QUARTERS
+    assert j.jackknife['stderr'] == jackknife(j.jackknife['values'], j.x)['stderr']
+    assert not any(f.startswith('agreement') for f in j.failed)
+    assert j.summary()['jackknife'] == j.jackknife
+    # a refit without one quarter that is not a valid set is a reason of its own
+    real, calls = estimator.identify, []
+
+    def third_invalid(experiments, **kwargs):
+        out = real(experiments, **kwargs)
+        calls.append(out)
+        if len(calls) == 3:         # the two halves, then the record without its first quarter
+            out.params = None
+        return out
+
+    monkeypatch.setattr(estimator, 'identify', third_invalid)
+    j = estimator.judge(copy.deepcopy(r), exps)
+    assert j.failed[-1] == 'jackknife_invalid' and not j.adequate
+    assert 'without its quarter 1 of 4 is not a valid parameter set' in j.inadequacy[-1]
+    assert len(calls) == 3 and not j.jackknife

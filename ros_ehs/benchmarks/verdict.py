@@ -36,7 +36,8 @@ noise): the yardstick, and under ``restarts`` per model what the second start fr
 halves did (:func:`restarts`). ``--fits-out FILE`` also writes each fit as a JSON line: the rig's
 layout, each judged parameter's error, the verdict's reasons and its statistics (the
 held-out check's added residuals and their ratios, the halves' disagreement, the sensed
-signals' noise ratios), so another rule can be tried on the same fits without fitting them again.
+signals' noise ratios, the jackknife of a slow record without pressures), so another rule
+can be tried on the same fits without fitting them again.
 Targets: false alarms at most 5 % of the good fits, no miss, every simplified fit of a rig
 away from Table 1 that is bad caught.
 """
@@ -116,7 +117,7 @@ def _fit(exps, model: str, truth) -> dict:
             'reason': r.inadequacy[0] if r.inadequacy else '',
             'prediction': r.halves.get('prediction', {}), 'wall_s': time.perf_counter() - t0,
             'errors': err, 'reasons': list(r.inadequacy), 'failed': list(r.failed),
-            'held_out': r.halves,
+            'held_out': r.halves, 'jackknife': r.jackknife,
             'status': r.status, 'settled': r.settled, 'restart': restarted,
             'noise_ratio': median_noise_ratios(r.metrics)}
 

@@ -139,7 +139,8 @@ class IdentifyNode(Node):
             weak = result.excitation.get('recommended') is not None
             (log.warning if weak else log.info)(f'excitation: {result.excitation["message"]}')
         if result.adequate:
-            log.info(f'verdict: adequate: {why_adequate(result.halves)}')
+            why = why_adequate(result.halves, result.jackknife)
+            log.info(f'verdict: adequate: {why}')
         else:
             log.error('verdict: NOT ADEQUATE: ' + '; '.join(result.inadequacy))
             for a in result.advice:

@@ -91,7 +91,7 @@ def _print_identification(result, files, held) -> None:
     if result.excitation:
         print(f'  excitation: {result.excitation["message"]}')
     if result.adequate:
-        print(f'  verdict: adequate: {why_adequate(result.halves)}')
+        print(f'  verdict: adequate: {why_adequate(result.halves, result.jackknife)}')
     else:
         print('  verdict: NOT ADEQUATE; do not trust these values:')
         for w in result.inadequacy:

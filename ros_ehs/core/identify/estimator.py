@@ -58,8 +58,10 @@ from ros_ehs.core.identify.experiment import Experiment
 from ros_ehs.core.identify.problem import _fd_jacobian, CELL, FIT_H, LOAD, Problem, SIGNALS
 from ros_ehs.core.identify.uncertainty import BLOCK_S, standard_errors
 from ros_ehs.core.identify.verdict import (adequacy, fit_metrics, halves, halves_check,
-                                           judged_rate, restart, SETTLE_ITERATIONS, SETTLED,
-                                           settled, SMALL_MODEL_ERROR, worst_noise_ratio)
+                                           jackknife, judged_on_jackknife, judged_rate,
+                                           leave_one_out, QUARTERS, restart,
+                                           SETTLE_ITERATIONS, SETTLED, settled,
+                                           SMALL_MODEL_ERROR, worst_noise_ratio)
 from ros_ehs.core.model.plant import MODELS
 from ros_ehs.core.params import ESTIMATED, Params, preset, spec
 from scipy.optimize import least_squares
@@ -155,6 +157,11 @@ class IdentificationResult:
     #: when its start or its end is not a valid set) and ``kept`` (the second fit is the
     #: result); empty when the halves did not point elsewhere
     restart: dict = field(default_factory=dict)
+    #: the jackknife the verdict read instead of the halves' agreement, for a record without
+    #: pressures slower than ``verdict.SLOW_RATE_HZ`` (``verdict.jackknife``: the refits
+    #: without each quarter in turn, ``values``, and each parameter's relative ``stderr``);
+    #: empty for any other record or when the held-out check did not run
+    jackknife: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """Return a JSON-ready summary."""
@@ -175,7 +182,8 @@ class IdentificationResult:
             'stderr_widening': self.stderr_widening, 'settled': self.settled,
             'starts': self.starts,
             'excitation': self.excitation, 'input_delay': self.input_delay,
-            'halves': self.halves, 'restart': self.restart, 'fit': self.metrics,
+            'halves': self.halves, 'restart': self.restart, 'jackknife': self.jackknife,
+            'fit': self.metrics,
             'noise_sigma': self.sigma,
             'warnings': self.warnings,
             'history': self.history,
@@ -542,6 +550,12 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
     whole record's fit had stopped in (seen on records without pressures: the Coulomb
     friction 11-14 % off before and within 5 % after). The halves' check is then read
     against the new values.
+
+    A record without pressures slower than ``verdict.SLOW_RATE_HZ``
+    (``verdict.judged_on_jackknife``) is also refitted without each of its quarters in turn
+    (``verdict.leave_one_out``), warm from the result, and judged on those refits' spread
+    (``verdict.jackknife``) instead of the halves' agreement; a refit that is not a valid set
+    is a reason of its own. It adds four warm refits of three quarters of the record.
     """
     if result.params is None or (result.status == 0 and not result.settled):
         return result
@@ -550,19 +564,26 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
     kwargs = {'free': result.free, 'model': result.model, 'signals': signals,
               'cost': result.cost_kind, 'segment': segment, 'h': h, 'workers': workers,
               'max_nfev': max_nfev, 'warm': True, 'verdict': False}
+
+    def refit(part, base: Params) -> IdentificationResult:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', IdentificationWarning)
+            return identify(part, base=base, **kwargs)
+
+    def not_valid(result: IdentificationResult, what: str, rule: str) -> IdentificationResult:
+        result.adequate = False
+        result.wall_s += time.perf_counter() - t0
+        result.inadequacy.append(f'held out: the fit of {what} is not a valid parameter set: '
+                                 'the data do not determine the values')
+        result.failed.append(rule)
+        return result
+
     parts = halves(experiments)
     refits = []
     for part in parts:
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore', IdentificationWarning)
-            r = identify(part, base=result.params, **kwargs)
+        r = refit(part, result.params)
         if r.params is None:
-            result.adequate = False
-            result.wall_s += time.perf_counter() - t0
-            result.inadequacy.append('held out: the fit of one half of the record is not a '
-                                     'valid parameter set: the data do not determine the values')
-            result.failed.append('half_invalid')
-            return result
+            return not_valid(result, 'one half of the record', 'half_invalid')
         refits.append(r)
     mean = restart(refits[0].x, refits[1].x, result.x)
     if mean is not None:
@@ -596,9 +617,19 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
         return Problem(exps, p, result.free, result.model, signals, segment, step)
 
     result.halves = halves_check(parts, refits, result.x, problem_of)
+    rate_hz = judged_rate(experiments, signals)
+    if judged_on_jackknife(rate_hz):
+        values = []
+        for k, part in enumerate(leave_one_out(experiments)):
+            r = refit(part, result.params)
+            if r.params is None:
+                return not_valid(result, f'the record without its quarter {k + 1} of '
+                                 f'{QUARTERS}', 'jackknife_invalid')
+            values.append(r.x)
+        result.jackknife = jackknife(values, result.x)
     result.inadequacy, result.advice, result.failed = adequacy(
         result.status, max_nfev, result.model, '', result.halves, result.metrics, result.settled,
-        judged_rate(experiments, signals))
+        rate_hz, result.jackknife or None)
     result.adequate = not result.inadequacy
     result.wall_s += time.perf_counter() - t0
     return result

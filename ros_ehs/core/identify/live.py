@@ -299,7 +299,7 @@ class LiveIdentifier:
         wall = time.perf_counter() - t0
         ok = r.adequate and r.success and r.params is not None
         if r.adequate:
-            verdict = f'adequate: {why_adequate(r.halves)}'
+            verdict = f'adequate: {why_adequate(r.halves, r.jackknife)}'
         else:
             verdict = 'not adequate: ' + '; '.join(r.inadequacy)
         if r.adequate and not ok:
