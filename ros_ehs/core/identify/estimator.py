@@ -456,9 +456,12 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     verdict : bool
         Judge the fit on held-out data (default, :func:`judge`): refit each half of the
         record warm from the joint values, replay each half with the other's values, and
-        compare the halves' values. It adds about the time of one warm refit of the whole
-        record. False: judged on convergence, validity and the sensed signals only (the
-        halves' own refits, :func:`multistart`'s, a fit refitted next).
+        compare the halves' values (a record without pressures slower than
+        ``verdict.SLOW_RATE_HZ``: the refits without each quarter, ``verdict.jackknife``).
+        It adds about the time of one warm refit of the whole record, and four warm refits
+        of three quarters of it for such a slow record. False: judged on convergence,
+        validity and the sensed signals only (the halves' own refits, :func:`multistart`'s,
+        a fit refitted next).
     progress : callable, optional
         Called with ``{'iteration', 'cost', 'x'}`` after each iteration.
 

@@ -150,9 +150,10 @@ JACKKNIFE_LIMIT = 0.05
 #: (:func:`halves`), alternately given to the two halves.
 QUARTERS = 4
 
-#: How long before a cut a piece of :func:`halves` is replayed from (its warm-up) [s]. A
-#: record without pressures carries them open-loop, and a piece started mid-motion from the
-#: equilibrium guess replays its first tens of ms with the wrong force on the piston.
+#: How long before a cut a piece of :func:`halves` or :func:`leave_one_out` is replayed from
+#: (its warm-up) [s]. A record without pressures carries them open-loop, and a piece started
+#: mid-motion from the equilibrium guess replays its first tens of ms with the wrong force on
+#: the piston.
 #: Measured on Table 1's reduced model driven by a 2 Hz sine, from three instants: the load
 #: pressure 6-196 bar off at the start, 1.6 mm of position error after 10 ms; after 100 ms
 #: at most 0.13 bar, after 200 ms none.
@@ -662,10 +663,8 @@ def why_adequate(check: dict, spread_of: dict | None = None) -> str:
     if not check:
         return 'not checked on held-out data (verdict=False): converged, a valid set'
     pred = {n: check['prediction'][n] for n in check['judged']}
-    if spread_of:
-        agree = {n: d for n, d in spread_of['stderr'].items() if n not in NULL_SHAPE}
-    else:
-        agree = {n: d for n, d in check['disagreement'].items() if n not in NULL_SHAPE}
+    judged = spread_of['stderr'] if spread_of else check['disagreement']
+    agree = {n: d for n, d in judged.items() if n not in NULL_SHAPE}
     parts = []
     if pred:
         worst = max(pred, key=pred.get)
