@@ -24,7 +24,8 @@ which node uses which topic), :mod:`~ros_ehs_msgs_py.qos` (QoS profiles as plain
 :mod:`~ros_ehs_msgs_py.wire` (the loop's JointStates to and from CDR bytes, the fast path).
 """
 
-from ros_ehs_msgs_py.conversions import (command_from_msg, CYCLE_RECORD, cycles_from_bytes,
+from ros_ehs_msgs_py.conversions import (command_from_msg, CYCLE_RECORD, CYCLE_TAPERED,
+                                         cycles_from_bytes,
                                          CYCLES_LABEL, cycles_to_bytes, empty_msg,
                                          estimate_from_msg, event_from_msg, event_level,
                                          fill_command, fill_estimate, fill_event, fill_load,
@@ -56,7 +57,8 @@ from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr
                                   state_from_cdr, state_to_cdr, wrench_from_cdr)
 
 __all__ = [
-    'CAPTURES', 'CYCLES', 'CYCLE_RECORD', 'CYCLES_LABEL', 'PROCEDURE_EVENTS', 'PROCEDURE_STATUS',
+    'CAPTURES', 'CYCLES', 'CYCLE_RECORD',
+    'CYCLE_TAPERED', 'CYCLES_LABEL', 'PROCEDURE_EVENTS', 'PROCEDURE_STATUS',
     'cycles_from_bytes', 'cycles_to_bytes', 'fill_procedure_event', 'procedure_event_from_msg',
     'JOINT_LOAD', 'LOAD_CELL', 'Load', 'WRENCH_AXES', 'fill_load', 'load_from_cdr',
     'load_from_msg', 'load_to_cdr', 'wrench_from_cdr',

@@ -440,27 +440,33 @@ def statuses_from_msg(msg: Any) -> list[NodeStatus]:
 
 # -- the procedure ------------------------------------------------------------------------------
 #: one cycle's record on ``procedure/cycles`` (little-endian, 40 bytes): count (uint32), step
-#: (uint16), flags (uint16, 0), end stamp [ns] (int64), then float32 command hi, lo [m or N],
-#: z hi, lo [m], load hi, lo [N]
+#: (uint16), flags (uint16: CYCLE_TAPERED), end stamp [ns] (int64), then float32 command hi,
+#: lo [m or N], z hi, lo [m], load hi, lo [N]
 CYCLE_RECORD = struct.Struct('<IHHqffffff')
 CYCLES_LABEL = 'ros_ehs_cycle_v1'
+#: a cycle record's flag: its amplitude was tapering in (a start or a resume)
+CYCLE_TAPERED = 1
 _PROCEDURE_EVENT_KEYS = ('kind', 'what', 'value', 'total_cycles', 'step', 'stamp_ns')
 
 
 def cycles_to_bytes(rows: Sequence[Sequence[float]]) -> bytes:
-    """Pack ``rows`` of (count, step, end_ns, cmd_hi, cmd_lo, z_hi, z_lo, f_hi, f_lo)."""
+    """Pack ``rows`` of (count, step, end_ns, cmd_hi, cmd_lo, z_hi, z_lo, f_hi, f_lo[, flags])."""
     pack = CYCLE_RECORD.pack
-    return b''.join(pack(int(r[0]), int(r[1]), 0, int(r[2]), *map(float, r[3:9]))
-                    for r in rows)
+    return b''.join(pack(int(r[0]), int(r[1]), int(r[9]) if len(r) > 9 else 0, int(r[2]),
+                         *map(float, r[3:9])) for r in rows)
 
 
 def cycles_from_bytes(data: bytes) -> list[tuple]:
-    """Unpack records of :data:`CYCLE_RECORD`; ValueError when the length is not whole records."""
+    """
+    Unpack records of :data:`CYCLE_RECORD` as (count, step, end_ns, 6 extremes, flags).
+
+    ValueError when the length is not whole records.
+    """
     n, rest = divmod(len(data), CYCLE_RECORD.size)
     if rest:
         raise ValueError(f'procedure/cycles: {len(data)} bytes is not a whole number of '
                          f'{CYCLE_RECORD.size}-byte cycle records')
-    return [(c, st, ns, *v) for c, st, _, ns, *v in CYCLE_RECORD.iter_unpack(bytes(data))]
+    return [(c, st, ns, *v, fl) for c, st, fl, ns, *v in CYCLE_RECORD.iter_unpack(bytes(data))]
 
 
 def fill_procedure_event(msg: Any, stamp: int, level: int, kind: str, what: str, value: float,

@@ -120,7 +120,8 @@ PROCEDURE_EVENTS = Topic(
 CYCLES = Topic(
     'procedure/cycles', 'std_msgs/msg/UInt8MultiArray',
     'the extremes of every counted cycle, packed: records of CYCLE_RECORD (40 bytes: count, '
-    'step, flags, end stamp [ns], command hi/lo [m or N], z hi/lo [m], load hi/lo [N]), '
+    'step, flags (1: tapered), end stamp [ns], command hi/lo [m or N], z hi/lo [m], load '
+    'hi/lo [N]), '
     'a batch a message; layout.dim[0] label `ros_ehs_cycle_v1`, size the records, stride 40',
     EVENTS_QOS)
 CAPTURES = Topic(

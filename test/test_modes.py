@@ -155,20 +155,58 @@ def test_a_non_finite_load_in_displacement_is_no_fault():
     assert ax.events == [] and not ax.fault and ax.supervisor.tripped() == []
 
 
-def test_an_interlocks_hold_in_force_control_is_in_displacement_and_force_returns_after_reset():
+def test_an_interlocks_hold_in_force_control_holds_the_load_it_tripped_at_in_force():
     ax = _axis(control_mode='force', limit_load_max=2000.0, limit_load_max_action='hold')
     _step(ax, 0, load=1500.0, f_traj=1500.0)
     _step(ax, 1, z=2e-4, load=2100.0, f_traj=2500.0)
     assert [(e.kind, e.detector) for e in ax.events] == [('trip', 'limit_load_max')]
-    assert ax.driving == 'displacement' and ax.demand.mode == 'hold'
+    # the load cell is sound: the force loop holds the load of the trip, not the reference
+    assert ax.driving == 'force' and ax.demand.mode == 'hold'
+    assert ax.force.target == 2100.0 and ax.force.last_ff == 0.0     # no rate fed
+    _step(ax, 2, z=2e-4, load=2080.0, f_traj=2600.0)
+    assert ax.force.target == 2100.0
     assert ax.mode == 'force'                       # an ordinary trip keeps the mode
     ok, why, _ = ax.supervisor.reset(2 * MS, 2e-4, load=1950.0)     # hysteresis: 5 %
     assert not ok and 'limit_load_max (load = 1950 N' in why
     ok, why, _ = ax.supervisor.reset(2 * MS, 2e-4, load=1900.0)
     assert ok, why
     _step(ax, 3, z=2e-4, load=1500.0, f_traj=1500.0)
-    assert ax.driving == 'force'                    # back, blended from the measured load
-    assert ax.force.target == 1500.0
+    assert ax.driving == 'force' and ax.force.target == 1500.0
+
+
+def test_a_hold_the_axis_does_not_obey_turns_the_hydraulics_off():
+    """
+    A stuck valve: the load runs on from the one held.
+
+    Past hold_error_force for longer than hold_error_time, hold_error latches power off (0 A).
+    """
+    ax = _axis(control_mode='force', limit_load_max=2000.0, limit_load_max_action='hold',
+               hold_error_force=500.0, hold_error_time=0.005)
+    _step(ax, 0, load=1500.0, f_traj=1500.0)
+    _step(ax, 1, z=2e-4, load=2100.0, f_traj=2500.0)            # held at 2100 N
+    # 100 N more each period: beyond 500 N from k = 7 on, for more than 5 ms at k = 12
+    for k in range(2, 12):
+        assert _step(ax, k, z=2e-4, load=2100.0 + 100.0 * (k - 1), f_traj=2500.0) != 0.0
+        assert ax.supervisor.tripped() == ['limit_load_max'], k
+    assert _step(ax, 12, z=2e-4, load=3200.0, f_traj=2500.0) == 0.0
+    assert ax.supervisor.tripped() == ['limit_load_max', 'hold_error']
+    assert ax.supervisor.action == 'power_off' and 'does not hold' in ax.events[0].message
+
+
+def test_a_frozen_load_cell_under_force_control_holds_where_it_last_read_true():
+    ax = _axis(control_mode='force', k_L=1.0e7, load_frozen_force=200.0)
+    _step(ax, 0, z=1.0e-4, load=1000.0, f_traj=1000.0)
+    for k in range(1, 4):          # the reading repeats while the piston moves 10 um a period
+        _step(ax, k, z=1.0e-4 + 1.0e-5 * k, load=1000.0, f_traj=1500.0)
+    # k_L times 30 um is 300 N > 200 N (20 um: 200 N, not above): tripped on the third
+    assert ax.supervisor.tripped() == ['load_feedback']
+    assert 'frozen' in ax.events[0].message and ax.mode == 'displacement'
+    assert ax.demand.mode == 'hold' and ax.demand.z_ref == pytest.approx(1.0e-4)
+    # exactly 0 N (a simulated broken specimen's cell) is left to the break detector
+    ax = _axis(control_mode='force', k_L=1.0e7)
+    for k in range(6):
+        _step(ax, k, z=1.0e-4 * k, load=0.0, f_traj=0.0)
+    assert ax.supervisor.tripped() == []
 
 
 def test_specimen_protect_keeps_a_move_into_a_stiff_specimen_under_its_limit():
@@ -214,6 +252,8 @@ def test_a_break_in_force_control_ends_held_in_displacement_within_its_bound(kin
     assert 0 < travel <= break_travel(p, peak, 1e-3)
     assert np.max(np.abs(run.z_dot[-200:])) < 1e-3            # held: the loop settles it
     # without the detector the force loop runs the piston away, towards its end stop
-    run = run_axis(p.replace(specimen_break_action='off', load_feedback_action='off'), 3.0,
+    # (and without the force error's and the hold's, which catch it too)
+    run = run_axis(p.replace(specimen_break_action='off', load_feedback_action='off',
+                             limit_force_error_action='off', hold_error_action='off'), 3.0,
                    lambda t: _force(t, 5.5e3 + 4.5e3 * math.sin(2 * math.pi * 5 * t)))
     assert np.max(np.abs(run.z)) > 0.05

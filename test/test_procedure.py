@@ -14,7 +14,7 @@ import pytest
 from ros_ehs.core.errors import DataError, InputError
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import preset
-from ros_ehs.core.procedure.detectors import Cycle, FailureDetector
+from ros_ehs.core.procedure.detectors import Cycle, FailureDetector, TAPERED
 from ros_ehs.core.procedure.runner import capture_counts, ProcedureRunner
 from ros_ehs.core.procedure.spec import load_procedure, parse_procedure
 from ros_ehs.core.sim.virtual_test import model_trip_cycle, run_procedure
@@ -135,7 +135,11 @@ def test_a_cyclic_step_counts_its_cycles_exactly_and_ends_at_its_count():
     assert [c.count for c in cycles] == list(range(1, 21))
     # the ramp takes 0.1 s, the cycles 2 s: the last cycle ends exactly 2.1 s after the start
     assert cycles[-1].end_ns == T0 + 2100 * MS
-    for c in cycles:        # a perfect axis: the extremes are the sine's (sampled at 1 kHz)
+    # the first 3 tapered in (flagged), within the levels, growing
+    assert [c.flags for c in cycles] == [TAPERED] * 3 + [0] * 17
+    assert all(0.001 <= c.z_lo < c.z_hi <= 0.003 for c in cycles[:3])
+    assert cycles[0].z_hi < cycles[1].z_hi < cycles[2].z_hi
+    for c in cycles[3:]:    # a perfect axis: the extremes are the sine's (sampled at 1 kHz)
         assert c.z_hi == pytest.approx(0.003, abs=1e-9) and c.z_lo == pytest.approx(
             0.001, abs=1e-9)
         assert c.stiffness == pytest.approx(K, rel=1e-9)
@@ -195,11 +199,13 @@ def test_block_loading_counts_each_blocks_cycles_at_its_levels():
     r, ax = started(p)
     ax.run(until=finished)
     assert r.total == 10
-    # the first cycle leads in from 0 (the measured position); then 3 + 2 a pass, each at
-    # its block's peak; a block's first cycle starts where the last one ended (its valley)
+    # the mean from 0 (the measured position), 3 cycles tapered in inside the first block's
+    # levels; then 3 + 2 a pass, each at its block's peak; a block's first cycle starts
+    # where the last one ended (its valley)
     order = ([blocks[0]] * 3 + [blocks[1]] * 2) * 2
-    prev = 0.0
-    for c, b in zip(r.cycles[1:], order[1:]):
+    assert all(0.001 - 1e-9 <= c.z_lo and c.z_hi <= 0.003 + 1e-9 for c in r.cycles[:3])
+    prev = blocks[0][1]
+    for c, b in zip(r.cycles[3:], order[3:]):
         assert c.z_hi == pytest.approx(b[0], abs=1e-9), (c, b)
         assert min(b[1], prev) - 1e-9 <= c.z_lo <= b[1] + 1e-4, (c, b)
         prev = b[1]
@@ -307,7 +313,7 @@ def test_the_run_out_ends_the_test_at_its_count():
 
 
 def test_a_time_end_condition_ends_the_step_and_a_level_crossing_too():
-    p = proc({**CYCLIC, 'count': 0, 'end': [{'time': 0.55}]},
+    p = proc({**CYCLIC, 'count': 0, 'end': [{'time': 0.55}], 'mean_rate': 0.1},
              {'name': 'away', 'type': 'ramp', 'to': 0.01, 'rate': 0.01,
               'end': [{'level': {'signal': 'position', 'above': 0.004}}]})
     r, ax = started(p)
@@ -468,8 +474,8 @@ def test_fitted_stiffness_drop_judges_adequate_fits_beyond_their_standard_errors
 
 @pytest.mark.parametrize('observe', [False, True])
 def test_a_fitted_stiffness_drop_fails_the_running_test_at_the_count_it_came(observe):
-    step = {**CYCLIC, 'count': 0, 'end': [{'fitted_stiffness_drop': {
-        'settling': 2, 'reference': 1, 'persist': 1}}]}
+    step = {**CYCLIC, 'count': 0, 'taper': 1, 'end': [{'fitted_stiffness_drop': {
+        'settling': 1, 'reference': 1, 'persist': 1}}]}     # the tapered cycle not judged
     p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.02}, step)
     assert p.ends_on('fitted_stiffness_drop') and not p.ends_on('stiffness_drop')
     r, ax = started(p, observe=observe)
@@ -497,7 +503,7 @@ FATIGUE = {'name': 'coupon', 'control_mode': 'force', 'run_out': 5000, 'steps': 
     {'name': 'preload', 'type': 'ramp', 'to': 5500.0, 'rate': 2.0e4},
     {'name': 'settle', 'type': 'dwell', 'time': 0.2},
     {'name': 'fatigue', 'type': 'cyclic', 'waveform': 'sine', 'mean': 5500.0,
-     'amplitude': 4500.0, 'frequency': 10.0,
+     'amplitude': 4500.0, 'frequency': 10.0, 'taper': 1,
      'end': [{'stiffness_drop': {'drop': 0.10}}, {'peak_valley_change': {'tolerance': 0.05}}]}]}
 
 
@@ -520,7 +526,8 @@ def test_a_virtual_test_trips_its_detectors_where_the_specimen_model_meets_them(
     peak, valley = np.median(table[:, 6]), np.median(table[:, 7])
     sp = Specimen(p)
     for e in parse_procedure(FATIGUE).steps[2].end:
-        model = model_trip_cycle(sp, e.kind, e.values, peak, valley)
+        model = model_trip_cycle(sp, e.kind, e.values, peak, valley,
+                                 taper=parse_procedure(FATIGUE).steps[2]['taper'])
         why = (e.kind, r.tripped, model)
         assert abs(r.tripped[e.kind] - model) <= max(1.0, 0.01 * model), why
 
@@ -623,3 +630,22 @@ def test_ehs_sim_procedure_prints_what_the_rig_would_do(tmp_path, capsys):
     f.write_text('steps: []\n')
     assert main(['procedure', str(f)]) == 2
     assert 'steps' in capsys.readouterr().err
+
+
+def test_a_tapered_cycle_is_flagged_alike_in_the_core_and_on_the_wire():
+    from ros_ehs_msgs_py import CYCLE_TAPERED, cycles_from_bytes, cycles_to_bytes
+    assert TAPERED == CYCLE_TAPERED
+    rows = [(1, 0, 5, 1.0, 0.0, 1.0, 0.0, 2.0, 1.0, TAPERED), (2, 0, 6, 1.0, 0.0, 1.0, 0.0, 2.0,
+                                                               1.0)]
+    back = cycles_from_bytes(cycles_to_bytes(rows))
+    assert [r[-1] for r in back] == [TAPERED, 0] and [r[0] for r in back] == [1, 2]
+
+
+def test_a_stiffness_reference_without_stiffness_judges_nothing():
+    """A frozen load cell gave the reference cycles no load range: no division by zero."""
+    d = FailureDetector('stiffness_drop', {'drop': 0.1, 'settling': 0, 'reference': 1,
+                                           'persist': 1}, 'force')
+    assert not d.cycle(Cycle(1, 0, 0, 1.0, 0.0, 0.002, 0.001, 5.0e3, 5.0e3))
+    assert d.reference['stiffness'] == 0.0
+    assert not d.cycle(Cycle(2, 0, 0, 1.0, 0.0, 0.002, 0.001, 9.0e3, 1.0e3))
+    assert math.isnan(d.last_value)

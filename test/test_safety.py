@@ -54,13 +54,17 @@ def test_a_limit_trips_above_it_not_at_it_and_reports_once(det, field, limit, in
     assert sup.tripped() == [det] and sup.counts[det] == 1
 
 
-def test_an_off_detector_never_trips_and_only_the_feedback_and_specimen_ones_are_on():
+def test_an_off_detector_never_trips_and_the_protecting_ones_are_on_by_default():
     cfg = SafetyConfig()
+    # on by default: the feedback, the position limits (inside the stroke), the load limits,
+    # the force error, the specimen's break, the load cell, a hold not obeyed
     assert {d: cfg.action(d) for d in DETECTORS} == {
         **dict.fromkeys(DETECTORS, 'off'), 'feedback': 'power_off', 'specimen_break': 'hold',
-        'load_feedback': 'hold'}
+        'load_feedback': 'hold', 'limit_position_max': 'hold', 'limit_position_min': 'hold',
+        'limit_load_max': 'hold', 'limit_load_min': 'hold', 'limit_force_error': 'hold',
+        'hold_error': 'power_off'}
     assert cfg.actions == SafetyConfig.from_params(Params()).actions
-    sup = Supervisor(SafetyConfig(ramp_time=0.0))
+    sup = Supervisor(SafetyConfig(ramp_time=0.0, actions={}))      # every action off
     d, ev = _feed(sup, 0, z=5.0, z_dot=50.0, force=1e7)
     assert ev == [] and d.power
 
@@ -368,7 +372,8 @@ def test_an_absurd_finite_position_gives_a_defined_state_not_an_exception():
     ax = AxisController(Params(), 1e-3)
     i = ax.step(0, 1e300, math.nan, math.nan, 0.0, 0.0)     # ramp-on starts at that position
     i = ax.step(MS, 1e300, math.nan, math.nan, 0.0, 0.0)
-    assert i == 0.0 and ax.ctrl.fault                     # the PID's policy: 0 A, fault
+    # the position limit (on by default) holds it, and the hold's command is finite
+    assert i == 0.0 and ax.supervisor.tripped() == ['limit_position_max']
     for k in range(2, 1200):            # the sensor recovers; the ramp-on ends at 1 s
         i = ax.step(k * MS, 0.0, 0.0, 0.0, 0.0, 0.0)
     assert math.isfinite(i) and not ax.ctrl.fault

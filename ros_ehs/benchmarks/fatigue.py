@@ -105,7 +105,8 @@ def _failure(life: float) -> dict:
     sp = Specimen(p)
     out = {}
     for e in proc.steps[2].end:
-        model = model_trip_cycle(sp, e.kind, e.values, peak, valley)
+        model = model_trip_cycle(sp, e.kind, e.values, peak, valley,
+                                 taper=proc.steps[2]['taper'])
         det = r.tripped.get(e.kind)
         out[e.kind] = {'detected': det, 'model': model,
                        'rel_diff': round((det - model) / model, 5) if det else None}

@@ -262,10 +262,10 @@ def _action(detector: str, default: str, what: str) -> ParamSpec:
 SAFETY_SPECS: tuple[ParamSpec, ...] = (
     _p('limit_position_max', 'm', 0.095, -2.0, 2.0, 'upper position limit: trips above it',
        'safety', 'I'),
-    _action('limit_position_max', 'off', 'upper position limit'),
+    _action('limit_position_max', 'hold', 'upper position limit'),
     _p('limit_position_min', 'm', -0.095, -2.0, 2.0, 'lower position limit: trips below it',
        'safety', 'I'),
-    _action('limit_position_min', 'off', 'lower position limit'),
+    _action('limit_position_min', 'hold', 'lower position limit'),
     _p('limit_velocity', 'm/s', 1.0, 1.0e-4, 10.0, 'speed limit: trips when |z_dot| is above '
        'it (z_dot measured, or differenced from the position)', 'safety', 'I'),
     _action('limit_velocity', 'off', 'speed limit'),
@@ -301,10 +301,10 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
     # the specimen's detectors (the load cell, the displacement from its installed position z_L)
     _p('limit_load_max', 'N', 1.0e5, -1.0e7, 1.0e7, 'upper load limit: trips when the load '
        'cell reads above it', 'safety', 'I'),
-    _action('limit_load_max', 'off', 'upper load limit'),
+    _action('limit_load_max', 'hold', 'upper load limit'),
     _p('limit_load_min', 'N', -1.0e5, -1.0e7, 1.0e7, 'lower load limit: trips when the load '
        'cell reads below it', 'safety', 'I'),
-    _action('limit_load_min', 'off', 'lower load limit'),
+    _action('limit_load_min', 'hold', 'lower load limit'),
     _p('limit_specimen_max', 'm', 0.01, -2.0, 2.0, 'upper specimen limit: trips when the '
        'displacement from the installed position, z - z_L, is above it', 'safety', 'I'),
     _action('limit_specimen_max', 'off', 'upper specimen displacement limit'),
@@ -313,7 +313,7 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
     _action('limit_specimen_min', 'off', 'lower specimen displacement limit'),
     _p('limit_force_error', 'N', 2.0e3, 1.0e-3, 1.0e7, 'force control: trips when |F_ref - F| '
        'is above it for longer than limit_error_time', 'safety', 'I'),
-    _action('limit_force_error', 'off', 'force tracking error'),
+    _action('limit_force_error', 'hold', 'force tracking error'),
     _p('break_drop', 'N', 1.0e3, 1.0, 1.0e7, 'specimen break: the load magnitude falls by more '
        'than this within break_window...', 'safety', 'I'),
     _p('break_travel', 'm', 1.0e-4, 1.0e-6, 0.1, '...while the piston moves more than this '
@@ -322,9 +322,19 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
        'travel are judged over', 'safety', 'D'),
     _action('specimen_break', 'hold', 'specimen break (the force collapses while the piston '
             'runs away; with hold or more, force control ends: displacement from then on)'),
+    _p('load_frozen_force', 'N', 200.0, 1.0, 1.0e7, 'load cell frozen: its reading repeats '
+       'while the piston moves far enough to change the load by more than this (k_L times '
+       'the travel; needs k_L)', 'safety', 'D'),
     _action('load_feedback', 'hold', 'load cell validity under force control and specimen '
-            'protect (non-finite, missing or stale; with hold or more, displacement from '
-            'then on)'),
+            'protect (non-finite, missing, stale or frozen; with hold or more, displacement '
+            'from then on, held where the reading was last true)'),
+    _p('hold_error_position', 'm', 1.0e-3, 1.0e-6, 1.0, 'a hold not obeyed: the piston more '
+       'than this from the position held...', 'safety', 'D'),
+    _p('hold_error_force', 'N', 1.0e3, 1.0e-3, 1.0e7, '...or, held in force control, the load '
+       'more than this from the load held...', 'safety', 'D'),
+    _p('hold_error_time', 's', 0.02, 0.0, 10.0, '...for longer than this (a stuck valve)',
+       'safety', 'D'),
+    _action('hold_error', 'power_off', 'hold not obeyed'),
 )
 
 ALL_SPECS: tuple[ParamSpec, ...] = PLANT_SPECS + CONTROL_SPECS + SAFETY_SPECS
@@ -368,6 +378,12 @@ def _check_cross(v: Mapping[str, float | str]) -> None:
         raise ParameterError(f"parameter `limit_position_min` = {v['limit_position_min']!r} m "
                              'must be below `limit_position_max` = '
                              f"{v['limit_position_max']!r} m")
+    for lim in ('limit_position_min', 'limit_position_max'):
+        if lim in v and 'stroke' in v and v.get(lim + '_action', 'off') != 'off' and \
+                not abs(v[lim]) < v['stroke']:
+            raise ParameterError(f'parameter `{lim}` = {v[lim]!r} m must be inside the stroke '
+                                 f"(+-{v['stroke']!r} m) while it acts (its action "
+                                 f"{v[lim + '_action']!r}): the end stop would come first")
     for lo, hi, unit in (('limit_load_min', 'limit_load_max', 'N'),
                          ('limit_specimen_min', 'limit_specimen_max', 'm')):
         if lo in v and hi in v and not v[lo] < v[hi]:

@@ -39,7 +39,7 @@ __all__ = ['CYCLE_COLUMNS', 'FatigueReport', 'read_captures', 'read_cycles',
 
 #: the cycle table's columns
 CYCLE_COLUMNS = ('count', 'step', 'end_s', 'cmd_hi', 'cmd_lo', 'z_hi', 'z_lo', 'load_hi',
-                 'load_lo')
+                 'load_lo', 'flags')
 _CYCLES = '/' + contract.CYCLES.name
 _CAPTURES = '/' + contract.CAPTURES.name
 _EVENTS = '/' + contract.PROCEDURE_EVENTS.name
@@ -63,7 +63,7 @@ def _cycles(msgs) -> np.ndarray:
     for msg in msgs:
         for r in contract.cycles_from_bytes(bytes(msg.data)):
             rows.setdefault(r[0], r)
-    out = np.array([rows[k] for k in sorted(rows)], float).reshape(-1, 9)
+    out = np.array([rows[k] for k in sorted(rows)], float).reshape(-1, len(CYCLE_COLUMNS))
     out[:, 2] *= 1e-9
     return out
 
@@ -79,7 +79,7 @@ def _captures(msgs) -> list[dict]:
 
 
 def read_cycles(bags: str | os.PathLike | Sequence) -> np.ndarray:
-    """Return the cycle table of ``bags`` (n x 9, :data:`CYCLE_COLUMNS`), each count once."""
+    """Return the cycle table of ``bags`` (n x 10, :data:`CYCLE_COLUMNS`), each count once."""
     return _cycles(_decoded(bags, [_CYCLES])[_CYCLES])
 
 

@@ -317,7 +317,7 @@ class ProcedureNode(Node):
         r = self.runner
         if r.cycles:
             self._rows.extend((c.count, c.step, c.end_ns, c.cmd_hi, c.cmd_lo, c.z_hi, c.z_lo,
-                               c.f_hi, c.f_lo) for c in r.cycles)
+                               c.f_hi, c.f_lo, c.flags) for c in r.cycles)
             r.cycles.clear()
         # in batches (a message carries ~48 bytes besides its records), and at a state change
         # but 'interrupted': the records not yet out are in the checkpoint, rewritten at every

@@ -136,6 +136,12 @@ class ForceLoop:
         self._prev = None
         self.target = float(load)
 
+    def hold(self, load: float) -> None:
+        """Hold ``load`` [N] from now on (a fault's hold): the target steps, no rate to feed."""
+        self._blend = 0.0
+        self._hold = float(load)
+        self._prev = None
+
     def reference(self, stamp_ns: int, f_traj: float) -> float:
         """Return the force to track at ``stamp_ns``: the blend into ``f_traj`` [N]."""
         f_ref = f_traj if math.isfinite(f_traj) else self._hold

@@ -41,7 +41,15 @@ Detectors (``ros_ehs.core.params.SAFETY_SPECS`` holds their limits and actions):
                         ``break_drop`` while the piston moved more than ``break_travel`` the
                         way that would have loaded the specimen more: its force path is lost
 ``load_feedback``       force control or specimen protect (``needs_load``): the load cell
-                        non-finite, missing or stale
+                        non-finite, missing or stale; or frozen: its reading repeated while
+                        the piston moved far enough to change the load by more than
+                        ``load_frozen_force`` (``k_L`` times the travel since the reading last
+                        changed; a reading of exactly 0 N is not judged: a simulated broken
+                        specimen's); a hold then holds the position where it last changed
+``hold_error``          a hold the axis does not obey: the piston more than
+                        ``hold_error_position`` from the held position (or, held in force
+                        control, the load more than ``hold_error_force`` from the held load)
+                        for longer than ``hold_error_time`` (:meth:`Supervisor.judge_hold`)
 =====================  ======================================================================
 
 Edge-case policy (each branch tested in ``test/test_safety.py``):
@@ -101,19 +109,20 @@ __all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'SafetyConfig', 'Superviso
 DETECTORS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
              'limit_error', 'feedback', 'saturation', 'limit_load_max', 'limit_load_min',
              'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'specimen_break',
-             'load_feedback')
+             'load_feedback', 'hold_error')
 _SEVERITY = {a: k for k, a in enumerate(ACTIONS)}
 UNITS = {'limit_position_max': 'm', 'limit_position_min': 'm', 'limit_velocity': 'm/s',
          'limit_force': 'N', 'limit_error': 'm', 'feedback': '', 'saturation': 's',
          'limit_load_max': 'N', 'limit_load_min': 'N', 'limit_specimen_max': 'm',
          'limit_specimen_min': 'm', 'limit_force_error': 'N', 'specimen_break': 'N',
-         'load_feedback': ''}
+         'load_feedback': '', 'hold_error': ''}
 _NUMBERS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
             'limit_error', 'limit_error_time', 'feedback_timeout', 'frozen_periods',
             'frozen_current', 'limit_saturation_time', 'limit_hysteresis', 'safe_position',
             'safe_velocity', 'ramp_time', 'limit_load_max', 'limit_load_min',
             'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'break_drop',
-            'break_travel', 'break_window', 'z_L')
+            'break_travel', 'break_window', 'z_L', 'k_L', 'load_frozen_force',
+            'hold_error_position', 'hold_error_force', 'hold_error_time')
 #: the pairs of limits whose hysteresis is a fraction of their span
 _PAIRS = {'limit_position_max': ('limit_position_min', 'limit_position_max', 1),
           'limit_position_min': ('limit_position_min', 'limit_position_max', -1),
@@ -150,6 +159,11 @@ class SafetyConfig:
     break_travel: float = 1.0e-4
     break_window: float = 0.02
     z_L: float = 0.0
+    k_L: float = 0.0
+    load_frozen_force: float = 200.0
+    hold_error_position: float = 1.0e-3
+    hold_error_force: float = 1.0e3
+    hold_error_time: float = 0.02
     actions: Mapping[str, str] = field(default_factory=lambda: {
         d: spec(d + '_action').default for d in DETECTORS})
 
@@ -184,7 +198,8 @@ class SafetyConfig:
         """Return the limit a detector compares with, in its unit (feedback: the timeout)."""
         return {'limit_error': self.limit_error, 'feedback': self.feedback_timeout,
                 'saturation': self.limit_saturation_time, 'specimen_break': self.break_drop,
-                'load_feedback': math.nan}.get(detector, getattr(self, detector, math.nan))
+                'load_feedback': math.nan, 'hold_error': self.hold_error_time,
+                }.get(detector, getattr(self, detector, math.nan))
 
 
 class Demand(NamedTuple):
@@ -301,6 +316,10 @@ class Supervisor:
         self._last_stamp: int | None = None
         self._same = 0
         self._last_ref = math.nan
+        self._load_last = math.nan      # the load cell's last reading [N]
+        self._load_same = 0             # periods it has repeated
+        self._z_load = math.nan         # the position when it last changed [m]
+        self._hold_at = math.nan        # where a hold holds instead of the measured position
 
     def restart(self) -> None:
         """Forget the run (a new epoch): ramp on again at the next state; latches stay."""
@@ -435,6 +454,23 @@ class Supervisor:
             if d < cfg.limit_specimen_min:
                 self._check('limit_specimen_min', True, stamp_ns, d, '', events)
         win = self._window
+        # a reading that repeats while the piston moves (exactly 0 N is what a simulated
+        # specimen's cell reads once it has broken: left to the break detector)
+        if load == self._load_last and load != 0.0:
+            self._load_same += 1
+            moved = cfg.k_L * abs(z - self._z_load)
+            if needs_load and powered and self._mode == 'run' and self._load_same >= 2 and \
+                    moved > cfg.load_frozen_force and self._check(
+                        'load_feedback', True, stamp_ns, load,
+                        f'load_feedback: the load cell read {load:.6g} N for {self._load_same} '
+                        f'periods while the piston moved {abs(z - self._z_load) * 1e3:.4g} mm '
+                        f'(k_L times it: {moved:.4g} N, above {cfg.load_frozen_force:g} N): '
+                        'frozen', events):
+                self._hold_at = self._z_load      # where the reading was last true
+        else:
+            self._load_same = 0
+            self._load_last = load
+            self._z_load = z
         if not (math.isfinite(load) and math.isfinite(z)):
             win.clear()
             self._win_max.clear()
@@ -515,6 +551,29 @@ class Supervisor:
                         f'{t:.6g} s', events)
         return events
 
+    def judge_hold(self, stamp_ns: int, e: float, force: bool) -> list[Event]:
+        """
+        Judge a hold's error ``e`` of this period; return its events.
+
+        ``e``: the held position less the measured [m], or, held in force control
+        (``force``), the held load less the measured [N]. Call it once per period while
+        the axis holds; past its limit for longer than
+        ``hold_error_time`` it latches ``hold_error`` (power off by default: a stuck valve).
+        """
+        cfg = self.config
+        events: list[Event] = []
+        lat = self.latches['hold_error']
+        limit = cfg.hold_error_force if force else cfg.hold_error_position
+        bad = math.isfinite(e) and abs(e) > limit
+        lat.count = lat.count + 1 if bad else 0
+        if bad and lat.count * self.dt > cfg.hold_error_time:
+            unit = 'N' if force else 'm'
+            self._check('hold_error', True, stamp_ns, e,
+                        f'hold_error: the axis does not hold: {abs(e):.6g} {unit} from the held '
+                        f'{"load" if force else "position"} (limit {limit:g} {unit}) for '
+                        f'{lat.count * self.dt:.6g} s', events)
+        return events
+
     def _check(self, det: str, cond: bool, stamp_ns: int, value: float, why: str,
                events: list[Event]) -> bool:
         """Latch ``det`` if ``cond`` and its action is not off; return True on a new trip."""
@@ -556,7 +615,9 @@ class Supervisor:
             return Demand('power_off', math.nan, 0.0, False)
         if self._mode in ('hold', 'stop'):
             if not math.isfinite(self._hold_z):     # the period of the trip: start here
-                self._hold_z = z if math.isfinite(z) else self._last_ref
+                self._hold_z = self._hold_at if math.isfinite(self._hold_at) else \
+                    z if math.isfinite(z) else self._last_ref
+                self._hold_at = math.nan
                 self._ramp_pending = True           # after a reset: ramp on from there
             if self._mode == 'stop':
                 step = cfg.safe_velocity * self.dt
@@ -668,6 +729,8 @@ class Supervisor:
             s.tripped = False
             s.count = 0
         self._same = 0
+        self._load_same = 0
+        self._hold_at = math.nan
         self._window.clear()
         self._win_max.clear()
         self._win_zlo.clear()

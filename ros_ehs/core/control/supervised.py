@@ -38,6 +38,14 @@ refused, is an event (kind ``mode`` or ``mode_refused``). A trip of ``specimen_b
 ``load_feedback`` whose action holds or more ends force control: the mode becomes
 ``displacement`` (an event), and force control comes back only by a switch.
 
+**A fault's hold keeps the load where it was.** A detector whose action holds, tripping in
+force control while the load cell is sound (a load limit, a force error), holds the load
+measured at the trip with the force loop; one that ends force control (the load cell lost or
+frozen, a break) holds the piston where it was, in displacement, the displacement loop
+starting from rest (no command carried over from the force loop, which would drive the piston
+on: the valve closes). A hold the axis does not obey (a stuck valve) trips ``hold_error``
+(:meth:`~ros_ehs.core.control.safety.Supervisor.judge_hold`), power off by default.
+
 A displacement loop whose reference carries a force but no position (NaN: a force reference)
 holds the position measured when that began; a reference with neither is bad input (the
 PID's policy: 0 A and ``fault``).
@@ -75,6 +83,7 @@ class AxisController:
         self.blend_time = float(params['mode_blend_time'])
         self._z_hold = math.nan           # the position held without a position reference
         self._measured = (math.nan, math.nan)    # the newest (z, load)
+        self._f_hold = math.nan           # the load a hold in force control holds [N]
 
     @property
     def output(self) -> float:
@@ -116,6 +125,7 @@ class AxisController:
         self.driving = None
         self.limited = False
         self._z_hold = math.nan
+        self._f_hold = math.nan
 
     # -- modes -------------------------------------------------------------------------------
     def check_mode(self, mode: str, load_ok: bool) -> str:
@@ -180,28 +190,50 @@ class AxisController:
             if self.driving is not None or self.ctrl.pid.prev_error is not None:
                 self._rest()
             return 0.0
-        want = 'force' if (self.mode == 'force' and d.mode in ('run', 'ramp')) else \
-            'displacement'
+        if d.mode == 'hold' and self.mode == 'force' and math.isfinite(load):
+            if not math.isfinite(self._f_hold):     # the trip's period: hold its load
+                self._f_hold = load
+                self.force.hold(load)
+            f_traj = math.nan                       # the loop holds what hold() gave it
+            want = 'force'
+        else:
+            self._f_hold = math.nan
+            want = 'force' if (self.mode == 'force' and d.mode in ('run', 'ramp')) else \
+                'displacement'
         if want != self.driving:
-            self._handover(want, stamp_ns, z, load, d.mode == 'ramp')
+            self._handover(want, stamp_ns, z, load, d.mode == 'ramp',
+                           rest=d.mode in ('hold', 'stop'))
+        if d.mode == 'hold':
+            force_hold = want == 'force'
+            e = (self._f_hold - load) if force_hold else (d.z_ref - z)
+            new = sup.judge_hold(stamp_ns, e, force_hold)
+            if new:
+                events.extend(new)
+                d = self.demand = sup.demand_for(stamp_ns, z, z_traj, v_traj)
+                if not d.power:
+                    self._rest()
+                    return 0.0
         if want == 'force':
             i = self.force.step(stamp_ns, load, f_traj, z)
+            if d.mode == 'hold':
+                return i
             new = sup.judge_force_error(stamp_ns, self.force.error)
             events.extend(new)
-            if new and any(e.action in _ACTING for e in new):   # held in displacement from now
-                d = self.demand = sup.demand_for(stamp_ns, z, z_traj, v_traj)
-                self._handover('displacement', stamp_ns, z, load, False)
-                i = self._displacement(d, z, force, load, f_traj)
+            if new and any(e.action in _ACTING for e in new):   # held from the next state on
+                self.demand = sup.demand_for(stamp_ns, z, z_traj, v_traj)
             return i
         return self._displacement(d, z, force, load, f_traj)
 
-    def _handover(self, loop: str, stamp_ns: int, z: float, load: float, ramp: bool) -> None:
+    def _handover(self, loop: str, stamp_ns: int, z: float, load: float, ramp: bool,
+                  rest: bool = False) -> None:
         u = self.output if self.driving is not None else 0.0
+        if rest and loop == 'displacement':     # a hold or a stop: the valve closes first
+            u = 0.0
         if loop == 'force':     # coming on (a ramp-on) over ramp_time, a switch over the blend
             self.force.start(stamp_ns, load, u, self.supervisor.config.ramp_time if ramp
                              else self.blend_time)
             self.ctrl.reset()
-        elif self.driving == 'force':
+        elif self.driving == 'force' or rest:
             self.ctrl.reset()
             self.ctrl.pid.handover(u)
         self.protect.reset()

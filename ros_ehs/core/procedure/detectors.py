@@ -53,7 +53,11 @@ from typing import Any, Mapping
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.procedure.spec import DETECTORS
 
-__all__ = ['Cycle', 'FailureDetector']
+__all__ = ['Cycle', 'FailureDetector', 'TAPERED']
+
+#: A cycle's flag: its amplitude was still tapering in (a start or a resume); it counts, and
+#: neither the compensation nor the failure detectors learn from it.
+TAPERED = 1
 
 
 @dataclass(frozen=True)
@@ -69,6 +73,7 @@ class Cycle:
     z_lo: float
     f_hi: float
     f_lo: float
+    flags: int = 0       #: :data:`TAPERED` for a cycle of a start's or a resume's taper
 
     @property
     def stiffness(self) -> float:
@@ -158,7 +163,9 @@ class FailureDetector:
                 return ''
             ref = self.reference
             if self.kind == 'stiffness_drop':
-                ratio = c.stiffness / ref['stiffness']
+                # a reference without stiffness (its load did not move: a frozen load cell)
+                # judges nothing
+                ratio = c.stiffness / ref['stiffness'] if ref['stiffness'] > 0 else math.nan
                 self.last_value = 1.0 - ratio
                 bad = ratio < 1.0 - v['drop']
                 why = (f'stiffness_drop: {c.stiffness:.6g} N/m is {(1.0 - ratio) * 100:.3g} % '

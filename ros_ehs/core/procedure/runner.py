@@ -38,11 +38,19 @@ command, the position and the load are a :class:`Cycle` record; a cycle a hold, 
 interlock or a restart cut is not counted (its load was not completed), and the step goes on
 at the same count.
 
-**Resume** (after a hold, an interlock, a restart of any node or of all of them, from the
-checkpoint): the step continues at the start of its next whole cycle, from the measured
-value, over a lead-in of one cycle (the waveform blends in from where the axis is: no jump;
-that cycle counts, the detectors skip it). The compensation's learnt corrections and the
-detectors' reference cycles come back with it (:meth:`checkpoint`, :meth:`restore`).
+**Transitions** (a waveform step's start, and its resume after a hold, an interlock, a
+restart of any node or of all of them, from the checkpoint) move the axis in two moves, as
+test controllers do (docs/procedures.md, "Starts and resumes"): the mean first, from where
+the axis is (the measured value on a resume, the last command otherwise) to the midpoint of
+the cycle's command, along the ramp-on's quintic at no more than the step's ``mean_rate``;
+then the amplitude, from zero, its envelope growing along the same quintic over the step's
+``taper`` cycles. The command stays within the hull of where the axis was and the cycle's
+peak and valley. Tapered cycles count (they are carried) and are flagged
+(:data:`~ros_ehs.core.procedure.detectors.TAPERED`); the compensation does not learn from
+them and the failure detectors do not judge them (their settling and reference cycles come
+after the taper). A resumed step goes on at the start of its next whole cycle; the
+compensation's learnt corrections and the detectors' reference cycles come back with it
+(:meth:`checkpoint`, :meth:`restore`).
 
 **States**: ``idle`` (before start: the level measured is held), ``running``, ``switching``
 (a step in the other control mode waits for the controller's switch), ``held`` (~/hold: the
@@ -65,7 +73,7 @@ from ros_ehs.core.control.pvc import Block, PeakValleyControl
 from ros_ehs.core.control.safety import ramp_weight
 from ros_ehs.core.control.waveforms import Samples
 from ros_ehs.core.errors import InputError
-from ros_ehs.core.procedure.detectors import Cycle, FailureDetector
+from ros_ehs.core.procedure.detectors import Cycle, FailureDetector, TAPERED
 from ros_ehs.core.procedure.spec import Procedure, Step
 from ros_ehs_msgs_py import Reference
 
@@ -94,7 +102,7 @@ def capture_counts(n: int) -> bool:
 class _Segment:
     """A piece of the timeline from ``t0`` [ns] on (see the module docstring)."""
 
-    kind: str                    # 'level', 'ramp', 'wave'
+    kind: str                    # 'level', 'ramp', 'blend', 'wave'
     t0: int
     mode: str
     v0: float = 0.0              # level; a ramp's start
@@ -102,8 +110,8 @@ class _Segment:
     rate: float = 0.0            # a ramp's rate
     step: int = -1               # the step it plays (-1: none)
     c0: int = 0                  # a wave's first cycle (its count in the step)
-    lead: float = 0.0            # a wave's lead-in [s]
-    lead_from: float = 0.0       # ... from this value
+    lead: float = 0.0            # a wave's taper [s]; a blend's duration
+    lead_from: float = 0.0       # the midpoint the taper grows from
     end: int | None = None       # the stamp it ends at, when known [ns]
     n_end: int | None = None     # a wave's count in the step at that end, when known
     wave: Any = None             # a wave's waveform (_Wave)
@@ -154,12 +162,19 @@ class _Wave:
         if step.type == 'sweep' and c0:
             self.t_off = self.corr.cycle_start(c0)
         if self.corr is not None:
-            # the lead-in cycle is not learnt from
-            self.corr.learn_from = self.t_off + (self.period if lead else 0.0)
+            # the tapered cycles are not learnt from
+            self.corr.learn_from = self.t_off + lead
             if learnt:
                 _restore(self.corr, learnt)
             if frozen:                   # the specified waveform, nothing learnt
                 self.corr.freeze()
+
+    def midpoint(self, k: int) -> float:
+        """Return the midpoint of cycle ``k``'s command extremes (sampled, 256 a cycle)."""
+        a = self.cycle_start(k)
+        span = self.cycle_start(k + 1) - a
+        vs = [self.value(a + span * j / 256.0)[0] for j in range(256)]
+        return 0.5 * (max(vs) + min(vs))
 
     def value(self, tau: float) -> tuple[float, float]:
         """Return the command and its rate at the waveform's time ``tau`` [s]."""
@@ -318,6 +333,12 @@ class ProcedureRunner:
         t = (stamp - seg.t0) * 1e-9
         if seg.kind == 'level':
             return seg.v0, 0.0
+        if seg.kind == 'blend':
+            if t >= seg.lead:
+                return seg.v1, 0.0
+            w, dw = ramp_weight(t / seg.lead)
+            d = seg.v1 - seg.v0
+            return seg.v0 + w * d, dw / seg.lead * d
         if seg.kind == 'ramp':
             d = seg.v1 - seg.v0
             span = abs(d) / seg.rate
@@ -327,10 +348,10 @@ class ProcedureRunner:
         wave = seg.wave
         tau = wave.t_off + t
         v, r = wave.value(tau)
-        if seg.lead > 0 and t < seg.lead:
+        if seg.lead > 0 and t < seg.lead:          # the taper: the envelope grows from 0
             w, dw = ramp_weight(t / seg.lead)
-            d0 = seg.lead_from - wave.value(wave.t_off)[0]
-            return v + (1.0 - w) * d0, r - dw / seg.lead * d0
+            d = v - seg.lead_from
+            return seg.lead_from + w * d, w * r + dw / seg.lead * d
         return v, r
 
     def sample(self, stamp_ns: int) -> Reference:
@@ -533,8 +554,10 @@ class ProcedureRunner:
             self.notes.append(('info', f'{step.label}: switching the controller to '
                                f'{step.control_mode}'))
             return
+        # from the last command, within its step's levels (a compensated command runs beyond
+        # them), or from the measured value on a resume
         start = self._measured(step.control_mode) if (resume or measured or not self._segs) \
-            else self._value(self._segs[-1], t0)[0]
+            else self._in_envelope(self._segs[-1], t0, self._value(self._segs[-1], t0)[0])
         if not math.isfinite(start):
             start = self._value(self._segs[-1], t0)[0] if self._segs else 0.0
         self._step_t0 = t0
@@ -551,12 +574,18 @@ class ProcedureRunner:
             c0 = self.counts[k]
             probe = _Wave(step, self.latency_ns * 1e-9, self.harmonics, c0, 0.0,
                           self._learnt.get(k))
-            lead = probe.period if (resume or abs(start - probe.value(probe.t_off)[0]) >
-                                    1e-9 * max(1.0, abs(start))) else 0.0
-            wave = _Wave(step, self.latency_ns * 1e-9, self.harmonics, c0, lead,
+            taper = step['taper'] * probe.period
+            wave = _Wave(step, self.latency_ns * 1e-9, self.harmonics, c0, taper,
                          self._learnt.get(k))
+            mid = wave.midpoint(c0)
+            # the mean first: the quintic's peak rate is 15/8 of its mean rate
+            rate = step['mean_rate'] or self.procedure.stop_rate or STOP_RATE[mode]
+            t_mean = 1.875 * abs(mid - start) / rate
+            if t_mean >= 0.5 * self.dt_ns * 1e-9:
+                self._push(_Segment('blend', t0, mode, v0=start, v1=mid, lead=t_mean, step=-1))
+                t0 += int(round(t_mean * 1e9))
             end, n_end = self._wave_end(wave, step, c0, t0)
-            seg = _Segment('wave', t0, mode, step=k, c0=c0, lead=lead, lead_from=start,
+            seg = _Segment('wave', t0, mode, step=k, c0=c0, lead=taper, lead_from=mid,
                            end=end, n_end=n_end, wave=wave)
             self._push(seg)
             self._waves.append(seg)
@@ -624,7 +653,7 @@ class ProcedureRunner:
         if cyc is None:
             cap = self.total + 1
             cyc = seg.cyc = {
-                'k': k, 'lead': seg.lead > 0 and tau < w.t_off + seg.lead,
+                'k': k, 'taper': seg.lead > 0 and tau < w.t_off + seg.lead - 1e-9,
                 'cmd': [cmd, cmd], 'z': [z, z], 'f': [load, load],
                 # begun within this segment (not cut by its start): a whole cycle, whether or
                 # not a state came at its very start (a real-time loop loses one now and then)
@@ -655,12 +684,12 @@ class ProcedureRunner:
         self.total += 1
         self.checkpoint_due = True            # the count on disk is never a cycle behind
         c = Cycle(self.total, k, stamp, cyc['cmd'][1], cyc['cmd'][0], cyc['z'][1], cyc['z'][0],
-                  cyc['f'][1], cyc['f'][0])
+                  cyc['f'][1], cyc['f'][0], TAPERED if cyc['taper'] else 0)
         self.cycles.append(c)
         cap = cyc['capture']
         if cap is not None and cap['count'] == self.total:
             self.captures.append(cap)
-        if not cyc['lead']:
+        if not cyc['taper']:
             spec = seg.wave.specified(cyc['k'])
             for d in self._detectors.get(k, []):
                 why = d.cycle(c, spec)
@@ -736,9 +765,22 @@ class ProcedureRunner:
         if self._segs and stamp is not None:
             t = stamp + self.latency_ns
             seg = self._seg_at(t) or self._segs[-1]
-            v = self._value(seg, t)[0]
+            v = self._in_envelope(seg, t, self._value(seg, t)[0])
             self._push(_Segment('level', t, seg.mode, v0=v))
         self._set(state, stamp, why)
+
+    def _in_envelope(self, seg: _Segment, stamp: int, v: float) -> float:
+        """
+        Return the command ``v`` of ``seg`` at ``stamp`` clipped to its cycle's specified levels.
+
+        A compensated command runs beyond the levels (it makes up for the loop's roll-off);
+        held still, the axis would carry all of it: a hold or a stop starts within the levels.
+        """
+        if seg.kind != 'wave' or seg.wave is None:
+            return v
+        w = seg.wave
+        spec = w.specified(w.cycle_of(w.t_off + (stamp - seg.t0) * 1e-9))
+        return v if spec is None else min(max(v, spec[1]), spec[0])
 
     def _to_stop(self, t0: int) -> None:
         """Ramp to the stop level from the command at ``t0``, then finish."""
@@ -746,7 +788,8 @@ class ProcedureRunner:
         for seg in self._waves:
             seg.end = min(seg.end or t0, t0)
         seg = self._seg_at(t0) or (self._segs[-1] if self._segs else None)
-        v = self._value(seg, t0)[0] if seg is not None else self._measured(self.mode)
+        v = self._in_envelope(seg, t0, self._value(seg, t0)[0]) if seg is not None else \
+            self._measured(self.mode)
         rate = self.procedure.stop_rate or next(
             (s['rate'] for s in self.steps if s.type == 'ramp' and s.control_mode == self.mode),
             STOP_RATE[self.mode])

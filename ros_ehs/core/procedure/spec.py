@@ -65,6 +65,7 @@ from ros_ehs.core.settings import Setting
 
 __all__ = ['CAPTURES', 'COMPENSATIONS', 'DETECTORS', 'END_KEYS', 'EndCondition',
            'POSITION_RANGE', 'Procedure', 'STEP_KEYS', 'STEP_TYPES', 'Step', 'TEST_KEYS',
+           'TRANSITION_KEYS',
            'WAVEFORMS', 'load_procedure', 'parse_procedure']
 
 STEP_TYPES = ('ramp', 'dwell', 'cyclic', 'sweep', 'drive')
@@ -96,6 +97,16 @@ TEST_KEYS: tuple[Setting, ...] = (
     _S('steps', '', [], meaning='the steps, in order (a list of mappings)'),
 )
 
+#: How a waveform step (cyclic, sweep, drive) starts and resumes: the mean, then the taper.
+TRANSITION_KEYS: tuple[Setting, ...] = (
+    _S('taper', '1', 3, 1, 1000, 'cycles over which the amplitude grows from zero at the '
+       "step's start and at each resume (after the mean is reached); they count, flagged "
+       'tapered, and are neither learnt from nor judged by the failure detectors'),
+    _S('mean_rate', 'm/s or N/s', 0.0, 0.0, 1.0e9, 'the fastest the command moves to the '
+       "cycle's mean before the taper, from where the axis is (0: the test's stop_rate, or "
+       '1 mm/s or 1 kN/s)'),
+)
+
 #: Each step type's keys (besides ``name``, ``type``, ``control_mode``, ``end``, ``capture``).
 STEP_KEYS: dict[str, tuple[Setting, ...]] = {
     'ramp': (_S('to', 'm or N', 0.0, -_LEVEL, _LEVEL, 'the level to ramp to'),
@@ -115,17 +126,18 @@ STEP_KEYS: dict[str, tuple[Setting, ...]] = {
                   "cycle's peak and valley reach the levels, what a fatigue test is specified "
                   'by) or amplitude/phase control (apc, sines only: the fundamental and its '
                   'harmonics), learnt from the measured signal; auto: pvc; none: the waveform '
-                  'as specified', choices=COMPENSATIONS)),
+                  'as specified', choices=COMPENSATIONS)) + TRANSITION_KEYS,
     'sweep': (_S('mean', 'm or N', 0.0, -_LEVEL, _LEVEL, 'the mean'),
               _S('amplitude', 'm or N', 0.0, 0.0, _LEVEL, 'the amplitude'),
               _S('f0', 'Hz', 1.0, 1.0e-3, 200.0, 'the start frequency'),
               _S('f1', 'Hz', 20.0, 1.0e-3, 200.0, 'the end frequency'),
               _S('duration', 's', 10.0, 1.0e-3, 1.0e7, 'the sweep time (linear)'),
               _S('compensation', '', 'auto', meaning='amplitude/phase control of the '
-                 'fundamental (auto, apc) or none', choices=COMPENSATIONS)),
+                 'fundamental (auto, apc) or none', choices=COMPENSATIONS)) + TRANSITION_KEYS,
     'drive': (_S('file', '', '', meaning='the drive file: CSV with columns t [s] and the '
                  'level (z [m], or F [N] in force), as `ehs_sim drive` writes it'),
-              _S('repeats', '1', 1, 1, 10**9, 'how many times to play it (each pass a cycle)')),
+              _S('repeats', '1', 1, 1, 10**9, 'how many times to play it (each pass a cycle)'))
+    + TRANSITION_KEYS,
 }
 #: The keys every step may have.
 COMMON_KEYS: tuple[Setting, ...] = (

@@ -58,7 +58,10 @@ train reads 0 N). A change of a specimen's parameters installs a new one.
 
 **Faults** (``fault`` from ``fault_time`` of sim time): ``frozen_sensor`` (position and
 velocity of the fault's start from then on), ``nan_sensor``, ``stuck_valve`` (the current at
-the start stays applied), ``lost_pressure`` (supply to ``LOST_SUPPLY``).
+the start stays applied), ``lost_pressure`` (supply to ``LOST_SUPPLY``),
+``frozen_load_cell`` (the load cell repeats its reading at the fault's start),
+``nan_load_cell``. :meth:`true_load` is the specimen's own force, whatever its load cell
+reads: what the specimen carried.
 
 What the node should log is left in :attr:`SimulatedAxis.notes` as (level, text), once per
 occurrence: a fault starting or ending, the first model step failure of a run of them.
@@ -209,7 +212,8 @@ class SimulatedAxis:
         self._last_rx = 0.0
         self._first_rx = self._last_step = math.nan
         self._fault_on = False
-        self._fault_hold = (0.0, 0.0, 0.0)    # frozen z, z_dot; stuck current
+        self._fault_hold = (0.0, 0.0, 0.0, 0.0)   # frozen z, z_dot; stuck current; load
+        self._last_load = 0.0    # the load cell's last reading [N]
         self._first_due: float | None = None  # lock-step: when the first state goes out
         self._sent_first = False
         self._last_progress = 0.0
@@ -485,7 +489,7 @@ class SimulatedAxis:
             return
         self._fault_on = want
         xs = self.x.tolist()
-        self._fault_hold = (xs[self._iz], xs[self._iv], self.applied)
+        self._fault_hold = (xs[self._iz], xs[self._iv], self.applied, self._last_load)
         p = self.params
         if self.fault == 'lost_pressure' or self.plant.params['p_s'] != p['p_s']:
             sup = LOST_SUPPLY if want and self.fault == 'lost_pressure' else p['p_s']
@@ -509,10 +513,18 @@ class SimulatedAxis:
         load = sp.force(xs[self._iz], xs[self._iv])
         if self._load_noise:
             load += self._load_noise * float(self._rng_load.standard_normal())
+        if self._fault_on and self.fault in ('frozen_load_cell', 'nan_load_cell'):
+            load = self._fault_hold[3] if self.fault == 'frozen_load_cell' else math.nan
+        self._last_load = load
         state = AxisState(self.stamp_ns(), z, v, self._A_p * (xs[self._ipa] - xs[self._ipb]),
                           xs[self._ixv] if self._ixv >= 0 else math.nan, self.applied,
                           load if sp.present else math.nan)
         return Sample(state, xs[self._ipa] + npr * e[2], xs[self._ipb] + npr * e[3], load)
+
+    def true_load(self) -> float:
+        """Return the force the specimen carries now [N] (the model's, not the load cell's)."""
+        xs = self.x
+        return self.specimen.force(float(xs[self._iz]), float(xs[self._iv]))
 
     def load(self, sample: Sample) -> Load:
         """Return the load cell's message of a sample (stamped as its state)."""

@@ -21,6 +21,7 @@ reads, name them without loading the model.
 __all__ = ['FAULTS', 'LOST_SUPPLY']
 
 #: The faults the axis can inject (their meaning: the plant's ``fault`` setting).
-FAULTS = ('none', 'frozen_sensor', 'nan_sensor', 'stuck_valve', 'lost_pressure')
+FAULTS = ('none', 'frozen_sensor', 'nan_sensor', 'stuck_valve', 'lost_pressure',
+          'frozen_load_cell', 'nan_load_cell')
 #: The supply pressure of the ``lost_pressure`` fault [Pa] (the lowest p_s allows).
 LOST_SUPPLY = 1.0e6

@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 import time
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from ros_ehs.core.control.loop import ControlLoop
@@ -43,7 +44,10 @@ from ros_ehs.core.procedure.runner import ProcedureRunner
 from ros_ehs.core.procedure.spec import Procedure
 from ros_ehs.core.sim.axis import SimulatedAxis
 
-__all__ = ['LiveFits', 'VirtualTest', 'model_trip_cycle', 'run_procedure']
+__all__ = ['LiveFits', 'OPERATOR', 'VirtualTest', 'model_trip_cycle', 'run_procedure']
+
+#: The operator's requests a virtual test takes at given times (``actions``).
+OPERATOR = ('hold', 'resume', 'stop', 'restart')
 
 
 @dataclass
@@ -88,7 +92,12 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                   controller_params: Params | None = None, rate_hz: float = 1000.0,
                   max_seconds: float = 1.0e7, observe: bool = True, keep_cycles: int = 100_000,
                   latency: float = 0.002, checkpoint=None, live: LiveFits | None = None,
-                  noise: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> VirtualTest:
+                  noise: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                  actions: Sequence[tuple[float, str]] = (), fault: str = 'none',
+                  fault_time: float = 0.0,
+                  probe: Callable[[SimulatedAxis, ProcedureRunner, Any, Any], None] | None
+                  = None
+                  ) -> VirtualTest:
     """
     Run ``procedure`` on the model of ``params`` (its specimen too) until it finishes.
 
@@ -100,14 +109,26 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     ``fitted_stiffness_drop`` detector judges (its estimates are in ``estimates``; each
     refit costs wall time the ``speed`` counts); ``noise``: the sensors' white noise (1
     sigma: position [m], velocity [m/s], pressures [Pa]; the load cell's is the parameter
-    ``load_cell_noise``).
+    ``load_cell_noise``); ``actions``: the operator's requests at given simulated times
+    [s], ``(t, 'hold' | 'resume' | 'stop' | 'restart')`` (``restart``: the procedure node
+    restarted from its last checkpoint, the test ``interrupted`` until a ``resume``), their
+    answers in ``events`` as ``('operator', kind, ok, why)``; ``fault``, ``fault_time``: the
+    axis's injected fault (:data:`~ros_ehs.core.sim.faults.FAULTS`); ``probe(axis, runner,
+    reply, reference)``: called each period after the command (a benchmark reads what the specimen
+    carried: :meth:`SimulatedAxis.true_load`).
     """
     if not isinstance(procedure, Procedure):
         raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
     if live is not None and not isinstance(live, LiveFits):
         raise InputError(f'`live` must be LiveFits, got {type(live).__name__}')
     cp = controller_params or params
-    axis = SimulatedAxis(params, model, rate_hz=rate_hz, lockstep=True, noise=noise)
+    axis = SimulatedAxis(params, model, rate_hz=rate_hz, lockstep=True, noise=noise,
+                         fault=fault, fault_time=fault_time)
+    todo = sorted(actions, key=lambda a: a[0])
+    for _, kind in todo:
+        if kind not in OPERATOR:
+            raise InputError(f'unknown action {kind!r}: one of {", ".join(OPERATOR)}')
+    last_cp: dict | None = None
     loop = ControlLoop(cp.replace(control_mode=procedure.steps[0].control_mode),
                        rate_hz=rate_hz, lockstep=True)
     runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz, observe=observe)
@@ -140,9 +161,25 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             if not ok:
                 raise InputError(f'the procedure did not start: {why}')
             started = True
-        trajectory((reference(stamp),))
+        while todo and todo[0][0] <= k / rate_hz + 1e-12:
+            kind = todo.pop(0)[1]
+            if kind == 'restart':
+                runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz,
+                                         observe=observe)
+                reference, measure = runner.sample, runner.measure
+                if last_cp is not None:
+                    runner.restore(last_cp)
+                measure(stamp, st.z, s.load)
+                ok, why = True, runner.state
+            else:
+                ok, why = getattr(runner, kind)(stamp)
+            events.append(('operator', kind, ok, why))
+        ref = reference(stamp)
+        trajectory((ref,))
         reply = answer(st, 0.0, stamp)
         command(stamp, reply.current, 0.0)
+        if probe is not None:
+            probe(axis, runner, reply, ref)
         for e in reply.events:
             events.append(('controller', e.kind, e.detector, e.message))
             runner.event(e.kind, e.detector, e.action, stamp)
@@ -165,7 +202,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             runner.events.clear()
         if runner.checkpoint_due:
             t0 = time.perf_counter()
-            d = runner.checkpoint()
+            d = last_cp = runner.checkpoint()
             if checkpoint is not None:
                 checkpoint(d)
             cp_s += time.perf_counter() - t0
@@ -212,7 +249,7 @@ def _row(c: Cycle) -> tuple:
 
 
 def model_trip_cycle(specimen: Specimen, kind: str, values: dict, peak: float, valley: float,
-                     first: int = 0) -> float:
+                     first: int = 0, taper: int = 0) -> float:
     """
     Return the cycle at which the specimen model meets a failure detector's criterion.
 
@@ -223,7 +260,9 @@ def model_trip_cycle(specimen: Specimen, kind: str, values: dict, peak: float, v
     ``stiffness_drop``: the stiffness under ``1 - drop`` of the reference;
     ``peak_valley_change``: the position's peak moves ``F_peak (1/k - 1/k_ref)``, so the
     criterion is ``k < k_ref / (1 + tolerance (peak - valley) / |peak|)`` (the peak the larger
-    in magnitude). Returns inf when the specimen fractures first.
+    in magnitude). ``taper``: the step's tapered cycles, which the detectors do not judge
+    (their settling counts from the first cycle after them). Returns inf when the specimen
+    fractures first.
     """
     rng = peak - valley
     if kind not in ('stiffness_drop', 'peak_valley_change') or rng <= 0:
@@ -232,7 +271,7 @@ def model_trip_cycle(specimen: Specimen, kind: str, values: dict, peak: float, v
     def k(n: float) -> float:
         return specimen.stiffness_after(first + n - 0.5, rng)
 
-    s0, nr = int(values['settling']), int(values['reference'])
+    s0, nr = int(values['settling']) + int(taper), int(values['reference'])
     k_ref = sum(k(n) for n in range(s0 + 1, s0 + nr + 1)) / nr
     if kind == 'stiffness_drop':
         k_trip = (1.0 - values['drop']) * k_ref

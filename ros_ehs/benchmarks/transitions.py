@@ -1,0 +1,316 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Transitions benchmark: what the specimen carries when the system itself moves the axis.
+
+Each case is a virtual test (:func:`ros_ehs.core.sim.virtual_test.run_procedure`, the
+procedure node's, the controller's and the plant's cores in lock-step), judged by the
+specimen's own load (the model's force, not the load cell's) in force control and by the
+piston's own position in displacement control:
+
+* ``force`` (the fatigue rig: 1e7 N/m, 1-10 kN at 10 Hz, peak/valley control) and ``disp``
+  (the plant's default rig, no specimen: 0-4 mm at 5 Hz): a cyclic step after a ramp and a
+  dwell, at once after the start, straight after a ramp; a hold and a resume, and a restart
+  of the procedure node from its checkpoint and a resume, each at four phases (near the
+  peak, the valley, the mean rising, the mean falling); steps up and down in amplitude and
+  in frequency; a switch from a displacement step to a force step; a stop mid-cycle.
+  ``beyond_pct``: the most the signal went beyond the hull of where it was when the
+  transition began and the steady cycles' own extremes (the same run's cycles away from the
+  transition), in % of the step's range. Target: at most 2.
+* faults in the force test: a load limit (9 kN, hold) and a stuck valve (the force-error
+  detector's hold, not obeyed): ``from_trip_pct``, the load's largest distance from where
+  the limit tripped while held, in % of the range (target 2), and for the stuck valve
+  ``to_power_off_s``, from the hold to hydraulics off (target 0.1 s); the load cell lost
+  (NaN) and frozen at four phases: ``to_hold_s`` from the fault to the hold (target 0.1 s)
+  and ``beyond_pct`` beyond the steady cycles' extremes (target 2).
+
+Each case also gives the command's peak (``cmd_peak``) and the result of its test. The
+last line is one JSON object with every case and ``worst`` per kind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+from ros_ehs.benchmarks import count, report
+
+__all__ = ['main']
+
+PEAK, VALLEY, FREQ = 1.0e4, 1.0e3, 10.0
+#: the four phases a hold, a restart or a fault is put at, as fractions of a peak/valley
+#: cycle (it starts at its valley)
+PHASES = {'valley': 0.0, 'rising': 0.25, 'peak': 0.5, 'falling': 0.75}
+D_PEAK, D_VALLEY, D_FREQ = 4.0e-3, 0.0, 5.0
+
+
+def _cyclic(peak, valley, freq, count=0, **more) -> dict:
+    return {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'peak': peak,
+            'valley': valley, 'frequency': freq, 'count': count, **more}
+
+
+def _force(first: str = 'after_dwell', cycles: int = 40) -> dict:
+    pre = [{'name': 'preload', 'type': 'ramp', 'to': 0.5 * (PEAK + VALLEY), 'rate': 2.0e4},
+           {'name': 'settle', 'type': 'dwell', 'time': 0.2}]
+    steps = {'after_dwell': pre, 'after_ramp': pre[:1], 'at_once': []}[first]
+    return {'name': 'force', 'control_mode': 'force',
+            'steps': steps + [_cyclic(PEAK, VALLEY, FREQ, cycles)]}
+
+
+def _disp(first: str = 'after_dwell', cycles: int = 30) -> dict:
+    pre = [{'name': 'to mean', 'type': 'ramp', 'to': 0.5 * (D_PEAK + D_VALLEY), 'rate': 0.01},
+           {'name': 'dwell', 'type': 'dwell', 'time': 1.0}]
+    steps = {'after_dwell': pre, 'after_ramp': pre[:1], 'at_once': []}[first]
+    return {'name': 'disp', 'control_mode': 'displacement',
+            'steps': steps + [_cyclic(D_PEAK, D_VALLEY, D_FREQ, cycles)]}
+
+
+class _Trace:
+    """What a probe records each period: time, the signal carried, the command, events."""
+
+    def __init__(self, mode: str) -> None:
+        self.mode = mode
+        self.rows: list[tuple] = []
+        self.events: list[tuple] = []
+
+    def __call__(self, axis, runner, reply, ref) -> None:
+        t = axis.k * axis.dt
+        z = float(axis.x[axis._iz])
+        cmd = ref.z_ref if math.isfinite(ref.z_ref) else ref.f_ref
+        self.rows.append((t, axis.true_load(), z, cmd, runner.total))
+        for e in reply.events:
+            self.events.append((t, e.kind, e.detector, e.action, e.value))
+
+    def arrays(self) -> dict:
+        a = np.array(self.rows)
+        return {'t': a[:, 0], 'load': a[:, 1], 'z': a[:, 2], 'cmd': a[:, 3], 'total': a[:, 4]}
+
+
+def _run(doc: dict, params, mode: str, **kw):
+    from ros_ehs.core.procedure.spec import parse_procedure
+    from ros_ehs.core.sim.virtual_test import run_procedure
+    tr = _Trace(mode)
+    r = run_procedure(parse_procedure(doc), params, probe=tr, **kw)
+    return r, tr.arrays(), tr.events
+
+
+def _cycle_start(r, n: int) -> float:
+    """Return the time cycle ``n + 1`` starts at (cycle ``n``'s end) [s]."""
+    c = r.cycles
+    return float(c[c[:, 0] == n, 1][0])
+
+
+def _beyond(sig, lo, hi, rng, mask) -> float:
+    s = sig[mask]
+    if not s.size:
+        return math.nan
+    return round(float(max(0.0, s.max() - hi, lo - s.min())) / rng * 100.0, 3)
+
+
+def _steady(r, sig, t, a: float, b: float) -> tuple[float, float]:
+    m = (t >= a) & (t < b)
+    return float(sig[m].min()), float(sig[m].max())
+
+
+def _signal(arr, mode):
+    return arr['load'] if mode == 'force' else arr['z']
+
+
+def _case(name, r, arr, mode, rng, steady, window) -> dict:
+    sig, t = _signal(arr, mode), arr['t']
+    m = (t >= window[0]) & (t < window[1])
+    # the hull of where the axis was when the transition began and the steady cycles
+    s0 = float(sig[m][0]) if m.any() else math.nan
+    lo, hi = min(steady[0], s0), max(steady[1], s0)
+    return {'case': name, 'beyond_pct': _beyond(sig, lo, hi, rng, m),
+            'cmd_peak': round(float(np.nanmax(arr['cmd'][m])), 6),
+            'signal_max': round(float(sig[m].max()), 6),
+            'steady_max': round(hi, 6), 'result': r.result, 'cycles': r.total_cycles}
+
+
+def _starts(p_force, p_disp) -> list[dict]:
+    out = []
+    for kind, doc, p, rng, mode in (('force', _force, p_force, PEAK - VALLEY, 'force'),
+                                    ('disp', _disp, p_disp, D_PEAK - D_VALLEY,
+                                     'displacement')):
+        for first in ('after_dwell', 'after_ramp', 'at_once'):
+            r, arr, _ = _run(doc(first), p, mode)
+            t = arr['t']
+            # steady: cycles 15 on; the transition: everything before cycle 10 ends
+            steady = _steady(r, _signal(arr, mode), t, _cycle_start(r, 15), t[-1])
+            out.append(_case(f'{kind}/start_{first}', r, arr, mode, rng, steady,
+                             (0.0, _cycle_start(r, 10))))
+    return out
+
+
+def _holds(p_force, p_disp, hold_s: float) -> list[dict]:
+    out = []
+    for kind, doc, p, rng, mode, f in (('force', _force(), p_force, PEAK - VALLEY, 'force',
+                                        FREQ),
+                                       ('disp', _disp(), p_disp, D_PEAK - D_VALLEY,
+                                        'displacement', D_FREQ)):
+        base, _, _ = _run(doc, p, mode)
+        t20 = _cycle_start(base, 20)
+        for how in ('hold', 'restart'):
+            for ph, x in PHASES.items():
+                t_h = t20 + x / f
+                acts = [(t_h, how), (t_h + hold_s, 'resume')]
+                r, arr, _ = _run(doc, p, mode, actions=acts)
+                t = arr['t']
+                steady = _steady(r, _signal(arr, mode), t, _cycle_start(r, 10), t_h)
+                end = t_h + hold_s + 10.0 / f
+                out.append(_case(f'{kind}/{how}_{ph}', r, arr, mode, rng, steady, (t_h, end)))
+    return out
+
+
+def _changes(p_force, p_disp) -> list[dict]:
+    """Run steps up and down in amplitude and frequency, a mode switch, a stop mid-cycle."""
+    out = []
+    pre = _force()['steps'][:2]
+    mid = 0.5 * (PEAK + VALLEY)
+    cases = {
+        'force/amplitude_up': [_cyclic(mid + 2000, mid - 2000, FREQ, 20),
+                               _cyclic(PEAK, VALLEY, FREQ, 20)],
+        'force/amplitude_down': [_cyclic(PEAK, VALLEY, FREQ, 20),
+                                 _cyclic(mid + 2000, mid - 2000, FREQ, 20)],
+        'force/frequency_up': [_cyclic(PEAK, VALLEY, 5.0, 15), _cyclic(PEAK, VALLEY, FREQ, 20)],
+        'force/frequency_down': [_cyclic(PEAK, VALLEY, FREQ, 20),
+                                 _cyclic(PEAK, VALLEY, 5.0, 15)],
+    }
+    for name, steps in cases.items():
+        steps = [steps[0], {**steps[1], 'name': 'second'}]
+        doc = {'name': name, 'control_mode': 'force', 'steps': pre + steps}
+        r, arr, _ = _run(doc, p_force, 'force')
+        t = arr['t']
+        t_switch = _cycle_start(r, steps[0]['count'])
+        # the envelope of both steps' own steady cycles
+        a = _steady(r, arr['load'], t, _cycle_start(r, 10), t_switch)
+        b = _steady(r, arr['load'], t, _cycle_start(r, steps[0]['count'] + 10), t[-1])
+        out.append(_case(name, r, arr, 'force', PEAK - VALLEY, (min(a[0], b[0]),
+                                                                max(a[1], b[1])),
+                         (t_switch, t[-1])))
+    # a displacement step, then the force step on the same specimen
+    z_mean = mid / float(p_force['k_L']) + float(p_force['z_L'])
+    doc = {'name': 'switch', 'control_mode': 'displacement', 'steps': [
+        {'name': 'to mean', 'type': 'ramp', 'to': z_mean, 'rate': 0.01},
+        _cyclic(z_mean + 2.0e-4, z_mean - 2.0e-4, FREQ, 20),
+        {**_cyclic(PEAK, VALLEY, FREQ, 30), 'control_mode': 'force', 'name': 'force'}]}
+    r, arr, _ = _run(doc, p_force, 'force')
+    t = arr['t']
+    t_switch = _cycle_start(r, 20)
+    steady = _steady(r, arr['load'], t, _cycle_start(r, 35), t[-1])
+    out.append(_case('force/mode_switch', r, arr, 'force', PEAK - VALLEY, steady,
+                     (t_switch, _cycle_start(r, 30))))
+    base, _, _ = _run(_force(), p_force, 'force')
+    t_s = _cycle_start(base, 20) + 0.3 / FREQ
+    r, arr, _ = _run(_force(), p_force, 'force', actions=[(t_s, 'stop')])
+    t = arr['t']
+    steady = _steady(r, arr['load'], t, _cycle_start(r, 10), t_s)
+    steady = (0.0, steady[1])         # a stop ramps to its level, 0 N
+    out.append(_case('force/stop_mid_cycle', r, arr, 'force', PEAK - VALLEY, steady,
+                     (t_s, t[-1])))
+    return out
+
+
+def _faults(p_force) -> list[dict]:
+    out = []
+    rng = PEAK - VALLEY
+    base, barr, _ = _run(_force(), p_force, 'force')
+    t20 = _cycle_start(base, 20)
+    steady = _steady(base, barr['load'], barr['t'], _cycle_start(base, 10), t20)
+    # a load limit under the peak, with a hold
+    p = p_force.replace(limit_load_max=9.0e3, limit_load_max_action='hold')
+    r, arr, ev = _run(_force(), p, 'force', max_seconds=t20 + 1.0)
+    trip = [e for e in ev if e[1] == 'trip' and e[2] == 'limit_load_max']
+    case = {'case': 'force/load_limit_hold', 'result': r.result,
+            'cmd_peak': round(float(np.nanmax(arr['cmd'])), 3)}
+    if trip:
+        t_trip, f_trip = trip[0][0], trip[0][4]
+        m = arr['t'] >= t_trip
+        case.update(tripped_at_n=round(f_trip, 1),
+                    from_trip_pct=round(float(np.abs(arr['load'][m] - f_trip).max()) / rng
+                                        * 100.0, 3),
+                    held_max=round(float(arr['load'][m].max()), 1))
+    out.append(case)
+    # a stuck valve: the force error trips, its hold is not obeyed, hydraulics off
+    r, arr, ev = _run(_force(), p_force, 'force', fault='stuck_valve',
+                      fault_time=t20 + 0.25 / FREQ, max_seconds=t20 + 1.0)
+    first = {}
+    for e in ev:
+        if e[1] == 'trip':
+            first.setdefault(e[2], e[0])
+    hold_t = first.get('limit_force_error')
+    off_t = first.get('hold_error')
+    out.append({'case': 'force/stuck_valve', 'result': r.result, 'tripped': sorted(first),
+                'to_power_off_s': round(off_t - hold_t, 4) if hold_t and off_t else None})
+    for fault in ('nan_load_cell', 'frozen_load_cell'):
+        for ph, x in PHASES.items():
+            t_f = t20 + x / FREQ
+            r, arr, ev = _run(_force(), p_force, 'force', fault=fault, fault_time=t_f,
+                              max_seconds=t_f + 1.0)
+            trip = [e for e in ev if e[1] == 'trip' and e[2] == 'load_feedback']
+            m = arr['t'] >= t_f
+            out.append({'case': f'force/{fault}_{ph}', 'result': r.result,
+                        'to_hold_s': round(trip[0][0] - t_f, 4) if trip else None,
+                        'beyond_pct': _beyond(arr['load'], steady[0], steady[1], rng, m),
+                        'load_range_after': [round(float(arr['load'][m].min()), 1),
+                                             round(float(arr['load'][m].max()), 1)]})
+    return out
+
+
+def _worst(cases: list[dict], key: str):
+    vals = [c[key] for c in cases if c.get(key) is not None and not (
+        isinstance(c[key], float) and math.isnan(c[key]))]
+    return max(vals) if vals else None
+
+
+def main(argv=None) -> int:
+    """Run the benchmark (see the module docstring)."""
+    ap = argparse.ArgumentParser(prog='python -m ros_ehs.benchmarks transitions',
+                                 description=__doc__.split('\n\n')[0])
+    ap.add_argument('--hold', type=float, default=0.5, help='how long a hold or a restart '
+                    'lasts before the resume [s]')
+    ap.add_argument('--only', choices=('starts', 'holds', 'changes', 'faults'), nargs='*',
+                    default=None, help='run only these groups of cases')
+    ap.add_argument('--repeat', type=count, default=1, help='(unused: every case is '
+                    'deterministic)')
+    a = ap.parse_args(argv)
+    from ros_ehs.benchmarks.fatigue import _rig
+    from ros_ehs.core.params import preset
+    p_force = _rig()
+    p_disp = preset('g761_baseline')
+    groups = a.only or ['starts', 'holds', 'changes', 'faults']
+    cases: list[dict] = []
+    if 'starts' in groups:
+        cases += _starts(p_force, p_disp)
+    if 'holds' in groups:
+        cases += _holds(p_force, p_disp, a.hold)
+    if 'changes' in groups:
+        cases += _changes(p_force, p_disp)
+    if 'faults' in groups:
+        cases += _faults(p_force)
+    for c in cases:
+        print(c)
+    return report({'cases': cases,
+                   'worst': {'beyond_pct': _worst(cases, 'beyond_pct'),
+                             'from_trip_pct': _worst(cases, 'from_trip_pct'),
+                             'to_hold_s': _worst(cases, 'to_hold_s'),
+                             'to_power_off_s': _worst(cases, 'to_power_off_s')},
+                   'targets': {'beyond_pct': 2.0, 'from_trip_pct': 2.0, 'to_hold_s': 0.1,
+                               'to_power_off_s': 0.1}})
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
