@@ -87,8 +87,10 @@ def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, t
     # a 1 mm sine about 2 mm, tracked by the controller: every cycle's extremes near it
     assert np.all(np.abs(table[2:, 5] - 0.003) < 2e-4) and np.all(
         np.abs(table[2:, 6] - 0.001) < 2e-4), table[:, 5:7]
-    # peak/valley control corrected the command: its peak is no longer the specified one
-    assert np.all(table[3:, 3] > 0.003 + 1e-6)
+    # the first 3 tapered in (flagged); peak/valley control learns from the 4th on and
+    # corrects the command from the 5th: its peak is no longer the specified one
+    assert list(table[:, 9]) == [1.0] * 3 + [0.0] * (CYCLES - 3)
+    assert np.all(table[:3, 5] <= 0.003 + 1e-4) and np.all(table[4:, 3] > 0.003 + 1e-6)
     assert [cap['count'] for cap in read_captures(bag)] == [1, 2, 5, 10, 20]
     kinds = [e['kind'] for e in read_procedure_events(bag)]
     assert kinds[0] == 'running' and kinds[-1] == 'finished' and kinds.count('step') == 3
@@ -98,8 +100,8 @@ def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, t
     rep = write_fatigue_report(bag, tmp_path / 'report')
     assert rep.cycles == CYCLES and rep.result == 'completed', rep
     rows = np.loadtxt(tmp_path / 'report' / 'cycles.csv', delimiter=',', skiprows=1)
-    assert rows.shape == (CYCLES, 10)
-    assert np.all(np.abs(rows[:, 9] / SPECIMEN['k_L'] - 1.0) < 0.02)   # and the stiffness
+    assert rows.shape == (CYCLES, 11)        # the table and the stiffness
+    assert np.all(np.abs(rows[:, 10] / SPECIMEN['k_L'] - 1.0) < 0.02)   # and the stiffness
     written = {f.name for f in rep.files}
     assert {'peak_valley.png', 'stiffness.png', 'hysteresis.png'} <= written
 
@@ -215,17 +217,17 @@ def test_a_live_fit_of_a_softer_specimen_fails_the_test(dom, tmp_path, ros):
                                qos_profile(c.ESTIMATES.qos))
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         _loop(procs, bag, {'file': str(proc), 'autostart': True}, seconds=300.0)
-        # settled: 2 cycles judged (the step's first cycle leads in from the ramp, unjudged)
-        _status(procs, lambda v: int(v['total_cycles']) >= 4)
+        # settled: 2 cycles judged (the step's first 3 taper in, unjudged)
+        _status(procs, lambda v: int(v['total_cycles']) >= 6)
         pub.publish(_estimate(1.0e6, 1.0e3, adequate=False))       # not adequate: not judged
         pub.publish(_estimate(1.0e6, 1.0e3))
-        st = _status(procs, lambda v: int(v['fitted_stiffness_drop.reference_at']) >= 4)
+        st = _status(procs, lambda v: int(v['fitted_stiffness_drop.reference_at']) >= 6)
         assert st['state'] == 'running', st
         pub.publish(_estimate(0.7e6, 1.0e3))
         st = _status(procs, lambda v: v['state'] == 'finished')
         procs.stop(['procedure', 'plant', 'controller', 'recorder'])
     assert st['result'] == 'failed' and 'fitted_stiffness_drop' in st['reason'], st
-    assert 4 <= int(st['failed_at']) < 1000, st
+    assert 6 <= int(st['failed_at']) < 1000, st
     events = read_procedure_events(bag)
     failure = [e for e in events if e['kind'] == 'failure']
     assert len(failure) == 1 and 'k_L 700000' in failure[0]['message'], failure
