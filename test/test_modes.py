@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.core.control.modes import ForceLimit, ForceLoop, load_train_compliance
+from ros_ehs.core.control.modes import ForceLimit, ForceLoop, HOLD_KI, load_train_compliance
 from ros_ehs.core.control.safety import break_travel
 from ros_ehs.core.control.supervised import AxisController
 from ros_ehs.core.model.coefficients import flow_gain_kq
@@ -257,3 +257,16 @@ def test_a_break_in_force_control_ends_held_in_displacement_within_its_bound(kin
                              limit_force_error_action='off', hold_error_action='off'), 3.0,
                    lambda t: _force(t, 5.5e3 + 4.5e3 * math.sin(2 * math.pi * 5 * t)))
     assert np.max(np.abs(run.z)) > 0.05
+
+
+def test_a_force_hold_integrates_faster_until_it_is_released():
+    f = ForceLoop(RIG, 1e-3)
+    ki = f.pid.gains.ki
+    f.hold(0, 2000.0)
+    assert f.pid.gains.ki == pytest.approx(HOLD_KI * ki) and f.reference(MS, 9e3) == 2000.0
+    f.set_params(RIG.replace(force_ki=2 * ki))            # new gains while held: still faster
+    assert f.pid.gains.ki == pytest.approx(HOLD_KI * 2 * ki)
+    f.release()
+    assert f.pid.gains.ki == pytest.approx(2 * ki) and f.reference(MS, 9e3) == 9e3
+    f.release()                                           # twice: nothing more
+    assert f.pid.gains.ki == pytest.approx(2 * ki)

@@ -518,3 +518,14 @@ def test_a_blend_from_a_position_ramps_the_demand_from_it():
     d, _ = _feed(sup, 6, z=0.001, z_traj=0.0)
     assert d.z_ref == pytest.approx(0.002 * (1 - ramp_weight(0.5)[0]))
     assert _feed(sup, 12, z=0.0, z_traj=0.0)[0].mode == 'run'
+
+
+def test_a_limit_set_with_its_action_off_is_said_by_name():
+    from ros_ehs.core.control.safety import LIMITS_OF, unprotected
+    assert set(LIMITS_OF) == set(DETECTORS)
+    assert unprotected(Params()) == []            # the defaults: nothing set in vain
+    said = unprotected(Params({'limit_velocity': 0.5, 'limit_error': 0.002,
+                               'limit_error_action': 'off', 'limit_load_max': 9.0e3,
+                               'limit_load_max_action': 'hold'}))
+    assert len(said) == 2 and 'limit_velocity = 0.5 m/s' in said[0] and \
+        'limit_velocity_action is off' in said[0] and 'limit_error = 0.002 m' in said[1]

@@ -58,6 +58,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from ros_ehs.core.control.loop import ControlLoop, Reply
+from ros_ehs.core.control.safety import unprotected
 from ros_ehs.core.errors import ParameterError
 from ros_ehs.core.options import CONTROLLER, CONTROLLER_SPECS
 from ros_ehs.core.params import Params
@@ -104,6 +105,8 @@ class ControllerNode(Node):
                                 reference_timeout=float(o['reference_timeout']),
                                 future_tolerance=float(o['future_tolerance']),
                                 load_source='topic' if o['load_topic'] else 'state')
+        for why in unprotected(self.params):       # once, at the start
+            self.get_logger().warning(why)
         self._pending: Params | None = None
         self.compute = Ring(2000)
         self._stopped = False               # stop(): no command after the safe one

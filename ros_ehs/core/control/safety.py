@@ -102,8 +102,8 @@ from ros_ehs.core.model.coefficients import flow_gain_kq
 from ros_ehs.core.params import ACTIONS, spec
 from ros_ehs_msgs_py.values import SafetyEvent as Event
 
-__all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'SafetyConfig', 'Supervisor', 'UNITS',
-           'break_travel', 'braking_distance', 'ramp_weight']
+__all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'LIMITS_OF', 'SafetyConfig', 'Supervisor',
+           'UNITS', 'break_travel', 'braking_distance', 'ramp_weight', 'unprotected']
 
 #: The detectors, in the order they are checked and reported.
 DETECTORS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
@@ -130,6 +130,42 @@ _PAIRS = {'limit_position_max': ('limit_position_min', 'limit_position_max', 1),
           'limit_load_min': ('limit_load_min', 'limit_load_max', -1),
           'limit_specimen_max': ('limit_specimen_min', 'limit_specimen_max', 1),
           'limit_specimen_min': ('limit_specimen_min', 'limit_specimen_max', -1)}
+
+
+#: The values a user sets to tune each detector (a value set while the action is off protects
+#: nothing: :func:`unprotected`).
+LIMITS_OF = {'limit_position_max': ('limit_position_max',),
+             'limit_position_min': ('limit_position_min',),
+             'limit_velocity': ('limit_velocity',), 'limit_force': ('limit_force',),
+             'limit_error': ('limit_error', 'limit_error_time'),
+             'feedback': ('feedback_timeout', 'frozen_periods', 'frozen_current'),
+             'saturation': ('limit_saturation_time',),
+             'limit_load_max': ('limit_load_max',), 'limit_load_min': ('limit_load_min',),
+             'limit_specimen_max': ('limit_specimen_max',),
+             'limit_specimen_min': ('limit_specimen_min',),
+             'limit_force_error': ('limit_force_error',),
+             'specimen_break': ('break_drop', 'break_travel', 'break_window'),
+             'load_feedback': ('load_frozen_force',),
+             'hold_error': ('hold_error_position', 'hold_error_force', 'hold_error_time')}
+
+
+def unprotected(params: Mapping[str, object]) -> list[str]:
+    """
+    Return a sentence for each detector whose limit is set but whose action is ``off``.
+
+    A value changed from its default says the user meant the detector to act; with its
+    action ``off`` it never will. The controller says each once at its start.
+    """
+    out = []
+    for det in DETECTORS:
+        if str(params[det + '_action']) != 'off':
+            continue
+        set_ = [n for n in LIMITS_OF[det] if float(params[n]) != float(spec(n).default)]
+        if set_:
+            vals = ', '.join(f'{n} = {float(params[n]):g} {spec(n).unit}'.rstrip() for n in set_)
+            out.append(f'{vals} set, but {det}_action is off: the {det} detector will not act '
+                       f'(give it an action: indicate, hold, stop or power_off)')
+    return out
 
 
 @dataclass(frozen=True)

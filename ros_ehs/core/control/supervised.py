@@ -120,6 +120,7 @@ class AxisController:
 
     def _rest(self) -> None:
         self.ctrl.reset()
+        self.force.release()
         self.force.pid.reset()
         self.protect.reset()
         self.driving = None
@@ -193,10 +194,12 @@ class AxisController:
         if d.mode == 'hold' and self.mode == 'force' and math.isfinite(load):
             if not math.isfinite(self._f_hold):     # the trip's period: hold its load
                 self._f_hold = load
-                self.force.hold(load)
+                self.force.hold(stamp_ns, load)
             f_traj = math.nan                       # the loop holds what hold() gave it
             want = 'force'
         else:
+            if math.isfinite(self._f_hold):
+                self.force.release()
             self._f_hold = math.nan
             want = 'force' if (self.mode == 'force' and d.mode in ('run', 'ramp')) else \
                 'displacement'
