@@ -649,3 +649,26 @@ def test_a_stiffness_reference_without_stiffness_judges_nothing():
     assert d.reference['stiffness'] == 0.0
     assert not d.cycle(Cycle(2, 0, 0, 1.0, 0.0, 0.002, 0.001, 9.0e3, 1.0e3))
     assert math.isnan(d.last_value)
+
+
+def test_the_compensation_does_not_learn_during_the_controllers_ramp_on():
+    """A cycle the controller's ramp-on attenuated is not learnt from; after it, it is."""
+    step = {**CYCLIC, 'compensation': 'pvc', 'count': 0, 'mean_rate': 0.1}
+
+    def judged(ramp_time, cycles, reset_at=None):
+        r = ProcedureRunner(proc(step, run_out=1000), latency=0.0, ramp_time=ramp_time)
+        ax = PerfectAxis(r)
+        assert r.start(ax.stamp)[0]
+        ax.run(until=lambda r: r.total >= (reset_at or cycles))
+        corr = r._waves[0].wave.corr
+        if reset_at:             # a reset: the controller ramps on again from here
+            n = corr.judged
+            r.event('reset', '', 'off', ax.stamp)
+            ax.run(until=lambda r: r.total >= cycles)
+            return corr.judged - n
+        return corr.judged
+    # 2 s of ramp-on cover the 20 cycles at 10 Hz; without it, all but the tapered ones
+    assert judged(3.0, 20) == 0 and judged(0.0, 20) >= 15
+    assert judged(0.0, 30, reset_at=10) >= 15 and judged(3.0, 60, reset_at=40) == 0
+    with pytest.raises(InputError, match='ramp_time'):
+        ProcedureRunner(proc(step, run_out=1000), ramp_time=math.nan)

@@ -102,6 +102,7 @@ def _run(doc: dict, params, mode: str, **kw):
     from ros_ehs.core.procedure.spec import parse_procedure
     from ros_ehs.core.sim.virtual_test import run_procedure
     tr = _Trace(mode)
+    kw.setdefault('max_seconds', 120.0)
     r = run_procedure(parse_procedure(doc), params, probe=tr, **kw)
     return r, tr.arrays(), tr.events
 

@@ -328,6 +328,9 @@ PROCEDURE = (
             'control mode sets its `control_mode`'),
     Setting('apc_harmonics', '', 5, 1, MAX_HARMONICS, 'cyclic sine steps with APC: the '
             'harmonics corrected (the fundamental included)'),
+    Setting('ramp_time', 's', 1.0, 0.0, 600.0, "the controller's ramp_time: the compensation "
+            'does not learn from cycles its ramp-on attenuates (from its first state, each '
+            'reset and each hydraulics on)'),
     LOAD_TOPIC,
     LOAD_AXIS,
     LOAD_JOINT,

@@ -161,7 +161,8 @@ class ProcedureNode(Node):
         self.dt_ns = int(round(1e9 / rate))
         self.preview_ns = int(round(float(self.opt['preview']) * 1e9))
         self.runner = ProcedureRunner(self.procedure, latency=float(self.opt['preview']),
-                                      harmonics=int(self.opt['apc_harmonics']), rate_hz=rate)
+                                      harmonics=int(self.opt['apc_harmonics']), rate_hz=rate,
+                                      ramp_time=float(self.opt['ramp_time']))
         cp_path = self.opt['checkpoint'] or self.opt['file'] + '.checkpoint.json'
         self.cp_path = Path(cp_path)
         self._rows: list[tuple] = []          # cycle records not yet published

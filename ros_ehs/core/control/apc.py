@@ -264,6 +264,21 @@ class AmplitudePhaseControl(CycleCorrection):
             return
         c_next = c_used + self._steps(c_used, resp, n)
         m_next = m_used + self.gain * (self.mean - mean)
+        # bounded: the fundamental at most (1 + limit) times the amplitude, the harmonics
+        # and the mean's correction at most ``limit`` of it
+        lim, a = self.limit, self.amplitude
+        limited = False
+        if abs(c_next[0]) > (1.0 + lim) * a:
+            c_next[0] *= (1.0 + lim) * a / abs(c_next[0])
+            limited = True
+        h = float(np.sum(np.abs(c_next[1:])))
+        if h > lim * a:
+            c_next[1:] *= lim * a / h
+            limited = True
+        if abs(m_next - self.mean) > lim * a:
+            m_next = self.mean + math.copysign(lim * a, m_next - self.mean)
+            limited = True
+        self.limited_cycles = self.limited_cycles + 1 if limited else 0
         # in from ``latency`` after the cycle's end, to the end of the next cycle (a whole
         # cycle if that leaves less than half of one), so the cycle after it is clean
         t0 = end + self.latency

@@ -44,6 +44,10 @@ class CycleCorrection:
         self._cycle = 0
         self._bad = False
         self.frozen = False
+        #: the most the correction may move the command from the specified one, as a fraction
+        #: of the specified amplitude (inf: no bound)
+        self.limit = math.inf
+        self.limited_cycles = 0         #: consecutive learnt cycles that met the bound
         self.learn_from = 0.0           #: no cycle with a sample before this time [s] counts
 
     def cycle_of(self, t: float) -> int:
@@ -53,6 +57,10 @@ class CycleCorrection:
     def cycle_start(self, n: int) -> float:
         """Return the time [s] at which cycle ``n`` starts."""
         return n * self.period
+
+    def spoil(self) -> None:
+        """Do not learn from the cycle under way (the loop did not apply it as commanded)."""
+        self._bad = True
 
     def freeze(self, on: bool = True) -> None:
         """Stop (or resume) the corrections; the cycle under way is not used."""

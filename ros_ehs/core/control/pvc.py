@@ -250,6 +250,12 @@ class PeakValleyControl(CycleCorrection):
             self.converged_at = c
         if (a0, m0) != (a1, m1):
             return False    # the command changed during that cycle: measure again first
-        self.amp[b] = a1 * (1.0 + self.gain * (rng / (hi - lo) - 1.0))
-        self.mean[b] = m1 + self.gain * (0.5 * (blk.peak + blk.valley) - 0.5 * (hi + lo))
+        amp = a1 * (1.0 + self.gain * (rng / (hi - lo) - 1.0))
+        mean = m1 + self.gain * (0.5 * (blk.peak + blk.valley) - 0.5 * (hi + lo))
+        # bounded: at most ``limit`` of the specified amplitude from the specified command
+        a_s, m_s, lim = 0.5 * rng, 0.5 * (blk.peak + blk.valley), self.limit
+        self.amp[b] = min(max(amp, a_s / (1.0 + lim)), a_s * (1.0 + lim))
+        self.mean[b] = min(max(mean, m_s - lim * a_s), m_s + lim * a_s)
+        limited = (self.amp[b], self.mean[b]) != (amp, mean)
+        self.limited_cycles = self.limited_cycles + 1 if limited else 0
         return True

@@ -162,6 +162,7 @@ class _Wave:
         if step.type == 'sweep' and c0:
             self.t_off = self.corr.cycle_start(c0)
         if self.corr is not None:
+            self.corr.limit = step['compensation_limit']
             # the tapered cycles are not learnt from
             self.corr.learn_from = self.t_off + lead
             if learnt:
@@ -268,17 +269,24 @@ class ProcedureRunner:
     ``procedure``: checked; ``latency``: the reference's preview [s] (decisions act that
     much after the state they were taken on); ``harmonics``: APC's; ``rate_hz``: the loop's;
     ``observe``: the failure detectors report when they trip and the test goes on (a virtual
-    test that tells when each would trip).
+    test that tells when each would trip); ``ramp_time``: the controller's ramp-on [s] (from
+    its first state, and from each ``reset`` and ``enabled`` event): the compensation does
+    not learn from a cycle the ramp-on attenuated.
     """
 
     def __init__(self, procedure: Procedure, *, latency: float = 0.02, harmonics: int = 5,
-                 rate_hz: float = 1000.0, observe: bool = False) -> None:
+                 rate_hz: float = 1000.0, observe: bool = False,
+                 ramp_time: float = 1.0) -> None:
         if not isinstance(procedure, Procedure):
             raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
         if not (math.isfinite(latency) and latency >= 0):
             raise InputError(f'`latency` = {latency!r} s must be >= 0')
+        if not (math.isfinite(ramp_time) and ramp_time >= 0):
+            raise InputError(f'`ramp_time` = {ramp_time!r} s must be >= 0')
         self.procedure = procedure
         self.steps = procedure.steps
+        self.ramp_ns = int(round(ramp_time * 1e9))
+        self._ramp_until = -1               # the controller ramps on until this stamp [ns]
         self.latency_ns = int(round(latency * 1e9))
         self.dt_ns = int(round(1e9 / rate_hz))
         self.harmonics = int(harmonics)
@@ -460,6 +468,9 @@ class ProcedureRunner:
                                     end=t if self.state == 'stopping' else None))
             self.notes.append(('info', f'the controller switched to {detector} control'))
             return
+        if kind in ('reset', 'enabled'):      # the controller ramps on again from here
+            self._ramp_until = max(self._ramp_until, stamp_ns + self.ramp_ns)
+            return
         if kind != 'trip' or action not in ACTING:
             return
         if self.state in ('running', 'switching', 'stopping'):
@@ -524,6 +535,8 @@ class ProcedureRunner:
         """Take a measured state: count cycles, judge them, check the end conditions."""
         if stamp_ns <= self._last_ns:
             return
+        if self._last_ns < 0:               # a new run of states: the controller ramps on
+            self._ramp_until = stamp_ns + self.ramp_ns
         self._last_ns = stamp_ns
         self._last_meas = (z, load)
         if self.state in ('running', 'stopping'):
@@ -636,6 +649,8 @@ class ProcedureRunner:
         tau = w.t_off + (stamp - seg.t0) * 1e-9
         ended = seg.end is not None and stamp >= seg.end
         if not ended:
+            if stamp <= self._ramp_until and w.corr is not None:
+                w.corr.spoil()                   # the controller's ramp-on attenuates it
             w.measure(tau, load if step.control_mode == 'force' else z)
         k = w.cycle_of(tau)
         cyc = seg.cyc
@@ -689,6 +704,16 @@ class ProcedureRunner:
         cap = cyc['capture']
         if cap is not None and cap['count'] == self.total:
             self.captures.append(cap)
+        corr, step_of = seg.wave.corr, self.steps[k]
+        if corr is not None and corr.limited_cycles >= step_of['limit_cycles'] and \
+                self.state == 'running':
+            why = (f'levels not reached: the compensation met its limit '
+                   f"(compensation_limit {step_of['compensation_limit']:g} of the amplitude) "
+                   f'for {corr.limited_cycles} cycles in a row, at cycle {self.total}: the rig '
+                   'cannot follow this step')
+            self._note_event('levels', step_of.name, float(self.total), why)
+            self._freeze(stamp, 'interrupted', why)
+            return
         if not cyc['taper']:
             spec = seg.wave.specified(cyc['k'])
             for d in self._detectors.get(k, []):

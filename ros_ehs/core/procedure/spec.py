@@ -106,6 +106,15 @@ TRANSITION_KEYS: tuple[Setting, ...] = (
        "cycle's mean before the taper, from where the axis is (0: the test's stop_rate, or "
        '1 mm/s or 1 kN/s)'),
 )
+#: How far a step's compensation may move the command (cyclic and sweep steps).
+LIMIT_KEYS: tuple[Setting, ...] = (
+    _S('compensation_limit', '1', 1.0, 0.0, 10.0, 'the most the compensation may move the '
+       'command from the specified one, as a fraction of the specified amplitude (the '
+       'amplitude, the mean and, for APC, the harmonics); when it is met for '
+       '`limit_cycles` learnt cycles in a row, the levels cannot be reached and the test is '
+       'interrupted, the limit named'),
+    _S('limit_cycles', '1', 5, 1, 1000, 'see compensation_limit'),
+)
 
 #: Each step type's keys (besides ``name``, ``type``, ``control_mode``, ``end``, ``capture``).
 STEP_KEYS: dict[str, tuple[Setting, ...]] = {
@@ -126,14 +135,15 @@ STEP_KEYS: dict[str, tuple[Setting, ...]] = {
                   "cycle's peak and valley reach the levels, what a fatigue test is specified "
                   'by) or amplitude/phase control (apc, sines only: the fundamental and its '
                   'harmonics), learnt from the measured signal; auto: pvc; none: the waveform '
-                  'as specified', choices=COMPENSATIONS)) + TRANSITION_KEYS,
+                  'as specified', choices=COMPENSATIONS)) + TRANSITION_KEYS + LIMIT_KEYS,
     'sweep': (_S('mean', 'm or N', 0.0, -_LEVEL, _LEVEL, 'the mean'),
               _S('amplitude', 'm or N', 0.0, 0.0, _LEVEL, 'the amplitude'),
               _S('f0', 'Hz', 1.0, 1.0e-3, 200.0, 'the start frequency'),
               _S('f1', 'Hz', 20.0, 1.0e-3, 200.0, 'the end frequency'),
               _S('duration', 's', 10.0, 1.0e-3, 1.0e7, 'the sweep time (linear)'),
               _S('compensation', '', 'auto', meaning='amplitude/phase control of the '
-                 'fundamental (auto, apc) or none', choices=COMPENSATIONS)) + TRANSITION_KEYS,
+                 'fundamental (auto, apc) or none', choices=COMPENSATIONS)) + TRANSITION_KEYS
+    + LIMIT_KEYS,
     'drive': (_S('file', '', '', meaning='the drive file: CSV with columns t [s] and the '
                  'level (z [m], or F [N] in force), as `ehs_sim drive` writes it'),
               _S('repeats', '1', 1, 1, 10**9, 'how many times to play it (each pass a cycle)'))

@@ -94,7 +94,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                   latency: float = 0.002, checkpoint=None, live: LiveFits | None = None,
                   noise: tuple[float, float, float] = (0.0, 0.0, 0.0),
                   actions: Sequence[tuple[float, str]] = (), fault: str = 'none',
-                  fault_time: float = 0.0,
+                  fault_time: float = 0.0, settle_after: float = 1.0,
                   probe: Callable[[SimulatedAxis, ProcedureRunner, Any, Any], None] | None
                   = None
                   ) -> VirtualTest:
@@ -115,7 +115,9 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     answers in ``events`` as ``('operator', kind, ok, why)``; ``fault``, ``fault_time``: the
     axis's injected fault (:data:`~ros_ehs.core.sim.faults.FAULTS`); ``probe(axis, runner,
     reply, reference)``: called each period after the command (a benchmark reads what the specimen
-    carried: :meth:`SimulatedAxis.true_load`).
+    carried: :meth:`SimulatedAxis.true_load`); ``settle_after``: a test interrupted or held
+    with no action left to resume it ends the run this long after [s] (its ``result`` is
+    then ``interrupted`` or ``held``, with the reason), rather than at ``max_seconds``.
     """
     if not isinstance(procedure, Procedure):
         raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
@@ -131,7 +133,9 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     last_cp: dict | None = None
     loop = ControlLoop(cp.replace(control_mode=procedure.steps[0].control_mode),
                        rate_hz=rate_hz, lockstep=True)
-    runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz, observe=observe)
+    ramp = float(cp['ramp_time'])
+    runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz, observe=observe,
+                             ramp_time=ramp)
     table = np.full((keep_cycles, 8), np.nan)
     n_kept = 0
     events: list = []
@@ -150,6 +154,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     command, measure = axis.command, runner.measure
     wall0 = time.perf_counter()
     started = False
+    stopped_at: int | None = None     # the period the test was interrupted or held at
     k = 0
     for k in range(n):
         s = sample()
@@ -165,7 +170,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             kind = todo.pop(0)[1]
             if kind == 'restart':
                 runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz,
-                                         observe=observe)
+                                         observe=observe, ramp_time=ramp)
                 reference, measure = runner.sample, runner.measure
                 if last_cp is not None:
                     runner.restore(last_cp)
@@ -211,13 +216,24 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             fractured = axis.specimen.cycles
         if runner.state == 'finished':
             break
+        if runner.state in ('interrupted', 'held') and not todo:
+            if stopped_at is None:
+                stopped_at = k
+            elif (k - stopped_at) / rate_hz >= settle_after:
+                break
+        else:
+            stopped_at = None
     wall = time.perf_counter() - wall0
     if n_kept > keep_cycles:
         start = n_kept % keep_cycles
         table = np.concatenate([table[start:], table[:start]])
     else:
         table = table[:n_kept]
-    return VirtualTest(runner.result or runner.state, runner.reason, runner.total,
+    reason = runner.reason
+    if not runner.result and runner.state in ('interrupted', 'held'):
+        reason = next((e[4] for e in reversed(events) if e[0] == 'procedure' and
+                       e[1] == runner.state), '')
+    return VirtualTest(runner.result or runner.state, reason, runner.total,
                        (k + 1) / rate_hz, wall, dict(runner.tripped), fractured, events, table,
                        checkpoints, cp_s, estimates)
 
