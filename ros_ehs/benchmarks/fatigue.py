@@ -42,10 +42,13 @@ Fatigue benchmark: a test to failure, the virtual test's speed, resume after kil
   the procedure node alone, or every process at once (a power cut: the bag is cut too), then
   restarted from its checkpoint and the bag, resumed with ``~/resume``, run to its end.
   ``planned`` (the count asked), ``applied`` (the cycles the recorded positions show: rises
-  through the mean + a quarter of the amplitude after a fall below the mean - a quarter, in
-  every bag of the test), ``counted`` (the procedure's). Target: ``counted`` = ``planned``
+  through the mean + 10 % of the amplitude after a fall below the mean - 10 %, in every bag
+  of the test; ``unseen_tapered``: the tapered cycles too small for that, from the cycle
+  table), ``counted`` (the procedure's). Target: ``counted`` = ``planned``
   (no cycle applied twice), and ``applied`` within one cycle of it (a cycle cut by the kill
-  is applied in part and not counted).
+  is applied in part and not counted); ``beyond_pct``: how far the recorded piston went
+  beyond the cycles' valley..peak (and where it was when a restarted plant began), in % of
+  the range. Target: at most 2.
 * ``cycle_table_bytes_per_cycle``: a cycle's record on ``procedure/cycles`` (40) and what the
   bags hold of them per cycle (the CDR message with its layout, before compression);
   ``checkpoint_ms``: the median time of one checkpoint written (write, fsync, rename).
@@ -79,7 +82,11 @@ RESUME_CYCLES = 20
 RESUME = {'name': 'resume test', 'steps': [
     {'name': 'to mean', 'type': 'ramp', 'to': 0.002, 'rate': 0.01},
     {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.002, 'amplitude': 0.001,
-     'frequency': 5.0, 'count': RESUME_CYCLES}]}
+     'frequency': 5.0, 'count': RESUME_CYCLES,
+     # a resume brings the mean back at 10 mm/s: at the default 1 mm/s the default rig's
+     # Stribeck friction made the position loop hunt +-0.15 mm at 25 Hz on the way (stick and
+     # slip, within the envelope), which the applied count took for cycles
+     'mean_rate': 0.01}]}
 #: the long run: small 50 Hz cycles, so that 10^6 of them take 2*10^4 s of simulated time
 LONG = {'name': 'long run', 'steps': [
     {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.0, 'amplitude': 1.0e-4,
@@ -218,6 +225,23 @@ def _status(procs, pred) -> dict:
     return procs.status(c.PROCEDURE_STATUS).values
 
 
+#: the resume runs' cycles are seen in the recorded positions as rises through their mean +
+#: HYSTERESIS after a fall below the mean - HYSTERESIS (10 % of the amplitude: the default
+#: rig's friction makes the piston stick and slip about the mean as the mean is approached
+#: at 1 mm/s; a start's or a resume's first tapered cycle peaks at 3.5 % of the amplitude
+#: and is not seen: :func:`_unseen`)
+MEAN = RESUME['steps'][1]['mean']
+HYSTERESIS = 0.1 * RESUME['steps'][1]['amplitude']
+
+
+def _unseen(bags) -> int:
+    """Return the tapered cycles whose recorded swing about the mean is under HYSTERESIS."""
+    from ros_ehs.data.fatigue import read_cycles
+    t = read_cycles([b for b in bags if b.exists()])
+    small = (t[:, 9] == 1) & ((t[:, 5] < MEAN + HYSTERESIS) | (t[:, 6] > MEAN - HYSTERESIS))
+    return int(small.sum())
+
+
 def _applied(bags) -> int:
     """Count the cycles the recorded positions show (see the module docstring)."""
     import numpy as np
@@ -231,12 +255,45 @@ def _applied(bags) -> int:
                                           key=lambda s: s.stamp_ns)])
         armed = False
         for v in z:
-            if v < 0.002 - 0.00025:
+            if v < MEAN - HYSTERESIS:
                 armed = True
-            elif armed and v > 0.002 + 0.00025:
+            elif armed and v > MEAN + HYSTERESIS:
                 n += 1
                 armed = False
     return n
+
+
+def _beyond(bags) -> float:
+    """
+    Return how far the recorded piston went beyond the test's envelope [% of its range].
+
+    The envelope is the cycles' valley..peak (1..3 mm) from the first time the piston
+    reached their mean, widened to the stop level the test ends at (0 m), and in each later
+    bag to where it was when that bag began (a restarted plant starts at 0).
+    """
+    import numpy as np
+    from ros_ehs.data.bag import open_bag
+    import ros_ehs_msgs_py as c
+    mean, amp = RESUME['steps'][1]['mean'], RESUME['steps'][1]['amplitude']
+    lo, hi = mean - amp, mean + amp
+    rng = hi - lo
+    lo = min(lo, RESUME.get('stop_level', 0.0))
+    worst = 0.0
+    for j, bag in enumerate(bags):
+        z = np.array([s.z for s in sorted((c.state_from_cdr(m.data) for m in
+                                           open_bag(bag).messages(['/state'])),
+                                          key=lambda s: s.stamp_ns)])
+        if not z.size:
+            continue
+        if j == 0:
+            at = np.flatnonzero(z >= mean - 1e-5)
+            z = z[at[0]:] if at.size else z[:0]
+            a, b = lo, hi
+        else:
+            a, b = min(lo, z[0]), max(hi, z[0])
+        if z.size:
+            worst = max(worst, float(z.max()) - b, a - float(z.min()))
+    return round(worst / rng * 100.0, 3)
 
 
 def _resume(kills: int, seed: int) -> dict:
@@ -296,7 +353,9 @@ def _resume(kills: int, seed: int) -> dict:
                 cdr_cycles += int(st['total_cycles'])
                 runs.append({'killed': 'all' if everything else 'procedure', 'at': at,
                              'restored': restored, 'planned': RESUME_CYCLES,
-                             'applied': _applied(bags), 'counted': int(st['total_cycles'])})
+                             'applied': _applied(bags), 'unseen_tapered': _unseen(bags),
+                             'counted': int(st['total_cycles']),
+                             'beyond_pct': _beyond(bags)})
         finally:
             exe.shutdown()
             node.destroy_node()
@@ -360,10 +419,12 @@ def main(argv=None) -> int:
     if a.kills > 0:
         res = _resume(a.kills, a.seed)
         fig['resume'] = {'runs': res['runs'],
-                         'worst_applied_minus_counted': max(abs(r['applied'] - r['counted'])
-                                                            for r in res['runs']),
+                         'worst_applied_minus_counted': max(
+                             abs(r['applied'] + r['unseen_tapered'] - r['counted'])
+                             for r in res['runs']),
                          'all_counted_as_planned': all(r['counted'] == r['planned']
-                                                       for r in res['runs'])}
+                                                       for r in res['runs']),
+                         'worst_beyond_pct': max(r['beyond_pct'] for r in res['runs'])}
         table['bag_cdr'] = res['bag_cdr_bytes_per_cycle']
     fig['cycle_table_bytes_per_cycle'] = table
     fig['checkpoint_ms'] = _checkpoint_ms()
