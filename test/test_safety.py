@@ -529,3 +529,32 @@ def test_a_limit_set_with_its_action_off_is_said_by_name():
                                'limit_load_max_action': 'hold'}))
     assert len(said) == 2 and 'limit_velocity = 0.5 m/s' in said[0] and \
         'limit_velocity_action is off' in said[0] and 'limit_error = 0.002 m' in said[1]
+
+
+def _load_check(n, z_of, f_of, **cfg):
+    """Feed a supervisor in force control ``n`` periods of z and the load; return its trips."""
+    sup = _sup(k_L=1.0e7, ramp_time=0.0, load_check_window=0.1, load_check_force=500.0,
+               **cfg)
+    trips = []
+    for k in range(n):
+        _, ev = sup.update(k * MS, z_of(k), math.nan, math.nan, 0.0, 0.0, 0.0, False,
+                           load=f_of(k), needs_load=True, track_position=False)
+        trips += [(k, e.message) for e in ev if e.kind == 'trip']
+    return trips
+
+
+def test_a_load_cell_that_does_not_follow_the_piston_or_drifts_trips_load_feedback():
+    def z(k):
+        return 5.0e-4 * math.sin(2 * math.pi * 10 * k * 1e-3)     # +-5 kN on 1e7 N/m
+    # a sound cell, then one whose crack halves the stiffness: not judged a fault
+    assert _load_check(1000, z, lambda k: 1.0e7 * z(k) + 5.0e3) == []
+    assert _load_check(1000, z, lambda k: 1.0e7 / (1.0 + k / 1000.0) * z(k)) == []
+    # a cell reading a tenth of it (a wrong gain, a loose cable): the fit over a window,
+    # judged after a whole window of disagreement
+    trips = _load_check(1000, z, lambda k: (1.0e7 if k < 300 else 1.0e6) * z(k))
+    assert trips and 'does not follow' in trips[0][1] and 300 + 100 <= trips[0][0] <= 300 + 210
+    # a cell whose zero drifts 1 N a period (1 kN/s): past 300 N, a window later
+    trips = _load_check(1000, z, lambda k: 1.0e7 * z(k) + max(0.0, k - 200) * 1.0)
+    assert trips and 'drifted' in trips[0][1] and 600 <= trips[0][0] <= 720, trips
+    # a still piston tells nothing: the same drift is not judged
+    assert _load_check(1000, lambda k: 0.0, lambda k: max(0.0, k - 200) * 1.0) == []

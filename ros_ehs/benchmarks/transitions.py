@@ -32,8 +32,9 @@ piston's own position in displacement control:
   detector's hold, not obeyed): ``from_trip_pct``, the load's largest distance from where
   the limit tripped while held, in % of the range (target 2), and for the stuck valve
   ``to_power_off_s``, from the hold to hydraulics off (target 0.1 s); the load cell lost
-  (NaN) and frozen at four phases: ``to_hold_s`` from the fault to the hold (target 0.1 s)
-  and ``beyond_pct`` beyond the steady cycles' extremes (target 2).
+  (NaN), frozen, and drifting (100 N/s) at four phases: ``to_hold_s`` from the fault to the
+  hold (target 0.1 s) and ``beyond_pct`` beyond the steady cycles' extremes (target 2); with
+  100 N of noise on the load cell and 10 um on the position, ``trips`` (none expected).
 
 Each case also gives the command's peak (``cmd_peak``) and the result of its test. The
 last line is one JSON object with every case and ``worst`` per kind.
@@ -256,11 +257,13 @@ def _faults(p_force) -> list[dict]:
     off_t = first.get('hold_error')
     out.append({'case': 'force/stuck_valve', 'result': r.result, 'tripped': sorted(first),
                 'to_power_off_s': round(off_t - hold_t, 4) if hold_t and off_t else None})
-    for fault in ('nan_load_cell', 'frozen_load_cell'):
+    for fault in ('nan_load_cell', 'frozen_load_cell', 'drifting_load_cell'):
         for ph, x in PHASES.items():
             t_f = t20 + x / FREQ
-            r, arr, ev = _run(_force(), p_force, 'force', fault=fault, fault_time=t_f,
-                              max_seconds=t_f + 1.0)
+            long = fault == 'drifting_load_cell'      # 300 N at 100 N/s: some 3 s
+            r, arr, ev = _run(_force(cycles=100 if long else 40), p_force, 'force',
+                              fault=fault, fault_time=t_f,
+                              max_seconds=t_f + (5.0 if long else 1.0))
             trip = [e for e in ev if e[1] == 'trip' and e[2] == 'load_feedback']
             m = arr['t'] >= t_f
             out.append({'case': f'force/{fault}_{ph}', 'result': r.result,
@@ -268,6 +271,11 @@ def _faults(p_force) -> list[dict]:
                         'beyond_pct': _beyond(arr['load'], steady[0], steady[1], rng, m),
                         'load_range_after': [round(float(arr['load'][m].min()), 1),
                                              round(float(arr['load'][m].max()), 1)]})
+    # real sensor noise (100 N on the load cell, 10 um on the position): no false trip
+    p = p_force.replace(load_cell_noise=100.0)
+    r, arr, ev = _run(_force(cycles=60), p, 'force', noise=(1.0e-5, 0.0, 0.0))
+    out.append({'case': 'force/noisy_sensors', 'result': r.result,
+                'trips': sorted({e[2] for e in ev if e[1] == 'trip'})})
     return out
 
 

@@ -112,7 +112,8 @@ PLANT = (
     Setting('fault', '', 'none', meaning='inject a fault from fault_time on (tests, '
             'demonstrations): frozen_sensor, nan_sensor, stuck_valve (the current at the start '
             'stays applied), lost_pressure (supply to 1 MPa), frozen_load_cell (the load cell '
-            "repeats its reading of the fault's start), nan_load_cell", choices=FAULTS,
+            "repeats its reading of the fault's start), nan_load_cell, drifting_load_cell (its "
+            'reading drifts 100 N/s from the truth)', choices=FAULTS,
             live=True),
     Setting('fault_time', 's', 0.0, 0.0, 1.0e9, 'sim time after the start at which `fault` '
             'begins', live=True),

@@ -325,8 +325,17 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
     _p('load_frozen_force', 'N', 200.0, 1.0, 1.0e7, 'load cell frozen: its reading repeats '
        'while the piston moves far enough to change the load by more than this (k_L times '
        'the travel; needs k_L)', 'safety', 'D'),
+    _p('load_check_window', 's', 0.1, 0.01, 10.0, 'load cell against the motion: the window '
+       'its readings are fitted over against the position (load = k z + b), when the motion '
+       'swung k_L z by more than twice load_check_force; the fitted k under a quarter of k_L or '
+       'above 4 k_L trips (a cell that does not follow the piston)', 'safety', 'D'),
+    _p('load_check_force', 'N', 500.0, 1.0, 1.0e7, 'see load_check_window', 'safety', 'D'),
+    _p('load_drift_force', 'N', 300.0, 1.0, 1.0e7, 'load cell drift: the fitted zero-load '
+       "position moved from the first window's by more than this over k_L (its zero drifted; "
+       'a crack changes k, not where the load is zero)', 'safety', 'D'),
     _action('load_feedback', 'hold', 'load cell validity under force control and specimen '
-            'protect (non-finite, missing, stale or frozen; with hold or more, displacement '
+            'protect (non-finite, missing, stale, frozen, not following the piston or '
+            'drifted; with hold or more, displacement '
             'from then on, held where the reading was last true)'),
     _p('hold_error_position', 'm', 1.0e-3, 1.0e-6, 1.0, 'a hold not obeyed: the piston more '
        'than this from the position held...', 'safety', 'D'),

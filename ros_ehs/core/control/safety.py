@@ -122,7 +122,8 @@ _NUMBERS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit
             'safe_velocity', 'ramp_time', 'limit_load_max', 'limit_load_min',
             'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'break_drop',
             'break_travel', 'break_window', 'z_L', 'k_L', 'load_frozen_force',
-            'hold_error_position', 'hold_error_force', 'hold_error_time')
+            'hold_error_position', 'hold_error_force', 'hold_error_time', 'load_check_window',
+            'load_check_force', 'load_drift_force')
 #: the pairs of limits whose hysteresis is a fraction of their span
 _PAIRS = {'limit_position_max': ('limit_position_min', 'limit_position_max', 1),
           'limit_position_min': ('limit_position_min', 'limit_position_max', -1),
@@ -145,7 +146,8 @@ LIMITS_OF = {'limit_position_max': ('limit_position_max',),
              'limit_specimen_min': ('limit_specimen_min',),
              'limit_force_error': ('limit_force_error',),
              'specimen_break': ('break_drop', 'break_travel', 'break_window'),
-             'load_feedback': ('load_frozen_force',),
+             'load_feedback': ('load_frozen_force', 'load_check_window', 'load_check_force',
+                               'load_drift_force'),
              'hold_error': ('hold_error_position', 'hold_error_force', 'hold_error_time')}
 
 
@@ -200,6 +202,9 @@ class SafetyConfig:
     hold_error_position: float = 1.0e-3
     hold_error_force: float = 1.0e3
     hold_error_time: float = 0.02
+    load_check_window: float = 0.1
+    load_check_force: float = 500.0
+    load_drift_force: float = 300.0
     actions: Mapping[str, str] = field(default_factory=lambda: {
         d: spec(d + '_action').default for d in DETECTORS})
 
@@ -356,6 +361,64 @@ class Supervisor:
         self._load_same = 0             # periods it has repeated
         self._z_load = math.nan         # the position when it last changed [m]
         self._hold_at = math.nan        # where a hold holds instead of the measured position
+        self._lc_clear()
+
+    def _lc_clear(self) -> None:
+        """Forget the load check's window (its zero-load reference stays)."""
+        self._lc: deque[tuple[float, float]] = deque()
+        self._lc_sums = [0.0, 0.0, 0.0, 0.0]       # sums of z, F, z^2, z F
+        self._lc_bad = 0                            # periods in a row it has disagreed
+        if not hasattr(self, '_lc_z0'):
+            self._lc_z0 = math.nan                  # the first window's zero-load position
+
+    def _load_check(self, stamp_ns: int, z: float, load: float, events: list[Event]) -> None:
+        """Fit the window's load against the position: a cell that does not follow, or drifted."""
+        cfg = self.config
+        k = cfg.k_L
+        s = self._lc_sums
+        self._lc.append((z, load))
+        s[0] += z
+        s[1] += load
+        s[2] += z * z
+        s[3] += z * load
+        n = max(2, int(round(cfg.load_check_window / self.dt)))
+        while len(self._lc) > n:
+            zo, fo = self._lc.popleft()
+            s[0] -= zo
+            s[1] -= fo
+            s[2] -= zo * zo
+            s[3] -= zo * fo
+        if len(self._lc) < n:
+            return
+        zm, fm = s[0] / n, s[1] / n
+        vz = s[2] / n - zm * zm
+        if not vz * k * k > 4.0 * cfg.load_check_force ** 2:
+            self._lc_bad = 0
+            return                   # the piston did not move enough to judge the cell by
+        k_fit = (s[3] / n - zm * fm) / vz
+        z0 = zm - fm / k_fit if k_fit else math.nan
+        follows = 0.25 * k <= k_fit <= 4.0 * k
+        # the zero-load position is judged on a swing of twice that at least: the position's
+        # noise biases the fitted k low by its share of the swing's variance, and the zero
+        # with it (10 um on a 0.1 mm swing: 1 %, 55 N of a 5.5 kN mean)
+        judged = follows and vz * k * k > 16.0 * cfg.load_check_force ** 2
+        if judged and not math.isfinite(self._lc_z0):
+            self._lc_z0 = z0
+        drift = k * (z0 - self._lc_z0) if judged else 0.0
+        bad = not follows or abs(drift) > cfg.load_drift_force
+        # a disagreement that lasts a whole window (a transient, a break, is not one)
+        self._lc_bad = self._lc_bad + 1 if bad else 0
+        if self._lc_bad < n:
+            return
+        if not follows:
+            why = (f'load_feedback: the load cell does not follow the piston: over '
+                   f'{cfg.load_check_window:g} s its readings make {k_fit:.4g} N/m of the '
+                   f'travel, k_L is {k:.4g} N/m')
+        else:
+            why = (f'load_feedback: the load cell drifted: it reads zero with the piston '
+                   f'{(z0 - self._lc_z0) * 1e3:.4g} mm from where it did (k_L times it: '
+                   f'{drift:.4g} N, above {cfg.load_drift_force:g} N)')
+        self._check('load_feedback', True, stamp_ns, load, why, events)
 
     def restart(self) -> None:
         """Forget the run (a new epoch): ramp on again at the next state; latches stay."""
@@ -508,6 +571,8 @@ class Supervisor:
             self._load_last = load
             self._z_load = z
         if not (math.isfinite(load) and math.isfinite(z)):
+            if self._lc:
+                self._lc_clear()
             win.clear()
             self._win_max.clear()
             self._win_zlo.clear()
@@ -540,6 +605,13 @@ class Supervisor:
                                 f'to {load:.6g} N) while the piston moved {travel * 1e3:.6g} mm '
                                 'the way that loads it', events)
                     break
+        # the load cell against the motion, once the break has had its say (a broken
+        # specimen's cell reads nothing while the piston moves: that is the break's to name)
+        if needs_load and powered and self._mode == 'run' and cfg.k_L > 0 and \
+                not self.latches['specimen_break'].tripped:
+            self._load_check(stamp_ns, z, load, events)
+        elif self._lc:
+            self._lc_clear()
         self._win_seq += 1
         win.append((self._win_seq, load, z))
         a = abs(load)
@@ -767,6 +839,8 @@ class Supervisor:
         self._same = 0
         self._load_same = 0
         self._hold_at = math.nan
+        self._lc_clear()
+        self._lc_z0 = math.nan
         self._window.clear()
         self._win_max.clear()
         self._win_zlo.clear()

@@ -60,7 +60,8 @@ train reads 0 N). A change of a specimen's parameters installs a new one.
 velocity of the fault's start from then on), ``nan_sensor``, ``stuck_valve`` (the current at
 the start stays applied), ``lost_pressure`` (supply to ``LOST_SUPPLY``),
 ``frozen_load_cell`` (the load cell repeats its reading at the fault's start),
-``nan_load_cell``. :meth:`true_load` is the specimen's own force, whatever its load cell
+``nan_load_cell``, ``drifting_load_cell`` (its reading drifts from the truth at
+``LOAD_DRIFT``). :meth:`true_load` is the specimen's own force, whatever its load cell
 reads: what the specimen carried.
 
 What the node should log is left in :attr:`SimulatedAxis.notes` as (level, text), once per
@@ -79,7 +80,7 @@ from ros_ehs.core.errors import InputError
 from ros_ehs.core.model.plant import Plant
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import Params
-from ros_ehs.core.sim.faults import FAULTS, LOST_SUPPLY
+from ros_ehs.core.sim.faults import FAULTS, LOAD_DRIFT, LOST_SUPPLY
 from ros_ehs_msgs_py import AxisState, Load
 
 __all__ = ['FAULTS', 'LOST_SUPPLY', 'MAX_CATCHUP', 'PACE_CREDIT', 'PACE_TICK', 'SPECIMEN_PARAMS',
@@ -513,8 +514,12 @@ class SimulatedAxis:
         load = sp.force(xs[self._iz], xs[self._iv])
         if self._load_noise:
             load += self._load_noise * float(self._rng_load.standard_normal())
-        if self._fault_on and self.fault in ('frozen_load_cell', 'nan_load_cell'):
-            load = self._fault_hold[3] if self.fault == 'frozen_load_cell' else math.nan
+        if self._fault_on and self.fault in ('frozen_load_cell', 'nan_load_cell',
+                                             'drifting_load_cell'):
+            if self.fault == 'drifting_load_cell':
+                load += LOAD_DRIFT * (self.k * self.dt - self.fault_time)
+            else:
+                load = self._fault_hold[3] if self.fault == 'frozen_load_cell' else math.nan
         self._last_load = load
         state = AxisState(self.stamp_ns(), z, v, self._A_p * (xs[self._ipa] - xs[self._ipb]),
                           xs[self._ixv] if self._ixv >= 0 else math.nan, self.applied,

@@ -18,10 +18,12 @@ Apart from the axis, so that the settings (:mod:`ros_ehs.core.options`), which e
 reads, name them without loading the model.
 """
 
-__all__ = ['FAULTS', 'LOST_SUPPLY']
+__all__ = ['FAULTS', 'LOAD_DRIFT', 'LOST_SUPPLY']
 
 #: The faults the axis can inject (their meaning: the plant's ``fault`` setting).
 FAULTS = ('none', 'frozen_sensor', 'nan_sensor', 'stuck_valve', 'lost_pressure',
-          'frozen_load_cell', 'nan_load_cell')
+          'frozen_load_cell', 'nan_load_cell', 'drifting_load_cell')
+#: How fast the ``drifting_load_cell`` fault's reading drifts from the truth [N/s].
+LOAD_DRIFT = 100.0
 #: The supply pressure of the ``lost_pressure`` fault [Pa] (the lowest p_s allows).
 LOST_SUPPLY = 1.0e6
