@@ -293,11 +293,7 @@ def main(argv=None) -> int:
                              reference={'kind': a.reference,
                                         'rate_hz': 1000.0 if lock else 250.0},
                              procedure={'file': str(Path(a.procedure).resolve()),
-                                        'autostart': a.autostart,
-                                        # the controller's ramp-on, which its compensation
-                                        # must not learn from
-                                        **({'ramp_time': controller['ramp_time']}
-                                           if 'ramp_time' in controller else {})}
+                                        'autostart': a.autostart}
                              if a.procedure else None)
         except StartupError as err:
             print(f'bench: {err}', file=sys.stderr)

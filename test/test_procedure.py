@@ -651,24 +651,22 @@ def test_a_stiffness_reference_without_stiffness_judges_nothing():
     assert math.isnan(d.last_value)
 
 
-def test_the_compensation_does_not_learn_during_the_controllers_ramp_on():
-    """A cycle the controller's ramp-on attenuated is not learnt from; after it, it is."""
+def test_a_waveform_waits_for_the_controllers_ramp_on_and_does_not_learn_during_one():
+    """A cycle the controller's ramp-on attenuates is neither carried nor learnt from."""
     step = {**CYCLIC, 'compensation': 'pvc', 'count': 0, 'mean_rate': 0.1}
-
-    def judged(ramp_time, cycles, reset_at=None):
-        r = ProcedureRunner(proc(step, run_out=1000), latency=0.0, ramp_time=ramp_time)
-        ax = PerfectAxis(r)
-        assert r.start(ax.stamp)[0]
-        ax.run(until=lambda r: r.total >= (reset_at or cycles))
-        corr = r._waves[0].wave.corr
-        if reset_at:             # a reset: the controller ramps on again from here
-            n = corr.judged
-            r.event('reset', '', 'off', ax.stamp)
-            ax.run(until=lambda r: r.total >= cycles)
-            return corr.judged - n
-        return corr.judged
-    # 2 s of ramp-on cover the 20 cycles at 10 Hz; without it, all but the tapered ones
-    assert judged(3.0, 20) == 0 and judged(0.0, 20) >= 15
-    assert judged(0.0, 30, reset_at=10) >= 15 and judged(3.0, 60, reset_at=40) == 0
+    r = ProcedureRunner(proc(step, run_out=1000), latency=0.0, ramp_time=3.0)
+    ax = PerfectAxis(r)
+    assert r.start(ax.stamp)[0]
+    ax.run(until=lambda r: r.total >= 1)
+    assert r.cycles[0].end_ns >= T0 + 3 * 10**9 + 100 * MS     # after the ramp-on's 3 s
+    ax.run(until=lambda r: r.total >= 30)
+    corr = r._waves[0].wave.corr
+    assert corr.judged >= 20                    # learnt from once the ramp-on was over
+    r.event('reset', '', 'off', ax.stamp)      # a reset: the controller ramps on again
+    n = corr.judged
+    ax.run(until=lambda r: r.total >= 50)      # 2 s of its 3 s
+    assert corr.judged == n
+    ax.run(until=lambda r: r.total >= 70)
+    assert corr.judged > n
     with pytest.raises(InputError, match='ramp_time'):
         ProcedureRunner(proc(step, run_out=1000), ramp_time=math.nan)

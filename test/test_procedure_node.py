@@ -42,7 +42,7 @@ def _loop(procs, bag, proc_opts, seconds=8.0):
     # the hydraulics ramp on in 50 ms, before the test starts (nothing learnt from a ramp-on)
     procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, 'k_L': SPECIMEN['k_L'],
                                **FAST})
-    procs.start('procedure', {'use_sim_time': True, **FAST, **proc_opts})
+    procs.start('procedure', {'use_sim_time': True, 'ramp_time': 0.05, **FAST, **proc_opts})
     assert procs.wait_status(c.RECORDER_STATUS, recording(
         c.COMMAND, c.REFERENCE, c.CYCLES, c.PROCEDURE_EVENTS), BOUND)
     procs.start('plant', {'mode': 'lockstep', 'duration': seconds, 'wait_subscribers': 3,
@@ -126,7 +126,8 @@ def test_a_killed_procedure_resumes_at_its_count_and_no_cycle_counts_twice(
         procs['procedure'].popen.send_signal(signal.SIGKILL)
         procs['procedure'].popen.wait(BOUND)
         # lock-step: the loop waits for the reference, nothing moves meanwhile
-        procs.start('procedure', {'use_sim_time': True, **FAST, **opts}, name='procedure2')
+        procs.start('procedure', {'use_sim_time': True, 'ramp_time': 0.05, **FAST, **opts},
+                    name='procedure2')
         # restored, and the plant's resent state measured
         st = _status(procs, lambda v: v['state'] == 'interrupted' and int(v['stamp_ns']) > 0)
         before = int(st['total_cycles'])
@@ -165,7 +166,7 @@ def test_a_step_in_force_switches_the_controller_and_loads_the_specimen(dom, tmp
         procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, 'k_L': k,
                                    'force_kp': 1.675e-7, 'force_ki': 5.0e-7, **FAST})
         procs.start('procedure', {'use_sim_time': True, 'file': str(proc), 'autostart': True,
-                                  **FAST})
+                                  'ramp_time': 0.05, **FAST})
         assert procs.wait_status(c.RECORDER_STATUS, recording(
             c.COMMAND, c.REFERENCE, c.PROCEDURE_EVENTS), BOUND)
         procs.start('plant', {'mode': 'lockstep', 'duration': 6.0, 'wait_subscribers': 3,

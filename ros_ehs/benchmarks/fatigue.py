@@ -206,7 +206,8 @@ def _loop(procs, bag, opts: dict, name: str = 'procedure') -> None:
         raise RuntimeError('the recorder did not start')
     procs.start('controller', {'lockstep': True, 'ramp_time': 0.05, **fast},
                 name=f'controller_{name}')
-    procs.start('procedure', {'use_sim_time': True, **fast, **opts}, name=name)
+    procs.start('procedure', {'use_sim_time': True, 'ramp_time': 0.05, **fast, **opts},
+                name=name)
     if not procs.wait_status(c.RECORDER_STATUS, recording(
             c.COMMAND, c.REFERENCE, c.CYCLES, c.PROCEDURE_EVENTS), BOUND):
         raise RuntimeError('the recorder did not discover the controller and the procedure')
@@ -336,7 +337,7 @@ def _resume(kills: int, seed: int) -> dict:
                         bags.append(d / 'bag1')
                         _loop(procs, bags[1], opts, name='procedure_again')
                     else:
-                        procs.start('procedure', {'use_sim_time': True,
+                        procs.start('procedure', {'use_sim_time': True, 'ramp_time': 0.05,
                                                   'diagnostics_period': 0.05, **opts},
                                     name='procedure_again')
                     st = _status(procs, lambda v: v['state'] == 'interrupted' and

@@ -312,6 +312,7 @@ def main(argv=None) -> int:
         cases += _faults(p_force)
     for c in cases:
         print(c)
+
     def of(pred):
         return [c for c in cases if pred(c['case'])]
     moves = of(lambda n: not any(f in n for f in ('load_cell', 'load_limit', 'stuck', 'noisy')))

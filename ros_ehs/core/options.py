@@ -329,9 +329,10 @@ PROCEDURE = (
             'control mode sets its `control_mode`'),
     Setting('apc_harmonics', '', 5, 1, MAX_HARMONICS, 'cyclic sine steps with APC: the '
             'harmonics corrected (the fundamental included)'),
-    Setting('ramp_time', 's', 1.0, 0.0, 600.0, "the controller's ramp_time: the compensation "
-            'does not learn from cycles its ramp-on attenuates (from its first state, each '
-            'reset and each hydraulics on)'),
+    Setting('ramp_time', 's', 1.0, 0.0, 600.0, "the controller's ramp_time: a waveform step "
+            'waits for its ramp-on, and the compensation does not learn from cycles it '
+            "attenuates (from this node's first state, each reset and each hydraulics on; a "
+            'restarted procedure node waits once more)'),
     LOAD_TOPIC,
     LOAD_AXIS,
     LOAD_JOINT,

@@ -392,7 +392,11 @@ class NodeProcesses:
                          timeout, 'the recorder did not start')
         self.start('controller', {'lockstep': lock, **(controller or {})}, params_file=pf)
         if procedure is not None:
-            self.start('procedure', {'use_sim_time': lock, **procedure}, params_file=pf)
+            # the controller's ramp-on, which the test waits for and does not learn from
+            ramp = {'ramp_time': controller['ramp_time']} if controller and \
+                'ramp_time' in controller else {}
+            self.start('procedure', {'use_sim_time': lock, **ramp, **procedure},
+                       params_file=pf)
         if lock:
             first = [contract.COMMAND]
             if reference is not False:

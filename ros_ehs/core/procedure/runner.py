@@ -44,8 +44,9 @@ test controllers do (docs/procedures.md, "Starts and resumes"): the mean first, 
 the axis is (the measured value on a resume, the last command otherwise) to the midpoint of
 the cycle's command, along the ramp-on's quintic at no more than the step's ``mean_rate``;
 then the amplitude, from zero, its envelope growing along the same quintic over the step's
-``taper`` cycles. The command stays within the hull of where the axis was and the cycle's
-peak and valley. Tapered cycles count (they are carried) and are flagged
+``taper`` cycles. Both wait for the controller's ramp-on to end (``ramp_time``): a cycle
+it attenuates is not carried. The command stays within the hull of where the axis was and
+the cycle's peak and valley. Tapered cycles count (they are carried) and are flagged
 (:data:`~ros_ehs.core.procedure.detectors.TAPERED`); the compensation does not learn from
 them and the failure detectors do not judge them (their settling and reference cycles come
 after the taper). A resumed step goes on at the start of its next whole cycle; the
@@ -270,13 +271,13 @@ class ProcedureRunner:
     much after the state they were taken on); ``harmonics``: APC's; ``rate_hz``: the loop's;
     ``observe``: the failure detectors report when they trip and the test goes on (a virtual
     test that tells when each would trip); ``ramp_time``: the controller's ramp-on [s] (from
-    its first state, and from each ``reset`` and ``enabled`` event): the compensation does
-    not learn from a cycle the ramp-on attenuated.
+    its first state, and from each ``reset`` and ``enabled`` event): a waveform step waits
+    for it to end, and the compensation does not learn from a cycle it attenuated.
     """
 
     def __init__(self, procedure: Procedure, *, latency: float = 0.02, harmonics: int = 5,
                  rate_hz: float = 1000.0, observe: bool = False,
-                 ramp_time: float = 1.0) -> None:
+                 ramp_time: float = 0.0) -> None:
         if not isinstance(procedure, Procedure):
             raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
         if not (math.isfinite(latency) and latency >= 0):
@@ -585,6 +586,9 @@ class ProcedureRunner:
                                 end=t0 + int(round(step['time'] * 1e9))))
         else:
             c0 = self.counts[k]
+            if t0 < self._ramp_until:        # the controller still ramps on: wait for it
+                self._push(_Segment('level', t0, mode, v0=start, step=-1))
+                t0 = self._ramp_until + self.dt_ns
             probe = _Wave(step, self.latency_ns * 1e-9, self.harmonics, c0, 0.0,
                           self._learnt.get(k))
             taper = step['taper'] * probe.period

@@ -40,6 +40,7 @@ from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import Params
 from ros_ehs.core.procedure.detectors import Cycle
+from ros_ehs.core.procedure.envelope import require_envelope
 from ros_ehs.core.procedure.runner import ProcedureRunner
 from ros_ehs.core.procedure.spec import Procedure
 from ros_ehs.core.sim.axis import SimulatedAxis
@@ -94,7 +95,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                   latency: float = 0.002, checkpoint=None, live: LiveFits | None = None,
                   noise: tuple[float, float, float] = (0.0, 0.0, 0.0),
                   actions: Sequence[tuple[float, str]] = (), fault: str = 'none',
-                  fault_time: float = 0.0, settle_after: float = 1.0,
+                  fault_time: float = 0.0, settle_after: float = 1.0, check: bool = True,
                   probe: Callable[[SimulatedAxis, ProcedureRunner, Any, Any], None] | None
                   = None
                   ) -> VirtualTest:
@@ -117,10 +118,14 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     reply, reference)``: called each period after the command (a benchmark reads what the specimen
     carried: :meth:`SimulatedAxis.true_load`); ``settle_after``: a test interrupted or held
     with no action left to resume it ends the run this long after [s] (its ``result`` is
-    then ``interrupted`` or ``held``, with the reason), rather than at ``max_seconds``.
+    then ``interrupted`` or ``held``, with the reason), rather than at ``max_seconds``;
+    ``check``: refuse a procedure the rig of ``params`` cannot follow (InputError naming each
+    step and limit, :func:`~ros_ehs.core.procedure.envelope.require_envelope`).
     """
     if not isinstance(procedure, Procedure):
         raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
+    if check:
+        require_envelope(procedure, params)
     if live is not None and not isinstance(live, LiveFits):
         raise InputError(f'`live` must be LiveFits, got {type(live).__name__}')
     cp = controller_params or params
