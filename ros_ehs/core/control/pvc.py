@@ -40,6 +40,7 @@ from typing import Sequence
 
 import numpy as np
 from ros_ehs.core.control.cycles import CycleCorrection, HISTORY
+from ros_ehs.core.control.levels import CycleLevels, FITTED
 from ros_ehs.core.errors import InputError
 
 __all__ = ['Block', 'Cyclic', 'PeakValleyControl', 'parse_blocks', 'WAVEFORMS', 'waveform']
@@ -156,7 +157,7 @@ class PeakValleyControl(CycleCorrection):
         self._plans: dict[int, tuple] = {}
         self._plans[0] = self._make_plan(0, 0.0)
         self._planned[self._block(0)] = self._plans[0][3:5]
-        self._hi, self._lo = -math.inf, math.inf
+        self._levels = CycleLevels(waveform in FITTED)   # the cycle under way's samples
         self.errors = [math.inf] * len(self.blocks)   # newest peak/valley error per block
         self.converged_at: int | None = None
         #: the newest cycles judged (HISTORY to twice that: a fatigue test runs for days)
@@ -212,14 +213,17 @@ class PeakValleyControl(CycleCorrection):
         return z, v
 
     def _take(self, t: float, z: float) -> None:
-        self._hi = max(self._hi, z)
-        self._lo = min(self._lo, z)
+        self._levels.add(t / self.period - self._cycle, z)
 
     def _end_cycle(self, c: int) -> None:
         """End cycle ``self._cycle``: learn from it, and plan the cycles up to ``c``."""
         prev = self._cycle
-        hi, lo, bad = self._hi, self._lo, self._bad
-        self._hi, self._lo, self._bad = -math.inf, math.inf, False
+        # a sinusoid's levels from a fit of its samples (noise does not move them), others'
+        # raw extremes (ros_ehs.core.control.levels)
+        hi, lo = self._levels.levels()
+        bad = self._bad or not (math.isfinite(hi) and math.isfinite(lo))
+        self._levels = CycleLevels(self.waveform in FITTED)
+        self._bad = False
         self._cycle = c
         learnt = self._learn(prev, hi, lo, bad or c != prev + 1)
         for k in range(prev + 1, c + 1):

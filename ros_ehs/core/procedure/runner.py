@@ -70,6 +70,7 @@ from typing import Any, Mapping
 
 import numpy as np
 from ros_ehs.core.control.apc import AmplitudePhaseControl
+from ros_ehs.core.control.levels import CycleLevels, FITTED
 from ros_ehs.core.control.pvc import Block, PeakValleyControl
 from ros_ehs.core.control.safety import ramp_weight
 from ros_ehs.core.control.waveforms import Samples
@@ -671,9 +672,13 @@ class ProcedureRunner:
         cmd = self._value(seg, stamp)[0]
         if cyc is None:
             cap = self.total + 1
+            fit = step.type == 'cyclic' and step['waveform'] in FITTED
             cyc = seg.cyc = {
                 'k': k, 'taper': seg.lead > 0 and tau < w.t_off + seg.lead - 1e-9,
                 'cmd': [cmd, cmd], 'z': [z, z], 'f': [load, load],
+                # a sinusoid's levels: the extremes of a fit of its samples (noise does not
+                # move them); the raw extremes otherwise
+                'levels': (CycleLevels(), CycleLevels()) if fit else None,
                 # begun within this segment (not cut by its start): a whole cycle, whether or
                 # not a state came at its very start (a real-time loop loses one now and then)
                 'begun_here': w.cycle_start(k) >= w.t_off - 0.5 * self.dt_ns * 1e-9,
@@ -687,6 +692,11 @@ class ProcedureRunner:
                 ext[0] = v
             elif v > ext[1]:
                 ext[1] = v
+        lv = cyc['levels']
+        if lv is not None:
+            x = (tau - w.cycle_start(cyc['k'])) / w.period
+            lv[0].add(x, z)
+            lv[1].add(x, load)
         cap = cyc['capture']
         if cap is not None:
             cap['t'].append(stamp)
@@ -702,8 +712,11 @@ class ProcedureRunner:
         self.counts[k] += 1
         self.total += 1
         self.checkpoint_due = True            # the count on disk is never a cycle behind
-        c = Cycle(self.total, k, stamp, cyc['cmd'][1], cyc['cmd'][0], cyc['z'][1], cyc['z'][0],
-                  cyc['f'][1], cyc['f'][0], TAPERED if cyc['taper'] else 0)
+        (z_hi, z_lo), (f_hi, f_lo) = ((lv.levels() for lv in cyc['levels'])
+                                      if cyc['levels'] is not None else
+                                      ((cyc['z'][1], cyc['z'][0]), (cyc['f'][1], cyc['f'][0])))
+        c = Cycle(self.total, k, stamp, cyc['cmd'][1], cyc['cmd'][0], z_hi, z_lo, f_hi, f_lo,
+                  TAPERED if cyc['taper'] else 0)
         self.cycles.append(c)
         cap = cyc['capture']
         if cap is not None and cap['count'] == self.total:
