@@ -157,7 +157,9 @@ class PeakValleyControl(CycleCorrection):
         self._plans: dict[int, tuple] = {}
         self._plans[0] = self._make_plan(0, 0.0)
         self._planned[self._block(0)] = self._plans[0][3:5]
-        self._levels = CycleLevels(waveform in FITTED)   # the cycle under way's samples
+        self._levels = CycleLevels(waveform in FITTED, 0.0, self.period)   # the cycle under way
+        #: the newest ended cycle's (number, peak, valley), fitted or raw as :attr:`waveform`
+        self.last_levels: tuple[int, float, float] | None = None
         self.errors = [math.inf] * len(self.blocks)   # newest peak/valley error per block
         self.converged_at: int | None = None
         #: the newest cycles judged (HISTORY to twice that: a fatigue test runs for days)
@@ -213,7 +215,7 @@ class PeakValleyControl(CycleCorrection):
         return z, v
 
     def _take(self, t: float, z: float) -> None:
-        self._levels.add(t / self.period - self._cycle, z)
+        self._levels.add(t, z)
 
     def _end_cycle(self, c: int) -> None:
         """End cycle ``self._cycle``: learn from it, and plan the cycles up to ``c``."""
@@ -221,8 +223,9 @@ class PeakValleyControl(CycleCorrection):
         # a sinusoid's levels from a fit of its samples (noise does not move them), others'
         # raw extremes (ros_ehs.core.control.levels)
         hi, lo = self._levels.levels()
+        self.last_levels = (prev, hi, lo)
         bad = self._bad or not (math.isfinite(hi) and math.isfinite(lo))
-        self._levels = CycleLevels(self.waveform in FITTED)
+        self._levels = CycleLevels(self.waveform in FITTED, c * self.period, self.period)
         self._bad = False
         self._cycle = c
         learnt = self._learn(prev, hi, lo, bad or c != prev + 1)

@@ -133,6 +133,9 @@ _PAIRS = {'limit_position_max': ('limit_position_min', 'limit_position_max', 1),
           'limit_specimen_min': ('limit_specimen_min', 'limit_specimen_max', -1)}
 
 
+#: The load cell's fit against the position takes a sample and is judged every this many
+#: periods (a drift or a wrong gain is slow; its window wants ten samples or more)
+LOAD_CHECK_EVERY = 10
 #: The values a user sets to tune each detector (a value set while the action is off protects
 #: nothing: :func:`unprotected`).
 LIMITS_OF = {'limit_position_max': ('limit_position_max',),
@@ -365,37 +368,37 @@ class Supervisor:
 
     def _lc_clear(self) -> None:
         """Forget the load check's window (its zero-load reference stays)."""
-        self._lc: deque[tuple[float, float]] = deque()
-        self._lc_sums = [0.0, 0.0, 0.0, 0.0]       # sums of z, F, z^2, z F
+        self._lc_sums = [0.0, 0.0, 0.0, 0.0, 0.0]  # weighted sums of 1, z, F, z^2, z F
         self._lc_bad = 0                            # periods in a row it has disagreed
+        self._lc_k = 0                              # periods since the window began
         if not hasattr(self, '_lc_z0'):
             self._lc_z0 = math.nan                  # the first window's zero-load position
 
     def _load_check(self, stamp_ns: int, z: float, load: float, events: list[Event]) -> None:
         """Fit the window's load against the position: a cell that does not follow, or drifted."""
+        self._lc_k += 1
+        if self._lc_k % LOAD_CHECK_EVERY:
+            return          # a sample every LOAD_CHECK_EVERY periods: the faults are slow
         cfg = self.config
         k = cfg.k_L
         s = self._lc_sums
-        self._lc.append((z, load))
-        s[0] += z
-        s[1] += load
-        s[2] += z * z
-        s[3] += z * load
+        # the window: sums weighted exp(-age / load_check_window) (no samples kept)
+        lam = max(0.0, 1.0 - LOAD_CHECK_EVERY * self.dt / cfg.load_check_window)
+        s[0] = lam * s[0] + 1.0
+        s[1] = lam * s[1] + z
+        s[2] = lam * s[2] + load
+        s[3] = lam * s[3] + z * z
+        s[4] = lam * s[4] + z * load
         n = max(2, int(round(cfg.load_check_window / self.dt)))
-        while len(self._lc) > n:
-            zo, fo = self._lc.popleft()
-            s[0] -= zo
-            s[1] -= fo
-            s[2] -= zo * zo
-            s[3] -= zo * fo
-        if len(self._lc) < n:
+        if self._lc_k < n:
             return
-        zm, fm = s[0] / n, s[1] / n
-        vz = s[2] / n - zm * zm
+        w = s[0]
+        zm, fm = s[1] / w, s[2] / w
+        vz = s[3] / w - zm * zm
         if not vz * k * k > 4.0 * cfg.load_check_force ** 2:
             self._lc_bad = 0
             return                   # the piston did not move enough to judge the cell by
-        k_fit = (s[3] / n - zm * fm) / vz
+        k_fit = (s[4] / w - zm * fm) / vz
         z0 = zm - fm / k_fit if k_fit else math.nan
         follows = 0.25 * k <= k_fit <= 4.0 * k
         # the zero-load position is judged on a swing of twice that at least: the position's
@@ -407,7 +410,7 @@ class Supervisor:
         drift = k * (z0 - self._lc_z0) if judged else 0.0
         bad = not follows or abs(drift) > cfg.load_drift_force
         # a disagreement that lasts a whole window (a transient, a break, is not one)
-        self._lc_bad = self._lc_bad + 1 if bad else 0
+        self._lc_bad = self._lc_bad + LOAD_CHECK_EVERY if bad else 0
         if self._lc_bad < n:
             return
         if not follows:
@@ -571,7 +574,7 @@ class Supervisor:
             self._load_last = load
             self._z_load = z
         if not (math.isfinite(load) and math.isfinite(z)):
-            if self._lc:
+            if self._lc_k:
                 self._lc_clear()
             win.clear()
             self._win_max.clear()
@@ -610,7 +613,7 @@ class Supervisor:
         if needs_load and powered and self._mode == 'run' and cfg.k_L > 0 and \
                 not self.latches['specimen_break'].tripped:
             self._load_check(stamp_ns, z, load, events)
-        elif self._lc:
+        elif self._lc_k:
             self._lc_clear()
         self._win_seq += 1
         win.append((self._win_seq, load, z))

@@ -678,7 +678,8 @@ class ProcedureRunner:
                 'cmd': [cmd, cmd], 'z': [z, z], 'f': [load, load],
                 # a sinusoid's levels: the extremes of a fit of its samples (noise does not
                 # move them); the raw extremes otherwise
-                'levels': (CycleLevels(), CycleLevels()) if fit else None,
+                'levels': (CycleLevels(True, w.cycle_start(k), w.period),
+                           CycleLevels(True, w.cycle_start(k), w.period)) if fit else None,
                 # begun within this segment (not cut by its start): a whole cycle, whether or
                 # not a state came at its very start (a real-time loop loses one now and then)
                 'begun_here': w.cycle_start(k) >= w.t_off - 0.5 * self.dt_ns * 1e-9,
@@ -694,9 +695,8 @@ class ProcedureRunner:
                 ext[1] = v
         lv = cyc['levels']
         if lv is not None:
-            x = (tau - w.cycle_start(cyc['k'])) / w.period
-            lv[0].add(x, z)
-            lv[1].add(x, load)
+            lv[0].add(tau, z)
+            lv[1].add(tau, load)
         cap = cyc['capture']
         if cap is not None:
             cap['t'].append(stamp)
@@ -712,9 +712,17 @@ class ProcedureRunner:
         self.counts[k] += 1
         self.total += 1
         self.checkpoint_due = True            # the count on disk is never a cycle behind
-        (z_hi, z_lo), (f_hi, f_lo) = ((lv.levels() for lv in cyc['levels'])
-                                      if cyc['levels'] is not None else
-                                      ((cyc['z'][1], cyc['z'][0]), (cyc['f'][1], cyc['f'][0])))
+        if cyc['levels'] is not None:
+            # the controlled signal's levels as peak/valley control fitted them, if it did
+            corr = seg.wave.corr
+            last = getattr(corr, 'last_levels', None)
+            force = self.steps[k].control_mode == 'force'
+            own = last[1:] if last is not None and last[0] == cyc['k'] else None
+            lz, lf = cyc['levels']
+            z_hi, z_lo = own if own and not force else lz.levels()
+            f_hi, f_lo = own if own and force else lf.levels()
+        else:
+            z_hi, z_lo, f_hi, f_lo = cyc['z'][1], cyc['z'][0], cyc['f'][1], cyc['f'][0]
         c = Cycle(self.total, k, stamp, cyc['cmd'][1], cyc['cmd'][0], z_hi, z_lo, f_hi, f_lo,
                   TAPERED if cyc['taper'] else 0)
         self.cycles.append(c)
