@@ -670,3 +670,20 @@ def test_a_waveform_waits_for_the_controllers_ramp_on_and_does_not_learn_during_
     assert corr.judged > n
     with pytest.raises(InputError, match='ramp_time'):
         ProcedureRunner(proc(step, run_out=1000), ramp_time=math.nan)
+
+
+def test_levels_the_rig_cannot_reach_interrupt_the_test_before_an_end_stop():
+    """
+    +-5 mm at 60 Hz on the default rig, its envelope not checked.
+
+    The compensation meets its bound, the test is interrupted, naming it, and the virtual
+    test ends.
+    """
+    seen = []
+    p = proc({'name': 'fast', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.0,
+              'amplitude': 0.005, 'frequency': 60.0, 'count': 1000})
+    r = run_procedure(p, preset('g761_baseline'), check=False,
+                      probe=lambda ax, rn, reply, ref: seen.append(ax.x[ax._iz]))
+    assert r.result == 'interrupted' and 'levels not reached' in r.reason, r.reason
+    assert 'compensation_limit 1' in r.reason and r.sim_s < 10.0
+    assert max(abs(z) for z in seen) < 0.095 - 0.005     # never near an end stop

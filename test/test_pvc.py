@@ -122,3 +122,23 @@ def test_between_blocks_the_command_stays_within_the_two_blocks_levels():
             assert abs(seg[0] - end) < 1e-12 or k == 0          # no jump
             assert max(seg) == pytest.approx(max(b.peak, end), abs=1e-9)    # no more
             end = b.valley
+
+
+@pytest.mark.parametrize('kind', ['pvc', 'apc'])
+def test_a_correction_is_bounded_by_its_limit_and_counts_the_cycles_it_met_it(kind):
+    """A rig that answers a tenth of the command: the correction stops at its bound."""
+    from ros_ehs.core.control.apc import AmplitudePhaseControl
+    f = 10.0
+    if kind == 'pvc':
+        c = PeakValleyControl([Block(0.001, -0.001, 1)], f, 'sine')
+    else:
+        c = AmplitudePhaseControl(0.001, f, 0.0)
+    c.limit = 0.5
+    t = 0.0
+    for _ in range(20 * 100):                 # 20 cycles at 1 kHz
+        c.measure(t, 0.1 * c.reference(t)[0])
+        t += 1e-3
+    peak = max(c.reference(2.0 + j * 1e-3)[0] for j in range(100))
+    assert peak <= 1.5 * 0.001 * (1.0 + 1e-9)           # never beyond (1 + limit) A
+    assert peak > 1.4 * 0.001                            # and at it
+    assert c.limited_cycles >= 10
