@@ -687,3 +687,14 @@ def test_levels_the_rig_cannot_reach_interrupt_the_test_before_an_end_stop():
     assert r.result == 'interrupted' and 'levels not reached' in r.reason, r.reason
     assert 'compensation_limit 1' in r.reason and r.sim_s < 10.0
     assert max(abs(z) for z in seen) < 0.095 - 0.005     # never near an end stop
+
+
+def test_every_counted_cycle_has_finite_levels_tapered_or_not():
+    """The tapered cycles' levels too (peak/valley control takes no sample of them)."""
+    p = proc({'name': 'up', 'type': 'ramp', 'to': 0.002, 'rate': 0.02},
+             {**CYCLIC, 'compensation': 'pvc'})
+    r, ax = started(p)
+    ax.run(until=finished)
+    assert [c.flags for c in r.cycles[:4]] == [TAPERED] * 3 + [0]
+    assert all(math.isfinite(v) for c in r.cycles for v in (c.z_hi, c.z_lo, c.f_hi, c.f_lo))
+    assert all(0.001 - 1e-6 <= c.z_lo <= c.z_hi <= 0.003 + 1e-6 for c in r.cycles)

@@ -159,6 +159,7 @@ class PeakValleyControl(CycleCorrection):
         self._planned[self._block(0)] = self._plans[0][3:5]
         self._levels = CycleLevels(waveform in FITTED, 0.0, self.period)   # the cycle under way
         #: the newest ended cycle's (number, peak, valley), fitted or raw as :attr:`waveform`
+        #: (+-inf for a cycle it took no sample of: before ``learn_from``, frozen)
         self.last_levels: tuple[int, float, float] | None = None
         self.errors = [math.inf] * len(self.blocks)   # newest peak/valley error per block
         self.converged_at: int | None = None

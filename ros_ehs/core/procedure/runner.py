@@ -717,7 +717,8 @@ class ProcedureRunner:
             corr = seg.wave.corr
             last = getattr(corr, 'last_levels', None)
             force = self.steps[k].control_mode == 'force'
-            own = last[1:] if last is not None and last[0] == cyc['k'] else None
+            own = last[1:] if last is not None and last[0] == cyc['k'] and \
+                math.isfinite(last[1]) and math.isfinite(last[2]) else None
             lz, lf = cyc['levels']
             z_hi, z_lo = own if own and not force else lz.levels()
             f_hi, f_lo = own if own and force else lf.levels()
