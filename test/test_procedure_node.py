@@ -8,6 +8,7 @@ none twice. Lock-step: the loop waits for the procedure, so the runs do not depe
 machine's timing; every wait is on a status, a reply or the bag.
 """
 
+import os
 from pathlib import Path
 import shutil
 import signal
@@ -280,3 +281,23 @@ def test_close_waits_for_a_running_callback_and_no_callback_runs_after_it(tmp_pa
         free.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_a_procedure_the_rig_cannot_follow_is_refused_at_start_by_step(dom, tmp_path):
+    """With the rig's parameters given, the node exits at once, naming the step and limit."""
+    import sys
+    import yaml
+    from ros_ehs.core.params import Params, save_yaml
+    from scripts import run_script
+    proc = tmp_path / 'fast.yaml'
+    proc.write_text(yaml.safe_dump({'name': 'too fast', 'steps': [
+        {'name': 'shake', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.0,
+         'amplitude': 0.005, 'frequency': 60.0, 'count': 10}]}))
+    rig = tmp_path / 'rig.yaml'
+    save_yaml(rig, Params())
+    exe = Path(sys.executable).parent / 'procedure'
+    r = run_script([str(exe), '--ros-args', '-p', f'file:={proc}', '-p', f'rig_params:={rig}'],
+                   timeout=BOUND, env={**os.environ, 'ROS_DOMAIN_ID': str(dom)})
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "'too fast' step 1 (shake): the piston must move at 1.885 m/s" in r.stderr
+    assert '60 Hz is above' in r.stderr

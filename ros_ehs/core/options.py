@@ -329,6 +329,10 @@ PROCEDURE = (
             'control mode sets its `control_mode`'),
     Setting('apc_harmonics', '', 5, 1, MAX_HARMONICS, 'cyclic sine steps with APC: the '
             'harmonics corrected (the fundamental included)'),
+    Setting('rig_params', '', '', meaning="the rig's parameters (a ROS 2 parameters file: "
+            '`ehs_sim identify` writes one): a procedure the rig cannot follow is refused at '
+            'start, each step named with the limit it breaks (empty: not checked; the '
+            "compensation's bound still stops a test whose levels are not reached)"),
     Setting('ramp_time', 's', 1.0, 0.0, 600.0, "the controller's ramp_time: a waveform step "
             'waits for its ramp-on, and the compensation does not learn from cycles it '
             "attenuates (from this node's first state, each reset and each hydraulics on; a "

@@ -56,6 +56,8 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.options import PROCEDURE
+from ros_ehs.core.params import load_yaml
+from ros_ehs.core.procedure.envelope import require_envelope
 from ros_ehs.core.procedure.runner import ProcedureRunner
 from ros_ehs.core.procedure.spec import load_procedure
 from ros_ehs.data.checkpoint import resume_point, write_checkpoint
@@ -156,6 +158,11 @@ class ProcedureNode(Node):
         if not self.opt['file']:
             raise InputError('no procedure: give `file` (-p file:=test.yaml)')
         self.procedure = load_procedure(self.opt['file'])
+        if self.opt['rig_params']:        # refused before anything moves, each step named
+            require_envelope(self.procedure, load_yaml(self.opt['rig_params']))
+        else:
+            self.get_logger().info('no rig_params: the procedure is not checked against what '
+                                   'the rig can do')
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         rate = float(self.opt['rate_hz'])
         self.dt_ns = int(round(1e9 / rate))
