@@ -62,20 +62,23 @@ def _cyclic(peak, valley, freq, count=0, **more) -> dict:
             'valley': valley, 'frequency': freq, 'count': count, **more}
 
 
-def _force(first: str = 'after_dwell', cycles: int = 40) -> dict:
-    pre = [{'name': 'preload', 'type': 'ramp', 'to': 0.5 * (PEAK + VALLEY), 'rate': 2.0e4},
-           {'name': 'settle', 'type': 'dwell', 'time': 0.2}]
+def _test(mode: str, levels: tuple, rate: float, dwell: float, first: str,
+          cycles: int) -> dict:
+    """Return a test: a ramp to the mean at ``rate``, a dwell, then the cycles at ``levels``."""
+    peak, valley, freq = levels
+    pre = [{'name': 'to mean', 'type': 'ramp', 'to': 0.5 * (peak + valley), 'rate': rate},
+           {'name': 'settle', 'type': 'dwell', 'time': dwell}]
     steps = {'after_dwell': pre, 'after_ramp': pre[:1], 'at_once': []}[first]
-    return {'name': 'force', 'control_mode': 'force',
-            'steps': steps + [_cyclic(PEAK, VALLEY, FREQ, cycles)]}
+    return {'name': mode, 'control_mode': mode,
+            'steps': steps + [_cyclic(peak, valley, freq, cycles)]}
+
+
+def _force(first: str = 'after_dwell', cycles: int = 40) -> dict:
+    return _test('force', (PEAK, VALLEY, FREQ), 2.0e4, 0.2, first, cycles)
 
 
 def _disp(first: str = 'after_dwell', cycles: int = 30) -> dict:
-    pre = [{'name': 'to mean', 'type': 'ramp', 'to': 0.5 * (D_PEAK + D_VALLEY), 'rate': 0.01},
-           {'name': 'dwell', 'type': 'dwell', 'time': 1.0}]
-    steps = {'after_dwell': pre, 'after_ramp': pre[:1], 'at_once': []}[first]
-    return {'name': 'disp', 'control_mode': 'displacement',
-            'steps': steps + [_cyclic(D_PEAK, D_VALLEY, D_FREQ, cycles)]}
+    return _test('displacement', (D_PEAK, D_VALLEY, D_FREQ), 0.01, 1.0, first, cycles)
 
 
 class _Trace:

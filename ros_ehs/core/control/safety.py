@@ -173,41 +173,46 @@ def unprotected(params: Mapping[str, object]) -> list[str]:
     return out
 
 
+def _default(name: str) -> float:
+    """Return a parameter's declared default (ros_ehs.core.params: declared once)."""
+    return float(spec(name).default)
+
+
 @dataclass(frozen=True)
 class SafetyConfig:
     """The detectors' limits [SI] and actions; build with :meth:`from_params`."""
 
-    limit_position_max: float = 0.095
-    limit_position_min: float = -0.095
-    limit_velocity: float = 1.0
-    limit_force: float = 3.0e4
-    limit_error: float = 5.0e-3
-    limit_error_time: float = 0.05
-    feedback_timeout: float = 1.0
-    frozen_periods: float = 100.0
-    frozen_current: float = 3.0e-4
-    limit_saturation_time: float = 0.5
-    limit_hysteresis: float = 0.05
-    safe_position: float = 0.0
-    safe_velocity: float = 0.01
-    ramp_time: float = 1.0
-    limit_load_max: float = 1.0e5
-    limit_load_min: float = -1.0e5
-    limit_specimen_max: float = 0.01
-    limit_specimen_min: float = -0.01
-    limit_force_error: float = 2.0e3
-    break_drop: float = 1.0e3
-    break_travel: float = 1.0e-4
-    break_window: float = 0.02
-    z_L: float = 0.0
-    k_L: float = 0.0
-    load_frozen_force: float = 200.0
-    hold_error_position: float = 1.0e-3
-    hold_error_force: float = 1.0e3
-    hold_error_time: float = 0.02
-    load_check_window: float = 0.1
-    load_check_force: float = 500.0
-    load_drift_force: float = 300.0
+    limit_position_max: float = _default('limit_position_max')
+    limit_position_min: float = _default('limit_position_min')
+    limit_velocity: float = _default('limit_velocity')
+    limit_force: float = _default('limit_force')
+    limit_error: float = _default('limit_error')
+    limit_error_time: float = _default('limit_error_time')
+    feedback_timeout: float = _default('feedback_timeout')
+    frozen_periods: float = _default('frozen_periods')
+    frozen_current: float = _default('frozen_current')
+    limit_saturation_time: float = _default('limit_saturation_time')
+    limit_hysteresis: float = _default('limit_hysteresis')
+    safe_position: float = _default('safe_position')
+    safe_velocity: float = _default('safe_velocity')
+    ramp_time: float = _default('ramp_time')
+    limit_load_max: float = _default('limit_load_max')
+    limit_load_min: float = _default('limit_load_min')
+    limit_specimen_max: float = _default('limit_specimen_max')
+    limit_specimen_min: float = _default('limit_specimen_min')
+    limit_force_error: float = _default('limit_force_error')
+    break_drop: float = _default('break_drop')
+    break_travel: float = _default('break_travel')
+    break_window: float = _default('break_window')
+    z_L: float = _default('z_L')
+    k_L: float = _default('k_L')
+    load_frozen_force: float = _default('load_frozen_force')
+    hold_error_position: float = _default('hold_error_position')
+    hold_error_force: float = _default('hold_error_force')
+    hold_error_time: float = _default('hold_error_time')
+    load_check_window: float = _default('load_check_window')
+    load_check_force: float = _default('load_check_force')
+    load_drift_force: float = _default('load_drift_force')
     actions: Mapping[str, str] = field(default_factory=lambda: {
         d: spec(d + '_action').default for d in DETECTORS})
 
