@@ -656,15 +656,25 @@ class Supervisor:
         clears the count).
         """
         cfg = self.config
+        return self._timed('limit_force_error', stamp_ns, e, cfg.limit_force_error,
+                           cfg.limit_error_time, self.dt if dt is None else dt,
+                           lambda t: f'|F_ref - F| = {abs(e):.6g} N above '
+                           f'{cfg.limit_force_error:g} N for {t:.6g} s')
+
+    def _timed(self, det: str, stamp_ns: int, e: float, limit: float, time: float,
+               dt: float, why) -> list[Event]:
+        """
+        Latch ``det`` once ``|e|`` has been beyond ``limit`` for longer than ``time`` [s].
+
+        ``why(t)``: its message after ``t`` s; a non-finite ``e`` clears the count.
+        """
         events: list[Event] = []
-        lat = self.latches['limit_force_error']
-        bad = math.isfinite(e) and abs(e) > cfg.limit_force_error
+        lat = self.latches[det]
+        bad = math.isfinite(e) and abs(e) > limit
         lat.count = lat.count + 1 if bad else 0
-        t = lat.count * (self.dt if dt is None else dt)
-        if bad and t > cfg.limit_error_time:
-            self._check('limit_force_error', True, stamp_ns, e,
-                        f'|F_ref - F| = {abs(e):.6g} N above {cfg.limit_force_error:g} N for '
-                        f'{t:.6g} s', events)
+        t = lat.count * dt
+        if bad and t > time:
+            self._check(det, True, stamp_ns, e, why(t), events)
         return events
 
     def judge_hold(self, stamp_ns: int, e: float, force: bool) -> list[Event]:
@@ -677,18 +687,11 @@ class Supervisor:
         ``hold_error_time`` it latches ``hold_error`` (power off by default: a stuck valve).
         """
         cfg = self.config
-        events: list[Event] = []
-        lat = self.latches['hold_error']
         limit = cfg.hold_error_force if force else cfg.hold_error_position
-        bad = math.isfinite(e) and abs(e) > limit
-        lat.count = lat.count + 1 if bad else 0
-        if bad and lat.count * self.dt > cfg.hold_error_time:
-            unit = 'N' if force else 'm'
-            self._check('hold_error', True, stamp_ns, e,
-                        f'hold_error: the axis does not hold: {abs(e):.6g} {unit} from the held '
-                        f'{"load" if force else "position"} (limit {limit:g} {unit}) for '
-                        f'{lat.count * self.dt:.6g} s', events)
-        return events
+        unit, what = ('N', 'load') if force else ('m', 'position')
+        return self._timed('hold_error', stamp_ns, e, limit, cfg.hold_error_time, self.dt,
+                           lambda t: f'hold_error: the axis does not hold: {abs(e):.6g} {unit} '
+                           f'from the held {what} (limit {limit:g} {unit}) for {t:.6g} s')
 
     def _check(self, det: str, cond: bool, stamp_ns: int, value: float, why: str,
                events: list[Event]) -> bool:
