@@ -262,7 +262,7 @@ def test_a_break_in_force_control_ends_held_in_displacement_within_its_bound(kin
 def test_a_force_hold_integrates_faster_until_it_is_released():
     f = ForceLoop(RIG, 1e-3)
     ki = f.pid.gains.ki
-    f.hold(0, 2000.0)
+    f.hold(2000.0)
     assert f.pid.gains.ki == pytest.approx(HOLD_KI * ki) and f.reference(MS, 9e3) == 2000.0
     f.set_params(RIG.replace(force_ki=2 * ki))            # new gains while held: still faster
     assert f.pid.gains.ki == pytest.approx(HOLD_KI * 2 * ki)

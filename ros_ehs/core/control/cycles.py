@@ -48,6 +48,9 @@ class CycleCorrection:
         #: of the specified amplitude (inf: no bound)
         self.limit = math.inf
         self.limited_cycles = 0         #: consecutive learnt cycles that met the bound
+        #: the newest ended cycle's (number, peak, valley) where the correction measures them
+        #: (peak/valley control), else None
+        self.last_levels: tuple[int, float, float] | None = None
         self.learn_from = 0.0           #: no cycle with a sample before this time [s] counts
 
     def cycle_of(self, t: float) -> int:

@@ -104,7 +104,7 @@ class ForceLoop:
         self._t0 = 0
         self._blend = 0.0
         self._from = self._hold = math.nan
-        self._hold_from: int | None = None       # a fault's hold: its stamp
+        self._holding = False      # a fault's hold (hold() to release())
         self._tracking_ki = 0.0
         self._prev: float | None = None
 
@@ -128,7 +128,7 @@ class ForceLoop:
         """Take new gains bumplessly and the feedforward's values (a hold keeps its own)."""
         g = PidGains.from_params(params, 'force_')
         self._tracking_ki = g.ki
-        if self._hold_from is not None:
+        if self._holding:
             g = dataclasses.replace(g, ki=g.ki * HOLD_KI)
         self.pid.set_gains(g)
         self._configure(params)
@@ -148,9 +148,9 @@ class ForceLoop:
         self._prev = None
         self.target = float(load)
 
-    def hold(self, stamp_ns: int, load: float) -> None:
+    def hold(self, load: float) -> None:
         """
-        Hold ``load`` [N] from ``stamp_ns`` on (a fault's hold).
+        Hold ``load`` [N] from now on (a fault's hold), until :meth:`release`.
 
         The target steps to ``load`` and no rate is fed forward; the integrator acts
         ``HOLD_KI`` times faster while held: at rest under that load the valve's null needs
@@ -161,7 +161,7 @@ class ForceLoop:
         """
         self._blend = 0.0
         self._hold = float(load)
-        self._hold_from = int(stamp_ns)
+        self._holding = True
         self._prev = None
         g = self.pid.gains
         self._tracking_ki = g.ki
@@ -169,13 +169,13 @@ class ForceLoop:
 
     def release(self) -> None:
         """End a hold: the tracking gains back."""
-        if self._hold_from is not None:
-            self._hold_from = None
+        if self._holding:
+            self._holding = False
             self.pid.set_gains(dataclasses.replace(self.pid.gains, ki=self._tracking_ki))
 
     def reference(self, stamp_ns: int, f_traj: float) -> float:
         """Return the force to track at ``stamp_ns``: the blend into ``f_traj`` [N]."""
-        if self._hold_from is not None:           # a fault's hold: its load, whatever comes
+        if self._holding:                         # a fault's hold: its load, whatever comes
             return self._hold
         f_ref = f_traj if math.isfinite(f_traj) else self._hold
         t = (stamp_ns - self._t0) * 1e-9

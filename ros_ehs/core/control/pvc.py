@@ -158,9 +158,8 @@ class PeakValleyControl(CycleCorrection):
         self._plans[0] = self._make_plan(0, 0.0)
         self._planned[self._block(0)] = self._plans[0][3:5]
         self._levels = CycleLevels(waveform in FITTED, 0.0, self.period)   # the cycle under way
-        #: the newest ended cycle's (number, peak, valley), fitted or raw as :attr:`waveform`
-        #: (+-inf for a cycle it took no sample of: before ``learn_from``, frozen)
-        self.last_levels: tuple[int, float, float] | None = None
+        # last_levels: fitted or raw as the waveform is; +-inf for a cycle it took no sample
+        # of (before ``learn_from``, frozen)
         self.errors = [math.inf] * len(self.blocks)   # newest peak/valley error per block
         self.converged_at: int | None = None
         #: the newest cycles judged (HISTORY to twice that: a fatigue test runs for days)

@@ -348,6 +348,7 @@ class Supervisor:
         self._win_zlo: deque[tuple[int, float]] = deque()    # minima of z where F >= 0, rising
         self._win_zhi: deque[tuple[int, float]] = deque()    # maxima of z where F < 0, falling
         self._win_seq = 0
+        self._lc_z0 = math.nan          # the load check's first zero-load position [m]
         self._restart()
 
     # -- state -------------------------------------------------------------------------------
@@ -376,8 +377,6 @@ class Supervisor:
         self._lc_sums = [0.0, 0.0, 0.0, 0.0, 0.0]  # weighted sums of 1, z, F, z^2, z F
         self._lc_bad = 0                            # periods in a row it has disagreed
         self._lc_k = 0                              # periods since the window began
-        if not hasattr(self, '_lc_z0'):
-            self._lc_z0 = math.nan                  # the first window's zero-load position
 
     def _load_check(self, stamp_ns: int, z: float, load: float, events: list[Event]) -> None:
         """Fit the window's load against the position: a cell that does not follow, or drifted."""

@@ -194,7 +194,7 @@ class AxisController:
         if d.mode == 'hold' and self.mode == 'force' and math.isfinite(load):
             if not math.isfinite(self._f_hold):     # the trip's period: hold its load
                 self._f_hold = load
-                self.force.hold(stamp_ns, load)
+                self.force.hold(load)
             f_traj = math.nan                       # the loop holds what hold() gave it
             want = 'force'
         else:

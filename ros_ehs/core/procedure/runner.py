@@ -685,7 +685,9 @@ class ProcedureRunner:
                 'begun_here': w.cycle_start(k) >= w.t_off - 0.5 * self.dt_ns * 1e-9,
                 'capture': ({'count': cap, 't': [], 'cmd': [], 'z': [], 'f': []}
                             if step.capture == 'log' and capture_counts(cap) else None)}
-        for ext, v in ((cyc['cmd'], cmd), (cyc['z'], z), (cyc['f'], load)):
+        lv = cyc['levels']
+        for ext, v in (((cyc['cmd'], cmd), (cyc['z'], z), (cyc['f'], load)) if lv is None
+                       else ((cyc['cmd'], cmd),)):   # the levels keep the signals' own
             # [lo, hi] in place; a non-finite value makes both NaN, and NaN stays
             if v - v != 0.0:                    # NaN or infinite
                 ext[0] = ext[1] = math.nan
@@ -693,7 +695,6 @@ class ProcedureRunner:
                 ext[0] = v
             elif v > ext[1]:
                 ext[1] = v
-        lv = cyc['levels']
         if lv is not None:
             lv[0].add(tau, z)
             lv[1].add(tau, load)
@@ -715,7 +716,7 @@ class ProcedureRunner:
         if cyc['levels'] is not None:
             # the controlled signal's levels as peak/valley control fitted them, if it did
             corr = seg.wave.corr
-            last = getattr(corr, 'last_levels', None)
+            last = corr.last_levels if corr is not None else None
             force = self.steps[k].control_mode == 'force'
             own = last[1:] if last is not None and last[0] == cyc['k'] and \
                 math.isfinite(last[1]) and math.isfinite(last[2]) else None
