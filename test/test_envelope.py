@@ -78,3 +78,26 @@ def test_a_virtual_test_refuses_what_the_rig_cannot_follow_before_it_moves():
         require_envelope(proc, Params())
     r = run_procedure(proc, Params(), check=False, max_seconds=0.5)   # told not to check
     assert r.sim_s <= 0.5 + 1e-9
+
+
+@pytest.mark.parametrize('kw, says', [
+    ({'actions': [(1.0, 'jump')]}, "unknown action 'jump'"),
+    ({'actions': [(math.nan, 'hold')]}, 'the hold action at nan s'),
+    ({'actions': [(-1.0, 'resume')]}, 'the resume action at -1.0 s'),
+    ({'settle_after': math.nan}, '`settle_after` = nan'),
+    ({'fault': 'loose_cable'}, "`fault` = 'loose_cable'"),
+])
+def test_a_virtual_tests_bad_arguments_are_named(kw, says):
+    proc = _cyclic(mean=0.0, amplitude=0.001, frequency=1.0)
+    with pytest.raises(InputError) as err:
+        run_procedure(proc, Params(), **kw)
+    assert says in str(err.value)
+
+
+def test_a_rig_parameters_file_that_is_not_one_is_named(tmp_path):
+    from ros_ehs.core.errors import ParameterError
+    from ros_ehs.core.params import load_yaml
+    bad = tmp_path / 'rig.yaml'
+    bad.write_text('controller:\n  ros__parameters:\n    stroke: -1.0\n')
+    with pytest.raises(ParameterError, match='rig.yaml.*stroke'):
+        load_yaml(bad)

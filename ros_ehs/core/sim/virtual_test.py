@@ -131,10 +131,14 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     cp = controller_params or params
     axis = SimulatedAxis(params, model, rate_hz=rate_hz, lockstep=True, noise=noise,
                          fault=fault, fault_time=fault_time)
-    todo = sorted(actions, key=lambda a: a[0])
-    for _, kind in todo:
+    if not (math.isfinite(settle_after) and settle_after >= 0):
+        raise InputError(f'`settle_after` = {settle_after!r} s must be finite and >= 0')
+    for t, kind in actions:
         if kind not in OPERATOR:
             raise InputError(f'unknown action {kind!r}: one of {", ".join(OPERATOR)}')
+        if not (math.isfinite(t) and t >= 0):
+            raise InputError(f'the {kind} action at {t!r} s: its time must be finite and >= 0')
+    todo = sorted(actions, key=lambda a: a[0])
     last_cp: dict | None = None
     loop = ControlLoop(cp.replace(control_mode=procedure.steps[0].control_mode),
                        rate_hz=rate_hz, lockstep=True)
