@@ -193,6 +193,28 @@ def test_a_hold_the_axis_does_not_obey_turns_the_hydraulics_off():
     assert ax.supervisor.action == 'power_off' and 'does not hold' in ax.events[0].message
 
 
+def test_a_hold_in_force_whose_piston_runs_away_turns_the_hydraulics_off():
+    """
+    The load path lost while held in force (the break detector off): the piston runs.
+
+    The load cell reads the held load; past hold_error_position + hold_error_force / k_L
+    (1 mm + 0.1 mm on 1e7 N/m) for longer than hold_error_time, hold_error powers off.
+    """
+    ax = _axis(control_mode='force', k_L=1.0e7, limit_load_max=2000.0,
+               limit_load_max_action='hold', hold_error_time=0.005)
+    _step(ax, 0, load=1500.0, f_traj=1500.0)
+    _step(ax, 1, z=2e-4, load=2100.0, f_traj=2500.0)            # held at 2100 N
+    said = []
+    for k in range(2, 20):                   # 0.1 mm a period, the load as held
+        _step(ax, k, z=2e-4 + 1e-4 * (k - 1), load=2100.0, f_traj=2500.0)
+        said += [e.message for e in ax.events if e.detector == 'hold_error']
+        if k <= 12 + 5:                      # beyond 1.1 mm from k = 13, latched after 5 ms
+            assert 'hold_error' not in ax.supervisor.tripped(), k
+    assert ax.supervisor.tripped() == ['limit_load_max', 'hold_error']
+    assert len(said) == 1 and 'the load path is lost' in said[0]
+    assert ax.supervisor.action == 'power_off'
+
+
 def test_a_frozen_load_cell_under_force_control_holds_where_it_last_read_true():
     ax = _axis(control_mode='force', k_L=1.0e7, load_frozen_force=200.0)
     _step(ax, 0, z=1.0e-4, load=1000.0, f_traj=1000.0)

@@ -676,19 +676,35 @@ class Supervisor:
             self._check(det, True, stamp_ns, e, why(t), events)
         return events
 
-    def judge_hold(self, stamp_ns: int, e: float, force: bool) -> list[Event]:
+    def judge_hold(self, stamp_ns: int, e: float, force: bool,
+                   travel: float = 0.0) -> list[Event]:
         """
         Judge a hold's error ``e`` of this period; return its events.
 
         ``e``: the held position less the measured [m], or, held in force control
-        (``force``), the held load less the measured [N]. Call it once per period while
-        the axis holds; past its limit for longer than
+        (``force``), the held load less the measured [N]; then ``travel``, how far the piston
+        moved since the hold began [m], counts too: beyond ``hold_error_position`` plus the
+        travel ``hold_error_force`` makes on the specimen (over ``k_L``) the load path is
+        lost (a break the break detector did not name), whatever the load cell reads. Call
+        it once per period while the axis holds; past its limit for longer than
         ``hold_error_time`` it latches ``hold_error`` (power off by default: a stuck valve).
         """
         cfg = self.config
         limit = cfg.hold_error_force if force else cfg.hold_error_position
         unit, what = ('N', 'load') if force else ('m', 'position')
-        return self._timed('hold_error', stamp_ns, e, limit, cfg.hold_error_time, self.dt,
+        # judged as a fraction of its limit; held in force, the travel as one of its reach
+        r = abs(e) / limit if math.isfinite(e) else 0.0
+        reach = cfg.hold_error_position + cfg.hold_error_force / cfg.k_L if (
+            force and cfg.k_L > 0) else math.inf
+        if math.isfinite(travel) and abs(travel) / reach > r:
+            return self._timed('hold_error', stamp_ns, abs(travel) / reach, 1.0,
+                               cfg.hold_error_time, self.dt,
+                               lambda t: f'hold_error: the load path is lost: the piston ran '
+                               f'{abs(travel) * 1e3:.4g} mm from where the hold in force '
+                               f'began (reach {reach * 1e3:.4g} mm: hold_error_position and '
+                               f'hold_error_force over k_L) for {t:.6g} s')
+        return self._timed('hold_error', stamp_ns, r if math.isfinite(e) else math.nan, 1.0,
+                           cfg.hold_error_time, self.dt,
                            lambda t: f'hold_error: the axis does not hold: {abs(e):.6g} {unit} '
                            f'from the held {what} (limit {limit:g} {unit}) for {t:.6g} s')
 

@@ -43,7 +43,8 @@ force control while the load cell is sound (a load limit, a force error), holds 
 measured at the trip with the force loop; one that ends force control (the load cell lost or
 frozen, a break) holds the piston where it was, in displacement, the displacement loop
 starting from rest (no command carried over from the force loop, which would drive the piston
-on: the valve closes). A hold the axis does not obey (a stuck valve) trips ``hold_error``
+on: the valve closes). A hold the axis does not obey (a stuck valve; in force control also
+a piston that runs from where the hold began: a load path lost) trips ``hold_error``
 (:meth:`~ros_ehs.core.control.safety.Supervisor.judge_hold`), power off by default.
 
 A displacement loop whose reference carries a force but no position (NaN: a force reference)
@@ -84,6 +85,7 @@ class AxisController:
         self._z_hold = math.nan           # the position held without a position reference
         self._measured = (math.nan, math.nan)    # the newest (z, load)
         self._f_hold = math.nan           # the load a hold in force control holds [N]
+        self._z_fhold = math.nan          # ... and where the piston was then [m]
 
     @property
     def output(self) -> float:
@@ -193,7 +195,7 @@ class AxisController:
             return 0.0
         if d.mode == 'hold' and self.mode == 'force' and math.isfinite(load):
             if not math.isfinite(self._f_hold):     # the trip's period: hold its load
-                self._f_hold = load
+                self._f_hold, self._z_fhold = load, z
                 self.force.hold(load)
             f_traj = math.nan                       # the loop holds what hold() gave it
             want = 'force'
@@ -209,7 +211,8 @@ class AxisController:
         if d.mode == 'hold':
             force_hold = want == 'force'
             e = (self._f_hold - load) if force_hold else (d.z_ref - z)
-            new = sup.judge_hold(stamp_ns, e, force_hold)
+            new = sup.judge_hold(stamp_ns, e, force_hold,
+                                 travel=z - self._z_fhold if force_hold else 0.0)
             if new:
                 events.extend(new)
                 d = self.demand = sup.demand_for(stamp_ns, z, z_traj, v_traj)
