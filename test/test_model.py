@@ -492,3 +492,29 @@ def test_a_cached_kernel_built_with_other_options_is_not_loaded(tmp_path):
     assert run(_FOREIGN_BUILD) == []
     assert run(_OWN_BUILD) == ['0', '1']
     assert run(_OWN_BUILD) == ['1', '0']
+
+
+def test_null_load_gain_is_the_slope_of_the_exact_null_of_the_flows():
+    # the still piston under load F: the valve's flows feed the piston's leakage exactly
+    from scipy.optimize import root
+    from ros_ehs.core.model.coefficients import null_load_gain, pack
+    from ros_ehs.core.model.kernels import main_stage_flows
+    from ros_ehs.core.params import Params
+    p = Params()
+    c = pack(p)
+
+    def null_current(force):
+        dp = force / p['A_p']
+
+        def eqs(v):
+            qa, qb = main_stage_flows(v[0] * 1e-6, v[1] * 1e6, v[1] * 1e6 - dp, c)
+            return [(qa - p['K_C'] * dp) * 1e6, (qb + p['K_C'] * dp) * 1e6]
+        sol = root(eqs, [0.0, 0.5 * (p['p_s'] + p['p_t'] + dp) * 1e-6], tol=1e-12)
+        assert np.max(np.abs(eqs(sol.x))) < 1e-9, sol.message
+        return sol.x[0] * 1e-6 / p['K_x']
+
+    g = null_load_gain(p)
+    i0 = null_current(0.0)
+    assert (null_current(100.0) - i0) / 100.0 == pytest.approx(g, rel=0.01)
+    assert (null_current(9000.0) - i0) / 9000.0 == pytest.approx(g, rel=0.09)
+    assert null_load_gain(p.replace(flow_law='linear')) > 0     # the piston's leakage alone

@@ -22,10 +22,10 @@ import math
 
 import numpy as np
 import pytest
-from ros_ehs.core.control.modes import ForceLimit, ForceLoop, HOLD_KI, load_train_compliance
+from ros_ehs.core.control.modes import ForceLimit, ForceLoop, load_train_compliance
 from ros_ehs.core.control.safety import break_travel
 from ros_ehs.core.control.supervised import AxisController
-from ros_ehs.core.model.coefficients import flow_gain_kq
+from ros_ehs.core.model.coefficients import flow_gain_kq, null_load_gain
 from ros_ehs.core.params import preset
 from ros_ehs.core.sim.specimen_runs import run_axis
 
@@ -281,14 +281,33 @@ def test_a_break_in_force_control_ends_held_in_displacement_within_its_bound(kin
     assert np.max(np.abs(run.z)) > 0.05
 
 
-def test_a_force_hold_integrates_faster_until_it_is_released():
+def test_a_force_hold_reverses_the_rate_feedforward_for_one_period_then_holds_its_load():
     f = ForceLoop(RIG, 1e-3)
-    ki = f.pid.gains.ki
-    f.hold(2000.0)
-    assert f.pid.gains.ki == pytest.approx(HOLD_KI * ki) and f.reference(MS, 9e3) == 2000.0
-    f.set_params(RIG.replace(force_ki=2 * ki))            # new gains while held: still faster
-    assert f.pid.gains.ki == pytest.approx(HOLD_KI * 2 * ki)
+    f.start(0, 5000.0, 0.0, blend_time=0.0)
+    for k in range(1, 4):                       # a load rising at 100 kN/s: a rate feedforward
+        f.step(k * MS, 5000.0 + 100.0 * k, 5000.0 + 100.0 * k)
+    rate_ff = f.last_ff
+    assert rate_ff > 0
+    f.hold(5300.0)
+    f.step(4 * MS, 5300.0, 9e3)
+    assert f.target == 5300.0 and f.last_ff == pytest.approx(-rate_ff)
+    f.step(5 * MS, 5300.0, 9e3)                 # one period only
+    assert f.last_ff == 0.0
     f.release()
-    assert f.pid.gains.ki == pytest.approx(2 * ki) and f.reference(MS, 9e3) == 9e3
-    f.release()                                           # twice: nothing more
-    assert f.pid.gains.ki == pytest.approx(2 * ki)
+    assert f.reference(6 * MS, 9e3) == 9e3
+    f.release()                                 # twice: nothing more
+    assert f.reference(6 * MS, 8e3) == 8e3
+
+
+def test_a_force_hold_takes_the_valve_null_current_of_its_load_into_the_integrator():
+    f = ForceLoop(RIG, 1e-3)
+    assert f.i_per_load == pytest.approx(null_load_gain(RIG)) and f.i_per_load > 0
+    f.start(0, 5500.0, 1e-3, blend_time=0.0)
+    for k in range(1, 2000):                    # 1-10 kN at 10 Hz: its mean is 5.5 kN
+        v = 5500.0 + 4500.0 * math.sin(2 * math.pi * 10 * k * 1e-3)
+        f.step(k * MS, v, v)
+    i0 = f.pid.i_term
+    f.hold(9000.0)                              # at rest under 9 kN the null needs more current
+    # the mean over the integrator's time constant (0.34 s) ripples +-214 N at 10 Hz
+    assert f.pid.i_term - i0 == pytest.approx(f.i_per_load * 3500.0, abs=f.i_per_load * 250.0)
+    assert ForceLoop(RIG.replace(force_ff=0.0), 1e-3).i_per_load == 0.0   # no feedforward

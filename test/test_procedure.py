@@ -344,6 +344,20 @@ def test_a_checkpoint_restores_the_counts_and_the_bag_adds_what_came_after_it():
         ProcedureRunner(proc(CYCLIC, name='other'), latency=0.0).restore(cp)
 
 
+def test_a_restored_force_test_holds_the_load_it_first_measured_not_where_it_creeps():
+    p = proc({**CYCLIC, 'count': 50, 'mean': 5000.0, 'amplitude': 4000.0,
+              'control_mode': 'force'}, control_mode='force')
+    r, ax = started(p)
+    ax.run(until=lambda r: r.total == 3)
+    again = ProcedureRunner(p, latency=0.0)
+    again.restore(r.checkpoint())
+    t = ax.stamp + MS
+    again.measure(t, 5e-4, 7000.0)
+    assert again.sample(t).f_ref == 7000.0
+    again.measure(t + MS, 5.1e-4, 7300.0)       # the load creeps: the hold does not follow it
+    assert again.sample(t + MS).f_ref == 7000.0 and again.sample(t + 9 * MS).f_ref == 7000.0
+
+
 def test_a_step_in_the_other_mode_waits_for_the_controller_and_a_refusal_holds():
     p = proc({**CYCLIC, 'count': 3},
              {'name': 'load', 'type': 'ramp', 'to': 2000.0, 'rate': 1.0e4,

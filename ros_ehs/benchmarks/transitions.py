@@ -235,20 +235,24 @@ def _faults(p_force) -> list[dict]:
     base, barr, _ = _run(_force(), p_force, 'force')
     t20 = _cycle_start(base, 20)
     steady = _steady(base, barr['load'], barr['t'], _cycle_start(base, 10), t20)
-    # a load limit under the peak, with a hold
-    p = p_force.replace(limit_load_max=9.0e3, limit_load_max_action='hold')
-    r, arr, ev = _run(_force(), p, 'force', max_seconds=t20 + 1.0)
-    trip = [e for e in ev if e[1] == 'trip' and e[2] == 'limit_load_max']
-    case = {'case': 'force/load_limit_hold', 'result': r.result,
-            'cmd_peak': round(float(np.nanmax(arr['cmd'])), 3)}
-    if trip:
-        t_trip, f_trip = trip[0][0], trip[0][4]
-        m = arr['t'] >= t_trip
-        case.update(tripped_at_n=round(f_trip, 1),
-                    from_trip_pct=round(float(np.abs(arr['load'][m] - f_trip).max()) / rng
-                                        * 100.0, 3),
-                    held_max=round(float(arr['load'][m].max()), 1))
-    out.append(case)
+    # load limits under the peak, with a hold: the nearer the mean, the
+    # faster the load moves at the trip
+    for name, value in (('max', 9.5e3), ('max', 9.0e3), ('max', 8.5e3), ('max', 8.0e3)):
+        p = p_force.replace(**{f'limit_load_{name}': value,
+                               f'limit_load_{name}_action': 'hold'})
+        r, arr, ev = _run(_force(), p, 'force', max_seconds=t20 + 1.0)
+        trip = [e for e in ev if e[1] == 'trip' and e[2] == f'limit_load_{name}']
+        case = {'case': f'force/load_limit_hold_{name}_{value:.0f}', 'result': r.result,
+                'cmd_peak': round(float(np.nanmax(arr['cmd'])), 3)}
+        if trip:
+            t_trip, f_trip = trip[0][0], trip[0][4]
+            m = arr['t'] >= t_trip
+            case.update(tripped_at_n=round(f_trip, 1),
+                        from_trip_pct=round(float(np.abs(arr['load'][m] - f_trip).max()) / rng
+                                            * 100.0, 3),
+                        held=[round(float(arr['load'][m].min()), 1),
+                              round(float(arr['load'][m].max()), 1)])
+        out.append(case)
     # a stuck valve: the force error trips, its hold is not obeyed, hydraulics off
     r, arr, ev = _run(_force(), p_force, 'force', fault='stuck_valve',
                       fault_time=t20 + 0.25 / FREQ, max_seconds=t20 + 1.0)

@@ -28,7 +28,7 @@ import numpy as np
 
 from ros_ehs.core.params import Params
 
-__all__ = ['N_COEF', 'pack', 'flow_gain_kq', 'ff_force_gain']
+__all__ = ['N_COEF', 'pack', 'flow_gain_kq', 'ff_force_gain', 'null_load_gain']
 
 (C_PS, C_PT, C_RHO, C_BETA_E, C_BETA_P, C_PCR,
  C_KT, C_KA, C_KM, C_JA, C_BA,
@@ -62,6 +62,34 @@ def ff_force_gain(p: Params) -> float:
     still (eq. 9). Named apart from the PID gain ``kp``.
     """
     return 2.0 * p['beta_e'] * flow_gain_kq(p) * p['K_x'] / p['l_iac']
+
+
+def null_load_gain(p: Params) -> float:
+    """
+    Return the current per newton of load that holds a still piston at the valve's null [A/N].
+
+    A load ``F`` on a still piston needs the load pressure ``P_L = F / A_p``, and the valve
+    at null must then feed the leakage that pressure drives: its own (the metering edges'
+    clearance flows, which ``P_L`` unbalances) and the piston's (``K_C P_L``). With the load
+    flow ``Q_L = (q_a - q_b) / 2`` of :func:`~ros_ehs.core.model.kernels.main_stage_flows`
+    linearised at null (no current, no load):
+
+        dx_v / dP_L = (K_C - dQ_L/dP_L) / (dQ_L/dx_v),   gain = dx_v/dP_L / (A_p K_x)
+
+    For Table 1 this is 1.24e-8 A/N: 0.11 mA holds 9 kN, 8 % under the exact null of the
+    nonlinear flows (the linearisation underestimates it as the load grows).
+    """
+    from ros_ehs.core.model.kernels import _flows_jacobian   # the kernels import this module
+
+    c = pack(p)
+    p0 = 0.5 * (c[C_PS] + c[C_PT])
+    _, _, dqa_dpa, dqb_dpb, dqa_dx, dqb_dx = _flows_jacobian(
+        -c[C_XBIAS], p0, p0, c, bool(c[C_LINEAR]))
+    dql_dpl = 0.25 * (dqa_dpa + dqb_dpb)
+    dql_dx = 0.5 * (dqa_dx - dqb_dx)
+    if not dql_dx > 0:
+        return 0.0
+    return (c[C_KC] - dql_dpl) / dql_dx / (c[C_AP] * c[C_KX])
 
 
 def pack(p: Params, smooth: bool = True) -> np.ndarray:

@@ -368,9 +368,18 @@ class ProcedureRunner:
         """Return the reference at ``stamp_ns`` (advancing to a step whose start is due)."""
         self._advance(stamp_ns)
         seg = self._seg_at(stamp_ns)
-        if seg is None:       # idle before anything: hold what was measured
+        if seg is None:       # nothing to run yet: hold what was measured
             z, f = self._last_meas
             v = f if self.mode == 'force' else z
+            frozen = self.state in ('held', 'interrupted')
+            if not self._segs and frozen and self.mode == 'force' and self._last_ns >= 0 \
+                    and math.isfinite(v):
+                # a restored or restarted force test holds the load it was first measured at:
+                # a force reference that follows the load cell holds nothing, and a load
+                # that crept 3 kN over the peak in 0.5 s was followed. (A position that
+                # follows its measurement stays where the valve's integrator holds it; held
+                # at a fixed value the friction's stick-slip hunts about it, 0.15 mm.)
+                self._push(_Segment('level', stamp_ns, self.mode, v0=v))
             return self._ref(stamp_ns, v, 0.0, self.mode)
         v, r = self._value(seg, stamp_ns)
         return self._ref(stamp_ns, v, r, seg.mode)
