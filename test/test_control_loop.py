@@ -156,18 +156,19 @@ def test_a_stale_reference_is_held_still_and_the_axis_ramps_back_onto_it():
     loop.reference(Reference(T0, 0.01, 0.2), 0.0)
     _answer(loop, 0)
     assert loop.axis.demand.mode == 'ramp'     # the start's ramp-on, over by 50 ms
-    _answer(loop, 99, now=0.0999)
+    for k in range(1, 100):                    # a moving piston (a still one reads frozen)
+        _answer(loop, k, z=k * 1e-6, now=k * 1e-3 - 1e-4)
     assert loop.axis.demand.mode == 'run' and loop.counts['reference_stale'] == 0
     # 0.1 s after it came, no new reference: held at its position, no velocity; once
-    _answer(loop, 100, now=0.1001)
+    _answer(loop, 100, z=1e-4, now=0.1001)
     assert loop.axis.demand.v_ref == 0.0 and loop.counts['reference_stale'] == 1
-    _answer(loop, 101, now=0.1011)
+    _answer(loop, 101, z=1.01e-4, now=0.1011)
     assert loop.counts['reference_stale'] == 1
     assert any('no reference for 0.1 s' in t for _, t in loop.notes)
     # back 60 mm on: the demand ramps from where it was held, no jump
     held = loop.axis.demand.z_ref
     loop.reference(Reference(T0 + 102 * MS, 0.07, 0.0), 0.102)
-    _answer(loop, 102, now=0.102)
+    _answer(loop, 102, z=1.02e-4, now=0.102)
     assert loop.axis.demand.mode == 'ramp' and abs(loop.axis.demand.z_ref - held) < 1e-6
     assert any('ramping onto it' in t for _, t in loop.notes)
 
@@ -326,7 +327,8 @@ def test_a_force_reference_is_carried_to_the_states_instant_with_its_rate():
                                          mode_blend_time=0.0, k_L=5e6))
     loop.reference(Reference(T0, math.nan, math.nan, 1000.0), 0.0)
     loop.reference(Reference(T0 + MS, math.nan, math.nan, 1010.0), 0.0)    # 1e4 N/s
-    _answer(loop, 0, load=1000.0)
+    for k in range(3):
+        _answer(loop, k, load=1000.0)
     r = loop.state(AxisState(T0 + 3 * MS, 0.0, 0.0, math.nan, load=1020.0), 0.003, T0 + 3 * MS)
     assert r is not None and loop.axis.force.target == pytest.approx(1030.0)
 
@@ -348,3 +350,30 @@ def test_a_mode_switch_is_an_event_and_its_figures_say_which_loop_drives():
     assert [e.detector for e in r.events] == ['limit_load_max']
     ok, why, _ = loop.set_mode('force')
     assert not ok and 'reset first' in why
+
+
+def test_a_state_answered_later_than_loop_timing_late_trips_loop_timing_once():
+    loop = _loop(params=Params().replace(loop_timing_late=0.02, stale_timeout=0.005))
+    _answer(loop, 0)
+    # 20 ms late exactly: not yet (stale: the held command, judged all the same)
+    r = loop.state(_st(1), 0.021, T0 + 21 * MS)
+    assert r.events == () and loop.counts['stale'] == 1
+    r = loop.state(_st(2), 0.0221, T0 + 22 * MS + 100)
+    assert [(e.kind, e.detector, e.action) for e in r.events] == [('trip', 'loop_timing',
+                                                                  'hold')]
+    assert 'too busy' in r.events[0].message and r.events[0].value == pytest.approx(0.0200001)
+    assert r.events[0].limit == 0.02 and r.events[0].unit == 's'
+    r = loop.state(_st(3), 0.04, T0 + 40 * MS)          # latched: reported once
+    assert r.events == ()
+    assert loop.axis.supervisor.latches['loop_timing'].tripped
+    r = _answer(loop, 41)                                # on time again: held by the latch
+    assert loop.axis.demand.mode == 'hold'
+    ok, why, _ = loop.reset(0.05)                        # nothing left to judge: clears
+    assert ok, why
+
+
+def test_without_the_wall_clock_lateness_is_not_judged():
+    loop = _loop(wall=False, params=Params().replace(loop_timing_late=0.002))
+    _answer(loop, 0)
+    r = loop.state(_st(1), 10.0, T0 + 10**10)
+    assert r.events == () and not loop.axis.supervisor.latches['loop_timing'].tripped

@@ -57,12 +57,12 @@ def test_a_limit_trips_above_it_not_at_it_and_reports_once(det, field, limit, in
 def test_an_off_detector_never_trips_and_the_protecting_ones_are_on_by_default():
     cfg = SafetyConfig()
     # on by default: the feedback, the position limits (inside the stroke), the load limits,
-    # the force error, the specimen's break, the load cell, a hold not obeyed
+    # the force error, the specimen's break, the load cell, a hold not obeyed, a late loop
     assert {d: cfg.action(d) for d in DETECTORS} == {
         **dict.fromkeys(DETECTORS, 'off'), 'feedback': 'power_off', 'specimen_break': 'hold',
         'load_feedback': 'hold', 'limit_position_max': 'hold', 'limit_position_min': 'hold',
         'limit_load_max': 'hold', 'limit_load_min': 'hold', 'limit_force_error': 'hold',
-        'hold_error': 'power_off'}
+        'hold_error': 'power_off', 'loop_timing': 'hold'}
     assert cfg.actions == SafetyConfig.from_params(Params()).actions
     sup = Supervisor(SafetyConfig(ramp_time=0.0, actions={}))      # every action off
     d, ev = _feed(sup, 0, z=5.0, z_dot=50.0, force=1e7)

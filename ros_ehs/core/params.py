@@ -344,6 +344,11 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
     _p('hold_error_time', 's', 0.02, 0.0, 10.0, '...for longer than this (a stuck valve)',
        'safety', 'D'),
     _action('hold_error', 'power_off', 'hold not obeyed'),
+    _p('loop_timing_late', 's', 0.02, 1.0e-3, 10.0, 'real time: a state answered more than '
+       'this after its stamp trips loop_timing (the machine too busy to run the loop on '
+       'time: the valve held its last command meanwhile)',
+       'safety', 'D'),
+    _action('loop_timing', 'hold', 'loop timing (real time)'),
 )
 
 ALL_SPECS: tuple[ParamSpec, ...] = PLANT_SPECS + CONTROL_SPECS + SAFETY_SPECS

@@ -36,7 +36,10 @@ one command stamped with that state's stamp.
   run (``epochs``). The PID and feedforward restart from rest, the ramp-on starts again, the
   lock-step references are forgotten, and the stamp is answered at once;
 * real time: a state older than ``stale_timeout`` on arrival is not used: the held command
-  is repeated (``stale``).
+  is repeated (``stale``);
+* real time: every state's age when it is taken (its answer's lateness) is judged by the
+  ``loop_timing`` detector (:meth:`ros_ehs.core.control.safety.Supervisor.judge_timing`):
+  beyond ``loop_timing_late`` the machine is too busy to run the loop on time.
 
 **References.** Before the first reference, the first measured position is held. In real
 time the newest reference is carried with its velocity to each state's stamp (a first-order
@@ -158,6 +161,7 @@ class ControlLoop:
         self._v_prev: tuple[float, int] | None = None     # the reference before: v, stamp
         self._f: tuple[float, float, int] = (math.nan, 0.0, -1)   # real time: f, rate, stamp
         self._ref_stale = False
+        self._late: list[Event] = []      # loop_timing's events for the next reply
         self._hold_z: float | None = None
         self._waiting: AxisState | None = None    # lock-step: parked until its reference
         self._noted: dict[str, float] = {}
@@ -305,10 +309,14 @@ class ControlLoop:
                 self.counts['out_of_order'] += 1
                 return None
             self._new_run(s.stamp_ns, now)
+        if self.wall:
+            self._late.extend(self.axis.supervisor.judge_timing(age * 1e-9, s.stamp_ns))
         if self.wall and age > self.stale_timeout * 1e9:
             self.counts['stale'] += 1
             self.last_stamp = s.stamp_ns
-            return Reply(s.stamp_ns, self.axis.output)
+            events, self._late = tuple(self._late), []
+            self.counts['events'] += len(events)
+            return Reply(s.stamp_ns, self.axis.output, events)
         if self.lockstep:
             self._waiting = s
             return self._try_waiting()
@@ -356,7 +364,8 @@ class ControlLoop:
         self.counts['answered'] += 1
         if z_ok and math.isfinite(z_ref):
             self.errors.append(z_ref - z)
-        events = tuple(axis.events)
+        events = tuple(self._late) + tuple(axis.events)
+        self._late = []
         if events:
             self.counts['events'] += len(events)
         return Reply(s.stamp_ns, i, events)

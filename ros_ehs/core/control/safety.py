@@ -50,6 +50,9 @@ Detectors (``ros_ehs.core.params.SAFETY_SPECS`` holds their limits and actions):
                         ``hold_error_position`` from the held position (or, held in force
                         control, the load more than ``hold_error_force`` from the held load)
                         for longer than ``hold_error_time`` (:meth:`Supervisor.judge_hold`)
+``loop_timing``         real time: a state answered more than ``loop_timing_late`` after its
+                        stamp (:meth:`Supervisor.judge_timing`): the machine is too busy to
+                        run the loop on time
 =====================  ======================================================================
 
 Edge-case policy (each branch tested in ``test/test_safety.py``):
@@ -109,13 +112,13 @@ __all__ = ['ACTIONS', 'DETECTORS', 'Demand', 'Event', 'LIMITS_OF', 'SafetyConfig
 DETECTORS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
              'limit_error', 'feedback', 'saturation', 'limit_load_max', 'limit_load_min',
              'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'specimen_break',
-             'load_feedback', 'hold_error')
+             'load_feedback', 'hold_error', 'loop_timing')
 _SEVERITY = {a: k for k, a in enumerate(ACTIONS)}
 UNITS = {'limit_position_max': 'm', 'limit_position_min': 'm', 'limit_velocity': 'm/s',
          'limit_force': 'N', 'limit_error': 'm', 'feedback': '', 'saturation': 's',
          'limit_load_max': 'N', 'limit_load_min': 'N', 'limit_specimen_max': 'm',
          'limit_specimen_min': 'm', 'limit_force_error': 'N', 'specimen_break': 'N',
-         'load_feedback': '', 'hold_error': ''}
+         'load_feedback': '', 'hold_error': '', 'loop_timing': 's'}
 _NUMBERS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit_force',
             'limit_error', 'limit_error_time', 'feedback_timeout', 'frozen_periods',
             'frozen_current', 'limit_saturation_time', 'limit_hysteresis', 'safe_position',
@@ -123,7 +126,7 @@ _NUMBERS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit
             'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'break_drop',
             'break_travel', 'break_window', 'z_L', 'k_L', 'load_frozen_force',
             'hold_error_position', 'hold_error_force', 'hold_error_time', 'load_check_window',
-            'load_check_force', 'load_drift_force')
+            'load_check_force', 'load_drift_force', 'loop_timing_late')
 #: the pairs of limits whose hysteresis is a fraction of their span
 _PAIRS = {'limit_position_max': ('limit_position_min', 'limit_position_max', 1),
           'limit_position_min': ('limit_position_min', 'limit_position_max', -1),
@@ -151,7 +154,8 @@ LIMITS_OF = {'limit_position_max': ('limit_position_max',),
              'specimen_break': ('break_drop', 'break_travel', 'break_window'),
              'load_feedback': ('load_frozen_force', 'load_check_window', 'load_check_force',
                                'load_drift_force'),
-             'hold_error': ('hold_error_position', 'hold_error_force', 'hold_error_time')}
+             'hold_error': ('hold_error_position', 'hold_error_force', 'hold_error_time'),
+             'loop_timing': ('loop_timing_late',)}
 
 
 def unprotected(params: Mapping[str, object]) -> list[str]:
@@ -213,6 +217,7 @@ class SafetyConfig:
     load_check_window: float = _default('load_check_window')
     load_check_force: float = _default('load_check_force')
     load_drift_force: float = _default('load_drift_force')
+    loop_timing_late: float = _default('loop_timing_late')
     actions: Mapping[str, str] = field(default_factory=lambda: {
         d: spec(d + '_action').default for d in DETECTORS})
 
@@ -248,6 +253,7 @@ class SafetyConfig:
         return {'limit_error': self.limit_error, 'feedback': self.feedback_timeout,
                 'saturation': self.limit_saturation_time, 'specimen_break': self.break_drop,
                 'load_feedback': math.nan, 'hold_error': self.hold_error_time,
+                'loop_timing': self.loop_timing_late,
                 }.get(detector, getattr(self, detector, math.nan))
 
 
@@ -799,6 +805,25 @@ class Supervisor:
         self._check('feedback', True, stamp_ns, float(age_s),
                     f'no feedback for {age_s:.6g} s (timeout {self.config.feedback_timeout:g} '
                     's)', events)
+        return events
+
+    def judge_timing(self, late_s: float, stamp_ns: int) -> list[Event]:
+        """
+        Judge how late the loop is: ``late_s`` [s] from a state's stamp to its answer.
+
+        The controller calls it in real time for every state it takes, stale ones too (a
+        state that never comes is the feedback detector's). Beyond
+        ``loop_timing_late`` it latches ``loop_timing``: the valve held its last command all
+        that time. Nothing is left to judge at a reset: it counts as clear.
+        """
+        late = self.config.loop_timing_late
+        if not (late_s > late):
+            return []
+        events: list[Event] = []
+        self._check('loop_timing', True, stamp_ns, float(late_s),
+                    f'loop_timing: a state answered {late_s * 1e3:.4g} ms after its stamp '
+                    f'(limit {late * 1e3:g} ms): the machine is too busy to run the loop on '
+                    'time', events)
         return events
 
     # -- operator ----------------------------------------------------------------------------
