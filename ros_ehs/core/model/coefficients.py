@@ -70,26 +70,33 @@ def null_load_gain(p: Params) -> float:
 
     A load ``F`` on a still piston needs the load pressure ``P_L = F / A_p``, and the valve
     at null must then feed the leakage that pressure drives: its own (the metering edges'
-    clearance flows, which ``P_L`` unbalances) and the piston's (``K_C P_L``). With the load
-    flow ``Q_L = (q_a - q_b) / 2`` of :func:`~ros_ehs.core.model.kernels.main_stage_flows`
-    linearised at null (no current, no load):
+    clearance flows, which ``P_L`` unbalances) and the piston's (``K_C P_L``). The load flow
+    ``Q_L = (q_a - q_b) / 2`` of the orifice law
+    (:func:`~ros_ehs.core.model.kernels.main_stage_flows`) linearised at null, both edges
+    open by ``h0 = sqrt(r_c^2 + (c + r_c)^2) - r_c`` (``c = d_c / 2``) with the slope
+    ``e0 = r_c / (h0 + r_c)``, both chambers at ``p0 = (p_s + p_t) / 2``, ``D = p_s - p0``,
+    ``k = C_d w sqrt(2 / rho)``::
 
-        dx_v / dP_L = (K_C - dQ_L/dP_L) / (dQ_L/dx_v),   gain = dx_v/dP_L / (A_p K_x)
+        dQ_L/dP_L = -k h0 / (2 sqrt(D)),   dQ_L/dx_v = 2 k e0 sqrt(D)
+        gain = (K_C - dQ_L/dP_L) / (dQ_L/dx_v) / (A_p K_x)
 
-    For Table 1 this is 1.24e-8 A/N: 0.11 mA holds 9 kN, 8 % under the exact null of the
-    nonlinear flows (the linearisation underestimates it as the load grows).
+    (the linear law, eq. (7): ``K_C / (K_q A_p K_x)``). For Table 1 this is 1.24e-8 A/N:
+    0.11 mA holds 9 kN, 8 % under the exact null of the nonlinear flows (the linearisation
+    underestimates it as the load grows). Pure Python: the controller starts without numba.
     """
-    from ros_ehs.core.model.kernels import _flows_jacobian   # the kernels import this module
-
-    c = pack(p)
-    p0 = 0.5 * (c[C_PS] + c[C_PT])
-    _, _, dqa_dpa, dqb_dpb, dqa_dx, dqb_dx = _flows_jacobian(
-        -c[C_XBIAS], p0, p0, c, bool(c[C_LINEAR]))
-    dql_dpl = 0.25 * (dqa_dpa + dqb_dpb)
-    dql_dx = 0.5 * (dqa_dx - dqb_dx)
+    a_p, k_x, k_c = float(p['A_p']), float(p['K_x']), float(p['K_C'])
+    if p['flow_law'] == 'linear':
+        return k_c / (flow_gain_kq(p) * a_p * k_x)
+    clr, rc = float(p['d_c']) / 2.0, float(p['r_c'])
+    h0 = math.hypot(rc, clr + rc) - rc
+    e0 = rc / (h0 + rc) if h0 + rc > 0 else 1.0
+    k = float(p['C_d']) * math.pi * (float(p['d_s']) + clr) * math.sqrt(2.0 / float(p['rho']))
+    root = math.sqrt(0.5 * (float(p['p_s']) - float(p['p_t'])))
+    dql_dpl = -k * h0 / (2.0 * root)
+    dql_dx = 2.0 * k * e0 * root
     if not dql_dx > 0:
         return 0.0
-    return (c[C_KC] - dql_dpl) / dql_dx / (c[C_AP] * c[C_KX])
+    return (k_c - dql_dpl) / dql_dx / (a_p * k_x)
 
 
 def pack(p: Params, smooth: bool = True) -> np.ndarray:
