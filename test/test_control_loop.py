@@ -377,3 +377,25 @@ def test_without_the_wall_clock_lateness_is_not_judged():
     _answer(loop, 0)
     r = loop.state(_st(1), 10.0, T0 + 10**10)
     assert r.events == () and not loop.axis.supervisor.latches['loop_timing'].tripped
+
+
+def test_a_command_after_the_valve_was_zeroed_starts_from_zero_at_the_command_rate():
+    p = Params().replace(ramp_time=0.0, command_rate=3.0)
+    off = _loop(params=p.replace(command_rate=0.0))
+    off.reference(Reference(T0, 0.01, 0.0), 0.0)
+    want = off.state(AxisState(T0, 0.0, 0.0, i=0.0), 0.0, T0).current   # what 10 mm asks
+    assert want > 0.006
+    loop = _loop(params=p)
+    loop.reference(Reference(T0, 0.01, 0.0), 0.0)
+    i, steps, i_terms = 0.0, [], []
+    for k in range(3):                       # 3 mA a period at most, from the valve's 0 A
+        r = loop.state(AxisState(T0 + k * MS, 0.0, 0.0, i=i), k * 1e-3, T0 + k * MS)
+        steps.append(r.current - i)
+        i = r.current
+        i_terms.append(loop.axis.ctrl.pid.i_term)
+    assert max(abs(x) for x in steps) <= 0.003 + 1e-12
+    assert steps[0] == pytest.approx(0.003) and loop.axis.rate_limited >= 2
+    assert i_terms[1] == i_terms[0]          # no integration into the limit
+    # a stall: the plant's watchdog zeroed the valve, and the state says so
+    r = loop.state(AxisState(T0 + 20 * MS, 0.0, 0.0, i=0.0), 0.02, T0 + 20 * MS)
+    assert r.current == pytest.approx(0.003)

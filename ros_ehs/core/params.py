@@ -195,6 +195,13 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'pid', 'D'),
     _p('u_max', 'A', 0.015, 1.0e-4, 0.1, 'output limit |i| (the valve rated current)', 'pid',
        'K'),
+    _p('command_rate', 'A/s', 3.0, 0.0, 1000.0, "limit of the valve command's rate: each "
+       "period's command within command_rate times the period of the current the valve has "
+       '(the last command, or the current the state says was applied when the valve does not '
+       "have it: a plant's watchdog zeroed it in a stall), so that a late state or a stall is "
+       'not a current spike; the integrator does not integrate against it; 0: off. Above the '
+       "steps the paper's sine needs (1.2 mA in 1 ms) and a full-scale 20 Hz sine's slope "
+       '(1.9 A/s)', 'pid', 'D'),
     _p('tracking_tau', 's', 0.0, 0.0, 100.0, 'time constant of antiwindup = '
        'back_calculation (0: sqrt(kd/ki), or kp/ki when kd = 0)', 'pid', 'D'),
     ParamSpec('antiwindup', '', 'conditional_integration', meaning='anti-windup strategy '

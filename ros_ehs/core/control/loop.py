@@ -342,7 +342,7 @@ class ControlLoop:
             self.axis.restart_loops()
             self._note('info', 'states are back; PID restarted from rest')
         axis, z = self.axis, s.z
-        i = axis.step(s.stamp_ns, z, s.z_dot, s.force, z_ref, v_ref, s.load, f_ref)
+        i = axis.step(s.stamp_ns, z, s.z_dot, s.force, z_ref, v_ref, s.load, f_ref, s.i)
         z_ok = math.isfinite(z)
         has_ref = math.isfinite(z_ref) and math.isfinite(v_ref) or math.isfinite(f_ref)
         if not (z_ok and has_ref):

@@ -82,6 +82,10 @@ class AxisController:
         self.driving: str | None = None   # the loop that drove the valve last, None: 0 A
         self.limited = False              # specimen protect limited the last command
         self.blend_time = float(params['mode_blend_time'])
+        self.dt = float(dt)
+        self.command_rate = float(params['command_rate'])
+        self.rate_limited = 0             # commands the rate limit changed
+        self._sent = math.nan             # the last command returned [A]
         self._z_hold = math.nan           # the position held without a position reference
         self._measured = (math.nan, math.nan)    # the newest (z, load)
         self._f_hold = math.nan           # the load a hold in force control holds [N]
@@ -110,6 +114,7 @@ class AxisController:
         self.protect.set_params(params)
         self.supervisor.set_config(SafetyConfig.from_params(params))
         self.blend_time = float(params['mode_blend_time'])
+        self.command_rate = float(params['command_rate'])
 
     def restart(self) -> None:
         """Start a new run (epoch): the loops from rest, ramp on again; latches stay."""
@@ -165,13 +170,47 @@ class AxisController:
 
     # -- per period ----------------------------------------------------------------------------
     def step(self, stamp_ns: int, z: float, z_dot: float, force: float, z_traj: float,
-             v_traj: float, load: float = math.nan, f_traj: float = math.nan) -> float:
+             v_traj: float, load: float = math.nan, f_traj: float = math.nan,
+             applied: float = math.nan) -> float:
         """
         Return the servo current [A] for one state; ``events`` holds what happened.
 
         ``load``: the load cell [N] (NaN: none, or not valid); ``f_traj``: the force
-        reference [N] (NaN: none).
+        reference [N] (NaN: none); ``applied``: the current the state says the valve had
+        over the period that ended here (NaN: not known), for the command's rate limit.
         """
+        i = self._step(stamp_ns, z, z_dot, force, z_traj, v_traj, load, f_traj)
+        self._sent = i = self._rate_limit(i, applied)
+        return i
+
+    def _rate_limit(self, i: float, applied: float) -> float:
+        """
+        Return ``i`` [A] within ``command_rate`` times the period of the valve's current.
+
+        The valve's current is the last command, or ``applied`` when that differs from it
+        by more than the period's step (the valve does not have the last command: a plant's
+        watchdog zeroed it while the loop stalled). 0 A (hydraulics off, a power-off) is not
+        limited, nor a command with nothing to start from. A limited command is the driving
+        loop's (its PID does not integrate further into the limit).
+        """
+        r = self.command_rate
+        if not (r > 0) or i == 0.0 or self.driving is None or not self.demand.power or \
+                not math.isfinite(i):
+            return i
+        base, step = self._sent, r * self.dt
+        if math.isfinite(applied) and not abs(applied - base) <= step:
+            base = applied
+        if not math.isfinite(base):
+            return i
+        u = min(max(i, base - step), base + step)
+        if u != i:
+            self.rate_limited += 1
+            (self.force.pid if self.driving == 'force' else self.ctrl.pid).limited(u)
+        return u
+
+    def _step(self, stamp_ns: int, z: float, z_dot: float, force: float, z_traj: float,
+              v_traj: float, load: float, f_traj: float) -> float:
+        """Return the command of one state before the rate limit (:meth:`step`)."""
         sup = self.supervisor
         self._measured = (z, load)
         if self.driving == 'force' and self.mode != 'force':   # switched away: blend in z
