@@ -358,6 +358,29 @@ def test_a_restored_force_test_holds_the_load_it_first_measured_not_where_it_cre
     assert again.sample(t + MS).f_ref == 7000.0 and again.sample(t + 9 * MS).f_ref == 7000.0
 
 
+def test_an_interlock_during_the_final_stop_ends_the_test_interrupted_never_completed():
+    r, ax = started(proc({**CYCLIC, 'count': 3}))
+    ax.run(until=lambda r: r.state == 'stopping')
+    assert r.result == 'completed' and r.total == 3
+    r.event('trip', 'feedback', 'power_off', ax.stamp)
+    assert r.state == 'finished' and r.result == 'interrupted' and r.total == 3
+    assert 'feedback (power_off) during the stop' in r.reason
+    assert any(e[0] == 'interlock' and e[1] == 'feedback' for e in r.events)
+    # a failed test stays failed: the interlock joins its reason
+    r, ax = started(proc({**CYCLIC, 'count': 50}))
+    ax.run(until=lambda r: r.total == 2)
+    r.event('trip', 'specimen_break', 'hold', ax.stamp)
+    assert r.state == 'stopping' and r.result == 'failed'
+    r.event('trip', 'hold_error', 'power_off', ax.stamp + MS)
+    assert r.state == 'finished' and r.result == 'failed' and 'hold_error' in r.reason
+    # an indicate-only trip changes nothing
+    r, ax = started(proc({**CYCLIC, 'count': 3}))
+    ax.run(until=lambda r: r.state == 'stopping')
+    r.event('trip', 'limit_velocity', 'indicate', ax.stamp)
+    ax.run(until=finished)
+    assert r.result == 'completed'
+
+
 def test_a_step_in_the_other_mode_waits_for_the_controller_and_a_refusal_holds():
     p = proc({**CYCLIC, 'count': 3},
              {'name': 'load', 'type': 'ramp', 'to': 2000.0, 'rate': 1.0e4,

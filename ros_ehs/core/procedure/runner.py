@@ -58,8 +58,12 @@ compensation's learnt corrections and the detectors' reference cycles come back 
 command frozen, hydraulics on), ``interrupted`` (an interlock acted, or a restart: resume
 when ready), ``stopping`` (ramping to ``stop_level``), ``finished`` (its ``result``:
 ``completed``, ``failed`` (a failure detector or the controller's specimen break),
-``run_out`` or ``stopped``). The end of a test, failed, completed or run out, ramps to
-``stop_level`` as ``~/stop`` does.
+``run_out``, ``stopped`` or ``interrupted``). The end of a test, failed, completed or run
+out, ramps to ``stop_level`` as ``~/stop`` does. An interlock that acts during that ramp (a
+hold, a stop or a power-off: the controller, not the ramp, has the axis now) ends the test
+there, holding the measured level: a test that had completed its steps is then
+``interrupted``, never ``completed``; any other result keeps its name, the interlock added
+to its reason.
 """
 
 from __future__ import annotations
@@ -494,6 +498,19 @@ class ProcedureRunner:
                 return
             if self.state != 'stopping':
                 self._freeze(stamp_ns, 'interrupted', f'interlock: {detector} ({action})')
+                return
+            # the stop cannot go on: the controller holds the axis or turned the hydraulics
+            # off, and that is where the test ends. A test that had completed its steps did
+            # not end as planned: interrupted, never completed
+            why = f'interlock: {detector} ({action}) during the stop'
+            if self.result in ('', 'completed'):
+                self.result, self.reason = 'interrupted', why
+            else:
+                self.reason = f'{self.reason}; {why}'
+            self._note_event('interlock', detector, float(self.total), why)
+            t = stamp_ns + self.latency_ns
+            self._push(_Segment('level', t, self.mode, v0=self._measured(self.mode), end=t))
+            self._finish_stop(t)
 
     def estimate(self, stamp_ns: int, k_L: float, stderr: float, adequate: bool) -> None:
         """
