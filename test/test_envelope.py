@@ -86,12 +86,25 @@ def test_a_virtual_test_refuses_what_the_rig_cannot_follow_before_it_moves():
     ({'actions': [(-1.0, 'resume')]}, 'the resume action at -1.0 s'),
     ({'settle_after': math.nan}, '`settle_after` = nan'),
     ({'fault': 'loose_cable'}, "`fault` = 'loose_cable'"),
+    ({'progress_every': -1.0}, '`progress_every` = -1.0'),
 ])
 def test_a_virtual_tests_bad_arguments_are_named(kw, says):
     proc = _cyclic(mean=0.0, amplitude=0.001, frequency=1.0)
     with pytest.raises(InputError) as err:
         run_procedure(proc, Params(), **kw)
     assert says in str(err.value)
+
+
+def test_a_virtual_test_tells_its_progress_and_ends_with_its_test():
+    from ros_ehs.core.sim.virtual_test import PROGRESS_PERIODS
+    said = []
+    proc = _cyclic(mean=0.0, amplitude=0.001, frequency=5.0)
+    r = run_procedure(proc, Params(), progress=lambda *a: said.append(a), progress_every=0.0)
+    assert r.result == 'completed' and r.sim_s < 60.0            # not at max_seconds
+    n = int(r.sim_s * 1000) // PROGRESS_PERIODS + 1
+    assert len(said) in (n - 1, n) and said[0][0] == 0.0
+    assert [c for _, c, _ in said] == sorted(c for _, c, _ in said)      # counts only grow
+    assert {st for _, _, st in said} <= {'running', 'stopping', 'idle'}
 
 
 def test_a_rig_parameters_file_that_is_not_one_is_named(tmp_path):

@@ -226,8 +226,12 @@ def _cmd_procedure(args) -> int:
     print(f'virtual test of {proc.name!r} ({len(proc.steps)} steps) on the {args.model} model '
           f'at {args.rate_hz:g} Hz, specimen k_L {p["k_L"]:g} N/m, life '
           f'{p["specimen_life"]:g} cycles at {p["specimen_life_range"]:g} N')
+
+    def progress(sim_s: float, cycles: int, state: str) -> None:
+        print(f'  ... {sim_s:.6g} s simulated, {cycles} cycles, {state}', file=sys.stderr,
+              flush=True)
     r = run_procedure(proc, p, model=args.model, rate_hz=args.rate_hz,
-                      max_seconds=args.max_time, observe=args.observe)
+                      max_seconds=args.max_time, observe=args.observe, progress=progress)
     for who, kind, what, message in ((e[0], e[1], e[2], e[-1]) for e in r.events):
         if kind in ('step', 'step_end', 'failure', 'detector', 'run_out', 'trip', 'mode',
                     'interrupted', 'finished'):

@@ -47,6 +47,8 @@ from ros_ehs.core.sim.axis import SimulatedAxis
 
 __all__ = ['LiveFits', 'OPERATOR', 'VirtualTest', 'model_trip_cycle', 'run_procedure']
 
+#: How often a virtual test looks at the wall clock for its ``progress`` [periods].
+PROGRESS_PERIODS = 1000
 #: The operator's requests a virtual test takes at given times (``actions``).
 OPERATOR = ('hold', 'resume', 'stop', 'restart')
 
@@ -97,8 +99,9 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                   actions: Sequence[tuple[float, str]] = (), fault: str = 'none',
                   fault_time: float = 0.0, settle_after: float = 1.0, check: bool = True,
                   probe: Callable[[SimulatedAxis, ProcedureRunner, Any, Any], None] | None
-                  = None
-                  ) -> VirtualTest:
+                  = None,
+                  progress: Callable[[float, int, str], None] | None = None,
+                  progress_every: float = 10.0) -> VirtualTest:
     """
     Run ``procedure`` on the model of ``params`` (its specimen too) until it finishes.
 
@@ -120,7 +123,9 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     with no action left to resume it ends the run this long after [s] (its ``result`` is
     then ``interrupted`` or ``held``, with the reason), rather than at ``max_seconds``;
     ``check``: refuse a procedure the rig of ``params`` cannot follow (InputError naming each
-    step and limit, :func:`~ros_ehs.core.procedure.envelope.require_envelope`).
+    step and limit, :func:`~ros_ehs.core.procedure.envelope.require_envelope`);
+    ``progress(sim_s, cycles, state)``: called at most every ``progress_every`` seconds of
+    wall time (judged every ``PROGRESS_PERIODS`` periods), for a long run's progress.
     """
     if not isinstance(procedure, Procedure):
         raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
@@ -131,6 +136,8 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     cp = controller_params or params
     axis = SimulatedAxis(params, model, rate_hz=rate_hz, lockstep=True, noise=noise,
                          fault=fault, fault_time=fault_time)
+    if not (math.isfinite(progress_every) and progress_every >= 0):
+        raise InputError(f'`progress_every` = {progress_every!r} s must be finite and >= 0')
     if not (math.isfinite(settle_after) and settle_after >= 0):
         raise InputError(f'`settle_after` = {settle_after!r} s must be finite and >= 0')
     for t, kind in actions:
@@ -161,7 +168,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     sample, reference, trajectory, answer = axis.sample, runner.sample, loop.trajectory, \
         loop.state
     command, measure = axis.command, runner.measure
-    wall0 = time.perf_counter()
+    wall0 = last_progress = time.perf_counter()
     started = False
     stopped_at: int | None = None     # the period the test was interrupted or held at
     k = 0
@@ -225,6 +232,11 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             fractured = axis.specimen.cycles
         if runner.state == 'finished':
             break
+        if progress is not None and not k % PROGRESS_PERIODS:
+            now = time.perf_counter()
+            if now - last_progress >= progress_every:
+                last_progress = now
+                progress(k / rate_hz, runner.total, runner.state)
         if runner.state in ('interrupted', 'held') and not todo:
             if stopped_at is None:
                 stopped_at = k
