@@ -381,6 +381,63 @@ def test_an_interlock_during_the_final_stop_ends_the_test_interrupted_never_comp
     assert r.result == 'completed'
 
 
+class ShortAxis(PerfectAxis):
+    """A perfect axis whose swing about the step's mean is ``gain`` of the command's."""
+
+    def __init__(self, runner, gain, mean=0.002):
+        super().__init__(runner)
+        self.gain, self.mean = gain, mean
+
+    def run(self, seconds=None, until=None, bound=10**6):
+        for _ in range(bound if seconds is None else int(round(seconds * 1000))):
+            self.stamp += MS
+            ref = self.r.sample(self.stamp)
+            self.refs.append(ref)
+            z = self.mean + self.gain(self.stamp) * (ref.z_ref - self.mean)
+            self.r.measure(self.stamp, z, K * z)
+            if until is not None and until(self.r):
+                return
+        if until is not None:
+            raise AssertionError(f'not reached in {bound} periods: {self.r.status()}')
+
+
+def test_null_pacing_counts_only_cycles_carried_within_count_tolerance():
+    p = proc({**CYCLIC, 'count_tolerance': 0.02, 'taper': 3})
+    r = ProcedureRunner(p, latency=0.0)
+    ax = ShortAxis(r, lambda t: 1.0)
+    assert r.start(ax.stamp)[0]
+    ax.run(until=finished)
+    # the taper's cycles are carried, not counted: the step runs 20 whole cycles on
+    assert r.result == 'completed' and r.total == 20 and r.counts == [20]
+    pacing = [e for e in r.events if e[0] == 'pacing']
+    assert 'count waiting' in pacing[0][3] and 'again after' in pacing[1][3]
+    end = next(e for e in r.events if e[0] == 'step_end')
+    assert end[2] == 20.0 and 'more carried outside count_tolerance, not counted' in end[3]
+    nulls = int(end[3].split('; ')[1].split()[0])
+    assert 1 <= nulls <= 3
+    # without pacing the taper's cycles count: the step is over that much sooner
+    r0, _ = started(proc({**CYCLIC, 'taper': 3}))
+    _.run(until=finished)
+    assert r0.total == 20 and _.stamp < ax.stamp
+
+
+def test_a_level_never_reached_within_count_tolerance_interrupts_the_test():
+    p = proc({**CYCLIC, 'count_tolerance': 0.02, 'null_cycles': 10, 'taper': 1})
+    r = ProcedureRunner(p, latency=0.0)
+    ax = ShortAxis(r, lambda t: 0.9)                 # 10 % short of its swing, always
+    assert r.start(ax.stamp)[0]
+    ax.run(until=lambda r: r.state == 'interrupted')
+    assert r.total == 0
+    ev = [e for e in r.events if e[0] == 'levels']
+    assert ev and '10 cycles in a row outside count_tolerance' in ev[0][3]
+
+
+def test_count_tolerance_is_refused_on_a_block_program():
+    with pytest.raises(InputError, match='count_tolerance.*block'):
+        proc({'name': 'b', 'type': 'cyclic', 'blocks': [[0.003, 0.001, 2], [0.002, 0.0, 1]],
+              'frequency': 10.0, 'count': 6, 'count_tolerance': 0.02})
+
+
 def test_a_step_in_the_other_mode_waits_for_the_controller_and_a_refusal_holds():
     p = proc({**CYCLIC, 'count': 3},
              {'name': 'load', 'type': 'ramp', 'to': 2000.0, 'rate': 1.0e4,

@@ -119,7 +119,8 @@ class _Segment:
     lead: float = 0.0            # a wave's taper [s]; a blend's duration
     lead_from: float = 0.0       # the midpoint the taper grows from
     end: int | None = None       # the stamp it ends at, when known [ns]
-    n_end: int | None = None     # a wave's count in the step at that end, when known
+    n_end: int | None = None     # a wave's cycle at that end, when known
+    nulls: int = 0               # a wave's cycles not counted (null pacing): n_end's excess
     wave: Any = None             # a wave's waveform (_Wave)
     cyc: dict | None = None      # the cycle being measured
 
@@ -316,6 +317,9 @@ class ProcedureRunner:
         self._waves: list[_Segment] = []     # the waveform segments whose cycles are counted
         self._memo: tuple = (None, (0.0, 0.0))
         self._learnt: dict[int, dict] = {}
+        self._null_cycles: dict[int, int] = {}  # each step's cycles not counted (null pacing)
+        self._null_s: dict[int, float] = {}     # ... and their time [s]
+        self._null_run = 0                      # cycles in a row not counted
         self._detectors: dict[int, list[FailureDetector]] = {}
         self._det_state: dict[int, list[dict]] = {}
         self._last_ns = -1
@@ -736,9 +740,6 @@ class ProcedureRunner:
         k = seg.step
         if not (whole and cyc['begun_here']):
             return                     # not a whole cycle (cut, or begun mid-way): not counted
-        self.counts[k] += 1
-        self.total += 1
-        self.checkpoint_due = True            # the count on disk is never a cycle behind
         if cyc['levels'] is not None:
             # the controlled signal's levels as peak/valley control fitted them, if it did
             corr = seg.wave.corr
@@ -751,13 +752,21 @@ class ProcedureRunner:
             f_hi, f_lo = own if own and force else lf.levels()
         else:
             z_hi, z_lo, f_hi, f_lo = cyc['z'][1], cyc['z'][0], cyc['f'][1], cyc['f'][0]
+        step_of = self.steps[k]
+        tol = step_of['count_tolerance'] if step_of.type == 'cyclic' else 0.0
+        if tol > 0 and self._null(seg, cyc, stamp, tol, (f_hi, f_lo) if
+                                  step_of.control_mode == 'force' else (z_hi, z_lo)):
+            return
+        self.counts[k] += 1
+        self.total += 1
+        self.checkpoint_due = True            # the count on disk is never a cycle behind
         c = Cycle(self.total, k, stamp, cyc['cmd'][1], cyc['cmd'][0], z_hi, z_lo, f_hi, f_lo,
                   TAPERED if cyc['taper'] else 0)
         self.cycles.append(c)
         cap = cyc['capture']
         if cap is not None and cap['count'] == self.total:
             self.captures.append(cap)
-        corr, step_of = seg.wave.corr, self.steps[k]
+        corr = seg.wave.corr
         if corr is not None and corr.limited_cycles >= step_of['limit_cycles'] and \
                 self.state == 'running':
             why = (f'levels not reached: the compensation met its limit '
@@ -779,6 +788,50 @@ class ProcedureRunner:
                                                    'failure')
             self._note_event('run_out', '', float(self.total), self.reason)
             self._to_stop(stamp + self.latency_ns)
+
+    def _null(self, seg: _Segment, cyc: dict, stamp: int, tol: float,
+              levels: tuple[float, float]) -> bool:
+        """
+        Judge a whole cycle against ``count_tolerance``; return True when it does not count.
+
+        A cycle outside it is carried, not counted: the wave runs one cycle longer (its end
+        and the count there move on), the step's null cycles and time grow, the first of a
+        run and its end are events, and ``null_cycles`` of them in a row interrupt the test.
+        """
+        k, step = seg.step, self.steps[seg.step]
+        spec = seg.wave.specified(cyc['k'])
+        if spec is None:
+            return False
+        rng = spec[0] - spec[1]
+        hi, lo = levels
+        if abs(hi - spec[0]) <= tol * rng and abs(lo - spec[1]) <= tol * rng:
+            if self._null_run:
+                self._note_event('pacing', step.name, float(self.total),
+                                 f'levels within count_tolerance again after {self._null_run} '
+                                 f'cycles not counted; {self._null_cycles[k]} in the step, '
+                                 f'{self._null_s[k]:.6g} s')
+                self._null_run = 0
+            return False
+        period = seg.wave.period
+        self._null_cycles[k] = self._null_cycles.get(k, 0) + 1
+        self._null_s[k] = self._null_s.get(k, 0.0) + period
+        self._null_run += 1
+        seg.nulls += 1
+        if seg.n_end is not None and seg.end is not None:
+            seg.n_end += 1
+            seg.end += int(round(period * 1e9))
+        if self._null_run == 1:
+            self._note_event('pacing', step.name, float(self.total),
+                             f'count waiting: cycle {cyc["k"] + 1} carried {hi:.6g}/{lo:.6g} '
+                             f'against {spec[0]:.6g}/{spec[1]:.6g} (count_tolerance '
+                             f'{tol:g} of the range)')
+        if self._null_run >= step['null_cycles'] and self.state == 'running':
+            why = (f'levels not reached: {self._null_run} cycles in a row outside '
+                   f'count_tolerance ({tol:g} of the range), not counted, at cycle '
+                   f'{self.total}: the rig does not carry this step')
+            self._note_event('levels', step.name, float(self.total), why)
+            self._freeze(stamp, 'interrupted', why)
+        return True
 
     def _failed(self, d: FailureDetector, why: str, stamp: int) -> bool:
         """Note a failure detector's trip; end the test unless observing (True if it ended)."""
@@ -815,11 +868,14 @@ class ProcedureRunner:
             if seg.step == k and (seg.end is None or seg.end > t_end):
                 seg.end = t_end                 # a condition ended it: no cycle beyond
         # the cycles up to the end that the states after it will close
-        pending = sum(max(0, s.n_end - self.counts[k]) for s in self._waves
+        pending = sum(max(0, s.n_end - s.nulls - self.counts[k]) for s in self._waves
                       if s.step == k and s.n_end is not None and s.end == t_end)
         n = self.counts[k] + pending
+        nulls = self._null_cycles.get(k, 0)
+        paced = (f'; {nulls} more carried outside count_tolerance, not counted '
+                 f'({self._null_s[k]:.6g} s)') if nulls else ''
         self._note_event('step_end', step.name, float(n),
-                         f'{step.label} ended ({why}): {n} cycles')
+                         f'{step.label} ended ({why}): {n} cycles{paced}')
         run_out = self.procedure.run_out
         if k + 1 < len(self.steps) and not (run_out and self.total + pending >= run_out):
             self._begin_step(k + 1, t_end)

@@ -65,7 +65,7 @@ from ros_ehs.core.settings import Setting
 
 __all__ = ['CAPTURES', 'COMPENSATIONS', 'DETECTORS', 'END_KEYS', 'EndCondition',
            'POSITION_RANGE', 'Procedure', 'STEP_KEYS', 'STEP_TYPES', 'Step', 'TEST_KEYS',
-           'TRANSITION_KEYS',
+           'PACING_KEYS', 'TRANSITION_KEYS',
            'WAVEFORMS', 'load_procedure', 'parse_procedure']
 
 STEP_TYPES = ('ramp', 'dwell', 'cyclic', 'sweep', 'drive')
@@ -116,6 +116,16 @@ LIMIT_KEYS: tuple[Setting, ...] = (
     _S('limit_cycles', '1', 5, 1, 1000, 'see compensation_limit'),
 )
 
+#: When a cycle counts (cyclic steps): null pacing.
+PACING_KEYS: tuple[Setting, ...] = (
+    _S('count_tolerance', '1', 0.0, 0.0, 0.5, "a cycle counts only when the controlled "
+       "signal's peak and valley (the cycle's fit) are each within this fraction of the "
+       "specified range of the step's levels (0: every whole cycle counts); a cycle outside "
+       'it (the taper, a level not yet reached) is carried but not counted: the count '
+       'waits, the step runs on, and the cycles and time spent are reported (null pacing)'),
+    _S('null_cycles', '1', 100, 1, 10**6, 'so many cycles in a row outside count_tolerance '
+       'interrupt the test: its levels are not reached'),
+)
 #: Each step type's keys (besides ``name``, ``type``, ``control_mode``, ``end``, ``capture``).
 STEP_KEYS: dict[str, tuple[Setting, ...]] = {
     'ramp': (_S('to', 'm or N', 0.0, -_LEVEL, _LEVEL, 'the level to ramp to'),
@@ -135,7 +145,8 @@ STEP_KEYS: dict[str, tuple[Setting, ...]] = {
                   "cycle's peak and valley reach the levels, what a fatigue test is specified "
                   'by) or amplitude/phase control (apc, sines only: the fundamental and its '
                   'harmonics), learnt from the measured signal; auto: pvc; none: the waveform '
-                  'as specified', choices=COMPENSATIONS)) + TRANSITION_KEYS + LIMIT_KEYS,
+                  'as specified', choices=COMPENSATIONS)) + TRANSITION_KEYS + LIMIT_KEYS
+    + PACING_KEYS,
     'sweep': (_S('mean', 'm or N', 0.0, -_LEVEL, _LEVEL, 'the mean'),
               _S('amplitude', 'm or N', 0.0, 0.0, _LEVEL, 'the amplitude'),
               _S('f0', 'Hz', 1.0, 1.0e-3, 200.0, 'the start frequency'),
@@ -337,6 +348,9 @@ def _step(k: int, doc: Any, default_mode: str) -> Step:
             raise InputError(f'{where}: a dwell needs `time`')
     elif kind == 'cyclic':
         values['blocks'] = _blocks(doc, values, mode, where)
+        if values['count_tolerance'] > 0 and len(values['blocks']) > 1:
+            raise InputError(f'{where}: `count_tolerance` paces a step of one level; a block '
+                             'program would skip the blocks of the cycles it does not count')
         if 'frequency' not in doc:
             raise InputError(f'{where}: a cyclic step needs `frequency`')
         comp = values['compensation']
