@@ -36,7 +36,9 @@ It runs for ``--duration`` seconds (real time: wall seconds after the loop close
 sim seconds, as fast as DDS goes, or at most ``real_time_factor`` sim seconds per wall second)
 or until Ctrl-C, then stops every child cleanly: the
 recorder first (so the bag closes with the loop intact), then reference, plant, controller.
-With ``--rt-priority`` the nodes get the Fast DDS profile ``fastdds_rt.xml`` beside this
+In real time the plant and the controller run on SCHED_FIFO 50 (``--rt-priority``, 0: the
+default scheduler; where the process may not, the bench says so once and what that risks,
+and they run on), and the nodes get the Fast DDS profile ``fastdds_rt.xml`` beside this
 script (unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` names a profile other than the
 package's): under SCHED_FIFO a node joining the network could block the plant's publish for
 333 ms (docs/nodes.md).
@@ -74,12 +76,19 @@ from ros_ehs.data.synthetic_bag import SensorNoise  # noqa: E402
 from ros_ehs.nodes.fastdds_profile import ENV, PROFILE  # noqa: E402
 from ros_ehs.nodes.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
+from ros_ehs.nodes.scheduling import BENCH_PRIORITY, realtime_allowed, RISK  # noqa: E402
 import ros_ehs_msgs_py as contract  # noqa: E402
 
 #: at most this many CPUs get a probe (one each); a larger machine gets none
 PROBE_MAX_CPUS = 4
 #: the Fast DDS profile a bench under SCHED_FIFO needs (see the file's comment)
 RT_PROFILE = Path(__file__).resolve().with_name('fastdds_rt.xml')
+
+
+def _rtprio_limit() -> str:
+    import resource
+    soft = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
+    return 'unlimited' if soft == resource.RLIM_INFINITY else str(soft)
 
 
 def _start_probes(procs: NodeProcesses, rt_priority: int) -> list[str]:
@@ -206,10 +215,12 @@ def main(argv=None) -> int:
                     'cpu_affinity option; default: yes, on a machine with two CPUs or more): '
                     'the loop then skips the cross-core wake-up (docs/nodes.md, "CPU '
                     'placement")')
-    ap.add_argument('--rt-priority', type=int, default=0,
-                    help='SCHED_FIFO priority of the plant and controller (their rt_priority '
-                    'option; needs CAP_SYS_NICE or ulimit -r, else they warn and run on); '
-                    'the nodes then get the Fast DDS profile fastdds_rt.xml beside this script')
+    ap.add_argument('--rt-priority', type=int, default=BENCH_PRIORITY,
+                    help='real time: SCHED_FIFO priority of the plant and controller (their '
+                    'rt_priority option; needs CAP_SYS_NICE or ulimit -r, else the bench '
+                    'says so once and they run on at normal priority); the nodes then get '
+                    'the Fast DDS profile fastdds_rt.xml beside this script; 0: the default '
+                    'scheduler. Lock-step never takes it (nothing there has a deadline)')
     ap.add_argument('--machine-probe', action=argparse.BooleanOptionalAction, default=False,
                     help='real time: also a 1 kHz sleep loop without ROS on each CPU beside the '
                     "nodes, to tell the machine's stalls from the loop's (a diagnostic for a "
@@ -258,6 +269,12 @@ def main(argv=None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     pf = a.params_file
     env = {}
+    if lock:
+        a.rt_priority = 0                 # no deadline: nothing to take priority for
+    elif a.rt_priority and not realtime_allowed(a.rt_priority):
+        print(f'bench: SCHED_FIFO {a.rt_priority} is not allowed here (no CAP_SYS_NICE, '
+              f'ulimit -r {_rtprio_limit()}): {RISK}', file=sys.stderr, flush=True)
+        a.rt_priority = 0
     # the real-time profile, unless a profile of the user's own is named (the package's
     # default one is not: the real-time profile holds its settings too)
     if a.rt_priority and os.environ.get(ENV, '') in ('', str(PROFILE)):

@@ -83,3 +83,24 @@ def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not(python_lines
         want = others if name.startswith(SIDE_THREADS) else [0]
         assert list(cpus) == want, (name, cpus)
     assert len(os.sched_getaffinity(0)) >= 1     # the test process itself is untouched
+
+
+def test_without_the_privilege_the_bench_says_what_a_normal_priority_loop_risks(monkeypatch):
+    import os
+    from ros_ehs.nodes import scheduling
+
+    def refuse(*_):
+        raise PermissionError(1, 'Operation not permitted')
+    monkeypatch.setattr(os, 'sched_setscheduler', refuse)
+    assert scheduling.realtime_allowed(50) is False
+    said = scheduling.set_realtime(50)
+    assert 'not applied (Operation not permitted)' in said and scheduling.RISK in said
+    assert 'loop_timing' in scheduling.RISK
+
+
+def test_realtime_allowed_leaves_the_scheduler_as_it_was():
+    import os
+    from ros_ehs.nodes.scheduling import realtime_allowed
+    before = os.sched_getscheduler(0), os.sched_getparam(0)
+    realtime_allowed(50)
+    assert (os.sched_getscheduler(0), os.sched_getparam(0)) == before

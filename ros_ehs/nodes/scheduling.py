@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import os
 
-__all__ = ['SIDE_THREADS', 'set_cpu_affinity', 'set_realtime']
+__all__ = ['BENCH_PRIORITY', 'RISK', 'SIDE_THREADS', 'realtime_allowed', 'set_cpu_affinity',
+           'set_realtime']
 
 
 def _thread_ids() -> list[int]:
@@ -47,6 +48,27 @@ def _thread_name(tid: int) -> str:
         return ''
 
 
+#: The SCHED_FIFO priority a real-time bench gives its plant and controller unless told
+#: otherwise (``launch_scripts/bench.py``; the ``load`` benchmark runs the bench so)
+BENCH_PRIORITY = 50
+#: What a loop without real-time priority risks, said wherever it cannot have it.
+RISK = ('the loop runs at normal priority: any other busy process on this machine (a browser, '
+        'a build, a live refit) can delay its periods, the valve holding its last command '
+        'meanwhile (python -m ros_ehs.benchmarks load measures what that does to the piston); '
+        'loop_timing holds the axis when a state is answered 20 ms late')
+
+
+def realtime_allowed(priority: int = 1) -> bool:
+    """Say whether this process may use SCHED_FIFO ``priority`` (tried, then undone)."""
+    try:
+        old, param = os.sched_getscheduler(0), os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(0, old, param)
+        return True
+    except (OSError, AttributeError):
+        return False
+
+
 def set_realtime(priority: int) -> str:
     """
     Put every thread of this process (the executor's and the middleware's) on SCHED_FIFO.
@@ -63,7 +85,8 @@ def set_realtime(priority: int) -> str:
             os.sched_setscheduler(tid, os.SCHED_FIFO, param)
     except (OSError, AttributeError) as err:
         return (f'rt_priority {priority} not applied ({getattr(err, "strerror", err)}): it '
-                'needs CAP_SYS_NICE or an rtprio limit (ulimit -r, /etc/security/limits.conf)')
+                'needs CAP_SYS_NICE or an rtprio limit (ulimit -r, /etc/security/limits.conf); '
+                f'{RISK}')
     return f'threads on SCHED_FIFO priority {priority}'
 
 

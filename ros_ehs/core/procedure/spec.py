@@ -118,7 +118,7 @@ LIMIT_KEYS: tuple[Setting, ...] = (
 
 #: When a cycle counts (cyclic steps): null pacing.
 PACING_KEYS: tuple[Setting, ...] = (
-    _S('count_tolerance', '1', 0.0, 0.0, 0.5, "a cycle counts only when the controlled "
+    _S('count_tolerance', '1', 0.0, 0.0, 0.5, 'a cycle counts only when the controlled '
        "signal's peak and valley (the cycle's fit) are each within this fraction of the "
        "specified range of the step's levels (0: every whole cycle counts); a cycle outside "
        'it (the taper, a level not yet reached) is carried but not counted: the count '
