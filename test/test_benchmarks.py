@@ -116,6 +116,7 @@ SHORT = {
     'freeze': (['--pauses', '0.2', '--runs', '1', '--seconds', '2'], 'per_pause'),
     'transitions': (['--only', 'starts', 'faults', '--hold', '0.2'], 'worst'),
     'load': (['--seconds', '2', '--cases', 'busy'], 'met'),
+    'integrity': (['--only', 'envelope', '--cycles', '5'], 'met'),
 }
 
 
