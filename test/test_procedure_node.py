@@ -301,3 +301,34 @@ def test_a_procedure_the_rig_cannot_follow_is_refused_at_start_by_step(dom, tmp_
     assert r.returncode == 2, r.stdout + r.stderr
     assert "'too fast' step 1 (shake): the piston must move at 1.885 m/s" in r.stderr
     assert '60 Hz is above' in r.stderr
+
+
+def test_records_published_lately_stay_in_the_checkpoint_and_a_restart_publishes_them(
+        tmp_path, dom):
+    """A power cut just after a batch went out: the recorder may not have it on disk."""
+    import rclpy
+    from rclpy.parameter import Parameter
+    from ros_ehs.nodes.procedure import ProcedureNode
+    proc = tmp_path / 'procedure.yaml'
+    shutil.copy(FIXTURE, proc)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    try:
+        def node():
+            return ProcedureNode(context=ctx, parameter_overrides=[
+                Parameter('file', value=str(proc)),
+                Parameter('checkpoint', value=str(tmp_path / 'cp.json'))])
+        first = node()
+        rows = [(n, 0, n * 10**8, 1.0, 0.0, 1e-3, 0.0, 0.0, 0.0, 0) for n in (1, 2, 3)]
+        first._rows = list(rows)
+        first._publish_rows()                       # out, but perhaps not yet on disk
+        first._rows = [(4, 0, 4 * 10**8, 1.0, 0.0, 1e-3, 0.0, 0.0, 0.0, 0)]   # not yet out
+        cp = first._checkpoint()
+        assert [r[0] for r in cp['unconfirmed_cycles']] == [1, 2, 3, 4]
+        assert first.close() is True                # writes the checkpoint: the cut comes now
+        first.destroy_node()
+        again = node()
+        assert [r[0] for r in again._rows] == [1, 2, 3, 4]     # published again on resume
+        again.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

@@ -34,7 +34,8 @@ decodes, calls and publishes:
   through its parameter service;
 * the checkpoint (``checkpoint``) is rewritten atomically at every counted cycle, every state
   change and every 10 s of the stamps, off the executor's thread (the newest wins), with the
-  cycle records not yet published. Started with a checkpoint on disk, the test
+  cycle records not yet published and those published in the last ``RECENT_S`` (a recorder
+  killed with them in memory loses them). Started with a checkpoint on disk, the test
   comes back ``interrupted`` at its step and count (plus the cycles ``recover_bag`` holds
   beyond it) and waits for ``~/resume``; a checkpoint of a finished test is renamed
   ``<checkpoint>.finished_<time>.json`` and a new test begins.
@@ -83,6 +84,10 @@ CYCLES_BATCH = 10
 #: a control mode switch unanswered this long [s] is asked again (three times at most)
 MODE_RESEND = 5.0
 CYCLES_BATCH_NS = 1_000_000_000
+#: how long records already published stay in the checkpoint [s]: a recorder holds what it
+#: received up to its flush_period (50 ms) in memory, and one killed then loses it; the
+#: restarted node publishes them again, and the readers keep each count once
+RECENT_S = 2.0
 #: how long :meth:`ProcedureNode.close` waits for a callback still running [s] (an executor
 #: that did not return in time: ``ros_common.run`` closes the node anyway)
 CLOSE_WAIT = 1.0
@@ -173,6 +178,7 @@ class ProcedureNode(Node):
         cp_path = self.opt['checkpoint'] or self.opt['file'] + '.checkpoint.json'
         self.cp_path = Path(cp_path)
         self._rows: list[tuple] = []          # cycle records not yet published
+        self._recent: list[tuple[float, list]] = []   # (monotonic [s], rows) published lately
         # the callbacks and close() change the runner under it; reentrant: a future already
         # done runs its callback inside the call that adds it
         self._lock = threading.RLock()
@@ -231,8 +237,8 @@ class ProcedureNode(Node):
         if cp is None:
             return note
         extra = recovered_total(self.opt['recover_bag']) if self.opt['recover_bag'] else None
-        self._rows = [tuple(r) for r in cp.get('unpublished_cycles', []) if
-                      extra is None or r[0] > extra]
+        rows = cp.get('unconfirmed_cycles', cp.get('unpublished_cycles', []))
+        self._rows = [tuple(r) for r in rows if extra is None or r[0] > extra]
         return self.runner.restore(cp, extra)
 
     # -- messages in -------------------------------------------------------------------------
@@ -459,6 +465,8 @@ class ProcedureNode(Node):
 
     def _publish_rows(self) -> None:
         rows, self._rows = self._rows, []
+        now = time.monotonic()
+        self._recent = [(t, r) for t, r in self._recent if now - t < RECENT_S] + [(now, rows)]
         msg = UInt8MultiArray()
         msg.layout.dim = [MultiArrayDimension(label=contract.CYCLES_LABEL, size=len(rows),
                                               stride=contract.CYCLE_RECORD.size)]
@@ -466,8 +474,12 @@ class ProcedureNode(Node):
         self.pub_cycles.publish(msg)
 
     def _checkpoint(self) -> dict:
-        # with the cycle records not yet published: a restart publishes them first
-        return {**self.runner.checkpoint(), 'unpublished_cycles': [list(r) for r in self._rows]}
+        # with the cycle records not yet published, and those published in the last RECENT_S
+        # (a recorder killed with them may not have them on disk): a restart publishes them
+        now = time.monotonic()
+        recent = [row for t, rows in self._recent if now - t < RECENT_S for row in rows]
+        return {**self.runner.checkpoint(),
+                'unconfirmed_cycles': [list(r) for r in recent + self._rows]}
 
 
 def main(args=None) -> int:
