@@ -36,9 +36,10 @@ It runs for ``--duration`` seconds (real time: wall seconds after the loop close
 sim seconds, as fast as DDS goes, or at most ``real_time_factor`` sim seconds per wall second)
 or until Ctrl-C, then stops every child cleanly: the
 recorder first (so the bag closes with the loop intact), then reference, plant, controller.
-In real time the plant and the controller run on SCHED_FIFO 50 (``--rt-priority``, 0: the
-default scheduler; where the process may not, the bench says so once and what that risks,
-and they run on), and the nodes get the Fast DDS profile ``fastdds_rt.xml`` beside this
+In real time the plant and the controller run on SCHED_FIFO 50 unless told otherwise
+(``--rt-priority N``, 0: the default scheduler; lock-step takes it only when told; where the
+process may not, the bench says so once and what that risks, and they run on), and the nodes
+then get the Fast DDS profile ``fastdds_rt.xml`` beside this
 script (unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` names a profile other than the
 package's): under SCHED_FIFO a node joining the network could block the plant's publish for
 333 ms (docs/nodes.md).
@@ -215,12 +216,13 @@ def main(argv=None) -> int:
                     'cpu_affinity option; default: yes, on a machine with two CPUs or more): '
                     'the loop then skips the cross-core wake-up (docs/nodes.md, "CPU '
                     'placement")')
-    ap.add_argument('--rt-priority', type=int, default=BENCH_PRIORITY,
-                    help='real time: SCHED_FIFO priority of the plant and controller (their '
-                    'rt_priority option; needs CAP_SYS_NICE or ulimit -r, else the bench '
+    ap.add_argument('--rt-priority', type=int, default=None,
+                    help=f'SCHED_FIFO priority of the plant and controller (their rt_priority '
+                    f'option; default {BENCH_PRIORITY} in real time, none in lock-step, where '
+                    'nothing has a deadline; needs CAP_SYS_NICE or ulimit -r, else the bench '
                     'says so once and they run on at normal priority); the nodes then get '
                     'the Fast DDS profile fastdds_rt.xml beside this script; 0: the default '
-                    'scheduler. Lock-step never takes it (nothing there has a deadline)')
+                    'scheduler')
     ap.add_argument('--machine-probe', action=argparse.BooleanOptionalAction, default=False,
                     help='real time: also a 1 kHz sleep loop without ROS on each CPU beside the '
                     "nodes, to tell the machine's stalls from the loop's (a diagnostic for a "
@@ -269,9 +271,9 @@ def main(argv=None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     pf = a.params_file
     env = {}
-    if lock:
-        a.rt_priority = 0                 # no deadline: nothing to take priority for
-    elif a.rt_priority and not realtime_allowed(a.rt_priority):
+    if a.rt_priority is None:             # lock-step has no deadline to take priority for
+        a.rt_priority = 0 if lock else BENCH_PRIORITY
+    if a.rt_priority and not realtime_allowed(a.rt_priority):
         print(f'bench: SCHED_FIFO {a.rt_priority} is not allowed here (no CAP_SYS_NICE, '
               f'ulimit -r {_rtprio_limit()}): {RISK}', file=sys.stderr, flush=True)
         a.rt_priority = 0
