@@ -60,7 +60,7 @@ def test_the_machine_probe_runs_until_sigint_and_lists_its_long_gaps():
     import sys
     import time
     p = subprocess.Popen([sys.executable, '-m', 'ros_ehs.benchmarks.sleeper', '--seconds', '0',
-                          '--gaps-over', '0.5', '--cpu', '4095', '--progress', '100'],
+                          '--gaps-over', '0.001', '--cpu', '4095', '--progress', '100'],
                          stdout=subprocess.PIPE, text=True)
     t, _ = _progress(p, 1000)
     p.send_signal(signal.SIGSTOP)        # held 50 ms, as a stalled machine would hold it
@@ -71,9 +71,12 @@ def test_the_machine_probe_runs_until_sigint_and_lists_its_long_gaps():
     out, _ = p.communicate(timeout=60)
     f = json.loads(out.strip().splitlines()[-1])
     assert p.returncode == 0 and f['ticks'] > 500
-    # every gap is over 0.5 ms here, so the list is full: the newest MAX_GAPS, bounded
+    # every gap is over 1 us, so the list is full: the newest MAX_GAPS, bounded (over 0.5 ms,
+    # as this test asked once, was not every gap: a tick late by a stall is followed by one
+    # that catches up with the grid, a gap of less, on a loaded machine 178 of 1000)
     from ros_ehs.benchmarks.sleeper import hiccups, MAX_GAPS
-    assert all(g > 0.5 for _, g, _ in f['gaps']) and len(f['gaps']) == min(MAX_GAPS, f['ticks'])
+    assert all(g > 0.001 for _, g, _ in f['gaps'])
+    assert len(f['gaps']) == min(MAX_GAPS, f['ticks'])
     assert max(g for _, g, _ in f['gaps']) >= 45.0 and f['stalls_2ms'] >= 1
     # stopped, it was not queued for the CPU: the whole 50 ms gap is the "machine's"
     assert max(g for _, g in hiccups(f['gaps'])) >= 45.0
