@@ -432,6 +432,30 @@ def test_a_level_never_reached_within_count_tolerance_interrupts_the_test():
     assert ev and '10 cycles in a row outside count_tolerance' in ev[0][3]
 
 
+def test_the_levels_detector_is_on_by_default_and_interrupts_a_step_its_rig_cannot_carry():
+    r = ProcedureRunner(proc({**CYCLIC, 'count': 500, 'level_cycles': 10, 'taper': 1}),
+                        latency=0.0)
+    ax = ShortAxis(r, lambda t: 0.8)                 # a swing 20 % short: 10 % of the range
+    assert r.start(ax.stamp)[0]
+    ax.run(until=lambda r: r.state == 'interrupted', bound=10**5)
+    assert r.total == 10          # the tapered one (not judged) and 9 off; the tenth not counted
+    ev = [e for e in r.events if e[0] == 'levels']
+    assert ev and '10 cycles in a row off by more than level_error (0.05' in ev[0][3]
+    # within level_error it counts on; off for fewer than level_cycles in a row, too
+    r = ProcedureRunner(proc({**CYCLIC, 'count': 30, 'level_cycles': 10}), latency=0.0)
+    ax = ShortAxis(r, lambda t: 0.8 if (t - T0) % (500 * MS) < 300 * MS else 0.95)
+    assert r.start(ax.stamp)[0]
+    ax.run(until=finished)
+    assert r.result == 'completed' and r.total == 30
+    # off (level_error 0): never judged
+    r = ProcedureRunner(proc({**CYCLIC, 'count': 30, 'level_cycles': 2, 'level_error': 0.0}),
+                        latency=0.0)
+    ax = ShortAxis(r, lambda t: 0.8)
+    assert r.start(ax.stamp)[0]
+    ax.run(until=finished)
+    assert r.result == 'completed' and r.total == 30
+
+
 def test_count_tolerance_is_refused_on_a_block_program():
     with pytest.raises(InputError, match='count_tolerance.*block'):
         proc({'name': 'b', 'type': 'cyclic', 'blocks': [[0.003, 0.001, 2], [0.002, 0.0, 1]],

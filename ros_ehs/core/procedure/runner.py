@@ -320,6 +320,7 @@ class ProcedureRunner:
         self._null_cycles: dict[int, int] = {}  # each step's cycles not counted (null pacing)
         self._null_s: dict[int, float] = {}     # ... and their time [s]
         self._null_run = 0                      # cycles in a row not counted
+        self._level_run = 0                     # cycles in a row off their levels
         self._detectors: dict[int, list[FailureDetector]] = {}
         self._det_state: dict[int, list[dict]] = {}
         self._last_ns = -1
@@ -633,6 +634,7 @@ class ProcedureRunner:
                 self._push(_Segment('blend', t0, mode, v0=start, v1=mid, lead=t_mean, step=-1))
                 t0 += int(round(t_mean * 1e9))
             end, n_end = self._wave_end(wave, step, c0, t0)
+            self._null_run = self._level_run = 0
             seg = _Segment('wave', t0, mode, step=k, c0=c0, lead=taper, lead_from=mid,
                            end=end, n_end=n_end, wave=wave)
             self._push(seg)
@@ -753,9 +755,13 @@ class ProcedureRunner:
         else:
             z_hi, z_lo, f_hi, f_lo = cyc['z'][1], cyc['z'][0], cyc['f'][1], cyc['f'][0]
         step_of = self.steps[k]
-        tol = step_of['count_tolerance'] if step_of.type == 'cyclic' else 0.0
-        if tol > 0 and self._null(seg, cyc, stamp, tol, (f_hi, f_lo) if
-                                  step_of.control_mode == 'force' else (z_hi, z_lo)):
+        own_levels = (f_hi, f_lo) if step_of.control_mode == 'force' else (z_hi, z_lo)
+        cyclic = step_of.type == 'cyclic'
+        if cyclic and step_of['level_error'] > 0 and not cyc['taper'] and \
+                self._levels_off(seg, cyc, stamp, own_levels):
+            return
+        tol = step_of['count_tolerance'] if cyclic else 0.0
+        if tol > 0 and self._null(seg, cyc, stamp, tol, own_levels):
             return
         self.counts[k] += 1
         self.total += 1
@@ -788,6 +794,35 @@ class ProcedureRunner:
                                                    'failure')
             self._note_event('run_out', '', float(self.total), self.reason)
             self._to_stop(stamp + self.latency_ns)
+
+    def _levels_off(self, seg: _Segment, cyc: dict, stamp: int,
+                    levels: tuple[float, float]) -> bool:
+        """
+        Judge a cycle past its taper by the levels detector; True when it interrupted the test.
+
+        A cycle whose peak or valley is further than ``level_error`` of the specified range
+        from its level is off; ``level_cycles`` off in a row interrupt the test (``levels``),
+        the cycle not counted.
+        """
+        step = self.steps[seg.step]
+        spec = seg.wave.specified(cyc['k'])
+        if spec is None:
+            return False
+        rng, (hi, lo) = spec[0] - spec[1], levels
+        err = max(abs(hi - spec[0]), abs(lo - spec[1])) / rng if rng > 0 else 0.0
+        if not err > step['level_error']:        # within, or NaN levels (not judged)
+            self._level_run = 0
+            return False
+        self._level_run += 1
+        if self._level_run < step['level_cycles'] or self.state != 'running':
+            return False
+        why = (f'levels not reached: {self._level_run} cycles in a row off by more than '
+               f"level_error ({step['level_error']:g} of the range; the last "
+               f'{hi:.6g}/{lo:.6g} against {spec[0]:.6g}/{spec[1]:.6g}), at cycle '
+               f'{self.total}: the rig does not carry this step')
+        self._note_event('levels', step.name, float(self.total), why)
+        self._freeze(stamp, 'interrupted', why)
+        return True
 
     def _null(self, seg: _Segment, cyc: dict, stamp: int, tol: float,
               levels: tuple[float, float]) -> bool:

@@ -125,6 +125,11 @@ PACING_KEYS: tuple[Setting, ...] = (
        'waits, the step runs on, and the cycles and time spent are reported (null pacing)'),
     _S('null_cycles', '1', 100, 1, 10**6, 'so many cycles in a row outside count_tolerance '
        'interrupt the test: its levels are not reached'),
+    _S('level_error', '1', 0.05, 0.0, 1.0, 'the levels detector: a cycle past its taper whose '
+       'fitted peak or valley is further than this fraction of the specified range from its '
+       'level is off; `level_cycles` off in a row interrupt the test, the levels named (0: '
+       'off)'),
+    _S('level_cycles', '1', 100, 1, 10**6, 'see level_error'),
 )
 #: Each step type's keys (besides ``name``, ``type``, ``control_mode``, ``end``, ``capture``).
 STEP_KEYS: dict[str, tuple[Setting, ...]] = {
