@@ -100,6 +100,38 @@ def test_the_life_scatters_with_the_seed_and_is_deterministic():
     assert Specimen(p.replace(specimen_scatter=0.0)).life == 1e6
 
 
+def test_below_its_fatigue_limit_a_specimen_runs_out_above_it_lives_as_without():
+    p = Params().replace(k_L=5e7, specimen_life=400.0, specimen_fatigue_limit=6e3)
+    below = Specimen(p)
+    _cycle(below, 2000, mean=2.9e3, amp=2.9e3)   # 0-5.8 kN: under the 6 kN limit
+    assert not below.broken and below.a == below.a0 and below.cycles == pytest.approx(2000, abs=1)
+    assert below.cycles_to(1.0, 5.8e3) == math.inf and below.crack_after(1e9, 5.8e3) == below.a0
+    above, free = Specimen(p), Specimen(p.replace(specimen_fatigue_limit=0.0))
+    assert above.cycles_to(1.0) == free.cycles_to(1.0) == pytest.approx(400.0)
+    _cycle(above, 1000)
+    _cycle(free, 1000)
+    assert above.broken and above.cycles == free.cycles
+    # the threshold is the stress intensity's: it falls as the crack grows, so a crack grown
+    # at 10 kN goes on growing at a range that would not have started it
+    grown = Specimen(p)
+    _cycle(grown, 200)
+    a = grown.a
+    assert a > 2 * grown.a0 and 6e3 * math.sqrt(grown.a0 / a) < 5.8e3
+    _cycle(grown, 50, amp=2.9e3)
+    assert grown.a > a
+
+
+def test_the_fatigue_limit_scatters_with_the_seed_and_leaves_the_life_draw_alone():
+    p = Params().replace(k_L=5e7, specimen_scatter=0.3, specimen_fatigue_limit=6e3,
+                         specimen_limit_scatter=0.1)
+    limits = [Specimen(p.replace(specimen_seed=s)).limit for s in range(20)]
+    assert limits[4] == Specimen(p.replace(specimen_seed=4)).limit and len(set(limits)) == 20
+    assert 0.03 < np.std(np.log10(limits)) < 0.2
+    assert [Specimen(p.replace(specimen_seed=s)).life for s in range(5)] == \
+        [Specimen(p.replace(specimen_seed=s, specimen_fatigue_limit=0.0)).life for s in range(5)]
+    assert Specimen(p.replace(specimen_limit_scatter=0.0)).limit == 6e3
+
+
 def _loaded_axis(**changes) -> SimulatedAxis:
     p = Params().replace(k_L=5e6, **changes)
     return SimulatedAxis(p, 'simplified', rate_hz=1000.0, lockstep=True)

@@ -163,6 +163,13 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
        'of its log10, drawn from `specimen_seed` (0: the life as set)', 'specimen', 'I'),
     _p('specimen_seed', '1', 0.0, 0.0, 2.0**31 - 1, 'seed of the life scatter', 'specimen',
        'I'),
+    _p('specimen_fatigue_limit', 'N', 0.0, 0.0, 1.0e8, 'fatigue limit: the force range below '
+       'which the initial crack does not grow (a threshold of the stress intensity range, so '
+       'it falls as the crack grows, times sqrt(specimen_crack0 / a)), times a scatter factor '
+       '10^(specimen_limit_scatter xi); 0: none', 'specimen', 'I'),
+    _p('specimen_limit_scatter', '1', 0.0, 0.0, 1.0, 'scatter of the fatigue limit: the '
+       'standard deviation of its log10, drawn from `specimen_seed` after the life\'s', 'specimen',
+       'I'),
     _p('load_cell_noise', 'N', 0.0, 0.0, 1.0e5, 'white noise (1 sigma) on the load cell '
        'reading', 'specimen', 'I'),
     # friction and damping: the four actuator parameters of Table 1

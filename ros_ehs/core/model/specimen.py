@@ -30,7 +30,11 @@ range (the stress intensity range goes with the force range and the root of the 
 
 counted on the force's reversals (a half cycle between one reversal and the next: its range
 ``|F_n - F_{n-1}|``, half a cycle's growth, integrated exactly over it, so a constant-range
-test lives exactly its closed form). ``A`` is set so that at the constant range
+test lives exactly its closed form). A **fatigue limit** (``specimen_fatigue_limit``, a force
+range, times :math:`10^{s_l \xi_l}` with ``specimen_limit_scatter`` and a second draw from
+the seed) is a threshold of the stress intensity range: a half cycle whose range is at or
+below ``limit sqrt(a_0 / a)`` does not grow the crack, so a specimen loaded below the limit
+runs out, and one above it lives as without it. ``A`` is set so that at the constant range
 ``specimen_life_range`` = :math:`\Delta F_{ref}` the crack grows from ``specimen_crack0`` =
 :math:`a_0` to 1 in ``specimen_life`` cycles :math:`N_f` (times a scatter factor
 :math:`10^{s \xi}`, :math:`\xi` a standard normal drawn from ``specimen_seed``, :math:`s` =
@@ -83,8 +87,14 @@ class Specimen:
         self.lam = float(params['specimen_compliance'])
         self.range_ref = float(params['specimen_life_range'])
         scatter = float(params['specimen_scatter'])
-        xi = np.random.default_rng(int(params['specimen_seed'])).standard_normal()
+        rng = np.random.default_rng(int(params['specimen_seed']))
+        xi = rng.standard_normal()
         self.life = float(params['specimen_life']) * 10.0 ** (scatter * xi)
+        limit = float(params['specimen_fatigue_limit'])
+        xi_limit = rng.standard_normal()            # after the life's: its draw is unchanged
+        #: the force range below which the initial crack does not grow [N] (0: none)
+        self.limit = limit * 10.0 ** (float(params['specimen_limit_scatter']) * xi_limit) \
+            if limit > 0 else 0.0
         if not (self.life > 0 and math.isfinite(self.life)):
             raise InputError(f'specimen life {self.life!r} cycles must be a positive number')
         h = self.m / 2.0
@@ -153,6 +163,8 @@ class Specimen:
 
     def _grow(self, force_range: float, at_peak: bool) -> bool:
         self.half_cycles += 1
+        if self.limit > 0.0 and force_range <= self.limit * math.sqrt(self.a0 / self.a):
+            return False             # below the threshold: the crack does not grow
         # the growth law integrated exactly over the half cycle (a constant range in it)
         g = 0.5 * self.A * (force_range / self.range_ref) ** self.m
         h = self.m / 2.0
@@ -167,7 +179,14 @@ class Specimen:
         return True
 
     def cycles_to(self, a: float, force_range: float | None = None) -> float:
-        """Return the cycles from ``specimen_crack0`` to crack ``a`` at a constant range [N]."""
+        """
+        Return the cycles from ``specimen_crack0`` to crack ``a`` at a constant range [N].
+
+        Infinite at a range the fatigue limit stops (the threshold only falls as the crack
+        grows: above it at the initial crack, the crack grows as without it).
+        """
+        if self.limit > 0.0 and (force_range or self.range_ref) <= self.limit and a > self.a0:
+            return math.inf
         r = (force_range or self.range_ref) / self.range_ref
         h = self.m / 2.0
         if abs(h - 1.0) < 1e-12:
@@ -178,6 +197,8 @@ class Specimen:
 
     def crack_after(self, n: float, force_range: float | None = None) -> float:
         """Return the crack after ``n`` cycles at a constant range [N] (1: it fractures)."""
+        if self.limit > 0.0 and (force_range or self.range_ref) <= self.limit:
+            return self.a0
         r = (force_range or self.range_ref) / self.range_ref
         g = self.A * n * r ** self.m
         h = self.m / 2.0

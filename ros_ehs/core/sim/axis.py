@@ -124,7 +124,8 @@ class Sample(NamedTuple):
 #: the parameters of the specimen: a change installs a new one
 SPECIMEN_PARAMS = ('k_L', 'c_L', 'z_L', 'specimen_life', 'specimen_life_range',
                    'specimen_paris_m', 'specimen_crack0', 'specimen_compliance',
-                   'specimen_scatter', 'specimen_seed')
+                   'specimen_scatter', 'specimen_seed', 'specimen_fatigue_limit',
+                   'specimen_limit_scatter')
 
 
 class SimulatedAxis:
