@@ -76,6 +76,10 @@ def test_the_docs_tables_are_generated_from_the_settings():
     text = (DOCS / 'procedures.md').read_text()
     assert render(text, procedure_markdown) == text, \
         'docs/procedures.md is stale: run python -m ros_ehs.tools.docs'
+    from ros_ehs.tools.docs import campaign_markdown
+    text = (DOCS / 'campaigns.md').read_text()
+    assert render(text, campaign_markdown) == text, \
+        'docs/campaigns.md is stale: run python -m ros_ehs.tools.docs'
     assert (DOCS / 'cli.md').read_text() == cli_markdown() + '\n', \
         'docs/cli.md is stale: run python -m ros_ehs.tools.docs'
     assert (DOCS / 'parameters.md').read_text() == markdown_table() + '\n'

@@ -168,7 +168,7 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
        'it falls as the crack grows, times sqrt(specimen_crack0 / a)), times a scatter factor '
        '10^(specimen_limit_scatter xi); 0: none', 'specimen', 'I'),
     _p('specimen_limit_scatter', '1', 0.0, 0.0, 1.0, 'scatter of the fatigue limit: the '
-       'standard deviation of its log10, drawn from `specimen_seed` after the life\'s', 'specimen',
+       'standard deviation of its log10, drawn from `specimen_seed` after the life', 'specimen',
        'I'),
     _p('load_cell_noise', 'N', 0.0, 0.0, 1.0e5, 'white noise (1 sigma) on the load cell '
        'reading', 'specimen', 'I'),

@@ -18,7 +18,8 @@ The options tables of ``docs/nodes.md`` (between ``<!-- options:begin -->`` and
 ``<!-- options:end -->``, from :data:`ros_ehs.core.options.NODE_OPTIONS` and the reference's
 waveform), ``docs/cli.md`` (from :data:`ros_ehs.core.options.CLI_OPTIONS`),
 ``docs/parameters.md`` (from :mod:`ros_ehs.core.params`) and the key tables of
-``docs/procedures.md`` (from :mod:`ros_ehs.core.procedure.spec`). ``test/test_options.py``
+``docs/procedures.md`` (from :mod:`ros_ehs.core.procedure.spec`), the campaign file's keys of
+``docs/campaigns.md`` (from :mod:`ros_ehs.core.campaign.spec`). ``test/test_options.py``
 checks that the files are up to date.
 """
 
@@ -104,6 +105,15 @@ def procedure_markdown() -> str:
     return '\n'.join(out)
 
 
+def campaign_markdown() -> str:
+    """Return the tables of a campaign file's keys (docs/campaigns.md)."""
+    from ros_ehs.core.campaign.spec import CAMPAIGN_KEYS, PLAN_KEYS
+    out = ['### The campaign', ''] + settings_table(CAMPAIGN_KEYS, 'key') + ['']
+    for kind, keys in PLAN_KEYS.items():
+        out += [f'### plan `{kind}`', ''] + settings_table(keys, 'key') + ['']
+    return '\n'.join(out)
+
+
 def render(text: str, body=None) -> str:
     """Return ``text`` with the part between the markers regenerated (docs/nodes.md's)."""
     a, b = text.index(BEGIN) + len(BEGIN), text.index(END)
@@ -118,7 +128,9 @@ def write(docs: Path = DOCS) -> list[Path]:
     (docs / 'parameters.md').write_text(markdown_table() + '\n')
     proc = docs / 'procedures.md'
     proc.write_text(render(proc.read_text(), procedure_markdown))
-    return [nodes, docs / 'cli.md', docs / 'parameters.md', proc]
+    camp = docs / 'campaigns.md'
+    camp.write_text(render(camp.read_text(), campaign_markdown))
+    return [nodes, docs / 'cli.md', docs / 'parameters.md', proc, camp]
 
 
 def main() -> int:
