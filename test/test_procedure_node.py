@@ -8,6 +8,7 @@ none twice. Lock-step: the loop waits for the procedure, so the runs do not depe
 machine's timing; every wait is on a status, a reply or the bag.
 """
 
+import contextlib
 import os
 from pathlib import Path
 import shutil
@@ -235,24 +236,30 @@ def test_a_live_fit_of_a_softer_specimen_fails_the_test(dom, tmp_path, ros):
     assert len(failure) == 1 and 'k_L 700000' in failure[0]['message'], failure
 
 
-def test_close_waits_for_a_running_callback_and_no_callback_runs_after_it(tmp_path, dom):
-    """A stuck executor: close() neither tears the checkpoint nor lets a callback run on."""
-    import threading
-
+@contextlib.contextmanager
+def _in_process(tmp_path, dom):
+    """Yield a factory of procedure nodes in this process (a context of their own), no spin."""
     import rclpy
     from rclpy.parameter import Parameter
     from ros_ehs.nodes.procedure import ProcedureNode
-    from std_srvs.srv import Trigger
     proc = tmp_path / 'procedure.yaml'
     shutil.copy(FIXTURE, proc)
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=dom)
     try:
-        def node():
-            return ProcedureNode(context=ctx, parameter_overrides=[
-                Parameter('file', value=str(proc)),
-                Parameter('checkpoint', value=str(tmp_path / 'cp.json'))])
+        yield lambda: ProcedureNode(context=ctx, parameter_overrides=[
+            Parameter('file', value=str(proc)),
+            Parameter('checkpoint', value=str(tmp_path / 'cp.json'))])
+    finally:
+        rclpy.shutdown(context=ctx)
 
+
+def test_close_waits_for_a_running_callback_and_no_callback_runs_after_it(tmp_path, dom):
+    """A stuck executor: close() neither tears the checkpoint nor lets a callback run on."""
+    import threading
+
+    from std_srvs.srv import Trigger
+    with _in_process(tmp_path, dom) as node:
         # a callback holds the runner (an executor stuck in it): close gives up after its wait
         stuck = node()
         held, release = threading.Event(), threading.Event()
@@ -279,8 +286,6 @@ def test_close_waits_for_a_running_callback_and_no_callback_runs_after_it(tmp_pa
         assert free.close() is True
         assert read_checkpoint(tmp_path / 'cp.json')['state'] == 'idle'
         free.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
 
 
 def test_a_procedure_the_rig_cannot_follow_is_refused_at_start_by_step(dom, tmp_path):
@@ -306,18 +311,7 @@ def test_a_procedure_the_rig_cannot_follow_is_refused_at_start_by_step(dom, tmp_
 def test_records_published_lately_stay_in_the_checkpoint_and_a_restart_publishes_them(
         tmp_path, dom):
     """A power cut just after a batch went out: the recorder may not have it on disk."""
-    import rclpy
-    from rclpy.parameter import Parameter
-    from ros_ehs.nodes.procedure import ProcedureNode
-    proc = tmp_path / 'procedure.yaml'
-    shutil.copy(FIXTURE, proc)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=dom)
-    try:
-        def node():
-            return ProcedureNode(context=ctx, parameter_overrides=[
-                Parameter('file', value=str(proc)),
-                Parameter('checkpoint', value=str(tmp_path / 'cp.json'))])
+    with _in_process(tmp_path, dom) as node:
         first = node()
         rows = [(n, 0, n * 10**8, 1.0, 0.0, 1e-3, 0.0, 0.0, 0.0, 0) for n in (1, 2, 3)]
         first._rows = list(rows)
@@ -330,5 +324,3 @@ def test_records_published_lately_stay_in_the_checkpoint_and_a_restart_publishes
         again = node()
         assert [r[0] for r in again._rows] == [1, 2, 3, 4]     # published again on resume
         again.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)

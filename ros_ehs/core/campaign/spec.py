@@ -43,8 +43,9 @@ import math
 from pathlib import Path
 from typing import Any, Mapping
 
-from ros_ehs.core.errors import InputError, ParameterError
-from ros_ehs.core.procedure.spec import parse_procedure, Procedure
+from ros_ehs.core.errors import InputError
+# the procedure file's checks: a campaign file's errors read as a procedure file's
+from ros_ehs.core.procedure.spec import _check, _mapping, _unknown, parse_procedure, Procedure
 from ros_ehs.core.settings import Setting
 
 __all__ = ['CAMPAIGN_KEYS', 'Campaign', 'LEVEL_KINDS', 'PLANS', 'TARGETS', 'load_campaign',
@@ -134,25 +135,6 @@ class Campaign:
             return [p['start'] + j * p['step'] for j in range(-n + 1, n)
                     if p['start'] + j * p['step'] > 0]
         return [p['low'], 0.5 * (p['low'] + p['high']), p['high']]
-
-
-def _check(s: Setting, value: Any, where: str) -> Any:
-    try:
-        return s.check(value)
-    except ParameterError as err:
-        raise InputError(f'{where}: {str(err).replace("parameter ", "", 1)}') from None
-
-
-def _mapping(doc: Any, where: str) -> Mapping:
-    if not isinstance(doc, Mapping):
-        raise InputError(f'{where}: expected a mapping, got {type(doc).__name__}')
-    return doc
-
-
-def _unknown(doc: Mapping, known, where: str) -> None:
-    bad = sorted(set(doc) - set(known))
-    if bad:
-        raise InputError(f'{where}: unknown keys {bad}; known: {sorted(known)}')
 
 
 def _number(doc: Mapping, key: str, where: str, lo: float = 0.0, hi: float = math.inf,
