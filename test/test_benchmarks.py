@@ -118,6 +118,7 @@ SHORT = {
     'load': (['--seconds', '2', '--cases'], 'quiet'),     # the loads themselves would
     # starve the suite's other workers: the short run is the two quiet runs
     'integrity': (['--only', 'envelope', '--cycles', '5'], 'met'),
+    'campaign': (['--sets', '1'], 'fit'),
 }
 
 

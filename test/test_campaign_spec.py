@@ -51,6 +51,29 @@ def test_every_plan_gives_its_levels(plan, levels):
     assert parse_campaign({**GOOD, 'plan': plan}).planned_levels() == levels
 
 
+def test_each_plan_gives_the_next_level_from_the_results_so_far():
+    c = parse_campaign(GOOD)                          # 3 at each of 9, 8, 7 kN, in turn
+    done = []
+    for want in [9000] * 3 + [8000] * 3 + [7000] * 3:
+        assert c.next_level(done) == want
+        done.append((want, True))
+    assert c.next_level(done) is None
+    stair = parse_campaign({**GOOD, 'plan': {'method': 'staircase', 'start': 6000,
+                                             'step': 500, 'specimens': 5}})
+    seq, done = [], []
+    for failed in (True, True, False, True, False):  # x x o x o
+        seq.append(stair.next_level(done))
+        done.append((seq[-1], failed))
+    assert seq == [6000, 5500, 5000, 5500, 5000] and stair.next_level(done) is None
+    pearl = parse_campaign({**GOOD, 'plan': {'method': 'pearl_string', 'start': 9000,
+                                             'step': 1000, 'specimens': 3}})
+    assert [pearl.next_level([(0, True)] * j) for j in range(4)] == [9000, 8000, 7000, None]
+    adaptive = parse_campaign({**GOOD, 'plan': {'method': 'adaptive', 'low': 5e3,
+                                                'high': 9e3}})
+    with pytest.raises(InputError, match='adaptive plan .* not built yet'):
+        adaptive.next_level([])
+
+
 def test_a_procedure_file_is_found_beside_the_campaign(tmp_path):
     (tmp_path / 'coupon.yaml').write_text(yaml.safe_dump(TEMPLATE))
     doc = {k: v for k, v in GOOD.items() if k != 'template'}

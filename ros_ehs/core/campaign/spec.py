@@ -41,7 +41,7 @@ import copy
 from dataclasses import dataclass
 import math
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from ros_ehs.core.errors import InputError
 # the procedure file's checks: a campaign file's errors read as a procedure file's
@@ -121,6 +121,35 @@ class Campaign:
                 else:
                     step['mean'], step['amplitude'] = float(self.level_value), float(level)
         return parse_procedure(doc, f'{self.source} at level {level:g}')
+
+    def next_level(self, results: Sequence[tuple[float, bool]]) -> float | None:
+        """
+        Return the next specimen's level, or None when the plan is done.
+
+        ``results``: each specimen so far, in order, as (level, failed). ``levels``: each
+        level in turn, ``specimens`` at each; ``pearl_string``: one at each level from
+        ``start`` down by ``step``; ``staircase``: ``start``, then a ``step`` down after a
+        failure and up after a run-out. An ``adaptive`` plan chooses from the fit (not built
+        yet: refused, named).
+        """
+        p, n = self.plan, len(results)
+        m = p['method']
+        if m == 'levels':
+            per = int(p['specimens'])
+            return float(p['levels'][n // per]) if n < per * len(p['levels']) else None
+        if n >= int(p['specimens']):
+            return None
+        if m == 'pearl_string':
+            return float(p['start'] - n * p['step'])
+        if m == 'staircase':
+            if not n:
+                return float(p['start'])
+            level, failed = results[-1]
+            nxt = level - p['step'] if failed else level + p['step']
+            return float(nxt) if nxt > 0 else float(level)
+        raise InputError(f'{self.source}: an adaptive plan chooses its next level from the '
+                         'fit so far, which is not built yet: use levels, pearl_string or '
+                         'staircase')
 
     def planned_levels(self) -> list[float]:
         """Return every level the plan can give (a staircase's and an adaptive plan's range)."""
