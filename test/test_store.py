@@ -1,0 +1,140 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The results store on SQLite: records once, refuses what is not its own, survives a kill.
+
+Foreign databases are made with Python's own sqlite3 module, not with the store's code.
+"""
+
+import math
+import signal
+import sqlite3
+import subprocess
+import sys
+
+import pytest
+from ros_ehs.core.errors import DataError, InputError
+from ros_ehs.data.store import ResultStore, SCHEMA_VERSION, SpecimenRecord
+
+
+def _rec(n: int, **kw) -> SpecimenRecord:
+    base = {'specimen': f'C-{n:02d}', 'level': 9000.0 - 500 * n, 'result': 'failed',
+            'cycles': 10_000 * (n + 1), 'mean': 4950.0, 'amplitude': 4050.0, 'r_ratio': 0.1,
+            'amplitude_spread': 3.0, 'started': '2026-12-05T01:00:00+00:00',
+            'ended': '2026-12-05T02:00:00+00:00', 'bags': (f'bags/c{n}',),
+            'procedure_hash': 'ab' * 32, 'params': {'k_L': 1e7}, 'note': ''}
+    return SpecimenRecord(**{**base, **kw})
+
+
+def test_records_come_back_as_written_each_once(tmp_path):
+    db = tmp_path / 'c.db'
+    s = ResultStore(db)
+    cid = s.campaign('6082', 'ff' * 32)
+    assert s.campaign('6082') == cid                         # found again, not made twice
+    s.record(cid, _rec(1))
+    s.record(cid, _rec(2, result='run_out', mean=math.nan))
+    with pytest.raises(InputError, match="'C-01' is already recorded"):
+        s.record(cid, _rec(1))
+    s.close()
+    again = ResultStore(db)
+    got = again.results(cid)
+    assert [r.specimen for r in got] == ['C-01', 'C-02']
+    assert got[0] == _rec(1) and got[1].result == 'run_out' and math.isnan(got[1].mean)
+    # what sqlite3 itself reads: the schema version and one row a specimen
+    con = sqlite3.connect(db)
+    assert con.execute("select value from ros_ehs_meta where key = 'schema_version'"
+                       ).fetchone() == (str(SCHEMA_VERSION),)
+    assert con.execute('select count(*) from specimens').fetchone() == (2,)
+
+
+@pytest.mark.parametrize('rec, says', [
+    (_rec(1, result='broken'), "`result` = 'broken'"),
+    (_rec(1, result='invalid'), 'needs its `reason`'),
+    (_rec(1, level=math.nan), '`level` = nan'),
+    (_rec(1, cycles=-1), '`cycles` = -1'),
+    (_rec(1, specimen=''), 'needs its `specimen`'),
+])
+def test_a_bad_record_is_named_and_nothing_is_written(tmp_path, rec, says):
+    s = ResultStore(tmp_path / 'c.db')
+    cid = s.campaign('x')
+    with pytest.raises(InputError, match=says):
+        s.record(cid, rec)
+    assert s.results(cid) == []
+
+
+def test_a_database_of_another_program_or_a_newer_schema_is_refused_and_left_alone(tmp_path):
+    other = tmp_path / 'other.db'
+    con = sqlite3.connect(other)
+    con.execute('create table orders (id integer primary key, item text)')
+    con.commit()
+    con.close()
+    before = other.read_bytes()
+    with pytest.raises(DataError, match='tables of another program .*orders'):
+        ResultStore(other)
+    assert other.read_bytes() == before
+    newer = tmp_path / 'newer.db'
+    ResultStore(newer).close()
+    con = sqlite3.connect(newer)
+    con.execute("update ros_ehs_meta set value = ? where key = 'schema_version'",
+                (str(SCHEMA_VERSION + 1),))
+    con.commit()
+    con.close()
+    with pytest.raises(DataError, match=f'schema version {SCHEMA_VERSION + 1}, newer'):
+        ResultStore(newer)
+    notours = tmp_path / 'notours.db'
+    ResultStore(notours).close()
+    con = sqlite3.connect(notours)
+    con.execute("update ros_ehs_meta set value = 'labsoft' where key = 'program'")
+    con.commit()
+    con.close()
+    with pytest.raises(DataError, match="made by 'labsoft'"):
+        ResultStore(notours)
+    (tmp_path / 'junk.db').write_bytes(b'not a database at all' * 100)
+    with pytest.raises(DataError, match='cannot be opened'):
+        ResultStore(tmp_path / 'junk.db')
+
+
+WRITER = """
+import sys, time
+from ros_ehs.data.store import ResultStore, SpecimenRecord
+s = ResultStore(sys.argv[1])
+cid = s.campaign('kill')
+for n in range(100000):
+    s.record(cid, SpecimenRecord(f'{sys.argv[2]}-{n}', 5000.0, 'failed', n))
+    print(n, flush=True)
+"""
+
+
+def test_committed_records_survive_a_writer_killed_and_two_writers_share_a_store(tmp_path):
+    db = tmp_path / 'c.db'
+    ResultStore(db).close()
+    writers = [subprocess.Popen([sys.executable, '-c', WRITER, str(db), who],
+                                stdout=subprocess.PIPE, text=True) for who in ('rig', 'model')]
+    done = {}
+    for w, who in zip(writers, ('rig', 'model')):
+        for _ in range(30):                      # 30 committed records each, then SIGKILL
+            last = w.stdout.readline()
+        done[who] = int(last)
+    for w in writers:
+        w.send_signal(signal.SIGKILL)
+        w.wait(60)
+    s = ResultStore(db)
+    got = [r.specimen for r in s.results(s.campaign('kill'))]
+    for who in ('rig', 'model'):
+        mine = [g for g in got if g.startswith(who + '-')]
+        # every record a writer was told was committed is there, each once, in order
+        assert mine[:done[who] + 1] == [f'{who}-{n}' for n in range(done[who] + 1)]
+        assert len(mine) == len(set(mine))
+    con = sqlite3.connect(db)
+    assert con.execute('pragma integrity_check').fetchone() == ('ok',)
