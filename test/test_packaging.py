@@ -37,6 +37,9 @@ ROSDEP = {
     'numba': 'python3-numba', 'matplotlib': 'python3-matplotlib', 'psutil': 'python3-psutil',
     'aiohttp': 'python3-aiohttp', 'mcap': 'mcap-ros2-support',
     'mcap_ros2': 'mcap-ros2-support', 'rosbags': 'python3-rosbags-pip',
+    'sqlalchemy': 'python3-sqlalchemy',
+    # the campaign benchmark's cross-checks only (requirements.txt pins them), as playwright
+    'pylife': None, 'reliability': None, 'pandas': None,
     'playwright': None, 'threadpoolctl': None}
 
 #: modules the package needs at run time that rosdistro has no key for (Debian packages
