@@ -222,7 +222,10 @@ def _realtime_bench(procs, bag, reference=True):
 def test_recorded_bench_bag_is_read_by_external_readers(dom, tmp_path):
     bag = tmp_path / 'bench'
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
-        _realtime_bench(procs, bag)
+        # this test is about the bag's readers: a state answered late on the suite's loaded
+        # machine (no real-time priority) is noted, not held (loop_timing held the axis once,
+        # 20.8 ms, and the pressures read back were those of a still piston)
+        procs.start_loop('realtime', bag=bag, controller={'loop_timing_action': 'indicate'})
         _assert_placed(procs)
         wait_for_bag(bag, {'/state': 1000, '/servo_current': 900})
         assert procs.stop(['recorder'])['recorder'] == 0
