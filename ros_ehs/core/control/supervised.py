@@ -82,7 +82,6 @@ class AxisController:
         self.driving: str | None = None   # the loop that drove the valve last, None: 0 A
         self.limited = False              # specimen protect limited the last command
         self.blend_time = float(params['mode_blend_time'])
-        self.dt = float(dt)
         self.command_rate = float(params['command_rate'])
         self.rate_limited = 0             # commands the rate limit changed
         self._sent = math.nan             # the last command returned [A]
@@ -197,7 +196,7 @@ class AxisController:
         if not (r > 0) or i == 0.0 or self.driving is None or not self.demand.power or \
                 not math.isfinite(i):
             return i
-        base, step = self._sent, r * self.dt
+        base, step = self._sent, r * self.supervisor.dt
         if math.isfinite(applied) and not abs(applied - base) <= step:
             base = applied
         if not math.isfinite(base):

@@ -795,6 +795,20 @@ class ProcedureRunner:
             self._note_event('run_out', '', float(self.total), self.reason)
             self._to_stop(stamp + self.latency_ns)
 
+    def _off_by(self, seg: _Segment, cyc: dict, levels: tuple[float, float]
+                ) -> tuple[float, tuple[float, float] | None]:
+        """Return how far a cycle's levels are off the specified ones (of its range), and those."""
+        spec = seg.wave.specified(cyc['k'])
+        if spec is None:
+            return 0.0, None
+        hi, lo = levels
+        return max(abs(hi - spec[0]), abs(lo - spec[1])) / (spec[0] - spec[1]), spec
+
+    def _not_reached(self, step: Step, stamp: int, why: str) -> None:
+        """Interrupt the test: its levels are not reached (a ``levels`` event names why)."""
+        self._note_event('levels', step.name, float(self.total), why)
+        self._freeze(stamp, 'interrupted', why)
+
     def _levels_off(self, seg: _Segment, cyc: dict, stamp: int,
                     levels: tuple[float, float]) -> bool:
         """
@@ -805,23 +819,19 @@ class ProcedureRunner:
         the cycle not counted.
         """
         step = self.steps[seg.step]
-        spec = seg.wave.specified(cyc['k'])
-        if spec is None:
-            return False
-        rng, (hi, lo) = spec[0] - spec[1], levels
-        err = max(abs(hi - spec[0]), abs(lo - spec[1])) / rng if rng > 0 else 0.0
-        if not err > step['level_error']:        # within, or NaN levels (not judged)
+        err, spec = self._off_by(seg, cyc, levels)
+        if spec is None or not err > step['level_error']:   # within, or NaN (not judged)
             self._level_run = 0
             return False
         self._level_run += 1
         if self._level_run < step['level_cycles'] or self.state != 'running':
             return False
-        why = (f'levels not reached: {self._level_run} cycles in a row off by more than '
-               f"level_error ({step['level_error']:g} of the range; the last "
-               f'{hi:.6g}/{lo:.6g} against {spec[0]:.6g}/{spec[1]:.6g}), at cycle '
-               f'{self.total}: the rig does not carry this step')
-        self._note_event('levels', step.name, float(self.total), why)
-        self._freeze(stamp, 'interrupted', why)
+        hi, lo = levels
+        self._not_reached(step, stamp, f'levels not reached: {self._level_run} cycles in a row '
+                          f"off by more than level_error ({step['level_error']:g} of the "
+                          f'range; the last {hi:.6g}/{lo:.6g} against {spec[0]:.6g}/'
+                          f'{spec[1]:.6g}), at cycle {self.total}: the rig does not carry '
+                          'this step')
         return True
 
     def _null(self, seg: _Segment, cyc: dict, stamp: int, tol: float,
@@ -834,12 +844,11 @@ class ProcedureRunner:
         run and its end are events, and ``null_cycles`` of them in a row interrupt the test.
         """
         k, step = seg.step, self.steps[seg.step]
-        spec = seg.wave.specified(cyc['k'])
+        err, spec = self._off_by(seg, cyc, levels)
         if spec is None:
             return False
-        rng = spec[0] - spec[1]
         hi, lo = levels
-        if abs(hi - spec[0]) <= tol * rng and abs(lo - spec[1]) <= tol * rng:
+        if err <= tol:                              # NaN levels: not within, not counted
             if self._null_run:
                 self._note_event('pacing', step.name, float(self.total),
                                  f'levels within count_tolerance again after {self._null_run} '
@@ -861,11 +870,10 @@ class ProcedureRunner:
                              f'against {spec[0]:.6g}/{spec[1]:.6g} (count_tolerance '
                              f'{tol:g} of the range)')
         if self._null_run >= step['null_cycles'] and self.state == 'running':
-            why = (f'levels not reached: {self._null_run} cycles in a row outside '
-                   f'count_tolerance ({tol:g} of the range), not counted, at cycle '
-                   f'{self.total}: the rig does not carry this step')
-            self._note_event('levels', step.name, float(self.total), why)
-            self._freeze(stamp, 'interrupted', why)
+            self._not_reached(step, stamp, f'levels not reached: {self._null_run} cycles in '
+                              f'a row outside count_tolerance ({tol:g} of the range), not '
+                              f'counted, at cycle {self.total}: the rig does not carry this '
+                              'step')
         return True
 
     def _failed(self, d: FailureDetector, why: str, stamp: int) -> bool:
