@@ -38,9 +38,13 @@ Fatigue benchmark: a test to failure, the virtual test's speed, resume after kil
   counts along it (``at``, ``rss_mb``) and its ``growth_mb`` from the first to the last.
   Target: flat.
 * ``resume``: ``--kills`` lock-step tests over DDS (plant, controller, procedure node,
-  recorder; a 20-cycle displacement test at 5 Hz), each killed (SIGKILL) at a random cycle:
-  the procedure node alone, or every process at once (a power cut: the bag is cut too), then
-  restarted from its checkpoint and the bag, resumed with ``~/resume``, run to its end.
+  recorder; two 10-cycle displacement steps at 5 Hz with a dwell between them), each killed
+  (SIGKILL) at one of :data:`MOMENTS` in turn (the second step's first cycle, a random cycle,
+  the first step's end, the dwell, a hold): the procedure node alone, or every process at
+  once (a power cut: the bag is cut too), then restarted from its checkpoint and the bag,
+  resumed with ``~/resume``, run to its end. ``records_once``: the cycle records the readers
+  give (the bags through :func:`~ros_ehs.data.fatigue.read_cycles`, which ``cycles.csv`` and
+  the report are written from) are counts 1..``counted``, each once. Target: at every kill.
   ``planned`` (the count asked), ``applied`` (the cycles the recorded positions show: rises
   through the mean + 10 % of the amplitude after a fall below the mean - 10 %, in every bag
   of the test; ``unseen_tapered``: the tapered cycles too small for that, from the cycle
@@ -77,16 +81,37 @@ FATIGUE = {'name': 'coupon 1-10 kN', 'control_mode': 'force', 'run_out': 10**7, 
     {'name': 'fatigue', 'type': 'cyclic', 'waveform': 'sine', 'peak': PEAK, 'valley': VALLEY,
      'frequency': FREQ,
      'end': [{'stiffness_drop': {'drop': 0.10}}, {'peak_valley_change': {'tolerance': 0.05}}]}]}
-#: the resume runs' procedure: a displacement test the lock-step loop runs in seconds
+#: the resume runs' procedure: a displacement test the lock-step loop runs in seconds; two
+#: cyclic steps with a dwell between them, so that a kill can land in each kind of moment
 RESUME_CYCLES = 20
+_CYCLES = {'type': 'cyclic', 'waveform': 'sine', 'mean': 0.002, 'amplitude': 0.001,
+           'frequency': 5.0, 'count': RESUME_CYCLES // 2,
+           # a resume brings the mean back at 10 mm/s: at the default 1 mm/s the default
+           # rig's Stribeck friction made the position loop hunt +-0.15 mm at 25 Hz on the way
+           # (stick and slip, within the envelope), which the applied count took for cycles
+           'mean_rate': 0.01}
 RESUME = {'name': 'resume test', 'steps': [
     {'name': 'to mean', 'type': 'ramp', 'to': 0.002, 'rate': 0.01},
-    {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.002, 'amplitude': 0.001,
-     'frequency': 5.0, 'count': RESUME_CYCLES,
-     # a resume brings the mean back at 10 mm/s: at the default 1 mm/s the default rig's
-     # Stribeck friction made the position loop hunt +-0.15 mm at 25 Hz on the way (stick and
-     # slip, within the envelope), which the applied count took for cycles
-     'mean_rate': 0.01}]}
+    {'name': 'cycles A', **_CYCLES},
+    {'name': 'pause', 'type': 'dwell', 'time': 0.5},
+    {'name': 'cycles B', **_CYCLES}]}
+#: where a resume run is killed (run k at MOMENTS[k // 2 % 5], the procedure node alone for
+#: even k, every process for odd k), each the status that says it is there: the second
+#: step's first cycle (its taper), a random cycle of the first, the first step's end (its
+#: last records published as it ended), the dwell, a hold (asked with ``~/hold``)
+MOMENTS = ('first_cycle', 'mid_cycle', 'step_end', 'dwell', 'hold')
+
+
+def _moment(name: str, at: int):
+    """Return the status predicate of a kill moment (``at``: the mid-cycle count)."""
+    half = RESUME_CYCLES // 2
+    return {'first_cycle': lambda v: int(v['step_index']) == 3,
+            'mid_cycle': lambda v: int(v['total_cycles']) >= at,
+            'step_end': lambda v: int(v['total_cycles']) >= half,
+            'dwell': lambda v: int(v['step_index']) == 2,
+            'hold': lambda v: v['state'] == 'held'}[name]
+
+
 #: the long run: small 50 Hz cycles, so that 10^6 of them take 2*10^4 s of simulated time
 LONG = {'name': 'long run', 'steps': [
     {'name': 'cycles', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.0, 'amplitude': 1.0e-4,
@@ -231,8 +256,8 @@ def _status(procs, pred) -> dict:
 #: rig's friction makes the piston stick and slip about the mean as the mean is approached
 #: at 1 mm/s; a start's or a resume's first tapered cycle peaks at 3.5 % of the amplitude
 #: and is not seen: :func:`_unseen`)
-MEAN = RESUME['steps'][1]['mean']
-HYSTERESIS = 0.1 * RESUME['steps'][1]['amplitude']
+MEAN = _CYCLES['mean']
+HYSTERESIS = 0.1 * _CYCLES['amplitude']
 
 
 def _unseen(bags) -> int:
@@ -275,7 +300,7 @@ def _beyond(bags) -> float:
     import numpy as np
     from ros_ehs.data.bag import open_bag
     import ros_ehs_msgs_py as c
-    mean, amp = RESUME['steps'][1]['mean'], RESUME['steps'][1]['amplitude']
+    mean, amp = _CYCLES['mean'], _CYCLES['amplitude']
     lo, hi = mean - amp, mean + amp
     rng = hi - lo
     lo = min(lo, RESUME.get('stop_level', 0.0))
@@ -302,7 +327,9 @@ def _resume(kills: int, seed: int) -> dict:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from std_srvs.srv import Trigger
+    import numpy as np
     from ros_ehs.data.bag import open_bag
+    from ros_ehs.data.fatigue import read_cycles
     from ros_ehs.nodes.processes import NodeProcesses
     import yaml
     rng = random.Random(seed)
@@ -317,7 +344,8 @@ def _resume(kills: int, seed: int) -> dict:
         try:
             for k in range(kills):
                 everything = k % 2 == 1
-                at = rng.randint(2, RESUME_CYCLES - 3)
+                moment = MOMENTS[k // 2 % len(MOMENTS)]
+                at = rng.randint(2, RESUME_CYCLES // 2 - 2)
                 d = Path(tmp) / f'run{k}'
                 d.mkdir()
                 proc = d / 'test.yaml'
@@ -326,7 +354,11 @@ def _resume(kills: int, seed: int) -> dict:
                 opts = {'file': str(proc), 'recover_bag': str(bags[0])}
                 with NodeProcesses(dom, d / 'logs', bound=BOUND) as procs:
                     _loop(procs, bags[0], {**opts, 'autostart': True})
-                    _status(procs, lambda v: int(v['total_cycles']) >= at)
+                    if moment == 'hold':
+                        _status(procs, lambda v: int(v['total_cycles']) >= at)
+                        _call(node, exe, Trigger, '/procedure/hold')
+                    st = _status(procs, _moment(moment, at))
+                    at = int(st['total_cycles'])
                     names = [n for n in procs.procs if procs.procs[n].alive()] \
                         if everything else ['procedure']
                     for n in names:          # as close to at once as processes allow
@@ -343,7 +375,7 @@ def _resume(kills: int, seed: int) -> dict:
                     st = _status(procs, lambda v: v['state'] == 'interrupted' and
                                  int(v['stamp_ns']) > 0)
                     restored = int(st['total_cycles'])
-                    _resume_call(node, exe, Trigger)
+                    _call(node, exe, Trigger, '/procedure/resume')
                     st = _status(procs, lambda v: v['state'] == 'finished')
                     procs.stop()
                 for b in bags:
@@ -352,7 +384,14 @@ def _resume(kills: int, seed: int) -> dict:
                         for m in bb.messages(['/procedure/cycles']):
                             cdr_bytes += len(m.data)
                 cdr_cycles += int(st['total_cycles'])
-                runs.append({'killed': 'all' if everything else 'procedure', 'at': at,
+                got = read_cycles(bags)[:, 0].astype(int)
+                runs.append({'killed': 'all' if everything else 'procedure', 'moment': moment,
+                             'at': at,
+                             # the records the readers give (the bags through read_cycles, as
+                             # cycles.csv and the report): each counted cycle exactly once
+                             'records_once': bool(got.size == int(st['total_cycles']) and
+                                                  (got == np.arange(1, got.size + 1)).all()),
+                             'records': int(got.size),
                              'restored': restored, 'planned': RESUME_CYCLES,
                              'applied': _applied(bags), 'unseen_tapered': _unseen(bags),
                              'counted': int(st['total_cycles']),
@@ -365,10 +404,10 @@ def _resume(kills: int, seed: int) -> dict:
             round(cdr_bytes / cdr_cycles, 1) if cdr_cycles else None}
 
 
-def _resume_call(node, exe, srv) -> None:
-    """Call ``~/resume`` until it answers (a killed node's server lingers in discovery)."""
+def _call(node, exe, srv, name: str) -> None:
+    """Call a Trigger service until it answers (a killed node's server lingers in discovery)."""
     from ros_ehs.nodes.ros_common import call_until_answered
-    cli = node.create_client(srv, '/procedure/resume')
+    cli = node.create_client(srv, name)
     _spin(exe, cli.service_is_ready)
 
     def spin(until, seconds):
@@ -378,9 +417,9 @@ def _resume_call(node, exe, srv) -> None:
             return False
         return True
 
-    # a second resume is refused harmlessly: the test runs
+    # a second call is refused harmlessly: the test goes on as asked
     if call_until_answered(cli, srv.Request(), spin, BOUND) is None:
-        raise RuntimeError('no answer from the procedure node')
+        raise RuntimeError(f'no answer from {name}')
     node.destroy_client(cli)
 
 
@@ -425,7 +464,9 @@ def main(argv=None) -> int:
                              for r in res['runs']),
                          'all_counted_as_planned': all(r['counted'] == r['planned']
                                                        for r in res['runs']),
-                         'worst_beyond_pct': max(r['beyond_pct'] for r in res['runs'])}
+                         'worst_beyond_pct': max(r['beyond_pct'] for r in res['runs']),
+                         'records_once_at_every_kill': all(r['records_once']
+                                                           for r in res['runs'])}
         table['bag_cdr'] = res['bag_cdr_bytes_per_cycle']
     fig['cycle_table_bytes_per_cycle'] = table
     fig['checkpoint_ms'] = _checkpoint_ms()
