@@ -4,6 +4,7 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/scripts/setup.sh"
 bash "$root/scripts/browser.sh"
+bash "$root/scripts/postgres.sh"
 source "$root/scripts/env.sh"
 cd "$root"
 exec python -m pytest "$@"
