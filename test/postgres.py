@@ -15,8 +15,8 @@
 A real PostgreSQL server of a test's own: Debian's, in a fresh data directory.
 
 ``scripts/postgres.sh`` (run by the README's test command) installs the Debian package.
-The server listens on a Unix socket in its own directory only (no TCP port to collide with
-another test worker's), trusts local connections, and is stopped at the end; as root it runs
+The server listens on a free TCP port on the loopback (and a Unix socket in its own
+directory, for psql), trusts local connections, and is stopped at the end; as root it runs
 as the ``postgres`` user (the server refuses root). Its clients here are Debian's ``psql``
 (not our code) and the store through SQLAlchemy and psycopg.
 """
@@ -26,6 +26,7 @@ import os
 from pathlib import Path
 import pwd
 import shutil
+import socket
 import subprocess
 import tempfile
 
@@ -70,10 +71,20 @@ class Postgres:
         return r.stdout
 
     def start(self) -> None:
-        """Start the server (waits until it accepts connections)."""
-        self._run('pg_ctl', '-D', str(self.data), '-w', '-t', str(int(BOUND)), '-l',
-                  str(self.root / 'log'), '-o', f"-k {self.sock} -c listen_addresses=''",
-                  'start')
+        """Start the server on a free loopback port (waits until it accepts connections)."""
+        for attempt in range(3):          # a port taken between its choice and the start
+            with socket.socket() as s:
+                s.bind(('127.0.0.1', 0))
+                self.port = s.getsockname()[1]
+            try:
+                self._run('pg_ctl', '-D', str(self.data), '-w', '-t', str(int(BOUND)), '-l',
+                          str(self.root / 'log'), '-o',
+                          f'-k {self.sock} -p {self.port} -c listen_addresses=127.0.0.1',
+                          'start')
+                return
+            except RuntimeError:
+                if attempt == 2:
+                    raise
 
     def crash(self) -> None:
         """Stop the server as a power cut would: at once, no checkpoint (recovery at start)."""
@@ -81,13 +92,14 @@ class Postgres:
 
     @property
     def url(self) -> str:
-        """Return the ``ehs`` database's SQLAlchemy URL (psycopg over the Unix socket)."""
-        return f'postgresql+psycopg://postgres@/ehs?host={self.sock}'
+        """Return the ``ehs`` database's SQLAlchemy URL (psycopg over TCP)."""
+        return f'postgresql+psycopg://postgres@127.0.0.1:{self.port}/ehs'
 
     def psql(self, sql: str, db: str = 'ehs') -> str:
         """Run ``sql`` through Debian's psql; return its unaligned rows."""
         r = subprocess.run([str(self.bin / 'psql'), '-X', '-q', '-At', '-v', 'ON_ERROR_STOP=1',
-                            '-h', str(self.sock), '-U', 'postgres', '-d', db, '-c', sql],
+                            '-h', str(self.sock), '-p', str(self.port), '-U', 'postgres',
+                            '-d', db, '-c', sql],
                            capture_output=True, text=True, timeout=BOUND)
         if r.returncode:
             raise RuntimeError(f'psql failed: {r.stderr.strip()}')
@@ -95,7 +107,8 @@ class Postgres:
 
     def dump(self) -> str:
         """Return the ``ehs`` database as ``pg_dump`` writes it (to compare before and after)."""
-        r = subprocess.run([str(self.bin / 'pg_dump'), '-h', str(self.sock), '-U', 'postgres',
+        r = subprocess.run([str(self.bin / 'pg_dump'), '-h', str(self.sock), '-p',
+                            str(self.port), '-U', 'postgres',
                             '--no-owner', 'ehs'], capture_output=True, text=True,
                            timeout=BOUND)
         if r.returncode:
