@@ -640,8 +640,8 @@ def test_a_virtual_test_trips_its_detectors_where_the_specimen_model_meets_them(
     assert r.result == 'failed' and 'specimen break' in r.reason
     assert r.fractured_at is not None and abs(r.total_cycles - r.fractured_at) <= 1.0
     table = r.cycles
-    assert table.shape == (r.total_cycles, 8)
-    peak, valley = np.median(table[:, 6]), np.median(table[:, 7])
+    assert table.shape == (r.total_cycles, 10)
+    peak, valley = np.median(table[:, 7]), np.median(table[:, 8])
     sp = Specimen(p)
     for e in parse_procedure(FATIGUE).steps[2].end:
         model = model_trip_cycle(sp, e.kind, e.values, peak, valley,
@@ -688,7 +688,7 @@ def test_a_virtual_tests_memory_is_a_ring_of_cycles():
     doc = {**FATIGUE, 'run_out': 40}
     r = run_procedure(parse_procedure(doc), p, keep_cycles=16)
     assert r.result == 'run_out' and r.total_cycles == 40
-    assert r.cycles.shape == (16, 8) and list(r.cycles[:, 0]) == list(range(25, 41))
+    assert r.cycles.shape == (16, 10) and list(r.cycles[:, 0]) == list(range(25, 41))
 
 
 # -- the checkpoint on disk ----------------------------------------------------------------
@@ -744,7 +744,7 @@ def test_ehs_sim_procedure_prints_what_the_rig_would_do(tmp_path, capsys):
     assert 'the specimen fractured at cycle' in text and 'x real time' in text
     assert 'fitted_stiffness_drop: not judged in a virtual test' in text
     rows = np.loadtxt(out, delimiter=',', skiprows=1)
-    assert rows.shape[1] == 8 and rows[-1, 0] == rows.shape[0]
+    assert rows.shape[1] == 10 and rows[-1, 0] == rows.shape[0]
     f.write_text('steps: []\n')
     assert main(['procedure', str(f)]) == 2
     assert 'steps' in capsys.readouterr().err

@@ -133,7 +133,7 @@ def _failure(life: float) -> dict:
     proc = parse_procedure(FATIGUE)
     p = _rig(life)
     r = run_procedure(proc, p, keep_cycles=int(2 * life) + 100)
-    peak, valley = float(np.median(r.cycles[:, 6])), float(np.median(r.cycles[:, 7]))
+    peak, valley = float(np.median(r.cycles[:, 7])), float(np.median(r.cycles[:, 8]))
     sp = Specimen(p)
     out = {}
     for e in proc.steps[2].end:

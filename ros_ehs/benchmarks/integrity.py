@@ -114,7 +114,7 @@ def _carried(r, truth: _Truth, peak: float, valley: float, f: float,
     rate))`` inside the true one (``A`` the amplitude), which widens the band on that side.
     """
     t, v = np.array(truth.t), np.array(truth.v)
-    ends = r.cycles[:, 1] if r.cycles is not None and len(r.cycles) else np.empty(0)
+    ends = r.cycles[:, 2] if r.cycles is not None and len(r.cycles) else np.empty(0)
     tol = TOL * (peak - valley)
     inside = 0.5 * (peak - valley) * (1.0 - math.cos(math.pi * f / rate_hz))
     ok = 0

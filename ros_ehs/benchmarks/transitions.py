@@ -114,7 +114,7 @@ def _run(doc: dict, params, mode: str, **kw):
 def _cycle_start(r, n: int) -> float:
     """Return the time cycle ``n + 1`` starts at (cycle ``n``'s end) [s]."""
     c = r.cycles
-    return float(c[c[:, 0] == n, 1][0])
+    return float(c[c[:, 0] == n, 2][0])
 
 
 def _beyond(sig, lo, hi, rng, mask) -> float:

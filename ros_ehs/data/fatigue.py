@@ -31,15 +31,13 @@ from typing import Sequence
 
 import numpy as np
 from ros_ehs.core.errors import DataError
+from ros_ehs.core.procedure.detectors import CYCLE_COLUMNS
 from ros_ehs.data.bag import open_bag
 import ros_ehs_msgs_py as contract
 
 __all__ = ['CYCLE_COLUMNS', 'FatigueReport', 'read_captures', 'read_cycles',
            'read_procedure_events', 'write_fatigue_report']
 
-#: the cycle table's columns
-CYCLE_COLUMNS = ('count', 'step', 'end_s', 'cmd_hi', 'cmd_lo', 'z_hi', 'z_lo', 'load_hi',
-                 'load_lo', 'flags')
 _CYCLES = '/' + contract.CYCLES.name
 _CAPTURES = '/' + contract.CAPTURES.name
 _EVENTS = '/' + contract.PROCEDURE_EVENTS.name

@@ -53,11 +53,17 @@ from typing import Any, Mapping
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.procedure.spec import DETECTORS
 
-__all__ = ['Cycle', 'FailureDetector', 'TAPERED']
+__all__ = ['CYCLE_COLUMNS', 'Cycle', 'FailureDetector', 'TAPERED']
 
 #: A cycle's flag: its amplitude was still tapering in (a start or a resume); it counts, and
 #: neither the compensation nor the failure detectors learn from it.
 TAPERED = 1
+
+
+#: a cycle table's columns, one row a cycle (the bag's records read back, a virtual test's
+#: table, cycles.csv): :class:`Cycle`'s fields, the end in seconds
+CYCLE_COLUMNS = ('count', 'step', 'end_s', 'cmd_hi', 'cmd_lo', 'z_hi', 'z_lo', 'load_hi',
+                 'load_lo', 'flags')
 
 
 @dataclass(frozen=True)
@@ -80,6 +86,11 @@ class Cycle:
         """Return the load's range over the position's [N/m] (NaN when the piston did not move)."""
         dz = self.z_hi - self.z_lo
         return (self.f_hi - self.f_lo) / dz if dz > 0 else math.nan
+
+    def row(self) -> tuple:
+        """Return the cycle as a row of a cycle table (:data:`CYCLE_COLUMNS`)."""
+        return (self.count, self.step, self.end_ns * 1e-9, self.cmd_hi, self.cmd_lo,
+                self.z_hi, self.z_lo, self.f_hi, self.f_lo, self.flags)
 
     def finite(self) -> bool:
         """Return True when every extreme is finite."""

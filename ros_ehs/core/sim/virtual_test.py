@@ -39,7 +39,7 @@ from ros_ehs.core.errors import DataError, InputError
 from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import Params
-from ros_ehs.core.procedure.detectors import Cycle
+from ros_ehs.core.procedure.detectors import CYCLE_COLUMNS
 from ros_ehs.core.procedure.envelope import require_envelope
 from ros_ehs.core.procedure.runner import ProcedureRunner
 from ros_ehs.core.procedure.spec import Procedure
@@ -65,7 +65,7 @@ class VirtualTest:
     tripped: dict                  #: each failure detector's trip cycle
     fractured_at: float | None     #: the specimen's fracture (its cycles), None if it held
     events: list = field(default_factory=list)      #: the runner's and the controller's
-    cycles: np.ndarray | None = None   #: the last cycles' records (count, extremes...)
+    cycles: np.ndarray | None = None   #: the last cycles' records (CYCLE_COLUMNS)
     checkpoints: int = 0
     checkpoint_s: float = 0.0          #: the time the checkpoints took in all [s]
     #: live refits (``live``): (stamp [ns], the ParameterEstimate or None, its verdict or error)
@@ -152,7 +152,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     ramp = float(cp['ramp_time'])
     runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz, observe=observe,
                              ramp_time=ramp)
-    table = np.full((keep_cycles, 8), np.nan)
+    table = np.full((keep_cycles, len(CYCLE_COLUMNS)), np.nan)
     n_kept = 0
     events: list = []
     fractured = None
@@ -213,7 +213,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             runner.mode_switched(ok, why, stamp)
         if runner.cycles:
             for c in runner.cycles:
-                table[n_kept % keep_cycles] = _row(c)
+                table[n_kept % keep_cycles] = c.row()
                 n_kept += 1
             runner.cycles.clear()
         if runner.captures:
@@ -279,10 +279,6 @@ def _live_step(live: LiveFits, window: SampleWindow, every: int, full: float, k:
     if 'k_L' in est.values:
         runner.estimate(st.stamp_ns, est.values['k_L'], est.stderr.get('k_L', math.nan),
                         est.adequate)
-
-
-def _row(c: Cycle) -> tuple:
-    return (c.count, c.end_ns * 1e-9, c.cmd_hi, c.cmd_lo, c.z_hi, c.z_lo, c.f_hi, c.f_lo)
 
 
 def model_trip_cycle(specimen: Specimen, kind: str, values: dict, peak: float, valley: float,
