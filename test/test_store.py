@@ -138,3 +138,55 @@ def test_committed_records_survive_a_writer_killed_and_two_writers_share_a_store
         assert len(mine) == len(set(mine))
     con = sqlite3.connect(db)
     assert con.execute('pragma integrity_check').fetchone() == ('ok',)
+
+
+#: version 1's tables, as that version made them (SQL, not the store's code); ``{id}`` is the
+#: database's auto-numbered key
+V1 = """
+CREATE TABLE ros_ehs_meta (key VARCHAR(64) PRIMARY KEY, value VARCHAR(256) NOT NULL);
+CREATE TABLE campaigns (id {id}, name VARCHAR(256) NOT NULL UNIQUE,
+    file_hash VARCHAR(64) NOT NULL, created VARCHAR(40) NOT NULL);
+CREATE TABLE specimens (id {id}, campaign_id INTEGER NOT NULL REFERENCES campaigns (id),
+    specimen VARCHAR(128) NOT NULL, level FLOAT NOT NULL, result VARCHAR(16) NOT NULL,
+    reason TEXT NOT NULL, cycles BIGINT NOT NULL, mean FLOAT, amplitude FLOAT, r_ratio FLOAT,
+    amplitude_spread FLOAT, started VARCHAR(40) NOT NULL, ended VARCHAR(40) NOT NULL,
+    bags TEXT NOT NULL, procedure_hash VARCHAR(64) NOT NULL, params TEXT NOT NULL,
+    note TEXT NOT NULL, CONSTRAINT one_record_a_specimen UNIQUE (campaign_id, specimen));
+INSERT INTO ros_ehs_meta VALUES ('program', 'ros_ehs'), ('schema_version', '1');
+INSERT INTO campaigns (name, file_hash, created) VALUES ('old', '', '2026-12-01T00:00:00');
+INSERT INTO specimens (campaign_id, specimen, level, result, reason, cycles, mean, amplitude,
+    r_ratio, amplitude_spread, started, ended, bags, procedure_hash, params, note)
+    VALUES (1, 'V1-01', 8000.0, 'failed', '', 123456, 4400.0, 3600.0, 0.1, 2.0, '', '',
+            '["bags/v1"]', '', '{}', 'recorded by version 1');
+"""
+
+
+def check_migrated(store) -> None:
+    """Check a version 1 store opened by this code: migrated, its record kept, writable."""
+    cid = store.campaign('old')
+    (old,) = store.results(cid)
+    assert old.specimen == 'V1-01' and old.cycles == 123456 and old.bags == ('bags/v1',)
+    assert math.isnan(old.peak) and math.isnan(old.duration_s)
+    store.record(cid, _rec(2, peak=8010.0, valley=801.0, duration_s=3600.0))
+    new = store.results(cid)[1]
+    assert (new.peak, new.valley, new.duration_s) == (8010.0, 801.0, 3600.0)
+
+
+def test_a_version_1_store_is_migrated_in_place(tmp_path):
+    db = tmp_path / 'v1.db'
+    con = sqlite3.connect(db)
+    con.executescript(V1.replace('{id}', 'INTEGER PRIMARY KEY'))
+    con.close()
+    check_migrated(ResultStore(db))
+    con = sqlite3.connect(db)
+    assert con.execute("select value from ros_ehs_meta where key = 'schema_version'"
+                       ).fetchone() == (str(SCHEMA_VERSION),)
+    cols = [r[1] for r in con.execute('pragma table_info(specimens)')]
+    assert cols[-3:] == ['peak', 'valley', 'duration_s']
+    con.execute("update ros_ehs_meta set value = '0' where key = 'schema_version'")
+    con.commit()
+    con.close()
+    before = db.read_bytes()
+    with pytest.raises(DataError, match='schema version 0, which no migration starts from'):
+        ResultStore(db)
+    assert db.read_bytes() == before

@@ -29,7 +29,7 @@ from postgres import Postgres
 import pytest
 from ros_ehs.core.errors import DataError, InputError
 from ros_ehs.data.store import ResultStore, rows, SCHEMA_VERSION
-from test_store import _rec, WRITER
+from test_store import _rec, check_migrated, V1, WRITER
 
 
 @pytest.fixture
@@ -123,3 +123,10 @@ def test_committed_records_survive_killed_writers_and_a_crashed_server(pg):
         assert mine[:done[name] + 1] == [f'{name}-{n}' for n in range(done[name] + 1)]
         assert len(mine) == len(set(mine))
     s.close()
+
+
+def test_a_version_1_store_is_migrated_on_postgresql(pg):
+    pg.psql(V1.replace('{id}', 'SERIAL PRIMARY KEY'))
+    check_migrated(ResultStore(pg.url))
+    assert pg.psql("select value from ros_ehs_meta where key = 'schema_version'") == \
+        str(SCHEMA_VERSION)

@@ -25,6 +25,10 @@ specimen: its id, the level specified and achieved with their spread, cycles, re
 reason, times, bags, the procedure's hash, the rig's parameters, the operator's note). A
 specimen is recorded once: a second record of the same id in a campaign is refused.
 
+**Schema versions.** A store of an older schema version is migrated when opened, in one
+transaction (:data:`MIGRATIONS`: version 2 added each specimen's achieved ``peak`` and
+``valley`` and its test's ``duration_s``; the records of version 1 read NaN there).
+
 **What it refuses.** A database that has tables but no ``ros_ehs_meta`` (another program's)
 and one whose schema version is newer than this code's are refused with a clear error and
 left untouched. Every record is one transaction: committed, it survives a writer killed
@@ -44,10 +48,16 @@ from typing import Any, Sequence
 
 from ros_ehs.core.errors import DataError, InputError
 
-__all__ = ['RESULTS', 'SCHEMA_VERSION', 'ResultStore', 'SpecimenRecord']
+__all__ = ['MIGRATIONS', 'RESULTS', 'SCHEMA_VERSION', 'ResultStore', 'SpecimenRecord']
 
-#: the store's schema version (a store of a newer one is refused)
-SCHEMA_VERSION = 1
+#: the store's schema version (a store of a newer one is refused, an older one migrated)
+SCHEMA_VERSION = 2
+#: the statements that take a store from version v to v + 1, by v
+MIGRATIONS = {1: ('ALTER TABLE specimens ADD COLUMN peak FLOAT',
+                  'ALTER TABLE specimens ADD COLUMN valley FLOAT',
+                  'ALTER TABLE specimens ADD COLUMN duration_s FLOAT')}
+#: the record's columns that may be NaN (NULL in the database)
+_FLOATS = ('mean', 'amplitude', 'r_ratio', 'amplitude_spread', 'peak', 'valley', 'duration_s')
 #: the program that writes the store (a store that says otherwise is refused)
 PROGRAM = 'ros_ehs'
 #: a specimen's results: failed, run out, or invalid (with its reason)
@@ -67,6 +77,9 @@ class SpecimenRecord:
     amplitude: float = math.nan       #: achieved: their amplitude
     r_ratio: float = math.nan         #: achieved: valley over peak
     amplitude_spread: float = math.nan   #: the amplitude's standard deviation over cycles
+    peak: float = math.nan            #: achieved: the cycles' median peak
+    valley: float = math.nan          #: achieved: their median valley
+    duration_s: float = math.nan      #: the test's time on the rig (simulated: the model's) [s]
     started: str = ''
     ended: str = ''
     bags: Sequence[str] = field(default_factory=tuple)
@@ -123,6 +136,8 @@ class ResultStore:
             sa.Column('cycles', sa.BigInteger, nullable=False),
             sa.Column('mean', sa.Float), sa.Column('amplitude', sa.Float),
             sa.Column('r_ratio', sa.Float), sa.Column('amplitude_spread', sa.Float),
+            sa.Column('peak', sa.Float), sa.Column('valley', sa.Float),
+            sa.Column('duration_s', sa.Float),
             sa.Column('started', sa.String(40), nullable=False),
             sa.Column('ended', sa.String(40), nullable=False),
             sa.Column('bags', sa.Text, nullable=False),
@@ -164,12 +179,19 @@ class ResultStore:
             if meta.get('program') != PROGRAM:
                 raise DataError(f'the store {self._where()} was made by '
                                 f'{meta.get("program")!r}, not {PROGRAM}: refused')
-            version = int(meta.get('schema_version', '0'))
+            try:
+                version = int(meta.get('schema_version', ''))
+            except ValueError:
+                raise DataError(f'the store {self._where()} has no readable schema version '
+                                f'({meta.get("schema_version")!r}): refused, left '
+                                'untouched') from None
             if version > SCHEMA_VERSION:
                 raise DataError(f'the store {self._where()} has schema version {version}, '
                                 f"newer than this program's {SCHEMA_VERSION}: refused, left "
                                 'untouched (update ros_ehs)')
             self._durable()
+            if version < SCHEMA_VERSION:
+                self._migrate(version)
             return
         self._durable()
         with self.engine.begin() as c:
@@ -177,6 +199,19 @@ class ResultStore:
             c.execute(self.meta.insert(), [{'key': 'program', 'value': PROGRAM},
                                            {'key': 'schema_version',
                                             'value': str(SCHEMA_VERSION)}])
+
+    def _migrate(self, version: int) -> None:
+        """Take the store from ``version`` to this code's, in one transaction."""
+        import sqlalchemy as sa
+        if version not in MIGRATIONS:
+            raise DataError(f'the store {self._where()} has schema version {version}, which '
+                            'no migration starts from: refused, left untouched')
+        with self.engine.begin() as c:
+            for v in range(version, SCHEMA_VERSION):
+                for stmt in MIGRATIONS[v]:
+                    c.execute(sa.text(stmt))
+            c.execute(self.meta.update().where(self.meta.c.key == 'schema_version')
+                      .values(value=str(SCHEMA_VERSION)))
 
     def _where(self) -> str:
         return repr(self.engine.url.render_as_string(hide_password=True))
@@ -199,6 +234,14 @@ class ResultStore:
             with self.engine.connect() as c:
                 return int(c.execute(find).scalar_one())
 
+    def names(self) -> dict[str, int]:
+        """Return the store's campaigns: each name and its id."""
+        import sqlalchemy as sa
+        with self.engine.connect() as c:
+            return {str(n): int(i) for i, n in c.execute(
+                sa.select(self.campaigns.c.id, self.campaigns.c.name)
+                .order_by(self.campaigns.c.id)).all()}
+
     def record(self, campaign_id: int, rec: SpecimenRecord) -> None:
         """Record a specimen's result, once (a second record of its id is refused)."""
         import sqlalchemy as sa
@@ -206,7 +249,7 @@ class ResultStore:
         row = asdict(rec)
         row['bags'] = json.dumps(list(rec.bags))
         row['params'] = json.dumps(rec.params, sort_keys=True)
-        for k in ('mean', 'amplitude', 'r_ratio', 'amplitude_spread'):
+        for k in _FLOATS:
             if not math.isfinite(row[k]):
                 row[k] = None
         try:
@@ -228,7 +271,7 @@ class ResultStore:
             d = {k: r[k] for k in SpecimenRecord.__dataclass_fields__}
             d['bags'] = tuple(json.loads(d['bags']))
             d['params'] = json.loads(d['params'])
-            for k in ('mean', 'amplitude', 'r_ratio', 'amplitude_spread'):
+            for k in _FLOATS:
                 d[k] = math.nan if d[k] is None else float(d[k])
             d['cycles'] = int(d['cycles'])
             out.append(SpecimenRecord(**d))
