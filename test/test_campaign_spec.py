@@ -70,7 +70,7 @@ def test_each_plan_gives_the_next_level_from_the_results_so_far():
     assert [pearl.next_level([(0, True)] * j) for j in range(4)] == [9000, 8000, 7000, None]
     adaptive = parse_campaign({**GOOD, 'plan': {'method': 'adaptive', 'low': 5e3,
                                                 'high': 9e3}})
-    with pytest.raises(InputError, match='adaptive plan .* not built yet'):
+    with pytest.raises(InputError, match='adaptive plan .* ask ros_ehs.core.campaign.runner'):
         adaptive.next_level([])
 
 

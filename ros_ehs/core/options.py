@@ -470,6 +470,29 @@ CLI_OPTIONS = {
                                'restarted test spans several)'),
                        Setting(*_OUT, 'out/fatigue', meaning='the report folder: cycles.csv, '
                                'captures.csv, events.csv and the plots')),
+    'campaign': (Setting('file', '', '', meaning='the campaign file (YAML, docs/campaigns.md)'),
+                 Setting('store', '', 'campaign.db', meaning='the results store: a SQLite file, '
+                         'or a database URL (postgresql+psycopg://user@host/db); a campaign '
+                         'already in it goes on from its records'),
+                 Setting(*_PRESET, meaning='the rig model: a parameter preset, under `params`'),
+                 Setting('params', '', '', meaning='parameters YAML over the preset: the rig '
+                         "identified, its gains, and the coupons' specimen model (specimen_*)"),
+                 Setting('set', '', [], meaning='values over those, NAME=VALUE each, e.g. '
+                         'k_L=1e7 specimen_scatter=0.15; repeat for more'),
+                 Setting('seed', '1', 1, 0, 2**31 - 1, "the virtual coupons' seed (each "
+                         "coupon's specimen_seed is drawn from it and its place)"),
+                 Setting('model', '', 'simplified', meaning='the plant model', choices=_MODELS),
+                 RATE_HZ,
+                 Setting('max_specimens', '1', 0, 0, 10**6, 'test at most this many specimens '
+                         'in this run (0: until the campaign ends)')),
+    'campaign-report': (Setting('store', '', 'campaign.db', meaning='the results store (a '
+                                'SQLite file or a database URL)'),
+                        Setting('campaign', '', '', meaning="the campaign's name (empty: the "
+                                "store's only one)"),
+                        Setting('confidence', '1', 0.9, 0.5, 0.999, "the fit's intervals"),
+                        Setting(*_OUT, 'out/campaign', meaning='the report folder: '
+                                'specimens.csv, specimens_pylife.csv, fit.json, sn.png, '
+                                'report.html')),
     'trend': (Setting('bag', '', '', meaning='the bag (directory, .mcap or .db3)'),
               Setting(*_OUT, '', meaning='PNG of each parameter against time, with its band'),
               Setting('sigmas', '', 3.0, 0.0, 100.0, 'band width in standard errors')),
@@ -477,4 +500,5 @@ CLI_OPTIONS = {
 
 #: the options of each ``ehs_sim`` command given without a flag, in order
 CLI_POSITIONAL = {'drive': ('target',), 'identify': ('bags',), 'trend': ('bag',),
-                  'procedure': ('file',), 'fatigue-report': ('bags',)}
+                  'procedure': ('file',), 'fatigue-report': ('bags',), 'campaign': ('file',),
+                  'campaign-report': ('store',)}

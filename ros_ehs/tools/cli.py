@@ -247,8 +247,9 @@ def _cmd_procedure(args) -> int:
         print(f'  the specimen fractured at cycle {r.fractured_at:g}')
     if args.out:
         import numpy as np
+        from ros_ehs.core.procedure.detectors import CYCLE_COLUMNS
         np.savetxt(args.out, r.cycles, delimiter=',', fmt='%.10g', comments='',
-                   header='count,end_s,cmd_hi,cmd_lo,z_hi,z_lo,load_hi,load_lo')
+                   header=','.join(CYCLE_COLUMNS))
         print(f'wrote {args.out}')
     return 0
 
@@ -259,6 +260,65 @@ def _cmd_fatigue_report(args) -> int:
     print(f'{rep.cycles} cycles' + (f'; {rep.reason}' if rep.reason else '; no end recorded'))
     for kind, what, n, message in rep.failures:
         print(f'  {kind} {what} at cycle {n}: {message}')
+    for f in rep.files:
+        print(f'wrote {f}')
+    return 0
+
+
+def _rig(args):
+    from ros_ehs.core.params import ALL_SPECS, load_yaml, preset
+    p = preset(args.preset)
+    if args.params:
+        p = load_yaml(args.params, p)
+    return p.replace(**dict(parse_assignment(a, ALL_SPECS) for a in args.set))
+
+
+def _cmd_campaign(args) -> int:
+    from ros_ehs.core.campaign.spec import load_campaign
+    from ros_ehs.data.campaign import campaign_hash, run_campaign, virtual_specimen
+    from ros_ehs.data.store import ResultStore
+    c = load_campaign(args.file)
+    p = _rig(args)
+    store = ResultStore(args.store)
+    print(f"campaign {c.name!r} ({c.plan['method']}, run-out {c.run_out:g} cycles) into "
+          f'{args.store}: virtual coupons on the {args.model} model, seed {args.seed}')
+
+    def test(nxt):
+        print(f'  {nxt.specimen} at {nxt.level:g} ...', end='', flush=True)
+        return virtual_specimen(c, nxt, p, seed=args.seed, model=args.model,
+                                rate_hz=args.rate_hz)
+
+    def progress(rec, verdict):
+        t = verdict.target
+        print(f' {rec.result}, {rec.cycles} cycles ({rec.duration_s / 3600:.3g} rig h)'
+              + (f'; target +-{t["width"]:.3g}' if t else '')
+              + (f': {rec.reason}' if rec.result == 'invalid' else ''), flush=True)
+    try:
+        out = run_campaign(c, store, test, file_hash=campaign_hash(args.file),
+                           max_specimens=args.max_specimens or None, progress=progress)
+    finally:
+        store.close()
+    v = out.verdict
+    print(f'{len(out.records)} specimens in the store ({out.tested} tested now): '
+          + (v.reason if v.done else 'not ended (--max-specimens); next '
+             f'{v.next_specimen.specimen} at {v.next_specimen.level:g}'))
+    if v.fit is not None:
+        print(f'  fit: log10 N = {v.fit.a:.4g} - {v.fit.k:.4g} log10 S, scatter '
+              f'{v.fit.s:.3g} decades; slope interval {v.fit.k_interval[0]:.4g} .. '
+              f'{v.fit.k_interval[1]:.4g}')
+    return 0
+
+
+def _cmd_campaign_report(args) -> int:
+    from ros_ehs.data.campaign_report import write_campaign_report
+    from ros_ehs.data.store import ResultStore
+    store = ResultStore(args.store)
+    try:
+        rep = write_campaign_report(store, args.out, args.campaign, args.confidence)
+    finally:
+        store.close()
+    print(f'{rep.campaign}: {rep.specimens} specimens ({rep.failed} failed, {rep.run_out} '
+          f'run out, {rep.invalid} invalid)')
     for f in rep.files:
         print(f'wrote {f}')
     return 0
@@ -369,6 +429,10 @@ COMMANDS = {
                   'detector would trip'),
     'fatigue-report': (_cmd_fatigue_report, "a fatigue test's cycle table, captured cycles "
                        'and events from its bags as CSV, and plots'),
+    'campaign': (_cmd_campaign, 'a fatigue campaign of virtual coupons, run in process into '
+                 'its results store (docs/campaigns.md): each specimen, the fit, why it ended'),
+    'campaign-report': (_cmd_campaign_report, "a campaign's report from its store: S-N plot, "
+                        "specimens as CSV (also in pyLife's layout), the fit, one HTML page"),
     'trend': (_cmd_trend, 'the live estimates of a long run over time, from its bag (topic '
               'parameter_estimates)'),
 }

@@ -228,6 +228,9 @@ def fit_basquin(data: SNData, confidence: float = 0.9) -> BasquinFit:
                          f'{np.count_nonzero(f)} failures at '
                          f'{len(np.unique(data.load[f]))} load(s)')
     e = fit_e739(data)
+    if not e.s > 0.0:
+        raise InputError(f'the S-N fit needs scatter: the {e.n} failures lie exactly on a '
+                         'line (their likelihood has no maximum)')
     s0 = max(e.s, 0.05)
     x_mid = float(np.mean(data.x))
     # centred at the mean log-load: a and k are nearly collinear otherwise (a ~ 25, k ~ 5

@@ -72,6 +72,9 @@ CAMPAIGN_KEYS: tuple[Setting, ...] = (
        'run-out (its life right-censored)'),
     _S('plan', '', {}, meaning='which levels, in what order: {method, ...}, the method one of '
        'levels, pearl_string, staircase and adaptive (their keys below)'),
+    _S('level_tolerance', '1', 0.02, 0.0, 0.5, 'a specimen whose achieved peak or valley '
+       'is further than this fraction of the specified range from the specified one is '
+       'invalid (its point would sit where it was not loaded)'),
     _S('target', '', {}, meaning='optional: what the campaign aims for, where it may stop: '
        '{kind: load_at_life, life, confidence, width} or {kind: life_at_load, load, '
        'confidence, width} (width: the half-width of the interval, a fraction)'),
@@ -106,9 +109,15 @@ class Campaign:
     plan: Mapping[str, Any]
     target: Mapping[str, Any] | None
     source: str
+    level_tolerance: float = 0.02
 
     def procedure(self, level: float, specimen: str = '') -> Procedure:
         """Return the procedure of one specimen at ``level`` (checked)."""
+        return parse_procedure(self.procedure_doc(level, specimen),
+                               f'{self.source} at level {level:g}')
+
+    def procedure_doc(self, level: float, specimen: str = '') -> dict:
+        """Return the procedure of one specimen at ``level`` as a procedure file's mapping."""
         doc = copy.deepcopy(dict(self.template))
         doc['name'] = f'{self.name}: {specimen or "specimen"} at {level:g}'
         doc['run_out'] = int(self.run_out)
@@ -120,7 +129,7 @@ class Campaign:
                     step['peak'], step['valley'] = float(level), float(self.level_value * level)
                 else:
                     step['mean'], step['amplitude'] = float(self.level_value), float(level)
-        return parse_procedure(doc, f'{self.source} at level {level:g}')
+        return doc
 
     def next_level(self, results: Sequence[tuple[float, bool]]) -> float | None:
         """
@@ -129,8 +138,8 @@ class Campaign:
         ``results``: each specimen so far, in order, as (level, failed). ``levels``: each
         level in turn, ``specimens`` at each; ``pearl_string``: one at each level from
         ``start`` down by ``step``; ``staircase``: ``start``, then a ``step`` down after a
-        failure and up after a run-out. An ``adaptive`` plan chooses from the fit (not built
-        yet: refused, named).
+        failure and up after a run-out. An ``adaptive`` plan chooses from the fit: refused
+        here, named (:func:`ros_ehs.core.campaign.runner.judge` chooses it).
         """
         p, n = self.plan, len(results)
         m = p['method']
@@ -148,8 +157,7 @@ class Campaign:
             nxt = level - p['step'] if failed else level + p['step']
             return float(nxt) if nxt > 0 else float(level)
         raise InputError(f'{self.source}: an adaptive plan chooses its next level from the '
-                         'fit so far, which is not built yet: use levels, pearl_string or '
-                         'staircase')
+                         'fit so far: ask ros_ehs.core.campaign.runner.judge')
 
     def planned_levels(self) -> list[float]:
         """Return every level the plan can give (a staircase's and an adaptive plan's range)."""
@@ -286,7 +294,10 @@ def parse_campaign(doc: Any, source: str = 'the campaign', base: Path | None = N
     run_out = _check(CAMPAIGN_KEYS[5], doc.get('run_out', CAMPAIGN_KEYS[5].default), source)
     plan = _plan(doc['plan'], f'{source}: `plan`')
     target = _target(doc.get('target'), f'{source}: `target`')
-    c = Campaign(name, template, level_step, kind, value, float(run_out), plan, target, source)
+    tol_key = next(s for s in CAMPAIGN_KEYS if s.name == 'level_tolerance')
+    tol = _check(tol_key, doc.get('level_tolerance', tol_key.default), source)
+    c = Campaign(name, template, level_step, kind, value, float(run_out), plan, target, source,
+                 float(tol))
     for level in c.planned_levels():           # every level the plan can give, as a procedure
         c.procedure(level)
     return c
