@@ -464,6 +464,10 @@ CLI_OPTIONS = {
                   Setting('observe', '', True, meaning='the failure detectors report when they '
                           'would trip and the test goes on (to the fracture, the run-out or its '
                           'end); --no-observe: the first to trip ends it, as on the rig'),
+                  Setting('exact', '', False, meaning='simulate every period of every cycle '
+                          '(default: a settled constant-amplitude step jumps the cycles that '
+                          'repeat, the specimen carrying them by its own law; '
+                          'docs/procedures.md)'),
                   Setting(*_OUT, '', meaning='write the cycle table (the last 10^5 cycles) as '
                           'CSV here (empty: not written)')),
     'fatigue-report': (Setting('bags', '', [], meaning="the test's bags, in order (a "
@@ -484,7 +488,9 @@ CLI_OPTIONS = {
                  Setting('model', '', 'simplified', meaning='the plant model', choices=_MODELS),
                  RATE_HZ,
                  Setting('max_specimens', '1', 0, 0, 10**6, 'test at most this many specimens '
-                         'in this run (0: until the campaign ends)')),
+                         'in this run (0: until the campaign ends)'),
+                 Setting('exact', '', False, meaning="simulate every period of every coupon's "
+                         'cycles (default: the settled cycles are jumped)')),
     'campaign-report': (Setting('store', '', 'campaign.db', meaning='the results store (a '
                                 'SQLite file or a database URL)'),
                         Setting('campaign', '', '', meaning="the campaign's name (empty: the "

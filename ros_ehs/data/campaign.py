@@ -70,13 +70,16 @@ def specimen_seed(seed: int, index: int) -> int:
 
 def virtual_specimen(campaign: Campaign, nxt: Next, params, *, seed: int = 1,
                      model: str = 'simplified', rate_hz: float = 1000.0,
-                     max_seconds: float | None = None) -> SpecimenRecord:
+                     max_seconds: float | None = None, exact: bool = False
+                     ) -> SpecimenRecord:
     """
     Test the next specimen as a virtual coupon: its procedure run on the model in process.
 
     ``params``: the rig's model with its specimen (``specimen_*``); the coupon's seed is
-    :func:`specimen_seed`. The failure detectors end the test as on the rig.
+    :func:`specimen_seed`. The failure detectors end the test as on the rig. The settled
+    cycles are jumped (:mod:`ros_ehs.core.sim.jumps`) unless ``exact``.
     """
+    from ros_ehs.core.sim.jumps import CycleJumps
     from ros_ehs.core.sim.virtual_test import run_procedure
     doc = campaign.procedure_doc(nxt.level, nxt.specimen)
     proc = campaign.procedure(nxt.level, nxt.specimen)
@@ -85,7 +88,7 @@ def virtual_specimen(campaign: Campaign, nxt: Next, params, *, seed: int = 1,
     freq = next(float(s['frequency']) for s in proc.steps if s.name == campaign.level_step)
     limit = max_seconds if max_seconds is not None else 2.0 * campaign.run_out / freq + 60.0
     r = run_procedure(proc, p, model=model, rate_hz=rate_hz, observe=False,
-                      max_seconds=limit)
+                      max_seconds=limit, jumps=None if exact else CycleJumps())
     step = next(s for s in proc.steps if s.name == campaign.level_step)
     ach = achieved_levels(r.cycles, step.control_mode)
     result, reason = specimen_result(campaign, nxt.level, r.result, r.reason, ach)
@@ -93,10 +96,11 @@ def virtual_specimen(campaign: Campaign, nxt: Next, params, *, seed: int = 1,
         specimen=nxt.specimen, level=nxt.level, result=result, cycles=int(r.total_cycles),
         reason=reason, mean=ach.mean, amplitude=ach.amplitude, r_ratio=ach.r_ratio,
         amplitude_spread=ach.amplitude_spread, peak=ach.peak, valley=ach.valley,
-        duration_s=float(r.sim_s), started=started, ended=_now(), bags=(),
+        duration_s=float(r.rig_s), started=started, ended=_now(), bags=(),
         procedure_hash=procedure_hash(doc),
         params={k: p[k] for k in p},
-        note=f'virtual coupon, specimen_seed {specimen_seed(seed, nxt.index)}, {model} model')
+        note=(f'virtual coupon, specimen_seed {specimen_seed(seed, nxt.index)}, {model} model, '
+              + ('every cycle simulated' if exact else f'{r.jumped} cycles jumped')))
 
 
 @dataclass(frozen=True)

@@ -230,14 +230,18 @@ def _cmd_procedure(args) -> int:
     def progress(sim_s: float, cycles: int, state: str) -> None:
         print(f'  ... {sim_s:.6g} s simulated, {cycles} cycles, {state}', file=sys.stderr,
               flush=True)
+    from ros_ehs.core.sim.jumps import CycleJumps
     r = run_procedure(proc, p, model=args.model, rate_hz=args.rate_hz,
-                      max_seconds=args.max_time, observe=args.observe, progress=progress)
+                      max_seconds=args.max_time, observe=args.observe, progress=progress,
+                      jumps=None if args.exact else CycleJumps())
     for who, kind, what, message in ((e[0], e[1], e[2], e[-1]) for e in r.events):
         if kind in ('step', 'step_end', 'failure', 'detector', 'run_out', 'trip', 'mode',
                     'interrupted', 'finished'):
             print(f'  {who:10s} {kind:11s} {message}')
+    jumped = (f' ({r.jumped} of them jumped: {r.rig_s:.6g} s on the rig, '
+              f'{r.rig_speed:.1f}x)') if r.jumped else ''
     print(f'result: {r.result} ({r.reason}); {r.total_cycles} cycles, {r.sim_s:.6g} s '
-          f'simulated in {r.wall_s:.3g} s ({r.speed:.1f}x real time)')
+          f'simulated in {r.wall_s:.3g} s ({r.speed:.1f}x real time){jumped}')
     for kind, n in sorted(r.tripped.items()):
         print(f'  {kind} would trip at cycle {n}')
     if proc.ends_on('fitted_stiffness_drop'):
@@ -286,7 +290,7 @@ def _cmd_campaign(args) -> int:
     def test(nxt):
         print(f'  {nxt.specimen} at {nxt.level:g} ...', end='', flush=True)
         return virtual_specimen(c, nxt, p, seed=args.seed, model=args.model,
-                                rate_hz=args.rate_hz)
+                                rate_hz=args.rate_hz, exact=args.exact)
 
     def progress(rec, verdict):
         t = verdict.target

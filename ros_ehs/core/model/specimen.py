@@ -69,6 +69,8 @@ __all__ = ['REVERSAL_FRACTION', 'Specimen']
 
 #: A reversal is a turn of the force by more than this fraction of ``specimen_life_range``.
 REVERSAL_FRACTION = 0.02
+#: the half cycles :meth:`Specimen.recent_range` is the range of
+RECENT = 10
 
 
 class Specimen:
@@ -109,6 +111,7 @@ class Specimen:
         self._last_rev = 0.0         # the force at the last reversal [N]
         self._ext = 0.0              # the running extreme since it [N]
         self._dir = 0                # +1 rising, -1 falling, 0 not yet moving
+        self._ranges: list[float] = []   # the last RECENT half cycles' ranges [N]
 
     @property
     def present(self) -> bool:
@@ -157,6 +160,9 @@ class Specimen:
             return False
         # a reversal at the extreme: the half cycle from the last one ends there
         rng = abs(self._ext - self._last_rev)
+        self._ranges.append(rng)
+        if len(self._ranges) > RECENT:
+            del self._ranges[0]
         at_peak = self._dir > 0
         self._last_rev, self._ext, self._dir = self._ext, force, -self._dir
         return self._grow(rng, at_peak)
@@ -177,6 +183,60 @@ class Specimen:
         if self.a >= 1.0 and at_peak:
             self.broken = True
         return True
+
+    def recent_range(self) -> float:
+        """
+        Return the constant range that grows the crack as the last half cycles did [N].
+
+        The power mean, with Paris' exponent, of the last :data:`RECENT` half cycles'
+        ranges (NaN before any).
+        """
+        if not self._ranges:
+            return math.nan
+        m = self.m
+        return (sum(r ** m for r in self._ranges) / len(self._ranges)) ** (1.0 / m)
+
+    def grown(self, n: float, force_range: float) -> float:
+        """Return the crack that ``n`` more whole cycles at ``force_range`` [N] leave (1: broken)."""
+        if self.broken:
+            return 1.0
+        if self.limit > 0.0 and force_range <= self.limit * math.sqrt(self.a0 / self.a):
+            return self.a              # below the threshold: no growth
+        g = self.A * n * (force_range / self.range_ref) ** self.m
+        h = self.m / 2.0
+        if abs(h - 1.0) < 1e-12:
+            return min(1.0, self.a * math.exp(g))
+        w = self.a ** (1.0 - h) - (h - 1.0) * g
+        return min(1.0, w ** (1.0 / (1.0 - h))) if w > 0.0 else 1.0
+
+    def advance(self, n: int, force_range: float) -> None:
+        """
+        Carry ``n`` whole cycles at ``force_range`` [N] at once (a virtual test's jump).
+
+        The crack grows as the half cycles would grow it one by one (the law integrated over
+        them: exact at a constant range); a jump never fractures it (the caller sizes it so:
+        a crack that would reach 1 is refused).
+        """
+        if n < 0 or not math.isfinite(force_range):
+            raise InputError(f'a jump of {n!r} cycles at {force_range!r} N')
+        a = self.grown(n, force_range)
+        if a >= 1.0:
+            raise InputError(f'a jump of {n} cycles at {force_range:.6g} N would fracture '
+                             'the specimen: the fracture is simulated')
+        self.a = a
+        self.half_cycles += 2 * int(n)
+
+    def cycles_left(self, force_range: float) -> float:
+        """Return the whole cycles from the crack now to fracture at ``force_range`` [N]."""
+        if self.broken:
+            return 0.0
+        if self.limit > 0.0 and force_range <= self.limit * math.sqrt(self.a0 / self.a):
+            return math.inf
+        r = (force_range / self.range_ref) ** self.m
+        h = self.m / 2.0
+        if abs(h - 1.0) < 1e-12:
+            return math.log(1.0 / self.a) / (self.A * r)
+        return (self.a ** (1.0 - h) - 1.0) / ((h - 1.0) * self.A * r)
 
     def cycles_to(self, a: float, force_range: float | None = None) -> float:
         """

@@ -53,11 +53,14 @@ from typing import Any, Mapping
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.procedure.spec import DETECTORS
 
-__all__ = ['CYCLE_COLUMNS', 'Cycle', 'FailureDetector', 'TAPERED']
+__all__ = ['CYCLE_COLUMNS', 'Cycle', 'EXTRAPOLATED', 'FailureDetector', 'TAPERED']
 
 #: A cycle's flag: its amplitude was still tapering in (a start or a resume); it counts, and
 #: neither the compensation nor the failure detectors learn from it.
 TAPERED = 1
+#: A cycle-table flag: the cycle was jumped by a virtual test (ros_ehs.core.sim.jumps), not
+#: simulated; its record repeats the last simulated cycle's extremes.
+EXTRAPOLATED = 2
 
 
 #: a cycle table's columns, one row a cycle (the bag's records read back, a virtual test's

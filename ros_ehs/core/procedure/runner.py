@@ -86,6 +86,10 @@ from ros_ehs_msgs_py import Reference
 __all__ = ['ACTING', 'CHECKPOINT_PERIOD', 'ProcedureRunner', 'STATES', 'capture_counts']
 
 STATES = ('idle', 'running', 'switching', 'held', 'interrupted', 'stopping', 'finished')
+#: the cycles before a step's end (and a run-out) that a jump never credits: they are simulated
+JUMP_MARGIN = 3
+#: the room of a jump in a step with no end
+JUMP_UNBOUNDED = 10 ** 15
 #: a controller trip with one of these actions interrupts the test
 ACTING = ('hold', 'stop', 'power_off')
 #: the checkpoint is due at every state change, every counted cycle, and at least this often
@@ -321,6 +325,7 @@ class ProcedureRunner:
         self._null_s: dict[int, float] = {}     # ... and their time [s]
         self._null_run = 0                      # cycles in a row not counted
         self._level_run = 0                     # cycles in a row off their levels
+        self.jumped = 0                          #: cycles credited by jumps (a virtual test)
         self._detectors: dict[int, list[FailureDetector]] = {}
         self._det_state: dict[int, list[dict]] = {}
         self._last_ns = -1
@@ -993,6 +998,54 @@ class ProcedureRunner:
 
     def _note_event(self, kind: str, what: str, value: float, message: str) -> None:
         self.events.append((kind, what, value, message))
+
+    # -- cycle jumping (a virtual test) -------------------------------------------------------
+    def jump_room(self) -> int:
+        """
+        Return how many cycles may be credited now without simulating them (0: none).
+
+        Only while the test runs a one-level cyclic step's counted cycles past its taper (a
+        block program, a sweep or a drive is simulated whole), and never into the step's last
+        :data:`JUMP_MARGIN` cycles (its end and a run-out are simulated). Unbounded steps give
+        :data:`JUMP_UNBOUNDED`.
+        """
+        if self.state != 'running' or len(self._waves) != 1:
+            return 0
+        seg = self._waves[0]
+        step = self.steps[seg.step]
+        if seg.step != self.step_index or step.type != 'cyclic' or len(step['blocks']) != 1:
+            return 0
+        cyc = seg.cyc
+        if cyc is None or cyc['taper'] or not cyc['begun_here']:
+            return 0
+        if seg.n_end is None:
+            return JUMP_UNBOUNDED
+        return max(0, seg.n_end - cyc['k'] - 1 - JUMP_MARGIN)
+
+    def step_detectors(self) -> list:
+        """Return the running step's failure detectors."""
+        return list(self._detectors.get(self.step_index, []))
+
+    def jump(self, n: int) -> None:
+        """
+        Credit ``n`` cycles of the running step as carried without simulating them.
+
+        A virtual test's cycle jumping: the counts advance by ``n`` and the step's end comes
+        ``n`` cycles sooner (the inverse of a cycle null pacing does not count); the caller
+        has advanced the specimen. At most :meth:`jump_room`.
+        """
+        room = self.jump_room()
+        if not 0 < n <= room:
+            raise InputError(f'a jump of {n!r} cycles: {room} may be jumped now')
+        seg = self._waves[0]
+        self.counts[seg.step] += n
+        self.total += n
+        self.jumped += n
+        if seg.n_end is not None:
+            seg.n_end -= n
+            seg.nulls -= n
+            seg.end -= int(round(n * seg.wave.period * 1e9))
+        self.checkpoint_due = True
 
     def time_to_go(self) -> float:
         """Return the seconds the steps still planned take, NaN where a condition decides."""

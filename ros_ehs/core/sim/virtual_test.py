@@ -39,11 +39,12 @@ from ros_ehs.core.errors import DataError, InputError
 from ros_ehs.core.identify.live import LiveIdentifier, SampleWindow
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.params import Params
-from ros_ehs.core.procedure.detectors import CYCLE_COLUMNS
+from ros_ehs.core.procedure.detectors import CYCLE_COLUMNS, EXTRAPOLATED
 from ros_ehs.core.procedure.envelope import require_envelope
 from ros_ehs.core.procedure.runner import ProcedureRunner
 from ros_ehs.core.procedure.spec import Procedure
 from ros_ehs.core.sim.axis import SimulatedAxis
+from ros_ehs.core.sim.jumps import CycleJumps, Jumper
 
 __all__ = ['LiveFits', 'OPERATOR', 'VirtualTest', 'model_trip_cycle', 'run_procedure']
 
@@ -70,11 +71,18 @@ class VirtualTest:
     checkpoint_s: float = 0.0          #: the time the checkpoints took in all [s]
     #: live refits (``live``): (stamp [ns], the ParameterEstimate or None, its verdict or error)
     estimates: list = field(default_factory=list)
+    jumped: int = 0                    #: cycles credited by jumps, not simulated
+    rig_s: float = math.nan            #: the test's time on the rig: simulated plus jumped [s]
 
     @property
     def speed(self) -> float:
         """Return simulated time over wall time."""
         return self.sim_s / self.wall_s if self.wall_s > 0 else math.inf
+
+    @property
+    def rig_speed(self) -> float:
+        """Return the rig's time (jumps included) over wall time."""
+        return self.rig_s / self.wall_s if self.wall_s > 0 else math.inf
 
 
 @dataclass(frozen=True)
@@ -101,7 +109,8 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                   probe: Callable[[SimulatedAxis, ProcedureRunner, Any, Any], None] | None
                   = None,
                   progress: Callable[[float, int, str], None] | None = None,
-                  progress_every: float = 10.0) -> VirtualTest:
+                  progress_every: float = 10.0, jumps: CycleJumps | None = None
+                  ) -> VirtualTest:
     """
     Run ``procedure`` on the model of ``params`` (its specimen too) until it finishes.
 
@@ -125,7 +134,10 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
     ``check``: refuse a procedure the rig of ``params`` cannot follow (InputError naming each
     step and limit, :func:`~ros_ehs.core.procedure.envelope.require_envelope`);
     ``progress(sim_s, cycles, state)``: called at most every ``progress_every`` seconds of
-    wall time (judged every ``PROGRESS_PERIODS`` periods), for a long run's progress.
+    wall time (judged every ``PROGRESS_PERIODS`` periods), for a long run's progress;
+    ``jumps``: jump the cycles of a settled constant-amplitude step
+    (:mod:`ros_ehs.core.sim.jumps`; None: every period simulated, the exact run). With jumps
+    the cycle table's ends and ``rig_s`` are the rig's time (simulated plus jumped).
     """
     if not isinstance(procedure, Procedure):
         raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
@@ -154,6 +166,8 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                              ramp_time=ramp)
     table = np.full((keep_cycles, len(CYCLE_COLUMNS)), np.nan)
     n_kept = 0
+    jumper = Jumper(jumps) if jumps is not None else None
+    jumped_s = 0.0                     # the time the jumps stood for [s]
     events: list = []
     fractured = None
     checkpoints, cp_s = 0, 0.0
@@ -187,6 +201,8 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             if kind == 'restart':
                 runner = ProcedureRunner(procedure, latency=latency, rate_hz=rate_hz,
                                          observe=observe, ramp_time=ramp)
+                if jumper is not None:
+                    jumper = Jumper(jumps)
                 reference, measure = runner.sample, runner.measure
                 if last_cp is not None:
                     runner.restore(last_cp)
@@ -214,7 +230,23 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
         if runner.cycles:
             for c in runner.cycles:
                 table[n_kept % keep_cycles] = c.row()
+                table[n_kept % keep_cycles, 2] += jumped_s
                 n_kept += 1
+            if jumper is not None:
+                jumper.saw(runner.cycles)
+                last = runner.cycles[-1]
+                runner.cycles.clear()
+                step = procedure.steps[runner.step_index]
+                jn = jumper.size(runner, axis.specimen, step.control_mode)
+                if jn:
+                    period = 1.0 / float(step['frequency'])
+                    if axis.specimen.present:
+                        axis.specimen.advance(jn, jumper.force_range)
+                        axis.plant.set_load(axis.specimen.stiffness, axis.specimen.damping)
+                    runner.jump(jn)
+                    jumper.jumped(jn)
+                    n_kept = _jumped_rows(table, n_kept, last, jn, period, jumped_s)
+                    jumped_s += jn * period
             runner.cycles.clear()
         if runner.captures:
             runner.captures.clear()
@@ -256,7 +288,8 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                        e[1] == runner.state), '')
     return VirtualTest(runner.result or runner.state, reason, runner.total,
                        (k + 1) / rate_hz, wall, dict(runner.tripped), fractured, events, table,
-                       checkpoints, cp_s, estimates)
+                       checkpoints, cp_s, estimates, runner.jumped,
+                       (k + 1) / rate_hz + jumped_s)
 
 
 def _live_step(live: LiveFits, window: SampleWindow, every: int, full: float, k: int, s,
@@ -279,6 +312,21 @@ def _live_step(live: LiveFits, window: SampleWindow, every: int, full: float, k:
     if 'k_L' in est.values:
         runner.estimate(st.stamp_ns, est.values['k_L'], est.stderr.get('k_L', math.nan),
                         est.adequate)
+
+
+def _jumped_rows(table: np.ndarray, n_kept: int, last, n: int, period: float,
+                 jumped_s: float) -> int:
+    """Write ``n`` jumped cycles after ``last`` into the ring ``table``; return the rows kept."""
+    keep = table.shape[0]
+    first = max(0, n - keep)                  # older ones would be overwritten at once
+    j = np.arange(first + 1, n + 1)
+    rows = np.tile(np.array(last.row(), dtype=float), (j.size, 1))
+    rows[:, 0] = last.count + j
+    rows[:, 2] += jumped_s + j * period
+    rows[:, 9] = EXTRAPOLATED
+    at = (n_kept + first + np.arange(j.size)) % keep
+    table[at] = rows
+    return n_kept + n
 
 
 def model_trip_cycle(specimen: Specimen, kind: str, values: dict, peak: float, valley: float,

@@ -1,0 +1,202 @@
+# Copyright 2026 ros_ehs contributors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Cycle jumping: a long virtual test simulates the cycles that tell something, and jumps the rest.
+
+Most of a long constant-amplitude step repeats one settled cycle while the specimen's crack
+creeps. A virtual test with :class:`CycleJumps` simulates every period until the step has
+run ``settle`` cycles and its last ``between`` cycles' controlled levels agree within
+``levels`` of their range (the loop and its compensation have settled); then it **jumps**:
+the specimen carries ``n`` cycles at once at the range its last half cycles carried (their
+power mean with Paris' exponent: the range that grows the crack as they did; its own law
+integrated over the jump, :meth:`~ros_ehs.core.model.specimen.Specimen.advance`), the
+counts advance by ``n`` (:meth:`~ros_ehs.core.procedure.runner.ProcedureRunner.jump`), and
+``between`` cycles are simulated again before the next jump. The jump ``n`` is the largest
+that keeps, by the specimen's law:
+
+* its stiffness within ``stiffness`` (a fraction) of the stiffness now, and its crack within
+  ``crack`` of the crack now (what every cycle-watched quantity follows);
+* half the cycles to the fracture, and half the cycles to each failure detector's predicted
+  trip (``stiffness_drop`` and ``peak_valley_change``: their value now carried along the
+  stiffness the law predicts): the jumps shorten as a trip nears, and the trip itself, and
+  the fracture, happen in simulated cycles;
+* the step's end and the run-out ``JUMP_MARGIN`` cycles away (simulated).
+
+No jump is made shorter than ``min_jump``, before every failure detector has its reference,
+or in a block program, a sweep or a drive (simulated whole). The jumped cycles are in the
+cycle table with the levels of the last simulated cycle and the flag :data:`EXTRAPOLATED`;
+their time is the rig's (each table row's end is the simulated time plus the time jumped
+before it).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+import math
+
+from ros_ehs.core.errors import InputError
+from ros_ehs.core.procedure.detectors import Cycle, EXTRAPOLATED, TAPERED
+
+__all__ = ['CycleJumps', 'EXTRAPOLATED', 'Jumper']
+
+
+@dataclass(frozen=True)
+class CycleJumps:
+    """When a virtual test jumps, and how far (module docstring)."""
+
+    stiffness: float = 0.002
+    crack: float = 0.05
+    settle: int = 20
+    between: int = 5
+    levels: float = 0.002
+    min_jump: int = 10
+
+    def __post_init__(self) -> None:
+        for name, lo, hi in (('stiffness', 0.0, 0.5), ('crack', 0.0, 10.0),
+                             ('levels', 0.0, 1.0)):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and lo < v <= hi):
+                raise InputError(f'CycleJumps `{name}` = {v!r} must be in ({lo:g}, {hi:g}]')
+        for name in ('settle', 'between', 'min_jump'):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 1):
+                raise InputError(f'CycleJumps `{name}` = {v!r} must be a whole number >= 1')
+
+
+def _first(pred, hi: int) -> float:
+    """Return the smallest n in [1, hi] with pred(n) (monotone), or inf when none."""
+    if hi < 1 or not pred(hi):
+        return math.inf
+    lo = 0                                     # pred(lo) False, pred(hi) True
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if pred(mid):
+            hi = mid
+        else:
+            lo = mid
+    return float(hi)
+
+
+class Jumper:
+    """One virtual test's jumps: it watches the cycles and sizes each jump."""
+
+    def __init__(self, policy: CycleJumps) -> None:
+        self.policy = policy
+        self.recent: deque[Cycle] = deque(maxlen=policy.between)
+        self.step = -1
+        self.in_step = 0                 # cycles simulated in the step
+        self.since = 0                   # cycles simulated since the last jump
+        self.jumps = 0
+        self.force_range = math.nan      # the range the last jump was carried at [N]
+
+    def saw(self, cycles) -> None:
+        """Take the cycles the runner closed this period."""
+        for c in cycles:
+            if c.step != self.step:
+                self.step, self.in_step, self.since = c.step, 0, 0
+                self.recent.clear()
+            self.recent.append(c)
+            self.in_step += 1
+            self.since += 1
+
+    def jumped(self, n: int) -> None:
+        """Note a jump of ``n`` cycles made: ``between`` cycles are simulated before the next."""
+        self.jumps += 1
+        self.since = 0
+        self.recent.clear()
+
+    def size(self, runner, specimen, mode: str) -> int:
+        """Return the jump to make now (0: none); ``mode``: the step's control mode."""
+        p = self.policy
+        if self.in_step < p.settle or self.since < p.between or \
+                len(self.recent) < p.between:
+            return 0
+        room = runner.jump_room()
+        if room < p.min_jump:
+            return 0
+        cs = list(self.recent)
+        if any(c.flags & TAPERED or not c.finite() for c in cs):
+            return 0
+        hi = [c.f_hi if mode == 'force' else c.z_hi for c in cs]
+        lo = [c.f_lo if mode == 'force' else c.z_lo for c in cs]
+        span = max(hi) - min(lo)
+        if not span > 0 or max(max(hi) - min(hi), max(lo) - min(lo)) > p.levels * span:
+            return 0
+        dets = runner.step_detectors()
+        if any(d.kind != 'fitted_stiffness_drop' and d.kind != 'underpeak' and
+               d.reference is None for d in dets):
+            return 0
+        n = min(room, 10 ** 12)
+        if specimen is not None and specimen.present:
+            rng = specimen.recent_range()
+            if not math.isfinite(rng):
+                return 0
+            n = min(n, self._specimen_room(specimen, rng, cs[-1], dets, mode, n))
+            self.force_range = rng
+        n = int(n)
+        return n if n >= p.min_jump else 0
+
+    def _specimen_room(self, sp, rng: float, last: Cycle, dets, mode: str, cap: int) -> float:
+        p = self.policy
+        left = sp.cycles_left(rng)
+        if math.isinf(left):
+            return cap                         # below its fatigue limit: nothing changes
+        hi = int(min(cap, max(1.0, 0.5 * left)))
+        k_now = sp.stiffness
+        a_now = sp.a
+
+        def stiff(n):
+            a = sp.grown(n, rng)
+            return sp.k0 / (1.0 + sp.lam * a * a)
+        room = float(hi)
+        room = min(room, _first(lambda n: sp.grown(n, rng) > a_now * (1.0 + p.crack), hi) - 1)
+        room = min(room, _first(lambda n: stiff(n) < k_now * (1.0 - p.stiffness), hi) - 1)
+        for d in dets:
+            trip = self._trip(d, last, mode, sp, stiff, k_now)
+            if trip is not None:
+                room = min(room, 0.5 * (_first(lambda n: trip(n), hi) - 1))
+        return room
+
+    @staticmethod
+    def _trip(d, last: Cycle, mode: str, sp, stiff, k_now):
+        """Return n -> whether detector ``d`` would have tripped after n more cycles."""
+        v, ref = d.values, d.reference
+        if ref is None or d.tripped_at is not None:     # tripped (observed): judged no more
+            return None
+        if d.kind == 'stiffness_drop' and math.isfinite(d.last_value):
+            now = 1.0 - d.last_value
+            return lambda n: now * stiff(n) / k_now < 1.0 - v['drop']
+        if d.kind == 'peak_valley_change':
+            rng = ref['hi'] - ref['lo']
+            if not rng > 0:
+                return None
+            if mode == 'force':        # the position: the load over the stiffness
+                hi0, lo0, base = last.z_hi, last.z_lo, sp.z0
+
+                def moved(n):
+                    r = k_now / stiff(n)
+                    return (base + (hi0 - base) * r, base + (lo0 - base) * r)
+            else:                      # the load: the position times the stiffness
+                hi0, lo0 = last.f_hi, last.f_lo
+
+                def moved(n):
+                    r = stiff(n) / k_now
+                    return (hi0 * r, lo0 * r)
+
+            def trip(n):
+                h, lo = moved(n)
+                return max(abs(h - ref['hi']), abs(lo - ref['lo'])) / rng > v['tolerance']
+            return trip
+        return None
