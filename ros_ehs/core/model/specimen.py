@@ -197,7 +197,7 @@ class Specimen:
         return (sum(r ** m for r in self._ranges) / len(self._ranges)) ** (1.0 / m)
 
     def grown(self, n: float, force_range: float) -> float:
-        """Return the crack that ``n`` more whole cycles at ``force_range`` [N] leave (1: broken)."""
+        """Return the crack that ``n`` more cycles at ``force_range`` [N] leave (1: fracture)."""
         if self.broken:
             return 1.0
         if self.limit > 0.0 and force_range <= self.limit * math.sqrt(self.a0 / self.a):
