@@ -189,3 +189,13 @@ def test_the_expected_information_and_tested_life_match_monte_carlo(x, c):
     assert np.allclose(ours, mc, rtol=0.03, atol=0.03 * np.abs(mc).max())
     tested = float(np.mean(10.0 ** np.minimum(y, c)))
     assert _tested_life(x, a, k, s, c) == pytest.approx(tested, rel=0.01)
+
+
+def test_a_target_waits_for_its_min_specimens():
+    c = parse_campaign({**GOOD, 'target': {'kind': 'life_at_load', 'load': 8000,
+                                           'confidence': 0.6, 'width': 0.9}})
+    five = _draw([9000, 8000, 7000, 9000, 8000], seed=1)
+    v = judge(c, five)
+    assert v.target['width'] <= 0.9 and not v.target['met'] and not v.done
+    v = judge(c, five + _draw([7000], seed=2))
+    assert v.target['met'] and v.done and v.reason.startswith('target met')

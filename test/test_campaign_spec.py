@@ -35,7 +35,7 @@ def test_a_campaign_renders_each_level_into_its_procedure():
     assert (step['peak'], step['valley']) == (8000.0, 800.0) and p.run_out == 10 ** 7
     assert 'C-07' in p.name and c.planned_levels() == [9000.0, 8000.0, 7000.0]
     assert c.target == {'kind': 'load_at_life', 'life': 1e6, 'confidence': 0.9,
-                        'width': 0.05}
+                        'width': 0.05, 'min_specimens': 6}
     amp = parse_campaign({**GOOD, 'level': {'kind': 'amplitude', 'mean': 5500.0}})
     assert amp.procedure(3000.0).steps[1]['blocks'] == ((8500.0, 2500.0, 1),)
 
@@ -98,6 +98,8 @@ def test_a_procedure_file_is_found_beside_the_campaign(tmp_path):
     ({'plan': {'method': 'pearl_string', 'start': 2000, 'step': 500, 'specimens': 6}},
      'reach zero'),
     ({'plan': {'method': 'adaptive', 'low': 9000, 'high': 5000}}, '`low` = 9000'),
+    ({'target': {'kind': 'load_at_life', 'life': 1e6, 'confidence': 0.9, 'width': 0.05,
+                 'min_specimens': 2}}, '`min_specimens` = 2 must be a whole number from 3'),
     ({'target': {'kind': 'load_at_life', 'life': 1e6, 'confidence': 1.5, 'width': 0.05}},
      '`confidence` = 1.5'),
     # a level the rendered procedure refuses, named with the procedure's step and key

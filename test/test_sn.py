@@ -106,14 +106,13 @@ def test_e739_is_pylifes_elementary_slope_and_its_band_holds_the_line():
     assert e.linearity_f is not None and 0.0 <= e.linearity_p <= 1.0
 
 
-def test_the_profile_intervals_hold_the_estimates_and_meet_the_chi_square_quantile():
-    from scipy.stats import chi2
+def test_the_profile_intervals_hold_the_estimates_and_meet_their_quantile():
     from ros_ehs.core.campaign import sn
     d = _drawn(5, run_out=10 ** 6.4)
     fit = fit_basquin(d, confidence=0.9)
     lo, hi = fit.k_interval
     assert lo < fit.k < hi
-    crit = 0.5 * chi2.ppf(0.9, 1)
+    crit = sn.crit(0.9, fit.failures)
     x_mid = float(np.mean(d.x))
     for kk in (lo, hi):      # the profile at an end is the quantile above the maximum
         nll = sn._profile(d, lambda q: (q[0] + kk * x_mid, kk, q[1]),
@@ -128,6 +127,29 @@ def test_the_profile_intervals_hold_the_estimates_and_meet_the_chi_square_quanti
     assert n10 < n50 < n90 and math.log10(n90 / n10) == pytest.approx(
         2 * 1.2815516 * fit.s, rel=1e-6)
     assert fit.load_at(fit.life(6000.0)) == pytest.approx(6000.0)
+
+
+def test_without_run_outs_the_intervals_are_the_exact_t_intervals_of_least_squares():
+    # the median life at a load and the slope, by OLS and Student's t (scipy), not our code
+    from scipy.stats import t as student
+    from ros_ehs.core.campaign.sn import crit
+    d = _drawn(2)
+    fit = fit_basquin(d, confidence=0.9)
+    x, y = d.x, d.y
+    n = x.size
+    b, a = np.polyfit(x, y, 1)
+    res = y - (a + b * x)
+    s = math.sqrt(np.sum(res ** 2) / (n - 2))
+    sxx = np.sum((x - x.mean()) ** 2)
+    q = student.ppf(0.95, n - 2)
+    x0 = math.log10(5000.0)
+    half = q * s * math.sqrt(1.0 / n + (x0 - x.mean()) ** 2 / sxx)
+    lo, hi = (math.log10(v) for v in fit.life_interval(5000.0))
+    assert (lo, hi) == pytest.approx((a + b * x0 - half, a + b * x0 + half), abs=1e-6)
+    k_lo, k_hi = fit.k_interval
+    half_k = q * s / math.sqrt(sxx)
+    assert (k_lo, k_hi) == pytest.approx((-b - half_k, -b + half_k), abs=1e-6)
+    assert crit(0.9, 10 ** 7) == pytest.approx(0.5 * 2.705543, rel=1e-5)   # chi-square's
 
 
 def test_dixon_mood_on_a_worked_staircase():

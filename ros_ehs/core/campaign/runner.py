@@ -21,12 +21,14 @@ verdict comes out as data (:class:`Verdict`). The same rules run a campaign in p
 
 **The rules** (:func:`judge`), in this order:
 
-1. The fit. After every specimen the S-N curve is refitted
+1. The fit. After every specimen the S-N curve is refitted (its slope's interval once the
+   campaign has ended)
    (:func:`~ros_ehs.core.campaign.sn.fit_basquin`, run-outs censored) once three failures
-   at two levels at least allow it; the invalid specimens are left out.
+   at two levels at least allow it and its slope is positive; the invalid specimens are
+   left out.
 2. The target. A campaign with a ``target`` ends when the target's interval, at its
-   confidence, is within its ``width`` (the interval's half-width over the estimate):
-   ``target met``.
+   confidence, is within its ``width`` (the interval's half-width over the estimate) and at
+   least its ``min_specimens`` valid specimens are in: ``target met``.
 3. Invalid specimens are replaced (the plan counts the valid ones); :data:`INVALID_IN_A_ROW`
    invalid in a row end the campaign (``invalid``: the rig or the procedure needs attention,
    not another coupon).
@@ -60,7 +62,7 @@ import math
 from typing import Any, Sequence
 
 import numpy as np
-from ros_ehs.core.campaign.sn import BasquinFit, fit_basquin, SNData
+from ros_ehs.core.campaign.sn import BasquinFit, fit_basquin, SNData, with_slope_interval
 from ros_ehs.core.campaign.spec import Campaign
 from ros_ehs.core.errors import InputError
 
@@ -182,24 +184,41 @@ def _fit(data: SNData | None, confidence: float) -> BasquinFit | None:
             len(np.unique(data.load[data.failed])) < 2:
         return None
     try:
-        return fit_basquin(data, confidence)
+        fit = fit_basquin(data, confidence, slope_interval=False)
     except InputError:
         return None
+    # lives longer at the higher loads (a few scattered failures): no curve to judge by yet
+    return fit if fit.k > 0 else None
+
+
+def _sloped(fit: BasquinFit | None) -> BasquinFit | None:
+    """Return the fit with its slope interval (an ended campaign's), or None."""
+    if fit is None:
+        return None
+    try:
+        return with_slope_interval(fit)
+    except (OverflowError, ValueError, FloatingPointError):
+        return fit                  # an interval beyond numbers: left NaN
 
 
 def _target(campaign: Campaign, fit: BasquinFit | None) -> dict | None:
     t = campaign.target
     if t is None or fit is None:
         return None
-    if t['kind'] == 'load_at_life':
-        est = float(fit.load_at(t['life']))
-        lo, hi = fit.load_interval(t['life'])
-    else:
-        est = float(fit.life(t['load']))
-        lo, hi = fit.life_interval(t['load'])
+    try:
+        if t['kind'] == 'load_at_life':
+            est = float(fit.load_at(t['life']))
+            lo, hi = fit.load_interval(t['life'])
+        else:
+            est = float(fit.life(t['load']))
+            lo, hi = fit.life_interval(t['load'])
+    except (OverflowError, ValueError, FloatingPointError):
+        return None                 # an interval beyond numbers: nothing to judge yet
     width = 0.5 * (hi - lo) / est
+    enough = fit.failures + fit.run_outs >= t.get('min_specimens', 0)
     return {'kind': t['kind'], 'estimate': est, 'interval': (float(lo), float(hi)),
-            'confidence': t['confidence'], 'width': width, 'met': bool(width <= t['width'])}
+            'confidence': t['confidence'], 'width': width,
+            'met': bool(width <= t['width'] and enough)}
 
 
 def judge(campaign: Campaign, results: Sequence[Any], prefix: str = 'S') -> Verdict:
@@ -215,6 +234,7 @@ def judge(campaign: Campaign, results: Sequence[Any], prefix: str = 'S') -> Verd
     fit = _fit(_data(results), conf)
     target = _target(campaign, fit)
     if target is not None and target['met']:
+        fit = _sloped(fit)
         return Verdict(True, f"target met: {target['kind']} {target['estimate']:.6g}, its "
                        f"{conf * 100:g} % interval {target['interval'][0]:.6g}.."
                        f"{target['interval'][1]:.6g} within +-{campaign.target['width']:g}",
@@ -225,6 +245,7 @@ def judge(campaign: Campaign, results: Sequence[Any], prefix: str = 'S') -> Verd
             break
         run += 1
     if run >= INVALID_IN_A_ROW:
+        fit = _sloped(fit)
         return Verdict(True, f'invalid: {run} specimens in a row invalid (the last: '
                        f'{results[-1].reason}): the rig or the procedure needs attention',
                        None, fit, target, counts)
@@ -235,6 +256,7 @@ def judge(campaign: Campaign, results: Sequence[Any], prefix: str = 'S') -> Verd
     else:
         level = campaign.next_level([(r.level, r.result == 'failed') for r in valid])
     if level is None:
+        fit = _sloped(fit)
         return Verdict(True, f'plan done: {len(valid)} valid specimens'
                        + (f" (target not met: +-{target['width']:.3g})" if target else ''),
                        None, fit, target, counts)

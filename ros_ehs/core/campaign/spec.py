@@ -56,6 +56,9 @@ LEVEL_KINDS = ('max_load', 'amplitude')
 PLANS = ('levels', 'pearl_string', 'staircase', 'adaptive')
 #: a target: the load whose median life is `life`, or the median life at `load`
 TARGETS = ('load_at_life', 'life_at_load')
+#: the valid specimens before a target may end a campaign (ASTM E739's least for exploratory
+#: data): a handful of lucky specimens can make an interval look narrow
+MIN_SPECIMENS = 6
 _BIG = 1.0e9
 _S = Setting
 
@@ -77,7 +80,8 @@ CAMPAIGN_KEYS: tuple[Setting, ...] = (
        'invalid (its point would sit where it was not loaded)'),
     _S('target', '', {}, meaning='optional: what the campaign aims for, where it may stop: '
        '{kind: load_at_life, life, confidence, width} or {kind: life_at_load, load, '
-       'confidence, width} (width: the half-width of the interval, a fraction)'),
+       'confidence, width} (width: the half-width of the interval, a fraction), and '
+       'min_specimens (default 6): the valid specimens before it may end the campaign'),
 )
 #: each plan's keys
 PLAN_KEYS: dict[str, tuple[Setting, ...]] = {
@@ -230,10 +234,17 @@ def _target(doc: Any, where: str) -> dict | None:
     if kind not in TARGETS:
         raise InputError(f'{where}: `kind` = {kind!r} must be one of {list(TARGETS)}')
     at = 'life' if kind == 'load_at_life' else 'load'
-    _unknown(doc, ['kind', at, 'confidence', 'width'], where)
-    return {'kind': kind, at: _number(doc, at, where),
-            'confidence': _number(doc, 'confidence', where, 0.5, 1.0),
-            'width': _number(doc, 'width', where, 0.0, 1.0)}
+    _unknown(doc, ['kind', at, 'confidence', 'width', 'min_specimens'], where)
+    out = {'kind': kind, at: _number(doc, at, where),
+           'confidence': _number(doc, 'confidence', where, 0.5, 1.0),
+           'width': _number(doc, 'width', where, 0.0, 1.0), 'min_specimens': MIN_SPECIMENS}
+    if 'min_specimens' in doc:
+        v = doc['min_specimens']
+        if not (isinstance(v, int) and not isinstance(v, bool) and 3 <= v <= 1000):
+            raise InputError(f'{where}: `min_specimens` = {v!r} must be a whole number from 3 '
+                             'to 1000')
+        out['min_specimens'] = v
+    return out
 
 
 def parse_campaign(doc: Any, source: str = 'the campaign', base: Path | None = None

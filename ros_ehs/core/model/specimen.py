@@ -69,8 +69,10 @@ __all__ = ['REVERSAL_FRACTION', 'Specimen']
 
 #: A reversal is a turn of the force by more than this fraction of ``specimen_life_range``.
 REVERSAL_FRACTION = 0.02
-#: the half cycles :meth:`Specimen.recent_range` is the range of
+#: the half cycles :meth:`Specimen.recent_range` is the range of, by default
 RECENT = 10
+#: the half cycles' ranges kept (at least; a list trimmed by half when twice as long)
+RANGES_KEPT = 1000
 
 
 class Specimen:
@@ -161,8 +163,8 @@ class Specimen:
         # a reversal at the extreme: the half cycle from the last one ends there
         rng = abs(self._ext - self._last_rev)
         self._ranges.append(rng)
-        if len(self._ranges) > RECENT:
-            del self._ranges[0]
+        if len(self._ranges) > 2 * RANGES_KEPT:
+            del self._ranges[:RANGES_KEPT]
         at_peak = self._dir > 0
         self._last_rev, self._ext, self._dir = self._ext, force, -self._dir
         return self._grow(rng, at_peak)
@@ -184,17 +186,19 @@ class Specimen:
             self.broken = True
         return True
 
-    def recent_range(self) -> float:
+    def recent_range(self, half_cycles: int | None = None) -> float:
         """
         Return the constant range that grows the crack as the last half cycles did [N].
 
-        The power mean, with Paris' exponent, of the last :data:`RECENT` half cycles'
-        ranges (NaN before any).
+        The power mean, with Paris' exponent, of the last ``half_cycles`` half cycles' ranges
+        (default :data:`RECENT`, at most :data:`RANGES_KEPT`); NaN before as many.
         """
-        if not self._ranges:
+        n = RECENT if half_cycles is None else int(half_cycles)
+        if not 0 < n <= len(self._ranges):
             return math.nan
         m = self.m
-        return (sum(r ** m for r in self._ranges) / len(self._ranges)) ** (1.0 / m)
+        rs = self._ranges[-n:]
+        return (sum(r ** m for r in rs) / n) ** (1.0 / m)
 
     def grown(self, n: float, force_range: float) -> float:
         """Return the crack that ``n`` more cycles at ``force_range`` [N] leave (1: fracture)."""

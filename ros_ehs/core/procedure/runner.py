@@ -1004,8 +1004,9 @@ class ProcedureRunner:
         """
         Return how many cycles may be credited now without simulating them (0: none).
 
-        Only while the test runs a one-level cyclic step's counted cycles past its taper (a
-        block program, a sweep or a drive is simulated whole), and never into the step's last
+        Only while the test runs a cyclic step's counted cycles past its taper (a sweep or a
+        drive is simulated whole; a block program's jumps are whole sequences, the caller's
+        to size), and never into the step's last
         :data:`JUMP_MARGIN` cycles (its end and a run-out are simulated). Unbounded steps give
         :data:`JUMP_UNBOUNDED`.
         """
@@ -1013,7 +1014,7 @@ class ProcedureRunner:
             return 0
         seg = self._waves[0]
         step = self.steps[seg.step]
-        if seg.step != self.step_index or step.type != 'cyclic' or len(step['blocks']) != 1:
+        if seg.step != self.step_index or step.type != 'cyclic':
             return 0
         cyc = seg.cyc
         if cyc is None or cyc['taper'] or not cyc['begun_here']:

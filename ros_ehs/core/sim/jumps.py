@@ -16,8 +16,10 @@ Cycle jumping: a long virtual test simulates the cycles that tell something, and
 
 Most of a long constant-amplitude step repeats one settled cycle while the specimen's crack
 creeps. A virtual test with :class:`CycleJumps` simulates every period until the step has
-run ``settle`` cycles and its last ``between`` cycles' controlled levels agree within
-``levels`` of their range (the loop and its compensation have settled); then it **jumps**:
+run ``settle`` cycles and its last ``between`` cycles' controlled levels are within
+``levels`` of their range of the specified ones (the loop and its compensation have
+converged: a position loop 1 um off its levels after a jump left the load it carries 0.1 %
+off, and a peak/valley-change trip 1 % late); then it **jumps**:
 the specimen carries ``n`` cycles at once at the range its last half cycles carried (their
 power mean with Paris' exponent: the range that grows the crack as they did; its own law
 integrated over the jump, :meth:`~ros_ehs.core.model.specimen.Specimen.advance`), the
@@ -33,11 +35,16 @@ that keeps, by the specimen's law:
   the fracture, happen in simulated cycles;
 * the step's end and the run-out ``JUMP_MARGIN`` cycles away (simulated).
 
-No jump is made shorter than ``min_jump``, before every failure detector has its reference,
-or in a block program, a sweep or a drive (simulated whole). The jumped cycles are in the
-cycle table with the levels of the last simulated cycle and the flag :data:`EXTRAPOLATED`;
-their time is the rig's (each table row's end is the simulated time plus the time jumped
-before it).
+A **block program** (a cyclic step of several levels repeated) jumps whole sequences (``n`` a
+multiple of its cycles a sequence, at most :data:`MAX_SEQUENCE`), once each of its last
+sequence's cycles repeats the one a sequence before within ``levels``; its range is the power
+mean over the last sequence's half cycles. In displacement control the specimen's force
+range falls with its stiffness: a jump is carried at the mean of the range now and the one
+its end's stiffness gives. No jump is made shorter than ``min_jump``, before every failure
+detector has its reference, or in a sweep or a drive (simulated whole). The jumped cycles
+are in the cycle table with the levels of the last simulated cycle and the flag
+:data:`EXTRAPOLATED`; their time is the rig's (each table row's end is the simulated time
+plus the time jumped before it).
 """
 
 from __future__ import annotations
@@ -49,7 +56,10 @@ import math
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.procedure.detectors import Cycle, EXTRAPOLATED, TAPERED
 
-__all__ = ['CycleJumps', 'EXTRAPOLATED', 'Jumper']
+__all__ = ['CycleJumps', 'EXTRAPOLATED', 'Jumper', 'MAX_SEQUENCE']
+
+#: the longest block sequence jumped (cycles); a longer one is simulated whole
+MAX_SEQUENCE = 200
 
 
 @dataclass(frozen=True)
@@ -60,7 +70,7 @@ class CycleJumps:
     crack: float = 0.05
     settle: int = 20
     between: int = 5
-    levels: float = 0.002
+    levels: float = 0.0005
     min_jump: int = 10
 
     def __post_init__(self) -> None:
@@ -94,7 +104,7 @@ class Jumper:
 
     def __init__(self, policy: CycleJumps) -> None:
         self.policy = policy
-        self.recent: deque[Cycle] = deque(maxlen=policy.between)
+        self.recent: deque[Cycle] = deque(maxlen=2 * MAX_SEQUENCE + policy.between)
         self.step = -1
         self.in_step = 0                 # cycles simulated in the step
         self.since = 0                   # cycles simulated since the last jump
@@ -117,38 +127,59 @@ class Jumper:
         self.since = 0
         self.recent.clear()
 
-    def size(self, runner, specimen, mode: str) -> int:
-        """Return the jump to make now (0: none); ``mode``: the step's control mode."""
+    def size(self, runner, specimen, mode: str, per: int = 1,
+             specified: tuple[float, float] | None = None) -> int:
+        """
+        Return the jump to make now (0: none).
+
+        ``mode``: the step's control mode; ``per``: its cycles a sequence (1: one level);
+        ``specified``: its (peak, valley), which the last cycles must be within ``levels``
+        of (the compensation has converged), for one level.
+        """
         p = self.policy
-        if self.in_step < p.settle or self.since < p.between or \
-                len(self.recent) < p.between:
+        need = max(p.between, per)
+        if per > MAX_SEQUENCE or self.in_step < max(p.settle, 2 * per) or \
+                self.since < need or len(self.recent) < need + per:
             return 0
         room = runner.jump_room()
-        if room < p.min_jump:
+        if room < max(p.min_jump, per):
             return 0
-        cs = list(self.recent)
+        cs = list(self.recent)[-(need + per):]
         if any(c.flags & TAPERED or not c.finite() for c in cs):
             return 0
         hi = [c.f_hi if mode == 'force' else c.z_hi for c in cs]
         lo = [c.f_lo if mode == 'force' else c.z_lo for c in cs]
         span = max(hi) - min(lo)
-        if not span > 0 or max(max(hi) - min(hi), max(lo) - min(lo)) > p.levels * span:
+        # each of the last cycles repeats the one a sequence before (settled)
+        if not span > 0 or any(abs(hi[j] - hi[j - per]) > p.levels * span or
+                               abs(lo[j] - lo[j - per]) > p.levels * span
+                               for j in range(per, len(cs))):
             return 0
+        if specified is not None and per == 1:
+            tol = p.levels * (specified[0] - specified[1])
+            if any(abs(h - specified[0]) > tol or abs(v - specified[1]) > tol
+                   for h, v in zip(hi[-p.between:], lo[-p.between:])):
+                return 0
         dets = runner.step_detectors()
         if any(d.kind != 'fitted_stiffness_drop' and d.kind != 'underpeak' and
                d.reference is None for d in dets):
             return 0
         n = min(room, 10 ** 12)
         if specimen is not None and specimen.present:
-            rng = specimen.recent_range()
+            rng = specimen.recent_range(2 * per if per > 1 else None)
             if not math.isfinite(rng):
                 return 0
-            n = min(n, self._specimen_room(specimen, rng, cs[-1], dets, mode, n))
+            n = min(n, self._specimen_room(specimen, rng, cs[-per:], dets, mode, n))
             self.force_range = rng
-        n = int(n)
+            if mode != 'force':          # the range falls with the stiffness over the jump
+                k_now = specimen.stiffness
+                a = specimen.grown(int(n), rng)
+                k_end = specimen.k0 / (1.0 + specimen.lam * a * a)
+                self.force_range = 0.5 * rng * (1.0 + k_end / k_now)
+        n = int(n) // per * per
         return n if n >= p.min_jump else 0
 
-    def _specimen_room(self, sp, rng: float, last: Cycle, dets, mode: str, cap: int) -> float:
+    def _specimen_room(self, sp, rng: float, last: list, dets, mode: str, cap: int) -> float:
         p = self.policy
         left = sp.cycles_left(rng)
         if math.isinf(left):
@@ -164,9 +195,10 @@ class Jumper:
         room = min(room, _first(lambda n: sp.grown(n, rng) > a_now * (1.0 + p.crack), hi) - 1)
         room = min(room, _first(lambda n: stiff(n) < k_now * (1.0 - p.stiffness), hi) - 1)
         for d in dets:
-            trip = self._trip(d, last, mode, sp, stiff, k_now)
-            if trip is not None:
-                room = min(room, 0.5 * (_first(lambda n: trip(n), hi) - 1))
+            for c in last:                       # each cycle of the last sequence
+                trip = self._trip(d, c, mode, sp, stiff, k_now)
+                if trip is not None:
+                    room = min(room, 0.5 * (_first(lambda n: trip(n), hi) - 1))
         return room
 
     @staticmethod

@@ -237,7 +237,10 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                 last = runner.cycles[-1]
                 runner.cycles.clear()
                 step = procedure.steps[runner.step_index]
-                jn = jumper.size(runner, axis.specimen, step.control_mode)
+                blocks = step['blocks'] if step.type == 'cyclic' else ((0.0, 0.0, 1),)
+                per = sum(b[2] for b in blocks)
+                jn = jumper.size(runner, axis.specimen, step.control_mode, per,
+                                 (blocks[0][0], blocks[0][1]) if per == 1 else None)
                 if jn:
                     period = 1.0 / float(step['frequency'])
                     if axis.specimen.present:
