@@ -19,7 +19,7 @@ setup(
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'pyyaml', 'matplotlib', 'psutil',
                       'mcap', 'mcap-ros2-support', 'aiohttp', 'rosbags', 'threadpoolctl',
-                      'sqlalchemy'],
+                      'sqlalchemy', 'distributed'],
     extras_require={'test': ['pytest']},
     zip_safe=False,
     maintainer='ros_ehs maintainers',

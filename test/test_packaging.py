@@ -40,12 +40,14 @@ ROSDEP = {
     'sqlalchemy': 'python3-sqlalchemy',
     # the campaign benchmark's cross-checks only (requirements.txt pins them), as playwright
     'pylife': None, 'reliability': None, 'pandas': None,
-    'playwright': None, 'threadpoolctl': None}
+    'playwright': None, 'threadpoolctl': None,
+    # campaign rehearsals (rosdistro has no key for Dask's distributed)
+    'distributed': None}
 
 #: modules the package needs at run time that rosdistro has no key for (Debian packages
 #: threadpoolctl as python3-threadpoolctl, rosdistro does not): pip installs them, from
 #: setup.py's install_requires (and requirements.txt, pinned)
-PIP_ONLY = {'threadpoolctl'}
+PIP_ONLY = {'threadpoolctl', 'distributed'}
 
 
 def _imports() -> dict[str, set[str]]:

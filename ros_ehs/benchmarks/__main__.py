@@ -21,7 +21,7 @@ from ros_ehs.core.errors import EhsError
 #: the benchmarks, each a module of this package with a ``main(argv)``
 BENCHMARKS = ('model', 'paper', 'identify', 'loop', 'lockstep', 'record', 'soak', 'window',
               'tracking', 'drift', 'live', 'realtime', 'force', 'fatigue', 'verdict',
-              'station', 'freeze', 'transitions', 'load', 'integrity', 'campaign')
+              'station', 'freeze', 'transitions', 'load', 'integrity', 'campaign', 'rehearsal')
 
 
 def main(argv=None) -> int:

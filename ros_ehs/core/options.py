@@ -491,6 +491,28 @@ CLI_OPTIONS = {
                          'in this run (0: until the campaign ends)'),
                  Setting('exact', '', False, meaning="simulate every period of every coupon's "
                          'cycles (default: the settled cycles are jumped)')),
+    'campaign-rehearse': (
+        Setting('file', '', '', meaning='the campaign file (YAML, docs/campaigns.md)'),
+        Setting('replicates', '1', 200, 1, 10**6, 'campaigns drawn afresh per plan'),
+        Setting(*_PRESET, meaning='the rig model: a parameter preset, under `params`'),
+        Setting('params', '', '', meaning='parameters YAML over the preset: the rig '
+                "identified, its gains, and the coupons' specimen model (specimen_*)"),
+        Setting('set', '', [], meaning='values over those, NAME=VALUE each; repeat for more'),
+        Setting('seed', '1', 1, 0, 2**31 - 1, 'the rehearsal seed (each replicate draws its '
+                'coupons from it and its number)'),
+        Setting('lives', '', 'virtual', meaning="each coupon's end: virtual (a jumped virtual "
+                'test of its procedure) or law (its specimen model in closed form)',
+                choices=('virtual', 'law')),
+        Setting('plans', '', 'all', meaning="the campaign's plan only (given), or it and the "
+                'other plans at its specimen count (all)', choices=('given', 'all')),
+        Setting('scheduler', '', '', meaning="a Dask scheduler's address (tcp://host:8786; "
+                'empty: a local cluster)'),
+        Setting('workers', '1', 0, 0, 1024, "the local cluster's worker processes (0: one "
+                'per CPU)'),
+        Setting('in_process', '', False, meaning='run every replicate in this process, '
+                'without the engine'),
+        Setting(*_OUT, '', meaning="write each plan's summary and replicates as JSON here "
+                '(empty: not written)')),
     'campaign-report': (Setting('store', '', 'campaign.db', meaning='the results store (a '
                                 'SQLite file or a database URL)'),
                         Setting('campaign', '', '', meaning="the campaign's name (empty: the "
@@ -507,4 +529,4 @@ CLI_OPTIONS = {
 #: the options of each ``ehs_sim`` command given without a flag, in order
 CLI_POSITIONAL = {'drive': ('target',), 'identify': ('bags',), 'trend': ('bag',),
                   'procedure': ('file',), 'fatigue-report': ('bags',), 'campaign': ('file',),
-                  'campaign-report': ('store',)}
+                  'campaign-report': ('store',), 'campaign-rehearse': ('file',)}

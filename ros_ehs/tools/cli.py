@@ -313,6 +313,49 @@ def _cmd_campaign(args) -> int:
     return 0
 
 
+def _cmd_campaign_rehearse(args) -> int:
+    import json
+    import os
+    from ros_ehs.core.campaign.spec import load_campaign
+    from ros_ehs.data.rehearsal import rehearse
+    c = load_campaign(args.file)
+    p = _rig(args)
+    workers = 0 if args.in_process else (args.workers or os.cpu_count() or 1)
+    where = ('in this process' if args.in_process else
+             f'on the scheduler {args.scheduler}' if args.scheduler else
+             f'on a local cluster of {workers} workers')
+    print(f'rehearsing {c.name!r}: {args.replicates} replicates per plan ({args.plans}), '
+          f'coupons by the {args.lives}, {where}', flush=True)
+
+    def progress(done, total):
+        bar = '#' * (30 * done // total)
+        print(f'\r  [{bar:30s}] {done}/{total}', end='' if done < total else '\n',
+              file=sys.stderr, flush=True)
+    r = rehearse(c, p, args.replicates, seed=args.seed, lives=args.lives, plans=args.plans,
+                 scheduler=args.scheduler or None, workers=None if args.scheduler else workers,
+                 progress=progress)
+    t = r.truth
+    print(f"truth (the specimen law): slope {t['k']:g}, scatter {t['scatter']:g} decades"
+          + (f", target {t['target']:.6g}" if 'target' in t else ''))
+    print(f"{'plan':22s} {'rig h (p10/50/90)':>24s} {'run-outs':>9s} {'width p50/p90':>15s} "
+          f"{'met':>5s} {'slope/target covered':>21s}")
+    for name, s in r.plans.items():
+        h, w, cov = s['rig_h'], s['target_width'], s['coverage']
+        hs = f"{h['p10']:.3g}/{h['median']:.3g}/{h['p90']:.3g}" if h else '-'
+        ws = f"{w['median']:.3g}/{w['p90']:.3g}" if w else '-'
+        cs = '/'.join(f"{cov[q]['covered']:.2f}" if cov[q] else '-' for q in ('slope', 'target'))
+        met = f"{s['target_met']:.2f}" if s['target_met'] is not None else '-'
+        print(f"{name:22s} {hs:>24s} {s['run_out_fraction']:9.2f} {ws:>15s} {met:>5s} "
+              f'{cs:>21s}')
+    print(f'{r.wall_s:.3g} s on {r.workers or "no"} workers')
+    if args.out:
+        with open(args.out, 'w') as fh:
+            json.dump({'truth': r.truth, 'plans': r.plans, 'replicates': r.replicates,
+                       'workers': r.workers, 'wall_s': r.wall_s}, fh, indent=1, default=float)
+        print(f'wrote {args.out}')
+    return 0
+
+
 def _cmd_campaign_report(args) -> int:
     from ros_ehs.data.campaign_report import write_campaign_report
     from ros_ehs.data.store import ResultStore
@@ -435,6 +478,10 @@ COMMANDS = {
                        'and events from its bags as CSV, and plots'),
     'campaign': (_cmd_campaign, 'a fatigue campaign of virtual coupons, run in process into '
                  'its results store (docs/campaigns.md): each specimen, the fit, why it ended'),
+    'campaign-rehearse': (_cmd_campaign_rehearse, 'a campaign rehearsed on the model: its '
+                          'plan and the others at its specimen count, each drawn many times '
+                          '(Dask: a local cluster or a scheduler), their rig hours, run-outs, '
+                          "target widths and their intervals' coverage of the truth"),
     'campaign-report': (_cmd_campaign_report, "a campaign's report from its store: S-N plot, "
                         "specimens as CSV (also in pyLife's layout), the fit, one HTML page"),
     'trend': (_cmd_trend, 'the live estimates of a long run over time, from its bag (topic '
