@@ -119,6 +119,8 @@ SHORT = {
     # starve the suite's other workers: the short run is the two quiet runs
     'integrity': (['--only', 'envelope', '--cycles', '5'], 'met'),
     'campaign': (['--sets', '1'], 'fit'),
+    'rehearsal': (['--cases', '1', '--runout', '2000', '--failure', '2000', '--replicates',
+                   '2', '--scaling-replicates', '2', '--virtual-replicates', '1'], 'coverage'),
 }
 
 

@@ -26,7 +26,7 @@ import pytest
 from ros_ehs.core.campaign.runner import (_info_one, _tested_life, achieved_levels,
                                           CANDIDATES, INVALID_IN_A_ROW, judge, specimen_result)
 from ros_ehs.core.campaign.spec import parse_campaign
-from ros_ehs.core.procedure.detectors import CYCLE_COLUMNS, TAPERED
+from ros_ehs.core.procedure.detectors import CYCLE_COLUMNS, EXTRAPOLATED, TAPERED
 from test_campaign_spec import GOOD
 
 
@@ -72,6 +72,9 @@ def test_achieved_levels_are_the_untapered_cycles_medians():
     amps = 0.5 * (np.array([10010, 9990, 10000, 10020]) - np.array([1000, 1010, 990, 1000]))
     assert a.amplitude_spread == pytest.approx(np.std(amps))
     assert achieved_levels(t, 'displacement').peak == 1e-3
+    jumped = t.copy()
+    jumped[2:4, 9] = EXTRAPOLATED                      # the jumped ones are left out
+    assert achieved_levels(jumped, 'force').peak == 10010.0
     none = achieved_levels(t[:2], 'force')
     assert none.cycles == 0 and math.isnan(none.peak)
 
@@ -199,3 +202,19 @@ def test_a_target_waits_for_its_min_specimens():
     assert v.target['width'] <= 0.9 and not v.target['met'] and not v.done
     v = judge(c, five + _draw([7000], seed=2))
     assert v.target['met'] and v.done and v.reason.startswith('target met')
+
+
+def test_an_interval_the_data_cannot_close_is_never_a_target_met():
+    # 6 specimens at two high levels, the target far below them: the profile never rises
+    # enough on the low side (found by the rehearsal's coverage: it once read as met)
+    c = parse_campaign({**GOOD, 'plan': {'method': 'levels', 'levels': [10000, 8000],
+                                         'specimens': 3},
+                        'target': {'kind': 'load_at_life', 'life': 1.0e5, 'confidence': 0.9,
+                                   'width': 0.05}})
+    data = [R(f'S{j}', s, 'failed', n) for j, (s, n) in enumerate(zip(
+        [10000.0] * 3 + [8000.0] * 3, [9213, 23651, 10028, 18848, 22331, 37277]))]
+    v = judge(c, data)
+    lo, hi = v.target['interval']
+    assert lo == 0.0 and math.isfinite(hi)          # unbounded below (10^-inf)
+    assert v.target['width'] == math.inf and not v.target['met']
+    assert v.done and v.reason.startswith('plan done')

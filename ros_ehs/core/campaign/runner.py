@@ -75,7 +75,7 @@ INVALID_IN_A_ROW = 3
 CANDIDATES = 25
 #: the cycle table's columns this module reads (ros_ehs.data.fatigue.CYCLE_COLUMNS)
 _Z_HI, _Z_LO, _F_HI, _F_LO, _FLAGS = 5, 6, 7, 8, 9
-_TAPERED = 1
+_TAPERED, _EXTRAPOLATED = 1, 2
 
 
 @dataclass(frozen=True)
@@ -118,14 +118,15 @@ def achieved_levels(table: np.ndarray | None, control_mode: str) -> Achieved:
     Return the achieved levels of a cycle table (n x 10, ``CYCLE_COLUMNS``).
 
     The controlled signal's fitted peaks and valleys (the load in force control, the position
-    otherwise) of the untapered cycles: their medians, the mean, amplitude and R of those,
+    otherwise) of the untapered cycles carried (a virtual test's jumped cycles, which repeat
+    the last simulated one, left out): their medians, the mean, amplitude and R of those,
     and the spread of the amplitude. NaN throughout with no such cycle.
     """
     nan = math.nan
     if table is None or not len(table):
         return Achieved(nan, nan, nan, nan, nan, nan, 0)
     t = np.asarray(table, dtype=float)
-    t = t[(t[:, _FLAGS].astype(int) & _TAPERED) == 0]
+    t = t[(t[:, _FLAGS].astype(int) & (_TAPERED | _EXTRAPOLATED)) == 0]
     hi_c, lo_c = (_F_HI, _F_LO) if control_mode == 'force' else (_Z_HI, _Z_LO)
     hi, lo = t[:, hi_c], t[:, lo_c]
     ok = np.isfinite(hi) & np.isfinite(lo)
@@ -214,7 +215,8 @@ def _target(campaign: Campaign, fit: BasquinFit | None) -> dict | None:
             lo, hi = fit.life_interval(t['load'])
     except (OverflowError, ValueError, FloatingPointError):
         return None                 # an interval beyond numbers: nothing to judge yet
-    width = 0.5 * (hi - lo) / est
+    # an interval unbounded on a side (the data cannot close it) is infinitely wide
+    width = 0.5 * (hi - lo) / est if lo > 0.0 and math.isfinite(hi) else math.inf
     enough = fit.failures + fit.run_outs >= t.get('min_specimens', 0)
     return {'kind': t['kind'], 'estimate': est, 'interval': (float(lo), float(hi)),
             'confidence': t['confidence'], 'width': width,

@@ -271,7 +271,7 @@ def _interval(nll_at, theta: float, nll_min: float, confidence: float,
                 break
             d *= 1.6
         else:
-            out.append(-sign * math.inf if sign < 0 else math.inf)
+            out.append(sign * math.inf)     # unbounded on this side
             continue
         lo, hi = sorted((theta, theta + sign * d))
         out.append(brentq(g, lo, hi, xtol=1e-10))
