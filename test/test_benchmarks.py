@@ -120,7 +120,8 @@ SHORT = {
     'integrity': (['--only', 'envelope', '--cycles', '5'], 'met'),
     'campaign': (['--sets', '1'], 'fit'),
     'rehearsal': (['--cases', '1', '--runout', '2000', '--failure', '2000', '--replicates',
-                   '2', '--scaling-replicates', '2', '--virtual-replicates', '1'], 'coverage'),
+                   '2', '--scaling-replicates', '2', '--virtual-replicates', '1',
+                   '--specimens', '1'], 'coverage'),
 }
 
 

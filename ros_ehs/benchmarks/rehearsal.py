@@ -153,10 +153,15 @@ EXAMPLE_RIG = {'k_L': 1.0e7, 'specimen_life': 2.0e4, 'specimen_life_range': 9000
                'specimen_scatter': 0.15}
 
 
+#: the example campaign's specimens a level (``--specimens``)
+_PER_LEVEL = [3]
+
+
 def _example():
     from ros_ehs.core.campaign.spec import parse_campaign
     from ros_ehs.core.params import preset
-    return parse_campaign(EXAMPLE), preset('fatigue_actuator', **EXAMPLE_RIG)
+    doc = {**EXAMPLE, 'plan': {**EXAMPLE['plan'], 'specimens': _PER_LEVEL[0]}}
+    return parse_campaign(doc), preset('fatigue_actuator', **EXAMPLE_RIG)
 
 
 def _scaling(replicates: int) -> dict:
@@ -217,7 +222,10 @@ def main(argv=None) -> int:
                     help='rehearsed campaigns for each of the scaling runs')
     ap.add_argument('--virtual-replicates', type=count, default=4,
                     help='rehearsed campaigns of jumped virtual coupons')
+    ap.add_argument('--specimens', type=count, default=3,
+                    help="the example campaign's specimens at each of its 4 levels")
     a = ap.parse_args(argv)
+    _PER_LEVEL[0] = a.specimens
     fig: dict = {}
     fig['jump'] = [_case(j, c) for j, c in enumerate(MATRIX[:a.cases])]
     fig['jump_ok'] = all(c['ok'] for c in fig['jump'])
