@@ -116,26 +116,36 @@ for n in range(100000):
 """
 
 
-def test_committed_records_survive_a_writer_killed_and_two_writers_share_a_store(tmp_path):
-    db = tmp_path / 'c.db'
-    ResultStore(db).close()
-    writers = [subprocess.Popen([sys.executable, '-c', WRITER, str(db), who],
-                                stdout=subprocess.PIPE, text=True) for who in ('rig', 'model')]
+def kill_two_writers(where: str) -> dict:
+    """Start two writers on ``where``, SIGKILL both after 30 records; return their last."""
+    who = ('rig', 'model')
+    writers = [subprocess.Popen([sys.executable, '-c', WRITER, where, w],
+                                stdout=subprocess.PIPE, text=True) for w in who]
     done = {}
-    for w, who in zip(writers, ('rig', 'model')):
+    for w, name in zip(writers, who):
         for _ in range(30):                      # 30 committed records each, then SIGKILL
             last = w.stdout.readline()
-        done[who] = int(last)
+        done[name] = int(last)
     for w in writers:
         w.send_signal(signal.SIGKILL)
         w.wait(60)
-    s = ResultStore(db)
-    got = [r.specimen for r in s.results(s.campaign('kill'))]
-    for who in ('rig', 'model'):
-        mine = [g for g in got if g.startswith(who + '-')]
-        # every record a writer was told was committed is there, each once, in order
-        assert mine[:done[who] + 1] == [f'{who}-{n}' for n in range(done[who] + 1)]
+    return done
+
+
+def check_committed(store: ResultStore, done: dict) -> None:
+    """Check every record each writer was told was committed is there, once, in order."""
+    got = [r.specimen for r in store.results(store.campaign('kill'))]
+    for name, last in done.items():
+        mine = [g for g in got if g.startswith(name + '-')]
+        assert mine[:last + 1] == [f'{name}-{n}' for n in range(last + 1)]
         assert len(mine) == len(set(mine))
+
+
+def test_committed_records_survive_a_writer_killed_and_two_writers_share_a_store(tmp_path):
+    db = tmp_path / 'c.db'
+    ResultStore(db).close()
+    done = kill_two_writers(str(db))
+    check_committed(ResultStore(db), done)
     con = sqlite3.connect(db)
     assert con.execute('pragma integrity_check').fetchone() == ('ok',)
 

@@ -21,15 +21,12 @@ server stopped as a power cut would stop it are there after its recovery, each o
 """
 
 import math
-import signal
-import subprocess
-import sys
 
 from postgres import Postgres
 import pytest
 from ros_ehs.core.errors import DataError, InputError
 from ros_ehs.data.store import ResultStore, rows, SCHEMA_VERSION
-from test_store import _rec, check_migrated, V1, WRITER
+from test_store import _rec, check_committed, check_migrated, kill_two_writers, V1
 
 
 @pytest.fixture
@@ -102,26 +99,11 @@ def test_an_unreachable_server_is_named(pg):
 
 def test_committed_records_survive_killed_writers_and_a_crashed_server(pg):
     ResultStore(pg.url).close()
-    who = ('rig', 'model')
-    writers = [subprocess.Popen([sys.executable, '-c', WRITER, pg.url, w],
-                                stdout=subprocess.PIPE, text=True) for w in who]
-    done = {}
-    for w, name in zip(writers, who):
-        for _ in range(30):                      # 30 committed records each, then SIGKILL
-            last = w.stdout.readline()
-        done[name] = int(last)
-    for w in writers:
-        w.send_signal(signal.SIGKILL)
-        w.wait(60)
+    done = kill_two_writers(pg.url)
     pg.crash()                                   # no checkpoint: the WAL's recovery at start
     pg.start()
     s = ResultStore(pg.url)
-    got = [r.specimen for r in s.results(s.campaign('kill'))]
-    for name in who:
-        mine = [g for g in got if g.startswith(name + '-')]
-        # every record a writer was told was committed is there, each once, in order
-        assert mine[:done[name] + 1] == [f'{name}-{n}' for n in range(done[name] + 1)]
-        assert len(mine) == len(set(mine))
+    check_committed(s, done)
     s.close()
 
 
