@@ -130,3 +130,22 @@ def test_bad_jump_settings_are_named():
         CycleJumps(stiffness=0.0)
     with pytest.raises(InputError, match='`between` = 0'):
         CycleJumps(between=0)
+
+
+def test_a_jumped_drive_step_fractures_where_the_exact_one_does(tmp_path):
+    from ros_ehs.data.drive_files import save_drive
+    t = np.arange(0, 501) * 1e-3                     # a 0.5 s pass: 5 cycles of varying range
+    f = 5500.0 + 4500.0 * np.sin(2 * np.pi * 10.0 * t) * (0.8 + 0.2 * np.sin(2 * np.pi * 2 * t))
+    save_drive(tmp_path / 'road.csv', t, f)
+    doc = {'name': 'road', 'control_mode': 'force', 'steps': [
+        {'name': 'preload', 'type': 'ramp', 'to': 5500.0, 'rate': 2.0e4},
+        {'name': 'road', 'type': 'drive', 'file': str(tmp_path / 'road.csv'),
+         'repeats': 10 ** 6}]}              # no detectors on a drive: the break ends it
+    p = preset('fatigue_actuator', **{**SP, 'specimen_life': 1500.0})
+    proc = parse_procedure(doc)
+    exact = run_procedure(proc, p, keep_cycles=5000)
+    r = run_procedure(proc, p, keep_cycles=5000, jumps=CycleJumps())
+    assert r.result == exact.result == 'failed' and r.jumped > 0.2 * r.total_cycles
+    # the fracture in the specimen's cycles, and the passes counted
+    assert abs(r.fractured_at - exact.fractured_at) <= max(1, 0.005 * exact.fractured_at)
+    assert abs(r.total_cycles - exact.total_cycles) <= max(1, 0.005 * exact.total_cycles)

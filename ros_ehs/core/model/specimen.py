@@ -213,7 +213,7 @@ class Specimen:
         w = self.a ** (1.0 - h) - (h - 1.0) * g
         return min(1.0, w ** (1.0 / (1.0 - h))) if w > 0.0 else 1.0
 
-    def advance(self, n: int, force_range: float) -> None:
+    def advance(self, n: float, force_range: float) -> None:
         """
         Carry ``n`` whole cycles at ``force_range`` [N] at once (a virtual test's jump).
 
@@ -228,7 +228,7 @@ class Specimen:
             raise InputError(f'a jump of {n} cycles at {force_range:.6g} N would fracture '
                              'the specimen: the fracture is simulated')
         self.a = a
-        self.half_cycles += 2 * int(n)
+        self.half_cycles += int(round(2.0 * n))
 
     def cycles_left(self, force_range: float) -> float:
         """Return the whole cycles from the crack now to fracture at ``force_range`` [N]."""

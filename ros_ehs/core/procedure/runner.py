@@ -1004,8 +1004,8 @@ class ProcedureRunner:
         """
         Return how many cycles may be credited now without simulating them (0: none).
 
-        Only while the test runs a cyclic step's counted cycles past its taper (a sweep or a
-        drive is simulated whole; a block program's jumps are whole sequences, the caller's
+        Only while the test runs a cyclic or drive step's counted cycles past its taper (a
+        sweep is simulated whole; a block program's jumps are whole sequences, the caller's
         to size), and never into the step's last
         :data:`JUMP_MARGIN` cycles (its end and a run-out are simulated). Unbounded steps give
         :data:`JUMP_UNBOUNDED`.
@@ -1014,7 +1014,7 @@ class ProcedureRunner:
             return 0
         seg = self._waves[0]
         step = self.steps[seg.step]
-        if seg.step != self.step_index or step.type != 'cyclic':
+        if seg.step != self.step_index or step.type not in ('cyclic', 'drive'):
             return 0
         cyc = seg.cyc
         if cyc is None or cyc['taper'] or not cyc['begun_here']:
@@ -1022,6 +1022,10 @@ class ProcedureRunner:
         if seg.n_end is None:
             return JUMP_UNBOUNDED
         return max(0, seg.n_end - cyc['k'] - 1 - JUMP_MARGIN)
+
+    def step_period(self) -> float:
+        """Return the running waveform step's cycle [s] (a drive's pass), NaN if none."""
+        return self._waves[0].wave.period if len(self._waves) == 1 else math.nan
 
     def step_detectors(self) -> list:
         """Return the running step's failure detectors."""

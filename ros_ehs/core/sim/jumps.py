@@ -41,7 +41,9 @@ sequence's cycles repeats the one a sequence before within ``levels``; its range
 mean over the last sequence's half cycles. In displacement control the specimen's force
 range falls with its stiffness: a jump is carried at the mean of the range now and the one
 its end's stiffness gives. No jump is made shorter than ``min_jump``, before every failure
-detector has its reference, or in a sweep or a drive (simulated whole). The jumped cycles
+detector has its reference, or in a sweep (simulated whole). A **drive** step jumps whole
+passes, each carrying the half cycles a pass carried (the specimen's reversals counted over
+the last passes), at their power-mean range. The jumped cycles
 are in the cycle table with the levels of the last simulated cycle and the flag
 :data:`EXTRAPOLATED`; their time is the rig's (each table row's end is the simulated time
 plus the time jumped before it).
@@ -110,14 +112,20 @@ class Jumper:
         self.since = 0                   # cycles simulated since the last jump
         self.jumps = 0
         self.force_range = math.nan      # the range the last jump was carried at [N]
+        #: the specimen's cycles (half its reversals) a step cycle carries: 1 for a sine, a
+        #: drive pass's own count for a drive
+        self.per_cycle = 1.0
+        self.marks: deque[int] = deque(maxlen=self.recent.maxlen)   # its half cycles then
 
-    def saw(self, cycles) -> None:
-        """Take the cycles the runner closed this period."""
+    def saw(self, cycles, half_cycles: int = 0) -> None:
+        """Take the cycles the runner closed this period, and the specimen's half cycles."""
         for c in cycles:
             if c.step != self.step:
                 self.step, self.in_step, self.since = c.step, 0, 0
                 self.recent.clear()
+                self.marks.clear()
             self.recent.append(c)
+            self.marks.append(int(half_cycles))
             self.in_step += 1
             self.since += 1
 
@@ -126,6 +134,7 @@ class Jumper:
         self.jumps += 1
         self.since = 0
         self.recent.clear()
+        self.marks.clear()
 
     def size(self, runner, specimen, mode: str, per: int = 1,
              specified: tuple[float, float] | None = None) -> int:
@@ -165,34 +174,43 @@ class Jumper:
                d.reference is None for d in dets):
             return 0
         n = min(room, 10 ** 12)
+        self.per_cycle = 0.0
         if specimen is not None and specimen.present:
-            rng = specimen.recent_range(2 * per if per > 1 else None)
-            if not math.isfinite(rng):
-                return 0
-            n = min(n, self._specimen_room(specimen, rng, cs[-per:], dets, mode, n))
-            self.force_range = rng
-            if mode != 'force':          # the range falls with the stiffness over the jump
-                k_now = specimen.stiffness
-                a = specimen.grown(int(n), rng)
-                k_end = specimen.k0 / (1.0 + specimen.lam * a * a)
-                self.force_range = 0.5 * rng * (1.0 + k_end / k_now)
+            # the half cycles the last `need` cycles carried: their range, and how many a cycle
+            half = self.marks[-1] - self.marks[-1 - need]
+            if half > 0:
+                rng = specimen.recent_range(half)
+                if not math.isfinite(rng):
+                    return 0
+                self.per_cycle = half / (2.0 * need)
+                n = min(n, self._specimen_room(specimen, rng, cs[-per:], dets, mode, n))
+                self.force_range = rng
+                if mode != 'force':      # the range falls with the stiffness over the jump
+                    k_now = specimen.stiffness
+                    a = specimen.grown(int(n) * self.per_cycle, rng)
+                    k_end = specimen.k0 / (1.0 + specimen.lam * a * a)
+                    self.force_range = 0.5 * rng * (1.0 + k_end / k_now)
         n = int(n) // per * per
         return n if n >= p.min_jump else 0
 
     def _specimen_room(self, sp, rng: float, last: list, dets, mode: str, cap: int) -> float:
         p = self.policy
-        left = sp.cycles_left(rng)
+        spc = self.per_cycle                   # the specimen's cycles a step cycle
+        left = sp.cycles_left(rng) / spc
         if math.isinf(left):
             return cap                         # below its fatigue limit: nothing changes
         hi = int(min(cap, max(1.0, 0.5 * left)))
         k_now = sp.stiffness
         a_now = sp.a
 
+        def grown(n):
+            return sp.grown(n * spc, rng)
+
         def stiff(n):
-            a = sp.grown(n, rng)
+            a = grown(n)
             return sp.k0 / (1.0 + sp.lam * a * a)
         room = float(hi)
-        room = min(room, _first(lambda n: sp.grown(n, rng) > a_now * (1.0 + p.crack), hi) - 1)
+        room = min(room, _first(lambda n: grown(n) > a_now * (1.0 + p.crack), hi) - 1)
         room = min(room, _first(lambda n: stiff(n) < k_now * (1.0 - p.stiffness), hi) - 1)
         for d in dets:
             for c in last:                       # each cycle of the last sequence

@@ -233,18 +233,19 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
                 table[n_kept % keep_cycles, 2] += jumped_s
                 n_kept += 1
             if jumper is not None:
-                jumper.saw(runner.cycles)
+                jumper.saw(runner.cycles, axis.specimen.half_cycles)
                 last = runner.cycles[-1]
                 runner.cycles.clear()
                 step = procedure.steps[runner.step_index]
                 blocks = step['blocks'] if step.type == 'cyclic' else ((0.0, 0.0, 1),)
                 per = sum(b[2] for b in blocks)
                 jn = jumper.size(runner, axis.specimen, step.control_mode, per,
-                                 (blocks[0][0], blocks[0][1]) if per == 1 else None)
+                                 (blocks[0][0], blocks[0][1])
+                                 if per == 1 and step.type == 'cyclic' else None)
                 if jn:
-                    period = 1.0 / float(step['frequency'])
-                    if axis.specimen.present:
-                        axis.specimen.advance(jn, jumper.force_range)
+                    period = runner.step_period()
+                    if axis.specimen.present and jumper.per_cycle > 0:
+                        axis.specimen.advance(jn * jumper.per_cycle, jumper.force_range)
                         axis.plant.set_load(axis.specimen.stiffness, axis.specimen.damping)
                     runner.jump(jn)
                     jumper.jumped(jn)
