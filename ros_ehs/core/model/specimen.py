@@ -169,19 +169,35 @@ class Specimen:
         self._last_rev, self._ext, self._dir = self._ext, force, -self._dir
         return self._grow(rng, at_peak)
 
-    def _grow(self, force_range: float, at_peak: bool) -> bool:
-        self.half_cycles += 1
-        if self.limit > 0.0 and force_range <= self.limit * math.sqrt(self.a0 / self.a):
-            return False             # below the threshold: the crack does not grow
-        # the growth law integrated exactly over the half cycle (a constant range in it)
-        g = 0.5 * self.A * (force_range / self.range_ref) ** self.m
+    # -- Paris' law, integrated in closed form (every growth and count below uses these) -----
+    def _below(self, force_range: float, a: float) -> bool:
+        """Return True when ``force_range`` is at or under the fatigue limit at crack ``a``."""
+        return self.limit > 0.0 and force_range <= self.limit * math.sqrt(self.a0 / a)
+
+    def _grown_from(self, a: float, g: float) -> float:
+        """Return the crack from ``a`` after a growth ``g`` = A dN (range/ref)^m (1: broken)."""
         h = self.m / 2.0
         if abs(h - 1.0) < 1e-12:
-            a = self.a * math.exp(g)
+            return min(1.0, a * math.exp(g))
+        w = a ** (1.0 - h) - (h - 1.0) * g
+        return min(1.0, w ** (1.0 / (1.0 - h))) if w > 0.0 else 1.0
+
+    def _cycles_between(self, a_from: float, a_to: float, force_range: float) -> float:
+        """Return the cycles from crack ``a_from`` to ``a_to`` at a constant range [N]."""
+        h = self.m / 2.0
+        if abs(h - 1.0) < 1e-12:
+            n = math.log(a_to / a_from) / self.A
         else:
-            w = self.a ** (1.0 - h) - (h - 1.0) * g
-            a = w ** (1.0 / (1.0 - h)) if w > 0.0 else math.inf
-        self.a = min(1.0, a)
+            n = (a_from ** (1.0 - h) - a_to ** (1.0 - h)) / ((h - 1.0) * self.A)
+        return n / (force_range / self.range_ref) ** self.m
+
+    def _grow(self, force_range: float, at_peak: bool) -> bool:
+        self.half_cycles += 1
+        if self._below(force_range, self.a):
+            return False             # below the threshold: the crack does not grow
+        # the growth law integrated exactly over the half cycle (a constant range in it)
+        self.a = self._grown_from(self.a, 0.5 * self.A * (force_range / self.range_ref)
+                                  ** self.m)
         if self.a >= 1.0 and at_peak:
             self.broken = True
         return True
@@ -204,14 +220,9 @@ class Specimen:
         """Return the crack that ``n`` more cycles at ``force_range`` [N] leave (1: fracture)."""
         if self.broken:
             return 1.0
-        if self.limit > 0.0 and force_range <= self.limit * math.sqrt(self.a0 / self.a):
+        if self._below(force_range, self.a):
             return self.a              # below the threshold: no growth
-        g = self.A * n * (force_range / self.range_ref) ** self.m
-        h = self.m / 2.0
-        if abs(h - 1.0) < 1e-12:
-            return min(1.0, self.a * math.exp(g))
-        w = self.a ** (1.0 - h) - (h - 1.0) * g
-        return min(1.0, w ** (1.0 / (1.0 - h))) if w > 0.0 else 1.0
+        return self._grown_from(self.a, self.A * n * (force_range / self.range_ref) ** self.m)
 
     def advance(self, n: float, force_range: float) -> None:
         """
@@ -234,13 +245,9 @@ class Specimen:
         """Return the whole cycles from the crack now to fracture at ``force_range`` [N]."""
         if self.broken:
             return 0.0
-        if self.limit > 0.0 and force_range <= self.limit * math.sqrt(self.a0 / self.a):
+        if self._below(force_range, self.a):
             return math.inf
-        r = (force_range / self.range_ref) ** self.m
-        h = self.m / 2.0
-        if abs(h - 1.0) < 1e-12:
-            return math.log(1.0 / self.a) / (self.A * r)
-        return (self.a ** (1.0 - h) - 1.0) / ((h - 1.0) * self.A * r)
+        return self._cycles_between(self.a, 1.0, force_range)
 
     def cycles_to(self, a: float, force_range: float | None = None) -> float:
         """
@@ -249,27 +256,17 @@ class Specimen:
         Infinite at a range the fatigue limit stops (the threshold only falls as the crack
         grows: above it at the initial crack, the crack grows as without it).
         """
-        if self.limit > 0.0 and (force_range or self.range_ref) <= self.limit and a > self.a0:
+        rng = force_range or self.range_ref
+        if self._below(rng, self.a0) and a > self.a0:
             return math.inf
-        r = (force_range or self.range_ref) / self.range_ref
-        h = self.m / 2.0
-        if abs(h - 1.0) < 1e-12:
-            n = math.log(a / self.a0) / self.A
-        else:
-            n = (self.a0 ** (1.0 - h) - a ** (1.0 - h)) / ((h - 1.0) * self.A)
-        return n / r ** self.m
+        return self._cycles_between(self.a0, a, rng)
 
     def crack_after(self, n: float, force_range: float | None = None) -> float:
         """Return the crack after ``n`` cycles at a constant range [N] (1: it fractures)."""
-        if self.limit > 0.0 and (force_range or self.range_ref) <= self.limit:
+        rng = force_range or self.range_ref
+        if self._below(rng, self.a0):
             return self.a0
-        r = (force_range or self.range_ref) / self.range_ref
-        g = self.A * n * r ** self.m
-        h = self.m / 2.0
-        if abs(h - 1.0) < 1e-12:
-            return min(1.0, self.a0 * math.exp(g))
-        w = self.a0 ** (1.0 - h) - (h - 1.0) * g
-        return min(1.0, w ** (1.0 / (1.0 - h))) if w > 0.0 else 1.0
+        return self._grown_from(self.a0, self.A * n * (rng / self.range_ref) ** self.m)
 
     def stiffness_after(self, n: float, force_range: float | None = None) -> float:
         """Return the stiffness after ``n`` cycles at a constant range [N/m] (before fracture)."""
