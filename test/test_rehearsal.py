@@ -68,8 +68,9 @@ def test_the_truth_is_the_specimen_laws():
     c, p = _setup()
     t = truth(c, p)
     assert t['k'] == 3.0 and t['scatter'] == 0.15
-    from ros_ehs.data.rehearsal import _law_cycles
-    life = _law_cycles(c, t['target'], p.replace(specimen_scatter=0.0))
+    from ros_ehs.data.rehearsal import _law_cycles, _level_step
+    life = _law_cycles(c, t['target'], p.replace(specimen_scatter=0.0),
+                       _level_step(c, t['target']))
     assert life == pytest.approx(5000.0, abs=1.0)       # whole cycles: a step at 5000
 
 

@@ -85,11 +85,11 @@ def virtual_specimen(campaign: Campaign, nxt: Next, params, *, seed: int = 1,
     proc = campaign.procedure(nxt.level, nxt.specimen)
     p = params.replace(specimen_seed=float(specimen_seed(seed, nxt.index)))
     started = _now()
-    freq = next(float(s['frequency']) for s in proc.steps if s.name == campaign.level_step)
-    limit = max_seconds if max_seconds is not None else 2.0 * campaign.run_out / freq + 60.0
+    step = campaign.level_step_of(proc)
+    limit = max_seconds if max_seconds is not None else \
+        2.0 * campaign.run_out / float(step['frequency']) + 60.0
     r = run_procedure(proc, p, model=model, rate_hz=rate_hz, observe=False,
                       max_seconds=limit, jumps=None if exact else CycleJumps())
-    step = next(s for s in proc.steps if s.name == campaign.level_step)
     ach = achieved_levels(r.cycles, step.control_mode)
     result, reason = specimen_result(campaign, nxt.level, r.result, r.reason, ach)
     return SpecimenRecord(
@@ -130,11 +130,9 @@ def run_campaign(campaign: Campaign, store: ResultStore,
     cid = store.campaign(campaign.name, file_hash)
     t0 = time.monotonic()
     tested = 0
-    while True:
-        records = store.results(cid)
-        verdict = judge(campaign, records, prefix)
-        if verdict.done or (max_specimens is not None and tested >= max_specimens):
-            return CampaignOutcome(verdict, records, cid, tested, time.monotonic() - t0)
+    records = store.results(cid)
+    verdict = judge(campaign, records, prefix)     # once a specimen: it refits the curve
+    while not (verdict.done or (max_specimens is not None and tested >= max_specimens)):
         nxt = verdict.next_specimen
         rec = test(nxt)
         if rec.specimen != nxt.specimen or not math.isclose(rec.level, nxt.level):
@@ -142,5 +140,8 @@ def run_campaign(campaign: Campaign, store: ResultStore,
                              f'{rec.level:g} for {nxt.specimen!r} at {nxt.level:g}')
         store.record(cid, rec)
         tested += 1
+        records = store.results(cid)
+        verdict = judge(campaign, records, prefix)
         if progress is not None:
-            progress(rec, judge(campaign, store.results(cid), prefix))
+            progress(rec, verdict)
+    return CampaignOutcome(verdict, records, cid, tested, time.monotonic() - t0)

@@ -50,7 +50,7 @@ import time
 from typing import Any, Callable, Sequence
 
 import numpy as np
-from ros_ehs.core.campaign.runner import Next
+from ros_ehs.core.campaign.runner import Next, specified_levels
 from ros_ehs.core.campaign.spec import Campaign
 from ros_ehs.core.errors import DataError, InputError
 from ros_ehs.data.campaign import run_campaign, specimen_seed, virtual_specimen
@@ -87,20 +87,23 @@ class MemoryStore:
 
 
 def _level_step(campaign: Campaign, level: float):
-    proc = campaign.procedure(level)
-    step = next(s for s in proc.steps if s.name == campaign.level_step)
-    return proc, step
-
-
-def _law_cycles(campaign: Campaign, level: float, params) -> float:
-    """Return the cycle a coupon of ``params`` ends at, at ``level``, by its specimen model."""
-    from ros_ehs.core.model.specimen import Specimen
-    from ros_ehs.core.sim.virtual_test import model_trip_cycle
-    proc, step = _level_step(campaign, level)
+    """Return the level step of the procedure at ``level`` (its detectors, taper, frequency)."""
+    step = campaign.level_step_of(campaign.procedure(level))
     if step.control_mode != 'force' or len(step['blocks']) != 1:
         raise InputError(f'{campaign.source}: lives from the law need a force-controlled '
                          'constant-amplitude level step (use lives: virtual)')
-    peak, valley = step['blocks'][0][0], step['blocks'][0][1]
+    return step
+
+
+def _law_cycles(campaign: Campaign, level: float, params, step) -> float:
+    """
+    Return the cycle a coupon of ``params`` ends at, at ``level``, by its specimen model.
+
+    ``step``: the level step (:func:`_level_step`: what does not change with the level).
+    """
+    from ros_ehs.core.model.specimen import Specimen
+    from ros_ehs.core.sim.virtual_test import model_trip_cycle
+    peak, valley = specified_levels(campaign, level)
     sp = Specimen(params)
     ends = [sp.cycles_to(1.0, peak - valley) + 0.5]          # the break, at the next peak
     for e in step.end:
@@ -113,11 +116,11 @@ def _law_cycles(campaign: Campaign, level: float, params) -> float:
 def law_specimen(campaign: Campaign, nxt: Next, params, *, seed: int = 1) -> SpecimenRecord:
     """Test the next specimen by its specimen model's closed form (module docstring)."""
     p = params.replace(specimen_seed=float(specimen_seed(seed, nxt.index)))
-    n = _law_cycles(campaign, nxt.level, p)
-    _, step = _level_step(campaign, nxt.level)
+    step = _level_step(campaign, nxt.level)
+    n = _law_cycles(campaign, nxt.level, p, step)
     out = n >= campaign.run_out
     cycles = int(campaign.run_out) if out else int(math.floor(n))
-    peak, valley = step['blocks'][0][0], step['blocks'][0][1]
+    peak, valley = specified_levels(campaign, nxt.level)
     return SpecimenRecord(
         specimen=nxt.specimen, level=nxt.level, result='run_out' if out else 'failed',
         cycles=max(cycles, 1), reason='run-out' if out else 'the specimen law',
@@ -135,14 +138,16 @@ def truth(campaign: Campaign, params) -> dict:
     t = campaign.target
     if t is None:
         return out
+    levels = campaign.planned_levels()
+    step = _level_step(campaign, levels[0])
     if t['kind'] == 'life_at_load':
-        out['target'] = _law_cycles(campaign, t['load'], p)
+        out['target'] = _law_cycles(campaign, t['load'], p, step)
         return out
-    levels = campaign.planned_levels()         # the load whose median life is `life`:
-    lo, hi = min(levels) / 1000.0, min(max(levels) * 10.0, 9.9e6)   # within reach
+    # the load whose median life is `life`, within reach of the levels
+    lo, hi = min(levels) / 1000.0, min(max(levels) * 10.0, 9.9e6)
     for _ in range(200):
         mid = math.sqrt(lo * hi)
-        if _law_cycles(campaign, mid, p) > t['life']:
+        if _law_cycles(campaign, mid, p, step) > t['life']:
             lo = mid
         else:
             hi = mid

@@ -120,6 +120,10 @@ class Campaign:
         return parse_procedure(self.procedure_doc(level, specimen),
                                f'{self.source} at level {level:g}')
 
+    def level_step_of(self, procedure: Procedure):
+        """Return the step of a rendered procedure that the level sets."""
+        return next(s for s in procedure.steps if s.name == self.level_step)
+
     def procedure_doc(self, level: float, specimen: str = '') -> dict:
         """Return the procedure of one specimen at ``level`` as a procedure file's mapping."""
         doc = copy.deepcopy(dict(self.template))
