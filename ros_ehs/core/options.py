@@ -388,6 +388,13 @@ _NODE_ONLY = ('push', 'controller', 'push_timeout', 'live', 'window', 'period', 
               'cpu_affinity')
 _OUT = ('out', '')
 _PRESET = ('preset', '', 'table1_estimated')
+#: the rig a campaign's virtual coupons are tested on (ehs_sim campaign, campaign-rehearse)
+_COUPONS_RIG = (
+    Setting(*_PRESET, meaning='the rig model: a parameter preset, under `params`'),
+    Setting('params', '', '', meaning='parameters YAML over the preset: the rig identified, '
+            "its gains, and the coupons' specimen model (specimen_*)"),
+    Setting('set', '', [], meaning='values over those, NAME=VALUE each, e.g. k_L=1e7 '
+            'specimen_scatter=0.15; repeat for more'))
 _DURATION = Setting('duration', 's', 3.0, 1.0e-3, 1.0e6, 'simulated time')
 _AMPLITUDE = Setting('amplitude', 'm', 0.04, -2.0, 2.0, 'sine amplitude')
 _FREQUENCY = Setting('frequency', 'Hz', 1.0, 1.0e-3, 500.0, 'sine frequency')
@@ -478,11 +485,7 @@ CLI_OPTIONS = {
                  Setting('store', '', 'campaign.db', meaning='the results store: a SQLite file, '
                          'or a database URL (postgresql+psycopg://user@host/db); a campaign '
                          'already in it goes on from its records'),
-                 Setting(*_PRESET, meaning='the rig model: a parameter preset, under `params`'),
-                 Setting('params', '', '', meaning='parameters YAML over the preset: the rig '
-                         "identified, its gains, and the coupons' specimen model (specimen_*)"),
-                 Setting('set', '', [], meaning='values over those, NAME=VALUE each, e.g. '
-                         'k_L=1e7 specimen_scatter=0.15; repeat for more'),
+                 *_COUPONS_RIG,
                  Setting('seed', '1', 1, 0, 2**31 - 1, "the virtual coupons' seed (each "
                          "coupon's specimen_seed is drawn from it and its place)"),
                  Setting('model', '', 'simplified', meaning='the plant model', choices=_MODELS),
@@ -494,10 +497,7 @@ CLI_OPTIONS = {
     'campaign-rehearse': (
         Setting('file', '', '', meaning='the campaign file (YAML, docs/campaigns.md)'),
         Setting('replicates', '1', 200, 1, 10**6, 'campaigns drawn afresh per plan'),
-        Setting(*_PRESET, meaning='the rig model: a parameter preset, under `params`'),
-        Setting('params', '', '', meaning='parameters YAML over the preset: the rig '
-                "identified, its gains, and the coupons' specimen model (specimen_*)"),
-        Setting('set', '', [], meaning='values over those, NAME=VALUE each; repeat for more'),
+        *_COUPONS_RIG,
         Setting('seed', '1', 1, 0, 2**31 - 1, 'the rehearsal seed (each replicate draws its '
                 'coupons from it and its number)'),
         Setting('lives', '', 'virtual', meaning="each coupon's end: virtual (a jumped virtual "

@@ -164,13 +164,10 @@ def _cmd_drive(args) -> int:
 
 def _cmd_tune(args) -> int:
     from ros_ehs.core.control.tuning import tune
-    from ros_ehs.core.params import load_yaml, preset, save_yaml
+    from ros_ehs.core.params import save_yaml
     from ros_ehs.core.sim.specimen_runs import square_wave
 
-    p = preset(args.preset)
-    if args.params:
-        p = load_yaml(args.params, p)
-    p = p.replace(**dict(parse_assignment(a, CONTROLLER_SPECS) for a in args.set))
+    p = _rig(args, CONTROLLER_SPECS)
     loops = ('displacement', 'force') if args.loop == 'both' else (args.loop,)
     if 'force' in loops and not p['k_L'] > 0:
         if args.loop == 'force':
@@ -213,16 +210,21 @@ def _cmd_tune(args) -> int:
     return 0 if worst <= 3.0 else 1
 
 
-def _cmd_procedure(args) -> int:
+def _rig(args, settable=None):
+    """Return the model of ``--preset``, ``--params`` and ``--set`` (of ``settable``)."""
     from ros_ehs.core.params import ALL_SPECS, load_yaml, preset
+    p = preset(args.preset)
+    if args.params:
+        p = load_yaml(args.params, p)
+    return p.replace(**dict(parse_assignment(a, settable or ALL_SPECS) for a in args.set))
+
+
+def _cmd_procedure(args) -> int:
     from ros_ehs.core.procedure.spec import load_procedure
     from ros_ehs.core.sim.virtual_test import run_procedure
 
     proc = load_procedure(args.file)
-    p = preset(args.preset)
-    if args.params:
-        p = load_yaml(args.params, p)
-    p = p.replace(**dict(parse_assignment(a, ALL_SPECS) for a in args.set))
+    p = _rig(args)
     print(f'virtual test of {proc.name!r} ({len(proc.steps)} steps) on the {args.model} model '
           f'at {args.rate_hz:g} Hz, specimen k_L {p["k_L"]:g} N/m, life '
           f'{p["specimen_life"]:g} cycles at {p["specimen_life_range"]:g} N')
@@ -267,14 +269,6 @@ def _cmd_fatigue_report(args) -> int:
     for f in rep.files:
         print(f'wrote {f}')
     return 0
-
-
-def _rig(args):
-    from ros_ehs.core.params import ALL_SPECS, load_yaml, preset
-    p = preset(args.preset)
-    if args.params:
-        p = load_yaml(args.params, p)
-    return p.replace(**dict(parse_assignment(a, ALL_SPECS) for a in args.set))
 
 
 def _cmd_campaign(args) -> int:
