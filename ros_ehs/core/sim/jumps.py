@@ -136,16 +136,19 @@ class Jumper:
         self.recent.clear()
         self.marks.clear()
 
-    def size(self, runner, specimen, mode: str, per: int = 1,
-             specified: tuple[float, float] | None = None) -> int:
+    def size(self, runner, specimen, step) -> int:
         """
-        Return the jump to make now (0: none).
+        Return the jump to make now (0: none), in the running ``step`` (the runner's).
 
-        ``mode``: the step's control mode; ``per``: its cycles a sequence (1: one level);
-        ``specified``: its (peak, valley), which the last cycles must be within ``levels``
-        of (the compensation has converged), for one level.
+        A block program's jump is whole sequences; a one-level cyclic step's last cycles must
+        be within ``levels`` of its specified peak and valley (the compensation converged).
         """
         p = self.policy
+        mode = step.control_mode
+        blocks = step['blocks'] if step.type == 'cyclic' else ((0.0, 0.0, 1),)
+        per = sum(b[2] for b in blocks)
+        specified = (blocks[0][0], blocks[0][1]) if per == 1 and step.type == 'cyclic' \
+            else None
         need = max(p.between, per)
         if per > MAX_SEQUENCE or self.in_step < max(p.settle, 2 * per) or \
                 self.since < need or len(self.recent) < need + per:

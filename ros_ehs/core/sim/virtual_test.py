@@ -235,13 +235,7 @@ def run_procedure(procedure: Procedure, params: Params, *, model: str = 'simplif
             if jumper is not None:
                 jumper.saw(runner.cycles, axis.specimen.half_cycles)
                 last = runner.cycles[-1]
-                runner.cycles.clear()
-                step = procedure.steps[runner.step_index]
-                blocks = step['blocks'] if step.type == 'cyclic' else ((0.0, 0.0, 1),)
-                per = sum(b[2] for b in blocks)
-                jn = jumper.size(runner, axis.specimen, step.control_mode, per,
-                                 (blocks[0][0], blocks[0][1])
-                                 if per == 1 and step.type == 'cyclic' else None)
+                jn = jumper.size(runner, axis.specimen, procedure.steps[runner.step_index])
                 if jn:
                     period = runner.step_period()
                     if axis.specimen.present and jumper.per_cycle > 0:
