@@ -73,31 +73,29 @@ def test_a_bad_record_is_named_and_nothing_is_written(tmp_path, rec, says):
     assert s.results(cid) == []
 
 
+def _sql(db, script: str) -> None:
+    """Run ``script`` on ``db`` with Python's own sqlite3 (another program's writes)."""
+    con = sqlite3.connect(db)
+    con.executescript(script)
+    con.close()
+
+
 def test_a_database_of_another_program_or_a_newer_schema_is_refused_and_left_alone(tmp_path):
     other = tmp_path / 'other.db'
-    con = sqlite3.connect(other)
-    con.execute('create table orders (id integer primary key, item text)')
-    con.commit()
-    con.close()
+    _sql(other, 'create table orders (id integer primary key, item text)')
     before = other.read_bytes()
     with pytest.raises(DataError, match='tables of another program .*orders'):
         ResultStore(other)
     assert other.read_bytes() == before
     newer = tmp_path / 'newer.db'
     ResultStore(newer).close()
-    con = sqlite3.connect(newer)
-    con.execute("update ros_ehs_meta set value = ? where key = 'schema_version'",
-                (str(SCHEMA_VERSION + 1),))
-    con.commit()
-    con.close()
+    _sql(newer, f"update ros_ehs_meta set value = '{SCHEMA_VERSION + 1}' "
+         "where key = 'schema_version'")
     with pytest.raises(DataError, match=f'schema version {SCHEMA_VERSION + 1}, newer'):
         ResultStore(newer)
     notours = tmp_path / 'notours.db'
     ResultStore(notours).close()
-    con = sqlite3.connect(notours)
-    con.execute("update ros_ehs_meta set value = 'labsoft' where key = 'program'")
-    con.commit()
-    con.close()
+    _sql(notours, "update ros_ehs_meta set value = 'labsoft' where key = 'program'")
     with pytest.raises(DataError, match="made by 'labsoft'"):
         ResultStore(notours)
     (tmp_path / 'junk.db').write_bytes(b'not a database at all' * 100)
@@ -184,18 +182,15 @@ def check_migrated(store) -> None:
 
 def test_a_version_1_store_is_migrated_in_place(tmp_path):
     db = tmp_path / 'v1.db'
-    con = sqlite3.connect(db)
-    con.executescript(V1.replace('{id}', 'INTEGER PRIMARY KEY'))
-    con.close()
+    _sql(db, V1.replace('{id}', 'INTEGER PRIMARY KEY'))
     check_migrated(ResultStore(db))
     con = sqlite3.connect(db)
     assert con.execute("select value from ros_ehs_meta where key = 'schema_version'"
                        ).fetchone() == (str(SCHEMA_VERSION),)
     cols = [r[1] for r in con.execute('pragma table_info(specimens)')]
     assert cols[-3:] == ['peak', 'valley', 'duration_s']
-    con.execute("update ros_ehs_meta set value = '0' where key = 'schema_version'")
-    con.commit()
     con.close()
+    _sql(db, "update ros_ehs_meta set value = '0' where key = 'schema_version'")
     before = db.read_bytes()
     with pytest.raises(DataError, match='schema version 0, which no migration starts from'):
         ResultStore(db)
