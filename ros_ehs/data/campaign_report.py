@@ -37,6 +37,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from ros_ehs.core.campaign.runner import sn_data
 from ros_ehs.core.campaign.sn import fit_basquin, fit_e739, SNData
 from ros_ehs.core.errors import DataError, InputError
 from ros_ehs.data.store import ResultStore
@@ -119,15 +120,14 @@ def write_campaign_report(store: ResultStore, out: str | os.PathLike, campaign: 
         for r in rows:
             w.writerow({**r, 'bags': ';'.join(r['bags']), 'params': json.dumps(r['params'])})
     files.append(path)
-    valid = [r for r in recs if r.result in ('failed', 'run_out') and r.cycles > 0]
+    data = sn_data(recs)                    # the valid ones, as the campaign's rules fit them
     path = d / 'specimens_pylife.csv'
     with open(path, 'w', newline='') as fh:
         fh.write('load,cycles,fracture\n')
-        for r in valid:
-            fh.write(f'{r.level:.10g},{r.cycles},{r.result == "failed"}\n')
+        if data is not None:
+            for s, n, f in zip(data.load, data.cycles, data.failed):
+                fh.write(f'{s:.10g},{int(n)},{bool(f)}\n')
     files.append(path)
-    data = SNData.of([r.level for r in valid], [r.cycles for r in valid],
-                     [r.result == 'failed' for r in valid]) if valid else None
     doc, fit = _fit_doc(data, confidence)
     doc['campaign'] = name
     path = d / 'fit.json'

@@ -67,7 +67,7 @@ from ros_ehs.core.campaign.spec import Campaign
 from ros_ehs.core.errors import InputError
 
 __all__ = ['CANDIDATES', 'INVALID_IN_A_ROW', 'Achieved', 'Next', 'Verdict', 'achieved_levels',
-           'adaptive_level', 'judge', 'specimen_result']
+           'adaptive_level', 'judge', 'sn_data', 'specimen_result']
 
 #: invalid specimens in a row that end a campaign
 INVALID_IN_A_ROW = 3
@@ -171,7 +171,8 @@ def specimen_result(campaign: Campaign, level: float, result: str, reason: str,
 
 
 # -- the rules ---------------------------------------------------------------------------------
-def _data(results: Sequence[Any]) -> SNData | None:
+def sn_data(results: Sequence[Any]) -> SNData | None:
+    """Return the valid results (failed, run out) as the S-N fit's data (None: none)."""
     valid = [r for r in results if r.result in ('failed', 'run_out') and r.cycles > 0]
     if not valid:
         return None
@@ -233,7 +234,7 @@ def judge(campaign: Campaign, results: Sequence[Any], prefix: str = 'S') -> Verd
     results = list(results)
     counts = {k: sum(r.result == k for r in results) for k in ('failed', 'run_out', 'invalid')}
     conf = campaign.target['confidence'] if campaign.target else 0.9
-    fit = _fit(_data(results), conf)
+    fit = _fit(sn_data(results), conf)
     target = _target(campaign, fit)
     if target is not None and target['met']:
         fit = _sloped(fit)
