@@ -51,6 +51,7 @@ estimates beside these, and the tests compare pyLife's ``Elementary`` slope with
 from __future__ import annotations
 
 from dataclasses import dataclass
+import functools
 import math
 from typing import Sequence
 
@@ -86,14 +87,14 @@ class SNData:
                                  'finite and > 0')
         return cls(s, n, f)
 
-    @property
+    @functools.cached_property
     def x(self) -> np.ndarray:
-        """Return log10 of the loads."""
+        """Return log10 of the loads (computed once: every likelihood evaluation reads it)."""
         return np.log10(self.load)
 
-    @property
+    @functools.cached_property
     def y(self) -> np.ndarray:
-        """Return log10 of the lives."""
+        """Return log10 of the lives (computed once)."""
         return np.log10(self.cycles)
 
 
@@ -170,13 +171,7 @@ _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
 def _nll(data: SNData, a: float, k: float, log_s: float) -> float:
     """Return the negative log-likelihood (failures: density; run-outs: survival)."""
-    from scipy.special import log_ndtr
-    s = math.exp(log_s)
-    r = (data.y - (a - k * data.x)) / s
-    f = data.failed
-    rf = r[f]
-    return float(0.5 * np.dot(rf, rf) + rf.size * (_LOG_SQRT_2PI + log_s) -
-                 np.sum(log_ndtr(-r[~f])))
+    return _nll_grad(data, a, k, log_s)[0]
 
 
 def _nll_grad(data: SNData, a: float, k: float, log_s: float) -> tuple[float, np.ndarray]:
