@@ -182,3 +182,16 @@ def test_the_cli_rehearses_and_writes_its_table(tmp_path):
     assert set(d['plans']) == {'levels (given)', 'pearl_string', 'staircase', 'adaptive'}
     assert all(len(v) == 4 for v in d['replicates'].values())
     assert not math.isnan(d['plans']['adaptive']['rig_h']['median'])
+
+
+@pytest.mark.parametrize('kw, says', [
+    ({'replicates': 0}, '`replicates` = 0 must be a whole number >= 1'),
+    ({'replicates': 2, 'plans': 'best'}, "`plans` = 'best' must be 'given' or 'all'"),
+    ({'replicates': 2, 'lives': 'guess'}, "`lives` = 'guess' must be one of"),
+])
+def test_a_bad_rehearsal_request_is_named(kw, says):
+    from ros_ehs.core.errors import InputError
+    c, p = _setup()
+    replicates = kw.pop('replicates')
+    with pytest.raises(InputError, match=says):
+        rehearse(c, p, replicates, workers=0, **kw)
