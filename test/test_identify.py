@@ -556,3 +556,84 @@ def test_a_fit_runs_its_linear_algebra_on_one_blas_thread(monkeypatch):
     assert after == {2}
     assert caught and all(w.filename == __file__ for w in caught), \
         [(w.filename, str(w.message)[:40]) for w in caught]
+
+
+def _warm_pair(monkeypatch):
+    """Return a cold fit of the sample bag's first half and two warm refits of its second."""
+    from ros_ehs.core.identify import estimator
+    from ros_ehs.core.identify.verdict import halves
+    first, second = halves([load_experiment(SAMPLE)])
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)
+        cold = identify(first, verdict=False)
+        warm = identify(second, x0=cold.x, warm=True, verdict=False, workers=1)
+        monkeypatch.setattr(estimator, 'STEP_SETTLED', 0.0)     # run to _TOL, as before
+        tight = identify(second, x0=cold.x, warm=True, verdict=False, workers=1)
+    return cold, warm, tight
+
+
+def test_a_warm_fit_stops_when_the_step_left_is_under_a_tenth_of_each_standard_error(
+        monkeypatch):
+    """
+    ``STEP_SETTLED``: the warm solve takes the small Gauss-Newton step left and stops.
+
+    Against the same refit run to the tolerance: every value within 0.15 of its standard
+    error, the cost within 1e-6, fewer Jacobians; its status and message say why it stopped.
+    """
+    cold, warm, tight = _warm_pair(monkeypatch)
+    assert warm.status == 3 and 'Gauss-Newton step left' in warm.message, warm.message
+    assert tight.message != warm.message
+    assert warm.iterations < tight.iterations, (warm.iterations, tight.iterations)
+    for n in warm.free:
+        assert abs(warm.x[n] - tight.x[n]) < 0.15 * tight.stderr[n], n
+        assert warm.stderr[n] == pytest.approx(tight.stderr[n], rel=0.01), n
+    assert warm.cost == pytest.approx(tight.cost, rel=1e-6)
+
+
+def test_the_verdicts_refit_takes_one_jacobian_and_lands_where_a_full_refit_does(monkeypatch):
+    """
+    ``_refit`` (the verdict's, values only): one finite-difference Jacobian, then Broyden's.
+
+    Its values are those of :func:`identify`'s warm refit of the same half run to the
+    tolerance, within 0.05 of their standard errors.
+    """
+    from ros_ehs.core.identify import estimator, problem
+    from ros_ehs.core.identify.verdict import halves
+    r = identify(load_experiment(SAMPLE), verdict=False)
+    part = halves([load_experiment(SAMPLE)])[0]
+    real, calls = estimator._fd_jacobian, []
+
+    def counted(*args):
+        calls.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(estimator, '_fd_jacobian', counted)
+    v = estimator._refit(part, r.params, r.free, r.model, problem.SIGNALS, r.cost_kind, 1.0,
+                         None, 1, 100)
+    assert len(calls) == 1
+    monkeypatch.setattr(estimator, 'STEP_SETTLED', 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', IdentificationWarning)
+        full = identify(part, base=r.params, warm=True, verdict=False, workers=1)
+    for n in r.free:
+        assert abs(v.x[n] - full.x[n]) < 0.05 * full.stderr[n], (n, v.x[n], full.x[n])
+    assert v.params is not None and v.params['F_cc'] == v.x['F_cc']
+
+
+@pytest.mark.parametrize('cost', ['sse', 'sae'])
+def test_the_gauss_newton_step_of_a_linear_problem_lands_on_its_solution(cost):
+    """On residuals linear in the values, the step is scipy's solution minus the start."""
+    from scipy.optimize import least_squares
+    from ros_ehs.core.identify.estimator import _F_SCALE, _gauss_newton_step
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(400, 3))
+    b = A @ np.array([1.0, -2.0, 0.5]) + 0.05 * rng.normal(size=400)
+    start = np.array([1.1, -1.9, 0.45])
+    step = _gauss_newton_step(A, A @ start - b, cost)
+    if cost == 'sse':
+        best = least_squares(lambda t: A @ t - b, start, xtol=1e-14, ftol=1e-14).x
+        assert np.allclose(start + step, best, atol=1e-10)
+    else:   # one reweighted step from near the optimum comes close to soft_l1's
+        best = least_squares(lambda t: A @ t - b, start, loss='soft_l1', f_scale=_F_SCALE,
+                             xtol=1e-14, ftol=1e-14).x
+        assert np.abs(start + step - best).max() < 0.2 * np.abs(start - best).max()

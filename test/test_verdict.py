@@ -638,16 +638,16 @@ def test_a_slow_record_without_pressures_is_refitted_without_each_quarter(monkey
     assert not any(f.startswith('agreement') for f in j.failed)
     assert j.summary()['jackknife'] == j.jackknife
     # a refit without one quarter that is not a valid set is a reason of its own
-    real, calls = estimator.identify, []
+    real, calls = estimator._refit, []
 
-    def third_invalid(experiments, **kwargs):
-        out = real(experiments, **kwargs)
+    def third_invalid(*args, **kwargs):
+        out = real(*args, **kwargs)
         calls.append(out)
         if len(calls) == 3:         # the two halves, then the record without its first quarter
             out.params = None
         return out
 
-    monkeypatch.setattr(estimator, 'identify', third_invalid)
+    monkeypatch.setattr(estimator, '_refit', third_invalid)
     j = estimator.judge(copy.deepcopy(r), exps)
     assert j.failed[-1] == 'jackknife_invalid' and not j.adequate
     assert 'without its quarter 1 of 4 is not a valid parameter set' in j.inadequacy[-1]

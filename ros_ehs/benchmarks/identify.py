@@ -18,8 +18,9 @@ Records a fresh noisy bag (simplified plant, Table 1 estimated values, 1 Hz / 0.
 then refits the seven parameters from Table 1's initial values, once with the Jacobian
 columns on 2 threads and once serially, side by side; then a warm refit (``warm_fit_s``):
 the next 10 s of the same rig from the first fit's estimate, on one thread, as the live
-mode refits each window. Prints the figures and, last, one JSON line with ``wall_s``,
-``fit_s``, ``warm_fit_s``, ``iterations``, ``nfev`` and each parameter's relative error.
+mode refits each window; each fit runs three times, its figure the fastest (``timeit``'s
+way). Prints the figures and, last, one JSON line with ``wall_s``, ``fit_s``,
+``warm_fit_s``, ``iterations``, ``nfev`` and each parameter's relative error.
 Targets: ``fit_s`` <= 1 s, ``warm_fit_s`` <= 0.3 s, ``iterations`` <= 24 (the paper's).
 
 The ``mismatch`` case: a rig that is not the fitted model. A 10 s bag from the *full* plant
@@ -97,6 +98,22 @@ def _read_costs(d: str, seconds: float = 10.0) -> dict:
     return out
 
 
+def _timed(fit, times: int = 3) -> tuple:
+    """
+    Return ``fit()``'s result and the wall time of each of ``times`` runs [s].
+
+    The figure is the fastest, as ``timeit`` reports: on a VM that stalls for milliseconds
+    several times a second, a single run measures the stalls as much as the fit (each run's
+    is printed beside it).
+    """
+    walls = []
+    for _ in range(times):
+        t0 = time.perf_counter()
+        out = fit()
+        walls.append(time.perf_counter() - t0)
+    return out, walls
+
+
 def main(argv=None) -> int:
     """Run the benchmark and print its figures."""
     import argparse
@@ -119,16 +136,11 @@ def main(argv=None) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', IdentificationWarning)
         identify(exp, max_nfev=1)      # compiles (or loads) the kernels: not part of a fit
-        t0 = time.perf_counter()
-        r = identify(exp, workers=2)
-        t_fit = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        r1 = identify(exp, workers=1)
-        t_serial = time.perf_counter() - t0
+        r, t_fits = _timed(lambda: identify(exp, workers=2))
+        r1, t_serials = _timed(lambda: identify(exp, workers=1))
         # warm: the next window from this estimate, on one thread as the live node runs it
-        t0 = time.perf_counter()
-        rw = identify(nxt, x0=r.x, warm=True, workers=1)
-        t_warm = time.perf_counter() - t0
+        rw, t_warms = _timed(lambda: identify(nxt, x0=r.x, warm=True, workers=1))
+        t_fit, t_serial, t_warm = min(t_fits), min(t_serials), min(t_warms)
     figures = {
         'wall_s': round(t_load + t_fit, 3),
         'bag_read_s': round(t_load, 3),
@@ -136,6 +148,9 @@ def main(argv=None) -> int:
         'fit_s': round(t_fit, 3),
         'fit_serial_s': round(t_serial, 3),
         'warm_fit_s': round(t_warm, 3),
+        'fit_s_each': [round(t, 3) for t in t_fits],
+        'warm_fit_s_each': [round(t, 3) for t in t_warms],
+        'warm_adequate': rw.adequate,
         'warm_iterations': rw.iterations,
         'warm_within_2sigma': sum(abs(rw.x[n] - true[n]) <= 2 * rw.stderr[n]
                                   for n in ESTIMATED),
