@@ -77,19 +77,14 @@ from ros_ehs.data.synthetic_bag import SensorNoise  # noqa: E402
 from ros_ehs.nodes.fastdds_profile import ENV, PROFILE  # noqa: E402
 from ros_ehs.nodes.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
-from ros_ehs.nodes.scheduling import BENCH_PRIORITY, realtime_allowed, RISK  # noqa: E402
+from ros_ehs.nodes.scheduling import (BENCH_PRIORITY, realtime_allowed, RISK,  # noqa: E402
+                                      rtprio_limit)
 import ros_ehs_msgs_py as contract  # noqa: E402
 
 #: at most this many CPUs get a probe (one each); a larger machine gets none
 PROBE_MAX_CPUS = 4
 #: the Fast DDS profile a bench under SCHED_FIFO needs (see the file's comment)
 RT_PROFILE = Path(__file__).resolve().with_name('fastdds_rt.xml')
-
-
-def _rtprio_limit() -> str:
-    import resource
-    soft = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
-    return 'unlimited' if soft == resource.RLIM_INFINITY else str(soft)
 
 
 def _start_probes(procs: NodeProcesses, rt_priority: int) -> list[str]:
@@ -275,7 +270,7 @@ def main(argv=None) -> int:
         a.rt_priority = 0 if lock else BENCH_PRIORITY
     if a.rt_priority and not realtime_allowed(a.rt_priority):
         print(f'bench: SCHED_FIFO {a.rt_priority} is not allowed here (no CAP_SYS_NICE, '
-              f'ulimit -r {_rtprio_limit()}): {RISK}', file=sys.stderr, flush=True)
+              f'ulimit -r {rtprio_limit()}): {RISK}', file=sys.stderr, flush=True)
         a.rt_priority = 0
     # the real-time profile, unless a profile of the user's own is named (the package's
     # default one is not: the real-time profile holds its settings too)

@@ -180,6 +180,7 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
             # the station's page and its charting library came with the install
             procs.start('station', cmd=[str(lib / 'station'), '--ros-args', '-p', 'port:=0'])
             served = procs.wait_status(STATION_STATUS, lambda st: 'url' in st.values)
+            placed = {n: _placement(procs[n].pid) for n in ('plant', 'controller', 'station')}
             url = procs.status(STATION_STATUS).values['url'] if served else ''
             page = urllib.request.urlopen(url, timeout=30).read() if served else b''
             lib_js = urllib.request.urlopen(url + 'static/vendor/uPlot.iife.min.js',
@@ -189,10 +190,32 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     assert served, procs['station'].output()[-2000:]
     assert b'ros_ehs station' in page and lib_js.startswith(b'/*! https://github.com/leeoniya')
     assert codes == {'station': 0, 'controller': 0, 'plant': 0}
+    # started as `ros2 run` starts them, without options: the loop's nodes on SCHED_FIFO 50
+    # when this user may (else a warning of what that risks), on the loop's CPU; the station
+    # off it
+    from ros_ehs.nodes.scheduling import BENCH_PRIORITY, loop_placement, realtime_allowed, RISK
+    may = realtime_allowed(BENCH_PRIORITY)
+    cpus = loop_placement()
+    for name in ('plant', 'controller'):
+        policy, priority, cpu = placed[name]
+        if may:
+            assert (policy, priority) == (os.SCHED_FIFO, BENCH_PRIORITY), (name, placed)
+        else:
+            assert policy == os.SCHED_OTHER and RISK in procs[name].output(), name
+        assert cpu == (None if cpus is None else {cpus[0]}), (name, placed)
+    assert placed['station'][:2] == (os.SCHED_OTHER, 0), placed
+    assert placed['station'][2] == (None if cpus is None else {cpus[1]}), placed
     where = subprocess.run([str(lib / 'identify'), '--ros-args', '-p', 'bags:=[nope]'],
                            env=dict(env, PYTHONPATH=sourced['PYTHONPATH']), capture_output=True,
                            text=True)
     assert where.returncode == 2 and 'no bag at' in where.stderr, where.stderr
+
+
+def _placement(pid: int) -> tuple[int, int, set | None]:
+    """Return a process's main thread's scheduling policy, priority and CPUs (None: all)."""
+    cpus = os.sched_getaffinity(pid)
+    return (os.sched_getscheduler(pid), os.sched_getparam(pid).sched_priority,
+            None if cpus == os.sched_getaffinity(0) else cpus)
 
 
 def test_launch_scripts_are_found_from_the_source_tree_or_the_install(tmp_path, monkeypatch):

@@ -104,3 +104,50 @@ def test_realtime_allowed_leaves_the_scheduler_as_it_was():
     before = os.sched_getscheduler(0), os.sched_getparam(0)
     realtime_allowed(50)
     assert (os.sched_getscheduler(0), os.sched_getparam(0)) == before
+
+
+def test_the_automatic_priority_is_the_benchs_in_real_time_none_in_lock_step():
+    from ros_ehs.nodes.scheduling import AUTO_PRIORITY, BENCH_PRIORITY, node_priority, RISK
+    asked = []
+
+    def allowed(priority):
+        asked.append(priority)
+        return True
+    assert node_priority(AUTO_PRIORITY, True, allowed) == (BENCH_PRIORITY, '')
+    assert asked == [BENCH_PRIORITY]
+    assert node_priority(AUTO_PRIORITY, False, allowed) == (0, '')      # lock-step, sim time
+    assert asked == [BENCH_PRIORITY]
+    # refused: the default scheduler, and one sentence of what that risks
+    priority, said = node_priority(AUTO_PRIORITY, True, lambda p: False)
+    assert priority == 0 and said.startswith('rt_priority -1 (automatic): SCHED_FIFO 50 is '
+                                             'not allowed') and 'ulimit -r' in said
+    assert RISK in said
+    # what a user sets is applied as set (set_realtime says itself when it cannot)
+    for option in (0, 1, 80):
+        assert node_priority(option, True, lambda p: False) == (option, '')
+
+
+def test_the_automatic_cpu_keeps_the_loop_on_its_own_and_the_rest_off_it():
+    from ros_ehs.nodes.scheduling import AUTO_CPU, node_cpu
+    assert node_cpu(AUTO_CPU, True, lambda: (1, 0)) == 1
+    assert node_cpu(AUTO_CPU, False, lambda: (1, 0)) == 0
+    assert node_cpu(AUTO_CPU, False, lambda: None) == -1         # one CPU: anywhere
+    assert node_cpu(AUTO_CPU, True, lambda: None) == -1
+
+    def bad():
+        raise ValueError('ROS_EHS_LOOP_CPUS = ...')
+    assert node_cpu(AUTO_CPU, True, bad) == -1
+    for option in (-1, 0, 3):
+        assert node_cpu(option, True, lambda: (1, 0)) == option
+
+
+def test_every_node_defaults_to_the_automatic_placement():
+    from ros_ehs.core.options import NODE_OPTIONS
+    from ros_ehs.nodes.scheduling import AUTO_CPU, AUTO_PRIORITY
+    for node, settings in NODE_OPTIONS.items():
+        by = {s.name: s for s in settings}
+        if 'cpu_affinity' in by:
+            assert by['cpu_affinity'].default == AUTO_CPU, node
+        if 'rt_priority' in by:
+            assert by['rt_priority'].default == AUTO_PRIORITY, node
+            assert node in ('plant', 'controller'), node

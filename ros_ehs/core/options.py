@@ -47,14 +47,17 @@ RATE_HZ = Setting('rate_hz', 'Hz', 1000.0, 1.0, 5000.0, "the loop's period rate:
                   "to its states' instants)")
 DIAGNOSTICS_PERIOD = Setting('diagnostics_period', 's', 1.0, 0.05, 60.0,
                              'period of the diagnostics message')
-CPU_AFFINITY = Setting('cpu_affinity', '', -1, -1, 1023, 'keep the threads of the node that '
+CPU_AFFINITY = Setting('cpu_affinity', '', -2, -2, 1023, 'keep the threads of the node that '
                        "carry the loop on this CPU, the middleware's discovery and timed "
-                       'events on the others (-1: anywhere); a bench: plant and controller on '
-                       'one, the reference on another')
-RT_PRIORITY = Setting('rt_priority', '', 0, 0, 99, 'real time: SCHED_FIFO priority of all the '
+                       'events on the others; -1: anywhere; -2 (automatic): the plant and the '
+                       "controller on the loop's CPU, every other node on another (the first "
+                       'two CPUs the process may use, or ROS_EHS_LOOP_CPUS=LOOP,OTHER), '
+                       'anywhere with one CPU')
+RT_PRIORITY = Setting('rt_priority', '', -1, -1, 99, 'real time: SCHED_FIFO priority of all the '
                       'threads of the node (1-99), so that other work on the machine cannot '
-                      'delay a period; 0: the default scheduler. Needs CAP_SYS_NICE or '
-                      'ulimit -r')
+                      'delay a period; 0: the default scheduler; -1 (automatic): 50 in real '
+                      'time when the process may (CAP_SYS_NICE or ulimit -r), else the '
+                      'default scheduler and a warning of what that risks; none in lock-step')
 MODEL = Setting('model', '', 'simplified', meaning='model: full (10 states), reduced (6: the '
                 "simplified with the full model's valve dynamics: for a real rig) or "
                 'simplified (4 states, the paper)', choices=_MODELS)

@@ -100,6 +100,7 @@ class ControllerNode(Node):
         # staleness is a wall-clock notion: off under sim time and in lock-step (where the
         # plant waits for us, so nothing can be stale)
         wall = not (self.get_parameter('use_sim_time').value or self.lockstep)
+        self.realtime, self.carries_loop = wall, True     # for run()'s automatic placement
         self.loop = ControlLoop(self.params, rate_hz=float(o['rate_hz']), lockstep=self.lockstep,
                                 wall=wall, start_enabled=bool(o['start_enabled']),
                                 reference_timeout=float(o['reference_timeout']),

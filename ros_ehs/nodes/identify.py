@@ -29,7 +29,7 @@ the running loop (``state``, the pressures and, where the state does not carry t
 current, the commands: our contract, or a rig's topics and joint from the same options or
 ``topic_map``), keeps the last ``window`` seconds and every ``period`` seconds of the state
 clock refits them on one low-priority thread (``refit_priority``: SCHED_IDLE by default, one
-Jacobian thread; place the node with ``cpu_affinity`` on the CPU the loop does not use), warm
+Jacobian thread; by default (``cpu_affinity`` -2) on a CPU the loop does not use), warm
 from its last adequate estimate. Each refit is published on ``parameter_estimates`` (values,
 standard errors, verdict, whether and why it was pushed: the recorder keeps it) and logged in
 one line. With ``push: true`` an adequate fit whose values are all inside their bounds and

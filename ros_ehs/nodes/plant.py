@@ -110,6 +110,7 @@ class PlantNode(Node):
         declare_settings(self, PLANT_SPECS, Params())
         self.params = node_params(self, Params(), PLANT_SPECS)
         self.lockstep = self.opt['mode'] == 'lockstep'
+        self.realtime, self.carries_loop = not self.lockstep, True     # for run()'s placement
         o = self.opt
         if self.lockstep:
             t0_ns, wall0_ns = int(round(float(o['start_time']) * 1e9)), 0

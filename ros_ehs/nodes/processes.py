@@ -43,6 +43,7 @@ from typing import Any, Callable, Iterable
 from ros_ehs.core.errors import EhsError
 from ros_ehs.nodes.fastdds_profile import use_profile
 from ros_ehs.nodes.fastdds_shm import clean_zombies, SHM_DIR
+from ros_ehs.nodes.scheduling import LOOP_CPUS_ENV, loop_placement
 import ros_ehs_msgs_py as contract
 
 __all__ = ['DUMP_SIGNAL', 'LOOP_CPUS_ENV', 'NodeProcesses', 'StartupError', 'launch_script',
@@ -94,36 +95,6 @@ def _value(v: Any) -> str:
     if isinstance(v, str):      # quoted: '-p' values are YAML, where off or 1e3 is no string
         return "'" + v.replace("'", "''") + "'"
     return str(v)
-
-
-#: the environment variable that places the loop: ``LOOP_CPU,REFERENCE_CPU`` (e.g. ``1,0``)
-LOOP_CPUS_ENV = 'ROS_EHS_LOOP_CPUS'
-
-
-def loop_placement(pin: bool | None = None) -> tuple[int, int] | None:
-    """
-    Return the CPUs of a pinned loop, (plant and controller, reference), or None: unpinned.
-
-    The first two CPUs this process may use, or the two that ``ROS_EHS_LOOP_CPUS`` names
-    (two benches side by side, as the test suite's workers run them, each on its own CPU:
-    both on the first one slowed both). ``pin`` None: only if this process may use two CPUs
-    or more (on one CPU there is nothing to place); True: always (one CPU: all on it);
-    False: never.
-    """
-    allowed = sorted(os.sched_getaffinity(0))
-    if pin is False or (pin is None and len(allowed) < 2):
-        return None
-    named = os.environ.get(LOOP_CPUS_ENV, '').strip()
-    if named:
-        try:
-            cpus = tuple(int(c) for c in named.split(','))
-        except ValueError:
-            cpus = ()
-        if len(cpus) != 2 or not set(cpus) <= set(allowed):
-            raise ValueError(f'{LOOP_CPUS_ENV} = {named!r}: expected two CPUs of this '
-                             f'process, LOOP,REFERENCE, of {allowed}')
-        return cpus
-    return allowed[0], allowed[1 % len(allowed)]
 
 
 def node_command(node: str, params: dict[str, Any] | None = None,

@@ -48,10 +48,11 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from ros_ehs.core.errors import EhsError
-from ros_ehs.nodes.fastdds_profile import use_profile
+from ros_ehs.nodes.fastdds_profile import ENV, use_profile
 from ros_ehs.nodes.parameters import check_names
-from ros_ehs.nodes.processes import DUMP_SIGNAL
-from ros_ehs.nodes.scheduling import set_cpu_affinity, set_realtime
+from ros_ehs.nodes.processes import DUMP_SIGNAL, launch_script
+from ros_ehs.nodes.scheduling import (BENCH_PRIORITY, node_cpu, node_priority, realtime_allowed,
+                                      set_cpu_affinity, set_realtime)
 import ros_ehs_msgs_py as contract
 
 __all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'RESEND', 'WARN', 'call_until_answered', 'diagnostics',
@@ -239,6 +240,14 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     # Our own SIGINT/SIGTERM handling: leave the spin loop first, then close the node (a bag
     # gets its summary), then shut rclpy down. With rclpy's handler the context dies while
     # callbacks still publish.
+    if not os.environ.get(ENV) and realtime_allowed(BENCH_PRIORITY):
+        # a process whose loop nodes take SCHED_FIFO by default (rt_priority -1) gets the
+        # profile bench.py gives a real-time bench's nodes: its shared-memory ports' 30 ms
+        # check (docs/nodes.md)
+        try:
+            os.environ[ENV] = str(launch_script('fastdds_rt.xml'))
+        except FileNotFoundError:        # a pip install without the share directory
+            pass
     use_profile()              # the package's Fast DDS profile, unless one is named
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     # The stop is a byte in a pipe, not a threading.Event: a Python signal handler runs in
@@ -267,8 +276,13 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
     try:
         node = factory()
         check_names(node)
-        for said in (set_realtime(int(getattr(node, 'rt_priority', 0))),
-                     set_cpu_affinity(int(getattr(node, 'cpu_affinity', -1)))):
+        # the defaults (automatic): a loop node in real time on SCHED_FIFO when it may, or
+        # said once what it risks; the loop's nodes on its CPU, the others off it
+        priority, refused = node_priority(int(getattr(node, 'rt_priority', 0)),
+                                          bool(getattr(node, 'realtime', False)))
+        cpu = node_cpu(int(getattr(node, 'cpu_affinity', -1)),
+                       bool(getattr(node, 'carries_loop', False)))
+        for said in (refused, set_realtime(priority), set_cpu_affinity(cpu)):
             if said:
                 (node.get_logger().info if said.startswith('threads') else
                  node.get_logger().warning)(said)

@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import os
 
-__all__ = ['BENCH_PRIORITY', 'RISK', 'SIDE_THREADS', 'realtime_allowed', 'set_cpu_affinity',
-           'set_realtime']
+__all__ = ['AUTO_CPU', 'AUTO_PRIORITY', 'BENCH_PRIORITY', 'LOOP_CPUS_ENV', 'RISK',
+           'SIDE_THREADS', 'loop_placement', 'node_cpu', 'node_priority', 'realtime_allowed', 'rtprio_limit',
+           'set_cpu_affinity', 'set_realtime']
 
 
 def _thread_ids() -> list[int]:
@@ -111,3 +112,91 @@ def set_cpu_affinity(cpu: int) -> str:
         return (f'cpu_affinity {cpu} not applied ({getattr(err, "strerror", err)}): this '
                 f'machine has CPUs {sorted(os.sched_getaffinity(0))}')
     return f'threads on CPU {cpu} (discovery and timed events on CPUs {sorted(others)})'
+
+
+#: the environment variable that places the loop: ``LOOP_CPU,REFERENCE_CPU`` (e.g. ``1,0``)
+LOOP_CPUS_ENV = 'ROS_EHS_LOOP_CPUS'
+
+
+def loop_placement(pin: bool | None = None) -> tuple[int, int] | None:
+    """
+    Return the CPUs of a pinned loop, (plant and controller, reference), or None: unpinned.
+
+    The first two CPUs this process may use, or the two that ``ROS_EHS_LOOP_CPUS`` names
+    (two benches side by side, as the test suite's workers run them, each on its own CPU:
+    both on the first one slowed both). ``pin`` None: only if this process may use two CPUs
+    or more (on one CPU there is nothing to place); True: always (one CPU: all on it);
+    False: never.
+    """
+    allowed = sorted(os.sched_getaffinity(0))
+    if pin is False or (pin is None and len(allowed) < 2):
+        return None
+    named = os.environ.get(LOOP_CPUS_ENV, '').strip()
+    if named:
+        try:
+            cpus = tuple(int(c) for c in named.split(','))
+        except ValueError:
+            cpus = ()
+        if len(cpus) != 2 or not set(cpus) <= set(allowed):
+            raise ValueError(f'{LOOP_CPUS_ENV} = {named!r}: expected two CPUs of this '
+                             f'process, LOOP,REFERENCE, of {allowed}')
+        return cpus
+    return allowed[0], allowed[1 % len(allowed)]
+
+
+#: ``rt_priority`` -1, the loop nodes' default: :data:`BENCH_PRIORITY` in real time when the
+#: process may, the default scheduler in lock-step (no deadline to take priority for)
+AUTO_PRIORITY = -1
+#: ``cpu_affinity`` -2, every node's default: the loop's nodes (plant, controller) on the
+#: loop's CPU of :func:`loop_placement`, the others (reference, procedure, identify, station)
+#: on the other one, so that a refit or a browser's page is never served on the loop's CPU;
+#: anywhere on a machine (or a process) with one CPU
+AUTO_CPU = -2
+
+
+def rtprio_limit() -> str:
+    """Return this process's ``ulimit -r`` (its RLIMIT_RTPRIO) as the shell says it."""
+    try:
+        import resource
+        soft, _ = resource.getrlimit(resource.RLIMIT_RTPRIO)
+        return 'unlimited' if soft == resource.RLIM_INFINITY else str(soft)
+    except (ImportError, OSError, AttributeError):
+        return '?'
+
+
+def node_priority(option: int, realtime: bool, allowed=realtime_allowed) -> tuple[int, str]:
+    """
+    Resolve a node's ``rt_priority`` option: return the priority to apply and what to say.
+
+    ``option`` as set (:data:`AUTO_PRIORITY`: the default); ``realtime``: the node runs
+    against the wall clock (not lock-step, not on sim time); ``allowed(priority)``: whether
+    this process may take it. The returned sentence is empty, or once-only news for the
+    node's log: the automatic priority refused, and what running without it risks.
+    """
+    if option != AUTO_PRIORITY:
+        return option, ''
+    if not realtime:
+        return 0, ''
+    if allowed(BENCH_PRIORITY):
+        return BENCH_PRIORITY, ''
+    return 0, (f'rt_priority {AUTO_PRIORITY} (automatic): SCHED_FIFO {BENCH_PRIORITY} is not '
+               f'allowed to this process (no CAP_SYS_NICE, ulimit -r {rtprio_limit()}); '
+               f'{RISK}')
+
+
+def node_cpu(option: int, loop: bool, placement=loop_placement) -> int:
+    """
+    Resolve a node's ``cpu_affinity`` option: return the CPU to keep it on (-1: anywhere).
+
+    ``option`` as set (:data:`AUTO_CPU`: the default); ``loop``: the node carries the loop
+    (plant, controller); ``placement()``: :func:`loop_placement`'s CPUs or None (one CPU).
+    """
+    if option != AUTO_CPU:
+        return option
+    try:
+        cpus = placement()
+    except ValueError:       # a bad ROS_EHS_LOOP_CPUS: the launcher says so; anywhere here
+        return -1
+    if cpus is None:
+        return -1
+    return cpus[0] if loop else cpus[1]
