@@ -191,6 +191,49 @@ def _test_lines(bag: Path) -> None:
         print(f"bench:   cycle {e['total_cycles']:>8}  {e['kind']}: {e['message']}")
 
 
+def _campaign(a) -> int:
+    """Run ``--campaign`` on the lock-step bench into ``--store``; write its report."""
+    from ros_ehs.core.campaign.spec import load_campaign
+    from ros_ehs.core.params import ALL_SPECS, preset
+    from ros_ehs.data.campaign import campaign_hash, run_campaign
+    from ros_ehs.data.campaign_report import write_campaign_report
+    from ros_ehs.data.store import ResultStore
+    from ros_ehs.nodes.campaign_bench import BenchCoupons
+    try:
+        c = load_campaign(a.campaign)
+        rig = preset(a.preset).replace(**dict(parse_assignment(x, ALL_SPECS) for x in a.set))
+    except EhsError as err:
+        print(f'bench: {err}', file=sys.stderr)
+        return 2
+    out = Path(a.out) if a.out else Path('out') / 'campaigns' / c.name.replace(' ', '_')
+    out.mkdir(parents=True, exist_ok=True)
+    url = a.store or str(out / 'campaign.db')
+    store = ResultStore(url)
+    coupons = BenchCoupons(c, rig, out, seed=a.seed, model=a.model, domain_id=a.domain_id,
+                           say=lambda line: print(line, flush=True))
+    print(f"bench: campaign {c.name!r} ({c.plan['method']}, run-out {c.run_out:g}) on the "
+          f'lock-step bench into {url}; coupons in {out}', flush=True)
+
+    def test(nxt):
+        print(f'bench: {nxt.specimen} at {nxt.level:g} ...', flush=True)
+        return coupons(nxt)
+
+    def progress(rec, verdict):
+        print(f'bench: {rec.specimen} {rec.result}, {rec.cycles} cycles'
+              + (f': {rec.reason}' if rec.result == 'invalid' else ''), flush=True)
+    try:
+        end = run_campaign(c, store, test, file_hash=campaign_hash(a.campaign),
+                           progress=progress)
+        report = write_campaign_report(store, out / 'report', c.name)
+    finally:
+        coupons.close()
+        store.close()
+    print(f'bench: {len(end.records)} specimens in the store ({end.tested} tested now): '
+          f"{end.verdict.reason}; report {out / 'report' / 'report.html'} "
+          f'({report.specimens} specimens)', flush=True)
+    return 0
+
+
 def main(argv=None) -> int:
     """Run the bench; see the module docstring."""
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
@@ -245,6 +288,20 @@ def main(argv=None) -> int:
                          'machines without --station-token)')
     ap.add_argument('--station-token', default='',
                     help='the token a page from another machine must give to act')
+    camp = ap.add_argument_group('a campaign on the lock-step bench (docs/campaigns.md)')
+    camp.add_argument('--campaign', default=None, metavar='FILE',
+                      help='run this campaign file specimen after specimen, each a virtual '
+                      'coupon through the nodes (one lock-step bench a coupon) into --store; '
+                      'run again after a crash: it goes on from the store')
+    camp.add_argument('--store', default=None, metavar='URL',
+                      help='--campaign: the results store (a SQLite file or a postgresql:// '
+                      'URL; default <out>/campaign.db)')
+    camp.add_argument('--seed', type=int, default=1, help="--campaign: the coupons' seed")
+    camp.add_argument('--preset', default='table1_estimated',
+                      help="--campaign: the rig model's parameter preset")
+    camp.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                      help="--campaign: a rig or coupon value over the preset (repeatable), "
+                      'e.g. k_L=1e7 specimen_life=300')
     rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
     rec.add_argument('--max-bag-size', type=int, default=None,
                      help='split once a file holds this many bytes (0: never)')
@@ -255,6 +312,8 @@ def main(argv=None) -> int:
     rec.add_argument('--min-free-space', type=int, default=None,
                      help='bytes: refuse to start, and stop recording, below this')
     a = ap.parse_args(argv)
+    if a.campaign:
+        return _campaign(a)
     out = Path(a.out) if a.out else default_bag_path()
     if out.exists():
         print(f'bench: {out} exists; choose another --out', file=sys.stderr)

@@ -118,7 +118,7 @@ SHORT = {
     'load': (['--seconds', '2', '--cases'], 'quiet'),     # the loads themselves would
     # starve the suite's other workers: the short run is the two quiet runs
     'integrity': (['--only', 'envelope', '--cycles', '5'], 'met'),
-    'campaign': (['--sets', '1'], 'fit'),
+    'campaign': (['--sets', '1', '--no-bench'], 'fit'),
     'rehearsal': (['--cases', '1', '--runout', '2000', '--failure', '2000', '--replicates',
                    '2', '--scaling-replicates', '2', '--virtual-replicates', '1',
                    '--specimens', '1'], 'coverage'),

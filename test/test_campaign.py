@@ -200,3 +200,26 @@ def test_a_report_names_a_missing_campaign(tmp_path):
     rep = write_campaign_report(store, tmp_path / 'r', 'a')
     assert rep.specimens == 0 and rep.fit['basquin'] is None
     assert Path(tmp_path / 'r' / 'report.html').is_file()
+
+
+def test_a_campaign_on_the_lock_step_bench_survives_a_power_cut_during_specimen_4(tmp_path):
+    """
+    ``bench.py --campaign``: six coupons through the nodes, every process killed during S04.
+
+    The campaign benchmark's bench part, as it runs: after the kill the same command goes on
+    from the store and S04's checkpoint; six specimens, each once, each linked to its bags
+    (S04 to two), the report written, and S04's count as far from its coupon model's as the
+    uninterrupted failures' are (its crack carried over the restart).
+    """
+    from ros_ehs.benchmarks.campaign import bench_campaign
+    b = bench_campaign(tmp_path)
+    assert b['exit_codes'][1] == 0 and b['specimens'] == 6, b
+    assert b['recorded_once'] and b['linked_to_bags'] and b['killed_and_resumed'], b
+    assert b['report']
+    assert [r['bags'] for r in b['results']] == [1, 1, 1, 2, 1, 1]
+    off = b['offset_cycles']
+    others = [v for k, v in off.items() if k != 'S04']
+    assert 'S04' in off and others
+    assert min(others) - 2.0 <= off['S04'] <= max(others) + 2.0, off
+    for r in b['results']:           # every coupon carried its level (tolerance 2 %)
+        assert abs(r['peak'] - r['level']) < 0.02 * 0.9 * r['level'], r

@@ -205,3 +205,22 @@ def test_a_live_parameter_change_keeps_the_crack_unless_the_specimen_changes():
     assert a.specimen.a == crack
     a.set_params(a.params.replace(k_L=2e6))               # a new specimen installed
     assert a.specimen.a == a.specimen.a0 and a.specimen.k0 == 2e6
+
+
+@pytest.mark.parametrize('m', [2.0, 3.5])
+def test_an_aged_coupon_has_the_cycles_left_that_the_original_has_after_its_cycles(m):
+    """``Specimen.aged``: a plant started again mid-test installs the coupon as it was."""
+    p = Params().replace(k_L=1e7, specimen_life=800.0, specimen_life_range=9000.0,
+                         specimen_paris_m=m, specimen_scatter=0.2, specimen_seed=17.0)
+    sp = Specimen(p)
+    again = Specimen(p.replace(**sp.aged(p, 300.0, 8000.0)))
+    assert again.a0 == pytest.approx(sp.crack_after(300.0, 8000.0))
+    for rng in (8000.0, 9000.0):            # the same growth law at any range after it
+        assert again.cycles_to(1.0, rng) == pytest.approx(
+            sp.cycles_to(1.0, rng) - 300.0 * (8000.0 / rng) ** m, rel=1e-9)
+    # fed through its half cycles (the plant's way), it breaks where the original would
+    fresh = Specimen(p.replace(**sp.aged(p, 300.0, 9000.0)))
+    _cycle(fresh, 2000, mean=4500.0, amp=4500.0)
+    assert fresh.cycles == pytest.approx(sp.cycles_to(1.0, 9000.0) - 300.0, abs=1.0)
+    with pytest.raises(InputError, match='fractures within 5000 cycles'):
+        sp.aged(p, 5000.0, 9000.0)

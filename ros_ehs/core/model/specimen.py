@@ -268,6 +268,29 @@ class Specimen:
             return self.a0
         return self._grown_from(self.a0, self.A * n * (rng / self.range_ref) ** self.m)
 
+    def aged(self, params: Mapping[str, float], n: float, force_range: float) -> dict:
+        """
+        Return the parameters that install this coupon as it is after ``n`` cycles at a range.
+
+        ``params``: those it was made from. Its crack then is the new ``specimen_crack0`` and
+        ``specimen_life`` is rescaled so that the growth law (and the scatter the same seed
+        draws) is unchanged: a :class:`Specimen` of them has the cycles left that this one has
+        after ``n`` cycles at ``force_range`` [N]. What a restarted virtual coupon needs (a
+        plant started again mid-test: the real coupon kept its crack). The fatigue limit's
+        threshold is taken at the new initial crack.
+        """
+        a = self.crack_after(n, force_range)
+        if a >= 1.0:
+            raise InputError(f'the coupon fractures within {n:g} cycles at {force_range:g} N: '
+                             'nothing is left to install')
+        h = self.m / 2.0
+        if abs(h - 1.0) < 1e-12:
+            scale = math.log(1.0 / a) / math.log(1.0 / self.a0)
+        else:
+            scale = (a ** (1.0 - h) - 1.0) / (self.a0 ** (1.0 - h) - 1.0)
+        return {'specimen_crack0': a,
+                'specimen_life': float(params['specimen_life']) * scale}
+
     def stiffness_after(self, n: float, force_range: float | None = None) -> float:
         """Return the stiffness after ``n`` cycles at a constant range [N/m] (before fracture)."""
         a = self.crack_after(n, force_range)
