@@ -481,6 +481,44 @@ def test_a_step_in_the_other_mode_waits_for_the_controller_and_a_refusal_holds()
     assert r2.state == 'held' and 'no load cell' in r2.events[-1][3]
 
 
+def test_a_start_waits_for_the_controllers_mode_and_switches_it_to_the_first_steps():
+    """A node reads the controller's mode first: a force test never drives a position loop."""
+    p = proc({'name': 'load', 'type': 'ramp', 'to': 2000.0, 'rate': 1.0e4,
+              'control_mode': 'force'})
+    r = ProcedureRunner(p, latency=0.0)
+    r.mode_known = False                       # as the procedure node starts it
+    ax = PerfectAxis(r)
+    ok, why = r.start(ax.stamp)
+    assert not ok and why == "the controller's control mode is not known yet (asking it)"
+    assert r.state == 'idle' and not r.events
+    r.controller_mode('displacement')          # the controller's answer
+    ok, why = r.start(ax.stamp)
+    assert ok, why
+    assert r.state == 'switching' and r.request_mode == 'force'
+    r.mode_switched(True, '', ax.stamp)
+    ax.run(until=finished)
+    assert r.result == 'completed' and r.mode == 'force'
+    # the same controller already in force: no switch at all
+    again = ProcedureRunner(p, latency=0.0)
+    again.mode_known = False
+    again.controller_mode('force')
+    ok, _ = again.start(PerfectAxis(again).stamp)
+    assert ok and again.state == 'running' and again.request_mode is None
+
+
+def test_a_resume_waits_for_the_controllers_mode_too():
+    p = proc(CYCLIC)
+    r, ax = started(p)
+    ax.run(until=lambda r: r.total == 2)
+    r.hold(ax.stamp)
+    r.mode_known = False                       # a restarted node asking again
+    ok, why = r.resume(ax.stamp)
+    assert not ok and 'not known yet' in why and r.state == 'held'
+    r.controller_mode('displacement')
+    ok, why = r.resume(ax.stamp)
+    assert ok, why
+
+
 def test_a_restarted_loop_interrupts_and_keeps_the_counts():
     p = proc(CYCLIC)
     r, ax = started(p)

@@ -111,7 +111,7 @@ class BenchCoupons:
             opts = {'file': str(proc_file), 'checkpoint': str(checkpoint),
                     'autostart': saved is None, 'recover_bag': str(bags[-1]) if bags else ''}
             with NodeProcesses(self.domain_id, d / 'logs', bound=self.bound) as procs:
-                self._loop(procs, bag, p, opts, proc.steps[0].control_mode)
+                self._loop(procs, bag, p, opts)
                 if saved is not None:
                     self._wait(procs, lambda v: v['state'] == 'interrupted' and
                                int(v['stamp_ns']) > 0)
@@ -140,16 +140,12 @@ class BenchCoupons:
                  + (f', {len(bags)} starts' if len(bags) > 1 else ''))
 
     # -- the bench --------------------------------------------------------------------------
-    def _loop(self, procs: NodeProcesses, bag: Path, p: Params, opts: dict,
-              mode: str) -> None:
+    def _loop(self, procs: NodeProcesses, bag: Path, p: Params, opts: dict) -> None:
         c = contract
         procs.start('recorder', {'out': str(bag), 'use_sim_time': True})
         if not procs.wait_status(c.RECORDER_STATUS, lambda st: True, self.bound):
             raise RuntimeError('the recorder did not start')
-        gains = {s.name: p[s.name] for s in CONTROLLER_SPECS}
-        # the controller starts in the procedure's first mode: the procedure node takes the
-        # controller to be in it (it switches only between steps)
-        gains['control_mode'] = mode
+        gains = {s.name: p[s.name] for s in CONTROLLER_SPECS}   # the procedure sets its mode
         procs.start('controller', {'lockstep': True, 'diagnostics_period': 0.2, **gains})
         procs.start('procedure', {'use_sim_time': True, 'diagnostics_period': 0.2,
                                   'ramp_time': gains['ramp_time'], **opts})

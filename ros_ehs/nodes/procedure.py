@@ -53,7 +53,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import SetParameters
+from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.options import PROCEDURE
@@ -223,6 +223,13 @@ class ProcedureNode(Node):
                                                                         name))
         self.mode_client = self.create_client(SetParameters,
                                               f'/{self.opt["controller"]}/set_parameters')
+        # the controller's mode is read before a start or a resume (it may hold another)
+        self.mode_reader = self.create_client(GetParameters,
+                                              f'/{self.opt["controller"]}/get_parameters')
+        self.runner.mode_known = False
+        self._states = 0
+        self._mode_read: tuple | None = None   # (future, when sent)
+        self.create_timer(0.1, self._read_mode, clock=steady_clock())
         self._mode_call = None
         self._mode_sent: tuple | None = None   # (mode, when, requests)
         self.create_timer(MODE_RESEND / 5.0, self._resend_mode, clock=steady_clock())
@@ -252,7 +259,11 @@ class ProcedureNode(Node):
                 s.stamp_ns < self.runner.last_stamp - 10**9:
             self.runner.new_run()          # the states' clock went back: a restarted plant
         self.runner.measure(s.stamp_ns, s.z, load)
-        if self.opt['autostart'] and self.runner.state == 'idle':
+        self._states += 1
+        # autostart from the second state: by then the controller has answered the first (in
+        # lock-step the plant steps only on its command), so it holds a load cell reading when
+        # the first step asks it to switch to force
+        if self.opt['autostart'] and self.runner.state == 'idle' and self._states >= 2:
             self.runner.start(s.stamp_ns)
         self._after()
 
@@ -407,6 +418,32 @@ class ProcedureNode(Node):
             self._after()
             return
         self._switch(mode)
+
+    @_guarded
+    def _read_mode(self) -> None:
+        """Ask the controller its control mode until it answers (again after MODE_RESEND)."""
+        if self.runner.mode_known or not self.mode_reader.service_is_ready():
+            return
+        if self._mode_read is not None:
+            fut, sent = self._mode_read
+            if not fut.done() and time.monotonic() - sent < MODE_RESEND:
+                return
+            if not fut.done():
+                self.mode_reader.remove_pending_request(fut)
+        fut = self.mode_reader.call_async(GetParameters.Request(names=['control_mode']))
+        fut.add_done_callback(self._mode_answered)
+        self._mode_read = (fut, time.monotonic())
+
+    @_guarded
+    def _mode_answered(self, fut) -> None:
+        try:
+            mode = fut.result().values[0].string_value
+        except Exception:                     # noqa: BLE001 unanswered: asked again
+            return
+        if mode and not self.runner.mode_known:
+            self.runner.controller_mode(mode)
+            self.get_logger().info(f'the controller is in {mode} control')
+            self._after()
 
     @_guarded
     def _switched(self, fut) -> None:

@@ -311,6 +311,9 @@ class ProcedureRunner:
         self.total = 0
         self.failed_at: int | None = None
         self.mode = self.steps[0].control_mode
+        #: whether :attr:`mode` is the controller's (False: a node still asking the controller;
+        #: a start or a resume waits for :meth:`controller_mode`)
+        self.mode_known = True
         self.request_mode: str | None = None   #: the node should switch the controller
         self.events: list[tuple[str, str, float, str]] = []   #: (kind, what, value, message)
         self.cycles: list[Cycle] = []          #: complete cycles, for the node to record
@@ -434,10 +437,23 @@ class ProcedureRunner:
             self._end_step(end, 'completed')
 
     # -- operator ------------------------------------------------------------------------------
+    def controller_mode(self, mode: str) -> None:
+        """
+        Take the controller's control mode as read from it, before a start or a resume.
+
+        The first step (or the resumed one) in another mode then switches the controller
+        first, as a step does between steps: a procedure never drives a force step's newtons
+        into a controller that holds a position.
+        """
+        self.mode = mode
+        self.mode_known = True
+
     def start(self, stamp_ns: int) -> tuple[bool, str]:
         """Start the test (idle) at ``stamp_ns`` + latency: (ok, why)."""
         if self.state != 'idle':
             return False, f'the test is {self.state}; start is for an idle test'
+        if not self.mode_known:
+            return False, "the controller's control mode is not known yet (asking it)"
         z, f = self._last_meas
         if not math.isfinite(f if self.steps[0].control_mode == 'force' else z):
             return False, 'no measured state yet (or no load cell for a force step)'
@@ -456,6 +472,8 @@ class ProcedureRunner:
         """Go on from a hold, an interlock or a restart at the same count: (ok, why)."""
         if self.state not in ('held', 'interrupted'):
             return False, f'the test is {self.state}; resume is for a held or interrupted test'
+        if not self.mode_known:
+            return False, "the controller's control mode is not known yet (asking it)"
         z, f = self._last_meas
         step = self.steps[self.step_index]
         value = f if step.control_mode == 'force' else z
