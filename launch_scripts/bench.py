@@ -300,7 +300,7 @@ def main(argv=None) -> int:
     camp.add_argument('--preset', default='table1_estimated',
                       help="--campaign: the rig model's parameter preset")
     camp.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
-                      help="--campaign: a rig or coupon value over the preset (repeatable), "
+                      help='--campaign: a rig or coupon value over the preset (repeatable), '
                       'e.g. k_L=1e7 specimen_life=300')
     rec = ap.add_argument_group('recording: the recorder node options (docs/recording.md)')
     rec.add_argument('--max-bag-size', type=int, default=None,

@@ -24,8 +24,8 @@ from __future__ import annotations
 import os
 
 __all__ = ['AUTO_CPU', 'AUTO_PRIORITY', 'BENCH_PRIORITY', 'LOOP_CPUS_ENV', 'RISK',
-           'SIDE_THREADS', 'loop_placement', 'node_cpu', 'node_priority', 'realtime_allowed', 'rtprio_limit',
-           'set_cpu_affinity', 'set_realtime']
+           'SIDE_THREADS', 'loop_placement', 'node_cpu', 'node_priority', 'realtime_allowed',
+           'rtprio_limit', 'set_cpu_affinity', 'set_realtime']
 
 
 def _thread_ids() -> list[int]:
