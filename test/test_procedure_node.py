@@ -324,3 +324,48 @@ def test_records_published_lately_stay_in_the_checkpoint_and_a_restart_publishes
         again = node()
         assert [r[0] for r in again._rows] == [1, 2, 3, 4]     # published again on resume
         again.destroy_node()
+
+
+def _set_file(ros, **values):
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    req = SetParameters.Request(parameters=[
+        Parameter(name=k, value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                               string_value=str(v))) for k, v in values.items()])
+    return call_service(ros, SetParameters, '/procedure/set_parameters', req).results[0]
+
+
+def test_a_new_file_loads_the_next_test_only_when_idle_or_finished(dom, tmp_path, ros):
+    """
+    The next specimen's test without a new process: ``file`` set while finished (or idle).
+
+    Refused while a test runs, and a file that is not a procedure is refused with its error,
+    the loaded test untouched; the next one starts from ~/start with its own checkpoint.
+    """
+    bag = tmp_path / 'bag'
+    first, second = tmp_path / 'first.yaml', tmp_path / 'second.yaml'
+    shutil.copy(FIXTURE, first)
+    second.write_text(FIXTURE.read_text().replace('short displacement test', 'the second')
+                      .replace('count: 20', 'count: 6'))
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
+        _loop(procs, bag, {'file': str(first)}, seconds=20.0)
+        _status(procs, lambda v: v['state'] == 'idle' and int(v['stamp_ns']) > 0)
+        assert _call(ros, '/procedure/start').success
+        _status(procs, lambda v: int(v['total_cycles']) >= 2)
+        busy = _set_file(ros, file=second)
+        assert not busy.successful and 'only when it is idle or finished' in busy.reason
+        _status(procs, lambda v: v['state'] == 'finished')
+        bad = _set_file(ros, file=tmp_path / 'nope.yaml')
+        assert not bad.successful and 'nope.yaml' in bad.reason, bad.reason
+        ok = _set_file(ros, file=second)
+        assert ok.successful, ok.reason
+        st = _status(procs, lambda v: v['file'] == str(second) and v['state'] == 'idle')
+        assert st['checkpoint'] == str(second) + '.checkpoint.json'
+        assert _call(ros, '/procedure/start').success
+        st = _status(procs, lambda v: v['file'] == str(second) and v['state'] == 'finished')
+        procs.stop(['procedure', 'plant', 'controller', 'recorder'])
+    assert st['result'] == 'completed' and st['total_cycles'] == '6', st
+    events = read_procedure_events(bag)
+    assert [e['kind'] for e in events].count('finished') == 2
+    assert read_checkpoint(str(first) + '.checkpoint.json')['total'] == CYCLES
+    assert read_checkpoint(str(second) + '.checkpoint.json')['total'] == 6

@@ -316,11 +316,13 @@ IDENTIFY = (
 
 #: the procedure node's options
 PROCEDURE = (
-    Setting('file', '', '', meaning='the procedure file (YAML, docs/procedures.md)'),
+    Setting('file', '', '', meaning='the procedure file (YAML, docs/procedures.md); set while '
+            'the test is idle or finished, the next test (checked whole first: a bad file is '
+            'refused, the old one stays)', live=True),
     Setting('checkpoint', '', '', meaning="the test's checkpoint (JSON, rewritten atomically at "
             'every state change and every 10 s of the stamps; default: the file with '
-            '`.checkpoint.json`); found at start, the test is restored, interrupted, for '
-            '~/resume'),
+            '`.checkpoint.json`); found at start (or with a new `file`), the test is '
+            'restored, interrupted, for ~/resume', live=True),
     Setting('recover_bag', '', '', meaning='a restart: the bag being recorded (its '
             '`procedure/cycles`); cycles it holds beyond the checkpoint are counted'),
     Setting('autostart', '', False, meaning='start the test at the first state (else ~/start)'),

@@ -52,7 +52,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue, SetParametersResult
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
 from ros_ehs.core.errors import InputError
@@ -162,21 +162,15 @@ class ProcedureNode(Node):
         self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
         if not self.opt['file']:
             raise InputError('no procedure: give `file` (-p file:=test.yaml)')
-        self.procedure = load_procedure(self.opt['file'])
-        if self.opt['rig_params']:        # refused before anything moves, each step named
-            require_envelope(self.procedure, load_yaml(self.opt['rig_params']))
-        else:
+        if not self.opt['rig_params']:
             self.get_logger().info('no rig_params: the procedure is not checked against what '
                                    'the rig can do')
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         rate = float(self.opt['rate_hz'])
         self.dt_ns = int(round(1e9 / rate))
         self.preview_ns = int(round(float(self.opt['preview']) * 1e9))
-        self.runner = ProcedureRunner(self.procedure, latency=float(self.opt['preview']),
-                                      harmonics=int(self.opt['apc_harmonics']), rate_hz=rate,
-                                      ramp_time=float(self.opt['ramp_time']))
-        cp_path = self.opt['checkpoint'] or self.opt['file'] + '.checkpoint.json'
-        self.cp_path = Path(cp_path)
+        self.procedure, self.runner, self.cp_path = self._open(self.opt['file'],
+                                                               self.opt['checkpoint'])
         self._rows: list[tuple] = []          # cycle records not yet published
         self._recent: list[tuple[float, list]] = []   # (monotonic [s], rows) published lately
         # the callbacks and close() change the runner under it; reentrant: a future already
@@ -221,6 +215,7 @@ class ProcedureNode(Node):
         for name in ('start', 'hold', 'resume', 'stop'):
             self.create_service(Trigger, f'~/{name}', functools.partial(self._on_request,
                                                                         name))
+        self.add_on_set_parameters_callback(self._on_set)
         self.mode_client = self.create_client(SetParameters,
                                               f'/{self.opt["controller"]}/set_parameters')
         # the controller's mode is read before a start or a resume (it may hold another)
@@ -239,11 +234,64 @@ class ProcedureNode(Node):
                                f'{len(self.procedure.steps)} steps, checkpoint '
                                f'{str(self.cp_path)!r}' + (f'; {restored}' if restored else ''))
 
-    def _restore(self) -> str:
+    def _open(self, file: str, checkpoint: str) -> tuple:
+        """Return a procedure file's procedure (checked whole), its runner and checkpoint."""
+        procedure = load_procedure(file)
+        if self.opt['rig_params']:        # refused before anything moves, each step named
+            require_envelope(procedure, load_yaml(self.opt['rig_params']))
+        runner = ProcedureRunner(procedure, latency=float(self.opt['preview']),
+                                 harmonics=int(self.opt['apc_harmonics']),
+                                 rate_hz=float(self.opt['rate_hz']),
+                                 ramp_time=float(self.opt['ramp_time']))
+        return procedure, runner, Path(checkpoint or file + '.checkpoint.json')
+
+    def _on_set(self, changes) -> SetParametersResult:
+        """
+        Take a new ``file`` (and ``checkpoint``): the next test, while idle or finished.
+
+        The file is checked whole before anything changes (a bad one is refused with its
+        error, the old test stays); the new test's checkpoint is restored as at a start
+        (a test under way comes back interrupted, for ~/resume). The controller's mode, once
+        read, carries over.
+        """
+        new = {p.name: p.value for p in changes if p.name in ('file', 'checkpoint')}
+        if not new or getattr(self, 'runner', None) is None:
+            return SetParametersResult(successful=True)
+        with self._lock:
+            if self.runner.state not in ('idle', 'finished'):
+                return SetParametersResult(successful=False, reason=(
+                    f'the test is {self.runner.state}: a new procedure loads only when it is '
+                    'idle or finished (stop it first)'))
+            file = str(new.get('file', self.opt['file']))
+            checkpoint = str(new.get('checkpoint', '' if 'file' in new else
+                                     self.opt['checkpoint']))
+            try:
+                procedure, runner, cp_path = self._open(file, checkpoint)
+            except Exception as err:          # noqa: BLE001 refused, named; the node goes on
+                return SetParametersResult(successful=False, reason=str(err))
+            old = self.runner
+            if old.mode_known:
+                runner.controller_mode(old.mode)
+            else:
+                runner.mode_known = False
+            self.writer.close()
+            self.procedure, self.runner, self.cp_path = procedure, runner, cp_path
+            self.opt['file'], self.opt['checkpoint'] = file, checkpoint
+            self._rows, self._recent, self._states = [], [], 0
+            restored = self._restore(recover=False)
+            self.writer = _CheckpointWriter(self.cp_path)
+            self._fits_k_L = procedure.ends_on('fitted_stiffness_drop')
+        self.get_logger().info(f'procedure {procedure.name!r} loaded: {len(procedure.steps)} '
+                               f'steps, checkpoint {str(cp_path)!r}'
+                               + (f'; {restored}' if restored else ''))
+        return SetParametersResult(successful=True)
+
+    def _restore(self, recover: bool = True) -> str:
         cp, note = resume_point(self.cp_path)
         if cp is None:
             return note
-        extra = recovered_total(self.opt['recover_bag']) if self.opt['recover_bag'] else None
+        extra = recovered_total(self.opt['recover_bag']) if recover and \
+            self.opt['recover_bag'] else None
         rows = cp.get('unconfirmed_cycles', cp.get('unpublished_cycles', []))
         self._rows = [tuple(r) for r in rows if extra is None or r[0] > extra]
         return self.runner.restore(cp, extra)
