@@ -42,14 +42,15 @@ from ros_ehs.core.campaign.spec import Campaign
 from ros_ehs.core.errors import InputError
 from ros_ehs.data.store import ResultStore, SpecimenRecord
 
-__all__ = ['CampaignOutcome', 'campaign_hash', 'run_campaign', 'specimen_seed',
+__all__ = ['CampaignOutcome', 'campaign_hash', 'run_campaign', 'specimen_seed', 'utc_now',
            'virtual_specimen']
 
 #: the largest seed the specimen model takes
 _SEED_MAX = 2 ** 31 - 1
 
 
-def _now() -> str:
+def utc_now() -> str:
+    """Return the time now, UTC, ISO 8601 to the second (a record's ``started``/``ended``)."""
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')
 
 
@@ -84,7 +85,7 @@ def virtual_specimen(campaign: Campaign, nxt: Next, params, *, seed: int = 1,
     doc = campaign.procedure_doc(nxt.level, nxt.specimen)
     proc = campaign.procedure(nxt.level, nxt.specimen)
     p = params.replace(specimen_seed=float(specimen_seed(seed, nxt.index)))
-    started = _now()
+    started = utc_now()
     step = campaign.level_step_of(proc)
     limit = max_seconds if max_seconds is not None else \
         2.0 * campaign.run_out / float(step['frequency']) + 60.0
@@ -96,7 +97,7 @@ def virtual_specimen(campaign: Campaign, nxt: Next, params, *, seed: int = 1,
         specimen=nxt.specimen, level=nxt.level, result=result, cycles=int(r.total_cycles),
         reason=reason, mean=ach.mean, amplitude=ach.amplitude, r_ratio=ach.r_ratio,
         amplitude_spread=ach.amplitude_spread, peak=ach.peak, valley=ach.valley,
-        duration_s=float(r.rig_s), started=started, ended=_now(), bags=(),
+        duration_s=float(r.rig_s), started=started, ended=utc_now(), bags=(),
         procedure_hash=procedure_hash(doc),
         params={k: p[k] for k in p},
         note=(f'virtual coupon, specimen_seed {specimen_seed(seed, nxt.index)}, {model} model, '

@@ -45,7 +45,7 @@ from ros_ehs.core.campaign.spec import Campaign
 from ros_ehs.core.model.specimen import Specimen
 from ros_ehs.core.options import CONTROLLER_SPECS
 from ros_ehs.core.params import Params, PLANT_SPECS
-from ros_ehs.data.campaign import _now, procedure_hash, specimen_seed
+from ros_ehs.data.campaign import procedure_hash, specimen_seed, utc_now
 from ros_ehs.data.fatigue import read_cycles
 from ros_ehs.data.store import SpecimenRecord
 from ros_ehs.nodes.processes import NodeProcesses, recording
@@ -53,8 +53,8 @@ import ros_ehs_msgs_py as contract
 
 __all__ = ['BenchCoupons']
 
-#: how long a wait may see no new counted cycle before the specimen's bench is given up [s]
-STALL_S = 20.0
+#: how long a wait may see the test's clock stand still before the bench is given up [s]
+STALL_S = 60.0
 
 
 class BenchCoupons:
@@ -132,7 +132,7 @@ class BenchCoupons:
             amplitude_spread=ach.amplitude_spread, peak=ach.peak, valley=ach.valley,
             # each start's clock begins at 0: the rig's time is the sum of the starts'
             duration_s=float(sum(t[:, 2].max() for t in per_bag if len(t))),
-            started=started, ended=_now(),
+            started=started, ended=utc_now(),
             bags=tuple(str(b) for b in bags), procedure_hash=procedure_hash(doc),
             params={k: self.rig[k] for k in self.rig},
             note=f'virtual coupon on the lock-step bench, specimen_seed '
@@ -164,7 +164,7 @@ class BenchCoupons:
         return procs.status(contract.PROCEDURE_STATUS).values
 
     def _until_finished(self, procs: NodeProcesses) -> dict:
-        """Wait for the test's end while its count moves (a stall of :data:`STALL_S`: fail)."""
+        """Wait for the test's end while its clock moves (:data:`STALL_S` still: fail)."""
         last = None
         while True:
             st = procs.status(contract.PROCEDURE_STATUS)
@@ -175,10 +175,10 @@ class BenchCoupons:
             if dead:
                 raise RuntimeError(f'{", ".join(dead)} ended before the test did: '
                                    + procs.procs[dead[0]].output()[-1500:])
-            count = int(v.get('total_cycles', -1))
-            if last is not None and count == last:
-                raise RuntimeError(f'the test counted no cycle in {STALL_S:g} s: {v}')
-            last = count
+            clock = (int(v.get('total_cycles', -1)), int(v.get('stamp_ns', -1)))
+            if last is not None and clock == last:
+                raise RuntimeError(f'the test stood still for {STALL_S:g} s: {v}')
+            last = clock
             procs.wait_status(contract.PROCEDURE_STATUS,       # ends early when a node dies
                               lambda s: s.values.get('state') == 'finished' or
                               any(not q.alive() for q in procs.procs.values()), STALL_S)
@@ -234,7 +234,7 @@ def _started(d: Path) -> str:
     f = d / 'started'
     if f.exists():
         return f.read_text().strip()
-    now = _now()
+    now = utc_now()
     f.write_text(now)
     return now
 
