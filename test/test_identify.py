@@ -590,12 +590,13 @@ def test_a_warm_fit_stops_when_the_step_left_is_under_a_tenth_of_each_standard_e
     assert warm.cost == pytest.approx(tight.cost, rel=1e-6)
 
 
-def test_the_verdicts_refit_takes_one_jacobian_and_lands_where_a_full_refit_does(monkeypatch):
+def test_the_verdicts_refit_lands_where_a_refit_to_the_tolerance_does(monkeypatch):
     """
-    ``_refit`` (the verdict's, values only): one finite-difference Jacobian, then Broyden's.
+    ``_refit`` (the verdict's, values only): the warm solve and its settle rule, nothing else.
 
     Its values are those of :func:`identify`'s warm refit of the same half run to the
-    tolerance, within 0.05 of their standard errors.
+    tolerance, within 0.15 of their standard errors, in fewer Jacobians, and it computes no
+    standard errors.
     """
     from ros_ehs.core.identify import estimator, problem
     from ros_ehs.core.identify.verdict import halves
@@ -608,15 +609,18 @@ def test_the_verdicts_refit_takes_one_jacobian_and_lands_where_a_full_refit_does
         return real(*args)
 
     monkeypatch.setattr(estimator, '_fd_jacobian', counted)
+    monkeypatch.setattr(estimator, 'standard_errors', None)      # called: a TypeError
     v = estimator._refit(part, r.params, r.free, r.model, problem.SIGNALS, r.cost_kind, 1.0,
                          None, 1, 100)
-    assert len(calls) == 1
+    used = len(calls)
+    monkeypatch.undo()
     monkeypatch.setattr(estimator, 'STEP_SETTLED', 0.0)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', IdentificationWarning)
         full = identify(part, base=r.params, warm=True, verdict=False, workers=1)
+    assert used < full.iterations, (used, full.iterations)
     for n in r.free:
-        assert abs(v.x[n] - full.x[n]) < 0.05 * full.stderr[n], (n, v.x[n], full.x[n])
+        assert abs(v.x[n] - full.x[n]) < 0.15 * full.stderr[n], (n, v.x[n], full.x[n])
     assert v.params is not None and v.params['F_cc'] == v.x['F_cc']
 
 
