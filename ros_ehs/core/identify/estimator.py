@@ -76,16 +76,18 @@ __all__ = ['IdentificationResult', 'fit_bounds', 'identify', 'judge', 'multistar
 _TOL = 1e-8
 _TOL_FIRST = 1e-5
 
-#: A warm solve (a live refit, the verdict's refits) stops once the (reweighted) Gauss-Newton
-#: step left would move every value by less than this fraction of its standard error (the
-#: plain one, from the Jacobian; the reported one is as large or larger), and takes that step
-#: without another Jacobian. Measured on six 10 s windows (three of the fitted rig, three with
-#: its Coulomb friction 10 % lower), against the same fits run to ``_TOL``: every value within
-#: 0.13 of its standard error, the costs within 1e-6, the halves' disagreement within 0.001
-#: (its limit: 0.12); on the verdict benchmark's first 30 rigs the same verdicts but one
-#: borderline fit (docs/identification.md). (Broyden's updates for the halves' Jacobians were
-#: tried and left out: on a 250 Hz record without pressures a half stopped 6 % short along
-#: the friction valley, and the second start from the halves did not run.)
+#: A warm solve (a live refit, the verdict's refits) of a record with pressures stops once
+#: the (reweighted) Gauss-Newton step left would move every value by less than this fraction
+#: of its standard error (the plain one, from the Jacobian; the reported one is as large or
+#: larger), and takes that step without another Jacobian. Measured on six 10 s windows (three
+#: of the fitted rig, three with its Coulomb friction 10 % lower), against the same fits run to
+#: ``_TOL``: every value within 0.13 of its standard error, the costs within 1e-6, the halves'
+#: disagreement within 0.001 (its limit: 0.12). A record without pressures is fitted along a
+#: valley of the cost (F_cc against F_sc): there a settled half stopped several % short, the
+#: verdict's second start from the halves began elsewhere and was not kept (rig 16 of the
+#: verdict benchmark, 7.4 % off against 5.2 %), so such records run to ``_TOL`` as before; so
+#: do the second starts, which compare optima by their cost. (Broyden's updates for the
+#: halves' Jacobians were tried and left out for the same reason.)
 STEP_SETTLED = 0.1
 #: soft_l1's scale of an SAE solve [noise units]
 _F_SCALE = 0.1
@@ -316,7 +318,7 @@ def _plain_stderr(J: np.ndarray, r: np.ndarray, cost: str) -> np.ndarray:
 
 @threadpool_limits.wrap(limits=BLAS_THREADS, user_api='blas')
 def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
-           max_nfev: int, workers: int, progress) -> tuple:
+           max_nfev: int, workers: int, progress, settle: bool | None = None) -> tuple:
     """
     Run the TRF solve (SSE then SAE, or one stage).
 
@@ -326,6 +328,8 @@ def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
     is reported as scipy's ``xtol`` condition (status 3) with its own message.
     """
     lo_s, hi_s = bounds
+    # a record without pressures is fitted along a valley of the cost: run to the tolerance
+    settle = warm and problem.restarts_pressures() if settle is None else settle
     history: list[dict] = []
     last_jac: list[np.ndarray] = []
     step_se: list[np.ndarray] = []
@@ -369,7 +373,7 @@ def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
                              method='trf', loss=loss,
                              f_scale=_F_SCALE if loss != 'linear' else 1.0,
                              max_nfev=budget, xtol=tol, ftol=tol, gtol=1e-10,
-                             callback=settled_step if warm else None)
+                             callback=settled_step if settle else None)
 
     try:
         if cost == 'sae' and warm:
@@ -432,8 +436,9 @@ def _second_start(problem: Problem, short: Problem, sol, J, history, njev, bound
     with pressures stopped in one with F_sc 10-25 % low, on rigs of the verdict benchmark
     recorded at 250 Hz-2 kHz (docs/identification.md).
     """
-    first, _, _, _ = _solve(short, sol.x, bounds, cost, True, max_nfev, workers, None)
-    again = _solve(problem, first.x, bounds, cost, True, max_nfev, workers, None)
+    # compared by their costs: both run to the tolerance, not settled
+    first, _, _, _ = _solve(short, sol.x, bounds, cost, True, max_nfev, workers, None, False)
+    again = _solve(problem, first.x, bounds, cost, True, max_nfev, workers, None, False)
     nfev = sol.nfev + first.nfev + again[0].nfev
     if again[0].cost < (1.0 - _SAME_COST) * sol.cost and \
             (again[0].status != 0 or _settled(problem, *again[:3], cost)):
@@ -483,7 +488,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
              signals: Sequence[str] = SIGNALS, cost: str = 'sae', base: Params | None = None,
              x0: dict[str, float] | None = None, segment: float | None = 1.0,
              h: float | None = None, workers: int | None = None, max_nfev: int = 100,
-             warm: bool = False, verdict: bool = True,
+             warm: bool = False, verdict: bool = True, settle: bool | None = None,
              progress: Callable[[dict], None] | None = None) -> IdentificationResult:
     """
     Fit the ``free`` parameters of ``model`` to ``experiments`` (jointly).
@@ -534,6 +539,11 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
         a fit refitted next).
     progress : callable, optional
         Called with ``{'iteration', 'cost', 'x'}`` after each iteration.
+    settle : bool, optional
+        Stop once the step left is under :data:`STEP_SETTLED` of every standard error
+        (default: a ``warm`` fit of a record with pressures does); False: run to the
+        solver's tolerance (the verdict's second start, which compares optima by their
+        cost).
 
     """
     t_start = time.perf_counter()
@@ -549,7 +559,7 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     theta0 = np.array([base[n] for n in free]) / sc
     lo_s, hi_s = lo / sc, hi / sc
     sol, J, history, njev = _solve(problem, theta0, (lo_s, hi_s), cost, warm, max_nfev,
-                                   workers, progress)
+                                   workers, progress, settle)
     notes = []
     if not warm and segment is not None and segment > SHORT_SEGMENT and \
             problem.restarts_pressures():
@@ -692,7 +702,11 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
         with warnings.catch_warnings():
             warnings.simplefilter('ignore', IdentificationWarning)
             try:
-                again = identify(experiments, base=result.params.replace(**mean), **kwargs)
+                # a search from elsewhere along the cost's valley, compared by its cost: run
+                # to the tolerance (settled after two Jacobians, rig 16 of the verdict
+                # benchmark stopped above the first fit's cost and was not kept)
+                again = identify(experiments, base=result.params.replace(**mean), **kwargs,
+                                 settle=False)
             except ParameterError:          # the halves' mean is not a valid set
                 again = None
         second = None if again is None or again.params is None else {
