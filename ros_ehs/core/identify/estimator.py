@@ -300,6 +300,20 @@ def _bounds(free, base):
     return np.array(lo), np.array(hi)
 
 
+def _workers(workers: int | None) -> int:
+    """Return the Jacobian's threads: ``workers``, or 2 where the machine has 2 CPUs."""
+    return min(2, os.cpu_count() or 1) if workers is None else workers
+
+
+def _problem(experiments, base: Params, free, model: str, signals, segment: float | None,
+             h: float) -> tuple:
+    """Return a fit's :class:`Problem`, its start (scaled) and its bounds (scaled)."""
+    lo, hi = _bounds(free, base)
+    problem = Problem(experiments, base, free, model, signals, segment, h)
+    sc = problem.scale
+    return problem, np.array([base[n] for n in free]) / sc, (lo / sc, hi / sc)
+
+
 def _gauss_newton_step(J: np.ndarray, r: np.ndarray, cost: str) -> np.ndarray:
     """Return the (iteratively reweighted, for SAE's soft_l1) Gauss-Newton step at ``r``."""
     if cost == 'sae':
@@ -346,10 +360,10 @@ def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
         r = problem.residual(theta)
         J = _fd_jacobian(problem, theta, hi_s, pool)
         last_jac[:] = [J, theta.copy(), r.copy()]
-        if warm:
-            step_se[:] = [_plain_stderr(J, problem.residual(theta), cost)]
-        entry = {'iteration': len(history) + 1,
-                 'cost': _loss(problem.residual(theta), cost), 'x': problem.values(theta)}
+        if settle:
+            step_se[:] = [_plain_stderr(J, r, cost)]
+        entry = {'iteration': len(history) + 1, 'cost': _loss(r, cost),
+                 'x': problem.values(theta)}
         history.append(entry)
         if progress:
             progress(entry)
@@ -378,8 +392,6 @@ def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
     try:
         if cost == 'sae' and warm:
             sol = solve(theta0, 'soft_l1', max_nfev, _TOL)
-        elif warm:
-            sol = solve(theta0, 'linear', max_nfev, _TOL)
         elif cost == 'sae':
             # Continuation: far from the optimum nearly every residual sits in soft_l1's
             # linear (L1) branch and TRF can stall in a poor point (seen on real-time bench
@@ -396,16 +408,15 @@ def _solve(problem: Problem, theta0: np.ndarray, bounds, cost: str, warm: bool,
             pool.shutdown()
     if sol.status == -2:        # stopped by the settle rule: an x-tolerance, in errors
         sol.status, sol.success = 3, True
-        sol.message = (f'the last step moved every value by less than {STEP_SETTLED:g} of '
-                       'its standard error')
-        if finish:
-            r = problem.residual(finish[0])
-            if _solver_cost(r, cost) <= sol.cost:
-                sol.x, sol.fun, sol.cost = finish[0], r, _solver_cost(r, cost)
-                sol.nfev += 1
-                sol.message = (f'the Gauss-Newton step left was under {STEP_SETTLED:g} of '
-                               'every standard error: taken, the Jacobian before it kept')
-                last_jac[1] = sol.x
+        r = problem.residual(finish[0])
+        sol.nfev += 1
+        taken = _solver_cost(r, cost) <= sol.cost
+        if taken:
+            sol.x, sol.fun, sol.cost = finish[0], r, _solver_cost(r, cost)
+            last_jac[1] = sol.x
+        sol.message = (f'the Gauss-Newton step left was under {STEP_SETTLED:g} of every '
+                       'standard error: ' + ('taken, the Jacobian before it kept' if taken
+                                             else 'not taken (it did not lower the cost)'))
     if last_jac and np.array_equal(last_jac[1], sol.x):
         J = last_jac[0]
     else:
@@ -551,13 +562,10 @@ def identify(experiments, *, free: Sequence[str] = ESTIMATED, model: str = 'simp
     experiments, free, base = _check(experiments, free, model, signals, cost, base, x0,
                                      segment, h, workers, max_nfev)
     h_given, h = h, FIT_H[model] if h is None else h
-    if workers is None:
-        workers = min(2, os.cpu_count() or 1)
-    lo, hi = _bounds(free, base)
-    problem = Problem(experiments, base, free, model, signals, segment, h)
+    workers = _workers(workers)
+    problem, theta0, (lo_s, hi_s) = _problem(experiments, base, free, model, signals, segment,
+                                             h)
     sc = problem.scale
-    theta0 = np.array([base[n] for n in free]) / sc
-    lo_s, hi_s = lo / sc, hi / sc
     sol, J, history, njev = _solve(problem, theta0, (lo_s, hi_s), cost, warm, max_nfev,
                                    workers, progress, settle)
     notes = []
@@ -630,12 +638,9 @@ def _refit(experiments, base: Params, free, model: str, signals, cost: str,
     The solve :func:`identify` runs with ``warm``, without what only a result needs (the
     standard errors, the fit's metrics and notes).
     """
-    h = FIT_H[model] if h is None else h
-    lo, hi = _bounds(free, base)
-    problem = Problem(experiments, base, free, model, signals, segment, h)
-    sc = problem.scale
-    theta0 = np.array([base[n] for n in free]) / sc
-    sol = _solve(problem, theta0, (lo / sc, hi / sc), cost, True, max_nfev, workers, None)[0]
+    problem, theta0, bounds = _problem(experiments, base, free, model, signals, segment,
+                                       FIT_H[model] if h is None else h)
+    sol = _solve(problem, theta0, bounds, cost, True, max_nfev, workers, None)[0]
     x = problem.values(sol.x)
     try:
         return _Refit(x, base.replace(**x))
@@ -679,8 +684,7 @@ def judge(result: IdentificationResult, experiments, *, signals: Sequence[str] =
 
     def refit(part, base: Params) -> _Refit:
         return _refit(part, base, result.free, result.model, signals, result.cost_kind,
-                      segment, h, min(2, os.cpu_count() or 1) if workers is None else workers,
-                      max_nfev)
+                      segment, h, _workers(workers), max_nfev)
 
     def not_valid(result: IdentificationResult, what: str, rule: str) -> IdentificationResult:
         result.adequate = False
