@@ -48,7 +48,7 @@ from ros_ehs.core.params import Params, PLANT_SPECS
 from ros_ehs.data.campaign import procedure_hash, specimen_seed, utc_now
 from ros_ehs.data.fatigue import read_cycles
 from ros_ehs.data.store import SpecimenRecord
-from ros_ehs.nodes.processes import NodeProcesses, recording
+from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as contract
 
 __all__ = ['BenchCoupons']
@@ -141,20 +141,12 @@ class BenchCoupons:
 
     # -- the bench --------------------------------------------------------------------------
     def _loop(self, procs: NodeProcesses, bag: Path, p: Params, opts: dict) -> None:
-        c = contract
-        procs.start('recorder', {'out': str(bag), 'use_sim_time': True})
-        if not procs.wait_status(c.RECORDER_STATUS, lambda st: True, self.bound):
-            raise RuntimeError('the recorder did not start')
-        gains = {s.name: p[s.name] for s in CONTROLLER_SPECS}   # the procedure sets its mode
-        procs.start('controller', {'lockstep': True, 'diagnostics_period': 0.2, **gains})
-        procs.start('procedure', {'use_sim_time': True, 'diagnostics_period': 0.2,
-                                  'ramp_time': gains['ramp_time'], **opts})
-        if not procs.wait_status(c.RECORDER_STATUS, recording(
-                c.COMMAND, c.REFERENCE, c.CYCLES, c.PROCEDURE_EVENTS), self.bound):
-            raise RuntimeError('the recorder did not discover the controller and the procedure')
-        procs.start('plant', {'mode': 'lockstep', 'model': self.model, 'duration': 1.0e7,
-                              'wait_subscribers': 3, 'diagnostics_period': 0.2,
-                              **{s.name: p[s.name] for s in PLANT_SPECS}})
+        """Start the coupon's lock-step bench: the procedure in the reference's place."""
+        fast = {'diagnostics_period': 0.2}
+        procs.start_loop('lockstep', bag=bag, procedure={**fast, **opts},
+                         controller={**fast, **{s.name: p[s.name] for s in CONTROLLER_SPECS}},
+                         plant={'model': self.model, 'duration': 1.0e7, **fast,
+                                **{s.name: p[s.name] for s in PLANT_SPECS}})
 
     def _wait(self, procs: NodeProcesses, pred, bound: float | None = None) -> dict:
         if not procs.wait_status(contract.PROCEDURE_STATUS, lambda st: pred(st.values),
