@@ -406,30 +406,9 @@ def _resume(kills: int, seed: int) -> dict:
 
 def _call(node, exe, srv, name: str) -> None:
     """Call a Trigger service until it answers (a killed node's server lingers in discovery)."""
-    from ros_ehs.nodes.ros_common import call_until_answered
-    cli = node.create_client(srv, name)
-    _spin(exe, cli.service_is_ready)
-
-    def spin(until, seconds):
-        try:
-            _spin(exe, until, timeout=seconds)
-        except RuntimeError:
-            return False
-        return True
-
+    from ros_ehs.nodes.ros_common import call_service
     # a second call is refused harmlessly: the test goes on as asked
-    if call_until_answered(cli, srv.Request(), spin, BOUND) is None:
-        raise RuntimeError(f'no answer from {name}')
-    node.destroy_client(cli)
-
-
-def _spin(exe, until, timeout: float = BOUND) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        exe.spin_once(timeout_sec=0.02)
-        if until():
-            return
-    raise RuntimeError('no answer from the procedure node')
+    call_service(node, exe, srv, name, srv.Request(), BOUND)
 
 
 def main(argv=None) -> int:

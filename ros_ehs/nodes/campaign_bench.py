@@ -37,7 +37,6 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-import time
 from typing import Callable
 
 from ros_ehs.core.campaign.runner import achieved_levels, Next, specimen_result
@@ -179,7 +178,7 @@ class BenchCoupons:
         """Call a Trigger service until it answers (a restarted server lingers a while)."""
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
-        from ros_ehs.nodes.ros_common import call_until_answered
+        from ros_ehs.nodes.ros_common import call_service
         from std_srvs.srv import Trigger
         if self._ros is None:
             ctx = rclpy.Context()
@@ -189,20 +188,7 @@ class BenchCoupons:
             exe.add_node(node)
             self._ros = ctx, node, exe
         _, node, exe = self._ros
-
-        def spin(until, seconds) -> bool:
-            end = time.monotonic() + seconds
-            while time.monotonic() < end:
-                exe.spin_once(timeout_sec=0.02)
-                if until():
-                    return True
-            return False
-        cli = node.create_client(Trigger, name)
-        try:
-            if call_until_answered(cli, Trigger.Request(), spin, self.bound) is None:
-                raise RuntimeError(f'no answer from {name}')
-        finally:
-            node.destroy_client(cli)
+        call_service(node, exe, Trigger, name, Trigger.Request(), self.bound)
 
     def close(self) -> None:
         """Shut down the bench's own ROS context (if a service was called)."""

@@ -55,9 +55,9 @@ from ros_ehs.nodes.scheduling import (BENCH_PRIORITY, node_cpu, node_priority, r
                                       set_cpu_affinity, set_realtime)
 import ros_ehs_msgs_py as contract
 
-__all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'RESEND', 'WARN', 'call_until_answered', 'diagnostics',
-           'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run', 'steady_clock',
-           'STOP_DUMP', 'STOP_GRACE']
+__all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'RESEND', 'WARN', 'call_service', 'call_until_answered',
+           'diagnostics', 'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run',
+           'steady_clock', 'STOP_DUMP', 'STOP_GRACE']
 
 OK, WARN, ERROR = 0, 1, 2
 #: The plant's status in ``diagnostics`` (level OK once its loop is closed; see the contract)
@@ -190,6 +190,35 @@ def call_until_answered(client: Any, request: Any,
             return fut.result()
         client.remove_pending_request(fut)
     return None
+
+
+def call_service(node: Node, executor: Any, srv_type: Any, name: str, request: Any,
+                 timeout: float) -> Any:
+    """
+    Call service ``name`` from ``node`` (spun by ``executor``) until it answers; return that.
+
+    A harness's call (a benchmark's, a bench's): the client waits for the server, the request
+    goes out again while unanswered (:func:`call_until_answered`), and the client is
+    destroyed after. Raises RuntimeError naming the service when nothing answered within
+    ``timeout`` [s]. Only for services that a repeat answers harmlessly.
+    """
+    def spin(until: Callable[[], bool], seconds: float) -> bool:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.02)
+            if until():
+                return True
+        return False
+
+    cli = node.create_client(srv_type, name)
+    try:
+        res = call_until_answered(cli, request, spin, timeout) \
+            if spin(cli.service_is_ready, timeout) else None
+    finally:
+        node.destroy_client(cli)
+    if res is None:
+        raise RuntimeError(f'no answer from {name} in {timeout:g} s')
+    return res
 
 
 def _wait_acked(node: Node, bound: float = 2.0) -> None:
