@@ -223,3 +223,27 @@ def test_a_campaign_on_the_lock_step_bench_survives_a_power_cut_during_specimen_
     assert min(others) - 2.0 <= off['S04'] <= max(others) + 2.0, off
     for r in b['results']:           # every coupon carried its level (tolerance 2 %)
         assert abs(r['peak'] - r['level']) < 0.02 * 0.9 * r['level'], r
+
+
+@pytest.mark.parametrize('what, args, says', [
+    ('a campaign with a NaN run-out', {'run_out': float('nan')}, 'run_out'),
+    ('a key it does not know', {'runout': 10}, 'runout'),
+    ('a rig value out of range', None, 'specimen_life'),
+])
+def test_the_bench_campaign_refuses_bad_input_by_name_before_anything_moves(
+        tmp_path, what, args, says):
+    """``bench.py --campaign``: a bad campaign file or rig value is one named line, exit 2."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    f = tmp_path / 'c.yaml'
+    f.write_text(yaml.safe_dump({**CAMPAIGN, **(args or {})}))
+    cmd = [sys.executable, str(Path(__file__).resolve().parents[1] / 'launch_scripts' /
+                               'bench.py'), '--campaign', str(f), '--out', str(tmp_path / 'o'),
+           '--preset', 'fatigue_actuator']
+    if args is None:
+        cmd += ['--set', 'specimen_life=-5']
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, (what, r.stdout, r.stderr)
+    assert r.stderr.startswith('bench: ') and says in r.stderr, (what, r.stderr)
+    assert 'Traceback' not in r.stderr and not (tmp_path / 'o').exists()
