@@ -519,6 +519,40 @@ def test_a_resume_waits_for_the_controllers_mode_too():
     assert ok, why
 
 
+def test_a_start_or_resume_the_rigs_values_cannot_follow_is_refused_naming_the_step():
+    """The controller's values in force (a node reads them): beyond them, no start, no resume."""
+    from ros_ehs.core.params import Params
+    fast = {**CYCLIC, 'frequency': 60.0, 'amplitude': 0.005}
+    r = ProcedureRunner(proc(fast), latency=0.0)
+    r.rig_params(Params())
+    ax = PerfectAxis(r)
+    ok, why = r.start(ax.stamp)
+    assert not ok and r.state == 'idle' and not r.events
+    assert why.startswith('the rig cannot follow this procedure:')
+    assert 'step 1 (cycles): the piston must move at 1.885 m/s' in why
+    r.rig_params(Params().replace(u_max=0.05, m_p=20.0))     # a bigger valve, lighter piston
+    assert r.beyond_rig == [] and r.start(ax.stamp)[0]
+    ax.run(until=lambda r: r.total == 2)
+    r.hold(ax.stamp)
+    r.rig_params(Params())                   # values identified meanwhile: the rig is smaller
+    ok, why = r.resume(ax.stamp)
+    assert not ok and r.state == 'held' and '60 Hz is above' in why
+
+
+def test_a_step_whose_compensation_cannot_run_at_the_preview_is_refused_at_load():
+    """Peak/valley control needs its correction in before the next cycle: named at load."""
+    late = {**CYCLIC, 'name': 'fast', 'frequency': 40.0, 'waveform': 'triangle',
+            'compensation': 'auto'}
+    p = proc({'name': 'wait', 'type': 'dwell', 'time': 0.1}, late)
+    with pytest.raises(InputError, match=r"step 2 \(fast\): its compensation cannot run with a "
+                       r'preview of 0.02 s .*under half a period'):
+        ProcedureRunner(p, latency=0.02)
+    assert ProcedureRunner(p, latency=0.01).state == 'idle'      # under half of 25 ms
+    # without compensation nothing is brought in ahead of time: any preview
+    plain = proc({**late, 'compensation': 'none'})
+    assert ProcedureRunner(plain, latency=0.02).state == 'idle'
+
+
 def test_a_restarted_loop_interrupts_and_keeps_the_counts():
     p = proc(CYCLIC)
     r, ax = started(p)

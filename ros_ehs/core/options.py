@@ -28,6 +28,7 @@ from ros_ehs.core.control.apc import MAX_HARMONICS
 from ros_ehs.core.control.feedforward import MODEL_PARAMS
 from ros_ehs.core.control.modes import SPECIMEN_IN_CONTROLLER
 from ros_ehs.core.params import CONTROL_SPECS, ESTIMATED, PLANT_SPECS, SAFETY_SPECS, spec
+from ros_ehs.core.procedure.envelope import RIG_NAMES
 from ros_ehs.core.settings import Setting
 from ros_ehs.core.sim.faults import FAULTS
 import ros_ehs_msgs_py as contract
@@ -335,8 +336,9 @@ PROCEDURE = (
     Setting('apc_harmonics', '', 5, 1, MAX_HARMONICS, 'cyclic sine steps with APC: the '
             'harmonics corrected (the fundamental included)'),
     Setting('rig_params', '', '', meaning="the rig's parameters (a ROS 2 parameters file: "
-            '`ehs_sim identify` writes one): a procedure the rig cannot follow is refused at '
-            'start, each step named with the limit it breaks (empty: not checked; the '
+            '`ehs_sim identify` writes one): a procedure the rig cannot follow is refused when '
+            'it loads, each step named with the limit it breaks (empty: checked at start '
+            'against the values the controller holds, nominal or identified; the '
             "compensation's bound still stops a test whose levels are not reached)"),
     Setting('ramp_time', 's', 1.0, 0.0, 600.0, "the controller's ramp_time: a waveform step "
             'waits for its ramp-on, and the compensation does not learn from cycles it '
@@ -379,10 +381,12 @@ NODE_OPTIONS = {'plant': PLANT, 'controller': CONTROLLER, 'reference': REFERENCE
                 'recorder': RECORDER, 'player': PLAYER, 'identify': IDENTIFY,
                 'procedure': PROCEDURE, 'station': STATION}
 
-#: the parameters the controller declares: its own, the safety layer's and the plant values
-#: its feedforward uses
+#: the parameters the controller declares: its own, the safety layer's, the plant values its
+#: feedforward uses and the rest of the rig's envelope (a procedure node reads them from it)
 CONTROLLER_SPECS = CONTROL_SPECS + SAFETY_SPECS + tuple(spec(n) for n in MODEL_PARAMS) + \
     tuple(spec(n) for n in SPECIMEN_IN_CONTROLLER)
+CONTROLLER_SPECS += tuple(spec(n) for n in RIG_NAMES
+                          if n not in {s.name for s in CONTROLLER_SPECS})
 #: each node's parameters (model, controller, safety), declared with its options
 NODE_PARAMS = {'plant': PLANT_SPECS, 'controller': CONTROLLER_SPECS}
 

@@ -32,6 +32,10 @@ decodes, calls and publishes:
 * services ``~/start``, ``~/hold``, ``~/resume``, ``~/stop`` (std_srvs/Trigger: success and
   the reason); a step in the other control mode sets the controller's ``control_mode``
   through its parameter service;
+* before the first start it reads the controller's ``control_mode`` and the rig's values it
+  holds (:data:`~ros_ehs.core.procedure.envelope.RIG_NAMES`, nominal or identified) through
+  its ``get_parameters``; a start or a resume of a procedure that rig cannot follow is
+  refused, each step named with the limit it breaks;
 * the checkpoint (``checkpoint``) is rewritten atomically at every counted cycle, every state
   change and every 10 s of the stamps, off the executor's thread (the newest wins), with the
   cycle records not yet published and those published in the last ``RECENT_S`` (a recorder
@@ -58,7 +62,7 @@ from rclpy.node import Node
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.options import PROCEDURE
 from ros_ehs.core.params import load_yaml
-from ros_ehs.core.procedure.envelope import require_envelope
+from ros_ehs.core.procedure.envelope import require_envelope, RIG_NAMES
 from ros_ehs.core.procedure.runner import ProcedureRunner
 from ros_ehs.core.procedure.spec import load_procedure
 from ros_ehs.data.checkpoint import resume_point, write_checkpoint
@@ -163,8 +167,8 @@ class ProcedureNode(Node):
         if not self.opt['file']:
             raise InputError('no procedure: give `file` (-p file:=test.yaml)')
         if not self.opt['rig_params']:
-            self.get_logger().info('no rig_params: the procedure is not checked against what '
-                                   'the rig can do')
+            self.get_logger().info("no rig_params: the procedure is checked against the rig's "
+                                   'parameters the controller gives, at start')
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         rate = float(self.opt['rate_hz'])
         self.dt_ns = int(round(1e9 / rate))
@@ -222,6 +226,7 @@ class ProcedureNode(Node):
         self.mode_reader = self.create_client(GetParameters,
                                               f'/{self.opt["controller"]}/get_parameters')
         self.runner.mode_known = False
+        self._rig: dict[str, float] = {}       # the rig's values the controller gave
         self._states = 0
         self._mode_read: tuple | None = None   # (future, when sent)
         self.create_timer(0.1, self._read_mode, clock=steady_clock())
@@ -270,6 +275,8 @@ class ProcedureNode(Node):
             except Exception as err:          # noqa: BLE001 refused, named; the node goes on
                 return SetParametersResult(successful=False, reason=str(err))
             old = self.runner
+            if self._rig:
+                runner.rig_params(self._rig)
             if old.mode_known:
                 runner.controller_mode(old.mode)
             else:
@@ -478,19 +485,33 @@ class ProcedureNode(Node):
                 return
             if not fut.done():
                 self.mode_reader.remove_pending_request(fut)
-        fut = self.mode_reader.call_async(GetParameters.Request(names=['control_mode']))
+        fut = self.mode_reader.call_async(GetParameters.Request(
+            names=['control_mode', *RIG_NAMES]))
         fut.add_done_callback(self._mode_answered)
         self._mode_read = (fut, time.monotonic())
 
     @_guarded
     def _mode_answered(self, fut) -> None:
         try:
-            mode = fut.result().values[0].string_value
+            values = fut.result().values
+            mode = values[0].string_value
         except Exception:                     # noqa: BLE001 unanswered: asked again
             return
         if mode and not self.runner.mode_known:
+            rig = {n: v.double_value for n, v in zip(RIG_NAMES, values[1:])
+                   if v.type == ParameterType.PARAMETER_DOUBLE}
+            if len(rig) == len(RIG_NAMES):
+                self._rig = rig
+                self.runner.rig_params(rig)
+            else:
+                self.get_logger().warning(
+                    f'the controller /{self.opt["controller"]} does not give the rig\'s '
+                    f'parameters ({", ".join(n for n in RIG_NAMES if n not in rig)}): the '
+                    'procedure is checked against what the rig can do only with rig_params')
             self.runner.controller_mode(mode)
             self.get_logger().info(f'the controller is in {mode} control')
+            for line in self.runner.beyond_rig:
+                self.get_logger().error(f'the rig cannot follow: {line}')
             self._after()
 
     @_guarded

@@ -48,8 +48,8 @@ from ros_ehs.core.errors import InputError
 from ros_ehs.core.model.coefficients import flow_gain_kq
 from ros_ehs.core.procedure.spec import Procedure, Step
 
-__all__ = ['END_MARGIN', 'FREQUENCY_FRACTION', 'RigEnvelope', 'STALL_RESERVE', 'check_envelope',
-           'demands', 'require_envelope']
+__all__ = ['END_MARGIN', 'FREQUENCY_FRACTION', 'RIG_NAMES', 'RigEnvelope', 'STALL_RESERVE',
+           'check_envelope', 'demands', 'require_envelope']
 
 #: the closest a displacement level may come to an end stop [m]
 END_MARGIN = 5.0e-3
@@ -57,6 +57,10 @@ END_MARGIN = 5.0e-3
 STALL_RESERVE = 1.3
 #: a step's frequency stays under this fraction of the oil column's natural frequency
 FREQUENCY_FRACTION = 1.0
+#: the parameters the envelope is made of (the controller declares them, so that a procedure
+#: node can check a test against the values in force, identified or nominal)
+RIG_NAMES = ('stroke', 'limit_position_min', 'limit_position_max', 'u_max', 'K_x', 'A_p', 'C_d',
+             'd_s', 'd_c', 'rho', 'p_s', 'p_t', 'beta_e', 'l_iac', 'm_p', 'k_L', 'z_L')
 
 
 @dataclass(frozen=True)
@@ -75,9 +79,7 @@ class RigEnvelope:
     @classmethod
     def from_params(cls, params: Mapping[str, object]) -> 'RigEnvelope':
         """Return the envelope of a rig of these parameters."""
-        names = ('stroke', 'limit_position_min', 'limit_position_max', 'u_max', 'K_x', 'A_p',
-                 'p_s', 'p_t', 'beta_e', 'l_iac', 'm_p', 'k_L', 'z_L')
-        p = {k: float(params[k]) for k in names}
+        p = {k: float(params[k]) for k in RIG_NAMES}
         stop = p['stroke'] - END_MARGIN
         return cls(z_min=max(-stop, p['limit_position_min']),
                    z_max=min(stop, p['limit_position_max']),

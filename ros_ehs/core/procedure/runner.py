@@ -80,6 +80,7 @@ from ros_ehs.core.control.safety import ramp_weight
 from ros_ehs.core.control.waveforms import Samples
 from ros_ehs.core.errors import InputError
 from ros_ehs.core.procedure.detectors import Cycle, FailureDetector, TAPERED
+from ros_ehs.core.procedure.envelope import check_envelope, RigEnvelope
 from ros_ehs.core.procedure.spec import Procedure, Step
 from ros_ehs_msgs_py import Reference
 
@@ -147,6 +148,8 @@ class _Wave:
             comp = step['compensation']
             sine = step['waveform'] == 'sine' and len(blocks) == 1
             frozen = comp == 'none'
+            if frozen:
+                latency = 0.0            # nothing learnt, nothing to bring in ahead of time
             peak, valley = blocks[0][0], blocks[0][1]
             # auto: peak/valley control, the loads a fatigue test is specified by (APC holds
             # the fundamental: the peaks of a 1-10 kN sine fell 0.3 % short with it)
@@ -294,6 +297,17 @@ class ProcedureRunner:
             raise InputError(f'`latency` = {latency!r} s must be >= 0')
         if not (math.isfinite(ramp_time) and ramp_time >= 0):
             raise InputError(f'`ramp_time` = {ramp_time!r} s must be >= 0')
+        for step in procedure.steps:
+            # each step's compensation made once now: a step it refuses is named at load,
+            # never when the test reaches it
+            if step.type in ('cyclic', 'sweep'):
+                try:
+                    _Wave(step, latency, harmonics, 0, 0.0, None)
+                except InputError as err:
+                    raise InputError(
+                        f'{procedure.name!r} {step.label}: its compensation cannot run with a '
+                        f'preview of {latency:g} s ({err}): a correction must be in before the '
+                        "next cycle: shorten the procedure node's `preview`") from None
         self.procedure = procedure
         self.steps = procedure.steps
         self.ramp_ns = int(round(ramp_time * 1e9))
@@ -314,6 +328,9 @@ class ProcedureRunner:
         #: whether :attr:`mode` is the controller's (False: a node still asking the controller;
         #: a start or a resume waits for :meth:`controller_mode`)
         self.mode_known = True
+        #: what the rig cannot follow of this procedure, one sentence a step and limit, by the
+        #: controller's values in force (:meth:`rig_params`; empty: nothing, or not known)
+        self.beyond_rig: list[str] = []
         self.request_mode: str | None = None   #: the node should switch the controller
         self.events: list[tuple[str, str, float, str]] = []   #: (kind, what, value, message)
         self.cycles: list[Cycle] = []          #: complete cycles, for the node to record
@@ -448,12 +465,28 @@ class ProcedureRunner:
         self.mode = mode
         self.mode_known = True
 
+    def rig_params(self, params: Mapping[str, float]) -> None:
+        """
+        Take the rig's parameters in force (the controller's: nominal or identified).
+
+        A start or a resume is refused while a step asks for more than the rig of these
+        values can do (:func:`~ros_ehs.core.procedure.envelope.check_envelope`), naming the
+        step and the limit: never an end stop to catch up.
+        """
+        self.beyond_rig = check_envelope(self.procedure, RigEnvelope.from_params(params))
+
+    def _refused_by_rig(self) -> str:
+        return ('the rig cannot follow this procedure:\n  ' + '\n  '.join(self.beyond_rig)
+                if self.beyond_rig else '')
+
     def start(self, stamp_ns: int) -> tuple[bool, str]:
         """Start the test (idle) at ``stamp_ns`` + latency: (ok, why)."""
         if self.state != 'idle':
             return False, f'the test is {self.state}; start is for an idle test'
         if not self.mode_known:
             return False, "the controller's control mode is not known yet (asking it)"
+        if self.beyond_rig:
+            return False, self._refused_by_rig()
         z, f = self._last_meas
         if not math.isfinite(f if self.steps[0].control_mode == 'force' else z):
             return False, 'no measured state yet (or no load cell for a force step)'
@@ -474,6 +507,8 @@ class ProcedureRunner:
             return False, f'the test is {self.state}; resume is for a held or interrupted test'
         if not self.mode_known:
             return False, "the controller's control mode is not known yet (asking it)"
+        if self.beyond_rig:
+            return False, self._refused_by_rig()
         z, f = self._last_meas
         step = self.steps[self.step_index]
         value = f if step.control_mode == 'force' else z
