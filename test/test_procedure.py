@@ -544,7 +544,7 @@ def test_a_step_whose_compensation_cannot_run_at_the_preview_is_refused_at_load(
     late = {**CYCLIC, 'name': 'fast', 'frequency': 40.0, 'waveform': 'triangle',
             'compensation': 'auto'}
     p = proc({'name': 'wait', 'type': 'dwell', 'time': 0.1}, late)
-    with pytest.raises(InputError, match=r"step 2 \(fast\): its compensation cannot run with a "
+    with pytest.raises(InputError, match=r'step 2 \(fast\): its compensation cannot run with a '
                        r'preview of 0.02 s .*under half a period'):
         ProcedureRunner(p, latency=0.02)
     assert ProcedureRunner(p, latency=0.01).state == 'idle'      # under half of 25 ms
