@@ -323,7 +323,7 @@ def event_level(e: SafetyEvent) -> int:
     """Return the DiagnosticStatus level of an event: ERROR for a trip that acts, else WARN/OK."""
     if e.kind == 'trip':
         return _WARN if e.action == 'indicate' else _ERROR
-    return _WARN if e.kind.endswith('refused') or e.kind == 'disabled' else _OK
+    return _WARN if e.kind.endswith('refused') or e.kind in ('disabled', 'clipped') else _OK
 
 
 def fill_event(msg: Any, e: SafetyEvent, node: str = 'controller', hardware_id: str = 'axis',

@@ -74,7 +74,9 @@ class SafetyEvent(NamedTuple):
     """
 
     stamp_ns: int
-    kind: str        #: trip, reset, reset_refused, enabled, disabled, enable_refused
+    #: trip, reset, reset_refused, enabled, disabled, enable_refused, mode, mode_refused,
+    #: clipped, unclipped
+    kind: str
     detector: str    #: the detector (a trip), the detectors concerned, or ''
     value: float
     limit: float

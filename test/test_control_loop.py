@@ -263,9 +263,11 @@ def test_a_trip_comes_back_in_the_reply_and_reset_and_enable_are_the_supervisors
     assert loop.counts['events'] == 1 and loop.diagnosis()[0] == 2
     ok, why, ev = loop.reset(0.01)            # still beyond the limit
     assert not ok and 'limit_position_max' in why
-    _answer(loop, 1, z=0.0)
+    back = _answer(loop, 1, z=0.0)
+    # the hold's command 20 mm off is at the valve's limit: a clipping episode begins
+    assert [(e.kind, e.detector) for e in back.events] == [('clipped', 'saturation')]
     ok, why, ev = loop.reset(0.01)
-    assert ok and why == 'cleared limit_position_max' and loop.counts['events'] == 3
+    assert ok and why == 'cleared limit_position_max' and loop.counts['events'] == 4
     ok, why, ev = loop.enable(False)
     assert ok and loop.diagnosis() == (1, 'hydraulics off: 0 A (~/enable)')
     assert _answer(loop, 2).current == 0.0

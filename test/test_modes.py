@@ -311,3 +311,24 @@ def test_a_force_hold_takes_the_valve_null_current_of_its_load_into_the_integrat
     # the mean over the integrator's time constant (0.34 s) ripples +-214 N at 10 Hz
     assert f.pid.i_term - i0 == pytest.approx(f.i_per_load * 3500.0, abs=f.i_per_load * 250.0)
     assert ForceLoop(RIG.replace(force_ff=0.0), 1e-3).i_per_load == 0.0   # no feedforward
+
+
+def test_a_clipped_command_is_an_episode_one_event_at_its_start_and_one_at_its_end():
+    """The valve at its limit, then as asked for CLIP_QUIET: two events, not one a period."""
+    from ros_ehs.core.control.supervised import CLIP_QUIET
+    ax = _axis(command_rate=0.0)
+    _step(ax, 0)
+    kinds = []
+    for k in range(1, 50):                    # 20 mm off: the PID at u_max every period
+        _step(ax, k, z=0.0, z_traj=0.02)
+        assert ax.saturated
+        kinds += [(e.kind, e.detector) for e in ax.events]
+    assert kinds == [('clipped', 'saturation')] and ax.clipping
+    quiet = int(CLIP_QUIET / 1e-3)
+    ends = []
+    for k in range(50, 50 + quiet + 2):        # on its reference: applied as asked
+        _step(ax, k, z=0.0, z_traj=0.0)
+        assert not ax.saturated or k < 52
+        ends += [(k, e.kind) for e in ax.events]
+    assert [e for _, e in ends] == ['unclipped'] and not ax.clipping
+    assert ends[0][0] >= 50 + quiet - 2

@@ -862,12 +862,28 @@ def test_a_waveform_waits_for_the_controllers_ramp_on_and_does_not_learn_during_
         ProcedureRunner(proc(step, run_out=1000), ramp_time=math.nan)
 
 
+def test_the_compensation_does_not_learn_while_the_controller_clips_its_command():
+    """Between the controller's ``clipped`` and ``unclipped`` events no cycle is learnt from."""
+    r, ax = started(proc({**CYCLIC, 'compensation': 'pvc', 'count': 100}))
+    ax.run(until=lambda r: r._waves and r._waves[0].wave.corr.judged >= 2)
+    corr = r._waves[0].wave.corr
+    r.event('clipped', 'saturation', 'off', ax.stamp)
+    judged = corr.judged
+    ax.run(0.5)                                                  # 5 cycles
+    assert corr.judged == judged
+    r.event('unclipped', '', 'off', ax.stamp)
+    ax.run(0.3)
+    assert corr.judged >= judged + 2
+
+
 def test_levels_the_rig_cannot_reach_interrupt_the_test_before_an_end_stop():
     """
     +-5 mm at 60 Hz on the default rig, its envelope not checked.
 
-    The compensation meets its bound, the test is interrupted, naming it, and the virtual
-    test ends.
+    The controller clips its command at every peak (its rate limit, the valve's current
+    limit): the compensation learns nothing from those cycles
+    (a correction learnt from them would wind the command into the limit); the levels
+    detector interrupts the test, naming why, and the virtual test ends.
     """
     seen = []
     p = proc({'name': 'fast', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.0,
@@ -875,7 +891,7 @@ def test_levels_the_rig_cannot_reach_interrupt_the_test_before_an_end_stop():
     r = run_procedure(p, preset('g761_baseline'), check=False,
                       probe=lambda ax, rn, reply, ref: seen.append(ax.x[ax._iz]))
     assert r.result == 'interrupted' and 'levels not reached' in r.reason, r.reason
-    assert 'compensation_limit 1' in r.reason and r.sim_s < 10.0
+    assert 'the controller clips its command: ' in r.reason and r.sim_s < 10.0
     assert max(abs(z) for z in seen) < 0.095 - 0.005     # never near an end stop
 
 

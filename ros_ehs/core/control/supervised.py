@@ -50,6 +50,14 @@ a piston that runs from where the hold began: a load path lost) trips ``hold_err
 A displacement loop whose reference carries a force but no position (NaN: a force reference)
 holds the position measured when that began; a reference with neither is bad input (the
 PID's policy: 0 A and ``fault``).
+
+**A command not applied as the loop asked** (the driving loop's output at ``u_max``, specimen
+protect's limit, the command's rate limit) begins a clipping episode: an event of kind
+``clipped`` (``detector`` says which: ``saturation``, ``specimen_protect``, ``command_rate``),
+and ``unclipped`` once no command has been clipped for ``CLIP_QUIET`` s. A procedure's
+compensation does not learn from the cycles between the two (a correction learnt from levels
+the valve could not give would wind the command up); the episode, not each period, is an
+event, so a rig clipped at every peak sends two.
 """
 
 from __future__ import annotations
@@ -61,7 +69,10 @@ from ros_ehs.core.control.modes import ForceLimit, ForceLoop, LOAD_MODES, MODES
 from ros_ehs.core.control.safety import Demand, Event, SafetyConfig, Supervisor
 from ros_ehs.core.params import Params
 
-__all__ = ['AxisController']
+__all__ = ['AxisController', 'CLIP_QUIET']
+
+#: A clipping episode ends when no command has been clipped for this long [s].
+CLIP_QUIET = 0.5
 
 #: Trips that end force control when their action holds or more.
 _ENDS_FORCE = ('specimen_break', 'load_feedback')
@@ -89,6 +100,8 @@ class AxisController:
         self._measured = (math.nan, math.nan)    # the newest (z, load)
         self._f_hold = math.nan           # the load a hold in force control holds [N]
         self._z_fhold = math.nan          # ... and where the piston was then [m]
+        self.clipping = False             #: a clipping episode is under way
+        self._clip_at = 0                 # the stamp of its last clipped command [ns]
 
     @property
     def output(self) -> float:
@@ -179,8 +192,29 @@ class AxisController:
         over the period that ended here (NaN: not known), for the command's rate limit.
         """
         i = self._step(stamp_ns, z, z_dot, force, z_traj, v_traj, load, f_traj)
+        rated = self.rate_limited
         self._sent = i = self._rate_limit(i, applied)
+        self._judge_clip(stamp_ns, i, self.rate_limited != rated)
         return i
+
+    def _judge_clip(self, stamp_ns: int, i: float, rated: bool) -> None:
+        """Begin or end a clipping episode (module docstring)."""
+        why = '' if not self.demand.power or self.driving is None else (
+            'saturation' if self.saturated else 'specimen_protect' if self.limited else
+            'command_rate' if rated else '')
+        if why:
+            self._clip_at = stamp_ns
+            if not self.clipping:
+                self.clipping = True
+                self.events.append(Event(
+                    stamp_ns, 'clipped', why, float(i), math.nan, 'A', self.supervisor.action,
+                    f'the command is not what the {self.driving} loop asked ({why}): '
+                    f'{i * 1e3:.4g} mA; a compensation does not learn meanwhile'))
+        elif self.clipping and stamp_ns - self._clip_at > CLIP_QUIET * 1e9:
+            self.clipping = False
+            self.events.append(Event(
+                stamp_ns, 'unclipped', '', float(i), math.nan, 'A', self.supervisor.action,
+                f'every command applied as asked for {CLIP_QUIET:g} s'))
 
     def _rate_limit(self, i: float, applied: float) -> float:
         """

@@ -312,6 +312,7 @@ class ProcedureRunner:
         self.steps = procedure.steps
         self.ramp_ns = int(round(ramp_time * 1e9))
         self._ramp_until = -1               # the controller ramps on until this stamp [ns]
+        self._clipped = ''                  # why the controller clips its command ('': not)
         self.latency_ns = int(round(latency * 1e9))
         self.dt_ns = int(round(1e9 / rate_hz))
         self.harmonics = int(harmonics)
@@ -535,7 +536,9 @@ class ProcedureRunner:
         Take a controller event: an acting trip interrupts; a specimen break fails the test.
 
         A ``mode`` event (the controller ended force control itself: a break, a lost load
-        cell) holds the measured position in that mode from ``latency`` on.
+        cell) holds the measured position in that mode from ``latency`` on. Between a
+        ``clipped`` and an ``unclipped`` event (the controller did not apply its command as
+        asked: the valve saturated, a limit) the compensation does not learn.
         """
         if kind == 'mode' and detector in ('displacement', 'force') and detector != self.mode:
             self.mode = detector
@@ -545,6 +548,9 @@ class ProcedureRunner:
                 self._push(_Segment('level', t, detector, v0=self._measured(detector),
                                     end=t if self.state == 'stopping' else None))
             self.notes.append(('info', f'the controller switched to {detector} control'))
+            return
+        if kind in ('clipped', 'unclipped'):  # not learnt from until it is applied again
+            self._clipped = detector if kind == 'clipped' else ''
             return
         if kind in ('reset', 'enabled'):      # the controller ramps on again from here
             self._ramp_until = max(self._ramp_until, stamp_ns + self.ramp_ns)
@@ -744,8 +750,9 @@ class ProcedureRunner:
         tau = w.t_off + (stamp - seg.t0) * 1e-9
         ended = seg.end is not None and stamp >= seg.end
         if not ended:
-            if stamp <= self._ramp_until and w.corr is not None:
-                w.corr.spoil()                   # the controller's ramp-on attenuates it
+            if (stamp <= self._ramp_until or self._clipped) and w.corr is not None:
+                # the controller's ramp-on attenuates it, or it clips the command
+                w.corr.spoil()
             w.measure(tau, load if step.control_mode == 'force' else z)
         k = w.cycle_of(tau)
         cyc = seg.cyc
@@ -885,11 +892,13 @@ class ProcedureRunner:
         if self._level_run < step['level_cycles'] or self.state != 'running':
             return False
         hi, lo = levels
+        clip = (f' (the controller clips its command: {self._clipped}, so nothing was '
+                'learnt)' if self._clipped else '')
         self._not_reached(step, stamp, f'levels not reached: {self._level_run} cycles in a row '
                           f"off by more than level_error ({step['level_error']:g} of the "
                           f'range; the last {hi:.6g}/{lo:.6g} against {spec[0]:.6g}/'
                           f'{spec[1]:.6g}), at cycle {self.total}: the rig does not carry '
-                          'this step')
+                          f'this step{clip}')
         return True
 
     def _null(self, seg: _Segment, cyc: dict, stamp: int, tol: float,
