@@ -161,6 +161,18 @@ def test_a_trip_that_acts_freezes_the_corrections_until_a_reset():
     assert [t for _, t in g.notes] == ['APC frozen: safety trip', 'APC resumed: safety trip']
 
 
+def test_a_clipped_command_freezes_the_corrections_until_it_is_applied_again():
+    g = ReferenceGenerator(_values(), _options(amplitude_phase_control=True))
+    g.tick(T0, 0)
+    g.event('clipped', 'off')
+    assert g.frozen_by == {'command clipped'} and g.correction.frozen
+    g.event('trip', 'hold')
+    g.event('unclipped', 'off')
+    assert g.frozen_by == {'safety trip'} and g.correction.frozen     # the trip still holds it
+    g.event('reset', 'off')
+    assert not g.frozen_by and not g.correction.frozen
+
+
 def test_real_time_states_lost_freeze_the_corrections_and_a_state_resumes_them():
     g = ReferenceGenerator(_values(), _options(amplitude_phase_control=True))
     g.tick(T0, 0)

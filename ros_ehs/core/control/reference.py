@@ -326,7 +326,9 @@ class ReferenceGenerator:
         """Take a safety event of the controller (its ``kind`` and ``action``)."""
         if self.correction is None:
             return
-        if kind == 'trip' and action in ('hold', 'stop', 'power_off'):
+        if kind in ('clipped', 'unclipped'):    # the command not applied as asked
+            self._freeze('command clipped', kind == 'clipped')
+        elif kind == 'trip' and action in ('hold', 'stop', 'power_off'):
             self._freeze('safety trip', True)
         elif kind in ('reset', 'enabled'):
             if 'safety trip' in self.frozen_by and self.t_first is not None:
