@@ -27,8 +27,13 @@ PERIOD = 1_000_000
 FAST = {'diagnostics_period': 0.05}
 
 
-def _bag(bag):
-    """Return (states {stamp: AxisState}, commands {stamp: A}, events) decoded by rosbags."""
+def _bag(bag, clips=False):
+    """
+    Return (states {stamp: AxisState}, commands {stamp: A}, events) decoded by rosbags.
+
+    The clipping episodes' events (``clipped``, ``unclipped``: test_modes.py) only with
+    ``clips``: these tests judge the trips, resets and hydraulics.
+    """
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import get_typestore, Stores
     ts = get_typestore(Stores.ROS2_JAZZY)
@@ -44,7 +49,9 @@ def _bag(bag):
                 k = c.command_from_msg(m)
                 cmds[k.stamp_ns] = k.i
             else:
-                events.append(c.event_from_msg(m))
+                e = c.event_from_msg(m)
+                if clips or e.kind not in ('clipped', 'unclipped'):
+                    events.append(e)
     return states, cmds, events
 
 
@@ -183,6 +190,10 @@ def test_a_stuck_valve_trips_the_error_detector(dom, tmp_path):
     assert {e.detector for e in events[1:]} <= {'limit_position_max', 'limit_position_min'}
     assert events[0].value > 0.002 or events[0].value < -0.002
     assert events[0].stamp_ns - min(states) > 1.0e9
+    # before it, the loop's command, unanswered by the valve, was clipped: an episode began
+    _, _, every = _bag(bag, clips=True)
+    first = [e for e in every if e.kind == 'clipped']
+    assert first and first[0].stamp_ns <= events[0].stamp_ns, every
 
 
 def test_hydraulics_off_and_on_ramps_without_a_jump(dom, tmp_path, ros):
