@@ -93,6 +93,8 @@ def finished(r):
     ({'steps': [{**CYCLIC, 'count': 0}]}, ['never ends', 'run_out']),
     ({'steps': [CYCLIC, CYCLIC]}, ['names', 'cycles']),
     ({'run_out': -3, 'steps': [CYCLIC]}, ['run_out']),
+    ({'steps': [{**CYCLIC, 'compensation_gain': 1.5}]},
+     ['step 1 (cycles)', 'compensation_gain']),
     ({'steps': [{**CYCLIC, 'mean': None, 'amplitude': None,
                  'blocks': [[0.002, 0.003, 5]]}]}, ['step 1 (cycles)', 'block 1']),
 ])
@@ -874,6 +876,16 @@ def test_the_compensation_does_not_learn_while_the_controller_clips_its_command(
     r.event('unclipped', '', 'off', ax.stamp)
     ax.run(0.3)
     assert corr.judged >= judged + 2
+
+
+def test_the_compensations_gain_is_the_steps():
+    """A user reads and sets how much of a cycle's error is corrected (and its bound)."""
+    for comp, kind in (('pvc', 'PeakValleyControl'), ('apc', 'AmplitudePhaseControl')):
+        r, ax = started(proc({**CYCLIC, 'compensation': comp, 'compensation_gain': 0.3,
+                              'compensation_limit': 0.5}))
+        ax.run(until=lambda r: bool(r._waves))
+        corr = r._waves[0].wave.corr
+        assert type(corr).__name__ == kind and corr.gain == 0.3 and corr.limit == 0.5
 
 
 def test_levels_the_rig_cannot_reach_interrupt_the_test_before_an_end_stop():

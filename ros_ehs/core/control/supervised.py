@@ -51,13 +51,16 @@ A displacement loop whose reference carries a force but no position (NaN: a forc
 holds the position measured when that began; a reference with neither is bad input (the
 PID's policy: 0 A and ``fault``).
 
-**A command not applied as the loop asked** (the driving loop's output at ``u_max``, specimen
-protect's limit, the command's rate limit) begins a clipping episode: an event of kind
-``clipped`` (``detector`` says which: ``saturation``, ``specimen_protect``, ``command_rate``),
-and ``unclipped`` once no command has been clipped for ``CLIP_QUIET`` s. A procedure's
-compensation does not learn from the cycles between the two (a correction learnt from levels
-the valve could not give would wind the command up); the episode, not each period, is an
-event, so a rig clipped at every peak sends two.
+**A command not applied as the loop asked** (the driving loop's output at ``u_max``, or
+specimen protect's limit) begins a clipping episode: an event of kind ``clipped``
+(``detector`` says which: ``saturation``, ``specimen_protect``), and ``unclipped`` once no
+command has been clipped for ``CLIP_QUIET`` s. A procedure's compensation does not learn from
+the cycles between the two (a correction learnt from levels the valve could not give would
+wind the command up); the episode, not each period, is an event, so a rig clipped at every
+peak sends two. The command's rate limit is not counted: it is a rail for a late loop (whose
+own detector is ``loop_timing``), and it trims a triangle's corner for a period every cycle
+on the default rig (the velocity feedforward's step there), which peak/valley control
+corrects as it should.
 """
 
 from __future__ import annotations
@@ -192,16 +195,14 @@ class AxisController:
         over the period that ended here (NaN: not known), for the command's rate limit.
         """
         i = self._step(stamp_ns, z, z_dot, force, z_traj, v_traj, load, f_traj)
-        rated = self.rate_limited
         self._sent = i = self._rate_limit(i, applied)
-        self._judge_clip(stamp_ns, i, self.rate_limited != rated)
+        self._judge_clip(stamp_ns, i)
         return i
 
-    def _judge_clip(self, stamp_ns: int, i: float, rated: bool) -> None:
+    def _judge_clip(self, stamp_ns: int, i: float) -> None:
         """Begin or end a clipping episode (module docstring)."""
         why = '' if not self.demand.power or self.driving is None else (
-            'saturation' if self.saturated else 'specimen_protect' if self.limited else
-            'command_rate' if rated else '')
+            'saturation' if self.saturated else 'specimen_protect' if self.limited else '')
         if why:
             self._clip_at = stamp_ns
             if not self.clipping:

@@ -156,18 +156,20 @@ class _Wave:
             if comp == 'apc' or (comp == 'none' and sine):
                 self.corr = AmplitudePhaseControl(0.5 * (peak - valley), f,
                                                   0.5 * (peak + valley), harmonics=harmonics,
-                                                  latency=latency, learn_from=0.0)
+                                                  latency=latency, learn_from=0.0,
+                                                  gain=step['compensation_gain'])
             else:
                 self.corr = PeakValleyControl([Block(*b) for b in blocks], f,
                                               step['waveform'], latency=latency,
-                                              learn_from=0.0)
+                                              learn_from=0.0, gain=step['compensation_gain'])
             self.blocks = blocks
         elif step.type == 'sweep':
             self.period = 1.0 / step['f0']
             self.corr = AmplitudePhaseControl(step['amplitude'], step['f0'], step['mean'],
                                               sweep_to=step['f1'],
                                               sweep_time=step['duration'],
-                                              latency=latency, learn_from=0.0)
+                                              latency=latency, learn_from=0.0,
+                                              gain=step['compensation_gain'])
             frozen = step['compensation'] == 'none'
         else:      # drive: one pass a cycle
             self.drive = _drive_file(step['file'])

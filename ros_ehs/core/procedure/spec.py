@@ -114,6 +114,10 @@ LIMIT_KEYS: tuple[Setting, ...] = (
        '`limit_cycles` learnt cycles in a row, the levels cannot be reached and the test is '
        'interrupted, the limit named'),
     _S('limit_cycles', '1', 5, 1, 1000, 'see compensation_limit'),
+    _S('compensation_gain', '1', 0.7, 0.05, 1.0, "the fraction of a learnt cycle's error "
+       'the compensation corrects at once (peak/valley control: of the range and mean; '
+       'amplitude/phase control: of each harmonic); lower for a rig whose response changes '
+       'from cycle to cycle'),
 )
 
 #: When a cycle counts (cyclic steps): null pacing.
