@@ -161,16 +161,15 @@ def test_a_trip_that_acts_freezes_the_corrections_until_a_reset():
     assert [t for _, t in g.notes] == ['APC frozen: safety trip', 'APC resumed: safety trip']
 
 
-def test_a_clipped_command_freezes_the_corrections_until_it_is_applied_again():
+def test_a_clipped_command_marks_the_cycles_the_corrections_learn_from_until_applied_again():
     g = ReferenceGenerator(_values(), _options(amplitude_phase_control=True))
     g.tick(T0, 0)
     g.event('clipped', 'off')
-    assert g.frozen_by == {'command clipped'} and g.correction.frozen
-    g.event('trip', 'hold')
+    g.state(T0 + MS, 0.0, 0.0)
+    assert g.clipped and g.correction._clipped and not g.frozen_by
     g.event('unclipped', 'off')
-    assert g.frozen_by == {'safety trip'} and g.correction.frozen     # the trip still holds it
-    g.event('reset', 'off')
-    assert not g.frozen_by and not g.correction.frozen
+    g.state(T0 + 2 * MS, 0.0, 0.0)
+    assert not g.clipped
 
 
 def test_real_time_states_lost_freeze_the_corrections_and_a_state_resumes_them():

@@ -233,8 +233,10 @@ class AmplitudePhaseControl(CycleCorrection):
 
     def _end_cycle(self, cycle: int) -> None:
         n, acc, tot, bad, wsum = self._n, self._acc, self._sum, self._bad, self._w
+        clipped = self._clipped
         self._acc, self._sum, self._n, self._bad, self._w = \
             np.zeros(self.harmonics, complex), 0.0, 0, False, 0.0
+        self._clipped = False
         prev = self._cycle
         start = self.cycle_start(prev)              # the cycle that ended: [start, end)
         end = self.cycle_start(prev + 1)
@@ -263,6 +265,10 @@ class AmplitudePhaseControl(CycleCorrection):
         if blended:            # the command changed during that cycle: measure again first
             return
         c_next = c_used + self._steps(c_used, resp, n)
+        if clipped:        # (clip()): the fundamental no larger, the harmonics as they were
+            if abs(c_next[0]) > abs(c_used[0]):
+                c_next[0] *= abs(c_used[0]) / abs(c_next[0])
+            c_next[1:] = c_used[1:]
         m_next = m_used + self.gain * (self.mean - mean)
         # bounded: the fundamental at most (1 + limit) times the amplitude, the harmonics
         # and the mean's correction at most ``limit`` of it

@@ -43,6 +43,7 @@ class CycleCorrection:
     def __init__(self) -> None:
         self._cycle = 0
         self._bad = False
+        self._clipped = False           # the cycle under way was clipped (:meth:`clip`)
         self.frozen = False
         #: the most the correction may move the command from the specified one, as a fraction
         #: of the specified amplitude (inf: no bound)
@@ -64,6 +65,17 @@ class CycleCorrection:
     def spoil(self) -> None:
         """Do not learn from the cycle under way (the loop did not apply it as commanded)."""
         self._bad = True
+
+    def clip(self) -> None:
+        """
+        Learn from the cycle under way only what asks less of the rig (its command clipped).
+
+        A cycle whose command the controller clipped (the valve at its current limit) fell
+        short of what was asked: a larger command learnt from it would only wind further into
+        the limit, so the amplitude is not raised from it; lowered it may be (a rig that
+        overshoots while it saturates needs less).
+        """
+        self._clipped = True
 
     def freeze(self, on: bool = True) -> None:
         """Stop (or resume) the corrections; the cycle under way is not used."""

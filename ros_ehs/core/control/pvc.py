@@ -225,10 +225,11 @@ class PeakValleyControl(CycleCorrection):
         hi, lo = self._levels.levels()
         self.last_levels = (prev, hi, lo)
         bad = self._bad or not (math.isfinite(hi) and math.isfinite(lo))
+        clipped = self._clipped
         self._levels = CycleLevels(self.waveform in FITTED, c * self.period, self.period)
-        self._bad = False
+        self._bad = self._clipped = False
         self._cycle = c
-        learnt = self._learn(prev, hi, lo, bad or c != prev + 1)
+        learnt = self._learn(prev, hi, lo, bad or c != prev + 1, clipped)
         for k in range(prev + 1, c + 1):
             # a correction learnt just now, for the cycle starting now: in from `latency` on
             # (before, reference() has computed the cycle without it)
@@ -239,8 +240,12 @@ class PeakValleyControl(CycleCorrection):
         for old in [k for k in self._plans if k < c - 2]:
             del self._plans[old]
 
-    def _learn(self, c: int, hi: float, lo: float, bad: bool) -> bool:
-        """Judge cycle ``c`` and learn from it; return whether its block's command changed."""
+    def _learn(self, c: int, hi: float, lo: float, bad: bool, clipped: bool = False) -> bool:
+        """
+        Judge cycle ``c`` and learn from it; return whether its block's command changed.
+
+        A ``clipped`` cycle (:meth:`clip`) lowers the amplitude or leaves it.
+        """
         b, a0, m0, a1, m1, _, jump = self._plans[c]
         if bad or self.frozen or not hi > lo or jump != 0.0:
             return False    # a transition from another level's end is not judged
@@ -258,6 +263,8 @@ class PeakValleyControl(CycleCorrection):
         if (a0, m0) != (a1, m1):
             return False    # the command changed during that cycle: measure again first
         amp = a1 * (1.0 + self.gain * (rng / (hi - lo) - 1.0))
+        if clipped:
+            amp = min(amp, a1)
         mean = m1 + self.gain * (0.5 * (blk.peak + blk.valley) - 0.5 * (hi + lo))
         # bounded: at most ``limit`` of the specified amplitude from the specified command
         a_s, m_s, lim = 0.5 * rng, 0.5 * (blk.peak + blk.valley), self.limit

@@ -147,6 +147,7 @@ class ReferenceGenerator:
         self.correction: CycleCorrection | None = None
         self.set_waveform(values)
         self.frozen_by: set[str] = set()
+        self.clipped = False            #: the controller clips its command (its events)
         self.t_first: int | None = None    # time zero [ns]
         self.last_ns = -1                  # the newest sample's (or clock's) stamp
         self.count = 0                     # samples (real time) or previews (sim time) sent
@@ -312,6 +313,8 @@ class ReferenceGenerator:
         if stamp_ns <= self._measured_ns or stamp_ns < self.t_first:
             return
         self._measured_ns = stamp_ns
+        if self.clipped:
+            self.correction.clip()        # learn from it only what asks less of the rig
         self.correction.measure((stamp_ns - self.t_first) * 1e-9, z)
 
     def watch(self, now: float) -> None:
@@ -327,7 +330,7 @@ class ReferenceGenerator:
         if self.correction is None:
             return
         if kind in ('clipped', 'unclipped'):    # the command not applied as asked
-            self._freeze('command clipped', kind == 'clipped')
+            self.clipped = kind == 'clipped'
         elif kind == 'trip' and action in ('hold', 'stop', 'power_off'):
             self._freeze('safety trip', True)
         elif kind in ('reset', 'enabled'):
