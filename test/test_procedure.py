@@ -864,18 +864,111 @@ def test_a_waveform_waits_for_the_controllers_ramp_on_and_does_not_learn_during_
         ProcedureRunner(proc(step, run_out=1000), ramp_time=math.nan)
 
 
-def test_the_compensation_does_not_learn_while_the_controller_clips_its_command():
-    """Between the controller's ``clipped`` and ``unclipped`` events no cycle is learnt from."""
-    r, ax = started(proc({**CYCLIC, 'compensation': 'pvc', 'count': 100}))
-    ax.run(until=lambda r: r._waves and r._waves[0].wave.corr.judged >= 2)
+class ScaledAxis(PerfectAxis):
+    """An axis that carries ``gain`` times the command's swing about its mean (2 mm)."""
+
+    gain = 1.0
+
+    def run(self, seconds=None, until=None, bound=10**6):
+        for _ in range(bound if seconds is None else int(round(seconds * 1000))):
+            self.stamp += MS
+            ref = self.r.sample(self.stamp)
+            z = 0.002 + self.gain * (ref.z_ref - 0.002)
+            self.r.measure(self.stamp, z, K * z)
+            if until is not None and until(self.r):
+                return
+
+
+@pytest.mark.parametrize('gain', [0.9, 1.1])
+def test_a_clipped_command_is_not_raised_by_the_compensation(gain):
+    """
+    Between the controller's ``clipped`` and ``unclipped`` events no larger command is learnt.
+
+    A rig that falls short (0.9) while its command is clipped would wind the command into
+    the limit: the amplitude stays; one that overshoots (1.1) still gets less. After the
+    ``unclipped`` event it learns both ways.
+    """
+    r = ProcedureRunner(proc({**CYCLIC, 'compensation': 'pvc', 'count': 200}), latency=0.0)
+    ax = ScaledAxis(r)
+    ax.gain = gain
+    assert r.start(ax.stamp)[0]
+    ax.run(until=lambda r: r.total >= 2)            # in the taper: nothing learnt yet
     corr = r._waves[0].wave.corr
+    assert corr.judged == 0
     r.event('clipped', 'saturation', 'off', ax.stamp)
-    judged = corr.judged
-    ax.run(0.5)                                                  # 5 cycles
-    assert corr.judged == judged
+    amp = corr.amp[0]
+    ax.run(until=lambda r: corr.judged >= 5)
+    assert corr.amp[0] == amp if gain < 1 else corr.amp[0] < amp * 0.97
     r.event('unclipped', '', 'off', ax.stamp)
     ax.run(0.3)
-    assert corr.judged >= judged + 2
+    assert (corr.amp[0] > amp * 1.03) if gain < 1 else corr.amp[0] < amp * 0.97
+
+
+class AlternatingAxis(PerfectAxis):
+    """An axis that overshoots the command's swing by 5 % a tenth of a second in three."""
+
+    def run(self, seconds=None, until=None, bound=10**6):
+        for _ in range(bound):
+            self.stamp += MS
+            ref = self.r.sample(self.stamp)
+            g = 1.05 if int((self.stamp - T0) * 1e-8) % 3 == 0 else 1.0
+            z = 0.002 + g * (ref.z_ref - 0.002)
+            self.r.measure(self.stamp, z, K * z)
+            if until is not None and until(self.r):
+                return
+
+
+@pytest.mark.parametrize('count', [10, 21])
+def test_a_paced_step_ends_when_its_last_cycle_counted_never_one_short(count):
+    """The last cycle outside count_tolerance: the step goes on until one more counts."""
+    r = ProcedureRunner(proc({**CYCLIC, 'count': count, 'count_tolerance': 0.02}),
+                        latency=0.0)
+    ax = AlternatingAxis(r)
+    assert r.start(ax.stamp)[0]
+    ax.run(until=finished)
+    nulls = r._null_cycles[0]
+    assert r.result == 'completed' and r.total == count and nulls >= count // 2
+    assert [c.count for c in r.cycles] == list(range(1, count + 1))
+    # with a run-out inside the step: a run-out at exactly the run-out count
+    r = ProcedureRunner(proc({**CYCLIC, 'count': 0, 'count_tolerance': 0.02},
+                             run_out=count), latency=0.0)
+    ax = AlternatingAxis(r)
+    assert r.start(ax.stamp)[0]
+    ax.run(until=finished)
+    assert r.result == 'run_out' and r.total == count
+
+
+def test_a_step_that_says_so_backs_its_frequency_off_until_its_cycles_count():
+    """+-5 mm at 60 Hz on the default rig: backed off by fifths to where it is carried."""
+    zs = []
+    p = proc({'name': 'fast', 'type': 'cyclic', 'waveform': 'sine', 'mean': 0.0,
+              'amplitude': 0.005, 'frequency': 60.0, 'count': 30, 'count_tolerance': 0.02,
+              'frequency_min': 5.0, 'backoff_cycles': 5})
+    r = run_procedure(p, preset('g761_baseline'), check=False,
+                      probe=lambda ax, rn, reply, ref: zs.append(ax.x[ax._iz]))
+    backed = [e[4] for e in r.events if e[0] == 'procedure' and 'backed off' in e[4]]
+    assert r.result == 'completed' and r.total_cycles == 30, r.reason
+    assert backed[0] == ('frequency backed off from 60 to 48 Hz after 5 cycles in a row '
+                         'outside count_tolerance')
+    f_end = 60.0 * 0.8 ** len(backed)
+    assert 5.0 < f_end < 23.0               # under the valve's speed: 0.72 m/s / (2 pi 5 mm)
+    # the cycles not counted overshoot while the frequency comes down: 5.24 mm at worst,
+    # 2.4 % of the range, 90 mm from the end stops
+    assert max(abs(z) for z in zs) < 0.0053
+    # each counted cycle was carried within the tolerance
+    c = r.cycles
+    assert np.all(np.abs(c[:, 5] - 0.005) <= 0.02 * 0.01 + 1e-9)
+    assert np.all(np.abs(c[:, 6] + 0.005) <= 0.02 * 0.01 + 1e-9)
+
+
+@pytest.mark.parametrize('extra, words', [
+    ({'frequency_min': 5.0}, ['frequency_min', 'count_tolerance > 0']),
+    ({'frequency_min': 20.0, 'count_tolerance': 0.02}, ['frequency_min', 'under `frequency`']),
+])
+def test_a_back_off_without_pacing_or_above_the_frequency_is_refused(extra, words):
+    with pytest.raises(InputError) as err:
+        proc({**CYCLIC, **extra})
+    assert all(w in str(err.value) for w in words), err.value
 
 
 def test_the_compensations_gain_is_the_steps():

@@ -84,7 +84,7 @@ from ros_ehs.core.procedure.envelope import check_envelope, RigEnvelope
 from ros_ehs.core.procedure.spec import Procedure, Step
 from ros_ehs_msgs_py import Reference
 
-__all__ = ['ACTING', 'CHECKPOINT_PERIOD', 'ProcedureRunner', 'STATES', 'capture_counts']
+__all__ = ['ACTING', 'BACKOFF', 'CHECKPOINT_PERIOD', 'ProcedureRunner', 'STATES', 'capture_counts']
 
 STATES = ('idle', 'running', 'switching', 'held', 'interrupted', 'stopping', 'finished')
 #: the cycles before a step's end (and a run-out) that a jump never credits: they are simulated
@@ -98,6 +98,8 @@ ACTING = ('hold', 'stop', 'power_off')
 CHECKPOINT_PERIOD = 10.0
 #: the rate of a stop ramp when neither the procedure nor a ramp step gives one [m/s, N/s]
 STOP_RATE = {'displacement': 1.0e-3, 'force': 1.0e3}
+#: A frequency backing off (``frequency_min``) falls to this fraction of itself each time.
+BACKOFF = 0.8
 _NS = 1_000_000_000
 
 
@@ -137,13 +139,13 @@ class _Wave:
     """A step's waveform in its own time ``tau`` [s] (cycle ``k`` from ``k`` periods on)."""
 
     def __init__(self, step: Step, latency: float, harmonics: int, c0: int, lead: float,
-                 learnt: Mapping | None) -> None:
+                 learnt: Mapping | None, frequency: float | None = None) -> None:
         self.step = step
         self.corr = None
         frozen = False
         if step.type == 'cyclic':
             blocks = step['blocks']
-            f = step['frequency']
+            f = frequency or step['frequency']      # (a backed-off frequency)
             self.period = 1.0 / f
             comp = step['compensation']
             sine = step['waveform'] == 'sine' and len(blocks) == 1
@@ -344,6 +346,7 @@ class ProcedureRunner:
         self._waves: list[_Segment] = []     # the waveform segments whose cycles are counted
         self._memo: tuple = (None, (0.0, 0.0))
         self._learnt: dict[int, dict] = {}
+        self._freq: dict[int, float] = {}     # each step's frequency backed off to [Hz]
         self._null_cycles: dict[int, int] = {}  # each step's cycles not counted (null pacing)
         self._null_s: dict[int, float] = {}     # ... and their time [s]
         self._null_run = 0                      # cycles in a row not counted
@@ -540,7 +543,8 @@ class ProcedureRunner:
         A ``mode`` event (the controller ended force control itself: a break, a lost load
         cell) holds the measured position in that mode from ``latency`` on. Between a
         ``clipped`` and an ``unclipped`` event (the controller did not apply its command as
-        asked: the valve saturated, a limit) the compensation does not learn.
+        asked: the valve saturated, a limit) the compensation learns only what asks less of
+        the rig (:meth:`~ros_ehs.core.control.cycles.CycleCorrection.clip`).
         """
         if kind == 'mode' and detector in ('displacement', 'force') and detector != self.mode:
             self.mode = detector
@@ -688,10 +692,10 @@ class ProcedureRunner:
                 self._push(_Segment('level', t0, mode, v0=start, step=-1))
                 t0 = self._ramp_until + self.dt_ns
             probe = _Wave(step, self.latency_ns * 1e-9, self.harmonics, c0, 0.0,
-                          self._learnt.get(k))
+                          self._learnt.get(k), self._freq.get(k))
             taper = step['taper'] * probe.period
             wave = _Wave(step, self.latency_ns * 1e-9, self.harmonics, c0, taper,
-                         self._learnt.get(k))
+                         self._learnt.get(k), self._freq.get(k))
             mid = wave.midpoint(c0)
             # the mean first: the quintic's peak rate is 15/8 of its mean rate
             rate = step['mean_rate'] or self.procedure.stop_rate or STOP_RATE[mode]
@@ -729,6 +733,10 @@ class ProcedureRunner:
             return end, turns if n is None else min(n, turns)
         if n is None:
             return None, None
+        if step.type == 'cyclic' and step['count_tolerance'] > 0:
+            # null pacing: whether the last cycle counts is known only once it is measured;
+            # the step ends then (_close_cycle), never one short
+            return None, n
         return t0 + int(round((w.cycle_start(n) - w.t_off) * 1e9)), n
 
     def _measured(self, mode: str) -> float:
@@ -752,9 +760,10 @@ class ProcedureRunner:
         tau = w.t_off + (stamp - seg.t0) * 1e-9
         ended = seg.end is not None and stamp >= seg.end
         if not ended:
-            if (stamp <= self._ramp_until or self._clipped) and w.corr is not None:
-                # the controller's ramp-on attenuates it, or it clips the command
-                w.corr.spoil()
+            if stamp <= self._ramp_until and w.corr is not None:
+                w.corr.spoil()                   # the controller's ramp-on attenuates it
+            elif self._clipped and w.corr is not None:
+                w.corr.clip()                    # the controller clips the command
             w.measure(tau, load if step.control_mode == 'force' else z)
         k = w.cycle_of(tau)
         cyc = seg.cyc
@@ -861,6 +870,10 @@ class ProcedureRunner:
                                                    'failure')
             self._note_event('run_out', '', float(self.total), self.reason)
             self._to_stop(stamp + self.latency_ns)
+            return
+        if tol > 0 and seg.end is None and seg.n_end is not None and \
+                self.counts[k] >= seg.n_end and self.state == 'running':
+            self._end_step(stamp + self.latency_ns, 'completed')   # its last cycle counted
 
     def _off_by(self, seg: _Segment, cyc: dict, levels: tuple[float, float]
                 ) -> tuple[float, tuple[float, float] | None]:
@@ -894,8 +907,8 @@ class ProcedureRunner:
         if self._level_run < step['level_cycles'] or self.state != 'running':
             return False
         hi, lo = levels
-        clip = (f' (the controller clips its command: {self._clipped}, so nothing was '
-                'learnt)' if self._clipped else '')
+        clip = (f' (the controller clips its command: {self._clipped}; no larger command '
+                'was learnt from it)' if self._clipped else '')
         self._not_reached(step, stamp, f'levels not reached: {self._level_run} cycles in a row '
                           f"off by more than level_error ({step['level_error']:g} of the "
                           f'range; the last {hi:.6g}/{lo:.6g} against {spec[0]:.6g}/'
@@ -938,11 +951,38 @@ class ProcedureRunner:
                              f'count waiting: cycle {cyc["k"] + 1} carried {hi:.6g}/{lo:.6g} '
                              f'against {spec[0]:.6g}/{spec[1]:.6g} (count_tolerance '
                              f'{tol:g} of the range)')
+        if self._back_off(seg, stamp):
+            return True
         if self._null_run >= step['null_cycles'] and self.state == 'running':
             self._not_reached(step, stamp, f'levels not reached: {self._null_run} cycles in '
                               f'a row outside count_tolerance ({tol:g} of the range), not '
                               f'counted, at cycle {self.total}: the rig does not carry this '
                               'step')
+        return True
+
+    def _back_off(self, seg: _Segment, stamp: int) -> bool:
+        """
+        Lower the step's frequency after ``backoff_cycles`` null cycles in a row; True if so.
+
+        By :data:`BACKOFF` down to ``frequency_min``; the step goes on at the count it has,
+        from where the axis is (the mean, then the taper, as a resume), its compensation
+        learning afresh (what it learnt at the other frequency would not fit this one).
+        """
+        k, step = seg.step, self.steps[seg.step]
+        f_min = step['frequency_min'] if step.type == 'cyclic' else 0.0
+        f = self._freq.get(k, step['frequency'])
+        if not (f_min > 0 and f > f_min and self._null_run >= step['backoff_cycles']
+                and self.state == 'running'):
+            return False
+        f_new = max(f_min, BACKOFF * f)
+        self._freq[k] = f_new
+        self._note_event('pacing', step.name, float(self.total),
+                         f'frequency backed off from {f:.6g} to {f_new:.6g} Hz after '
+                         f'{self._null_run} cycles in a row outside count_tolerance')
+        self._save_step_state()
+        self._learnt.pop(k, None)
+        self._waves = []                  # the cycle under way is not counted
+        self._begin_step(k, stamp + self.latency_ns, resume=True)
         return True
 
     def _failed(self, d: FailureDetector, why: str, stamp: int) -> bool:
@@ -1133,7 +1173,7 @@ class ProcedureRunner:
             elif s.type == 'cyclic':
                 if not s['count']:
                     return math.nan
-                d = (s['count'] - self.counts[k]) / s['frequency']
+                d = (s['count'] - self.counts[k]) / self._freq.get(k, s['frequency'])
                 level = 0.5 * (s['blocks'][0][0] + s['blocks'][0][1])
             elif s.type == 'sweep':
                 d = s['duration'] - (elapsed if now else 0.0)
@@ -1173,6 +1213,7 @@ class ProcedureRunner:
                 'step': self.step_index, 'counts': list(self.counts), 'total': self.total,
                 'failed_at': self.failed_at, 'mode': self.mode,
                 'learnt': {str(k): v for k, v in self._learnt.items()},
+                'frequency': {str(k): v for k, v in self._freq.items()},
                 'detectors': {str(k): v for k, v in self._det_state.items()},
                 'stamp_ns': self._last_ns}
 
@@ -1195,6 +1236,7 @@ class ProcedureRunner:
         self.mode = cp.get('mode', self.mode)
         self.failed_at = cp.get('failed_at')
         self._learnt = {int(k): v for k, v in cp.get('learnt', {}).items()}
+        self._freq = {int(k): float(v) for k, v in cp.get('frequency', {}).items()}
         self._det_state = {int(k): v for k, v in cp.get('detectors', {}).items()}
         extra = 0
         if recovered_total is not None and recovered_total > self.total:

@@ -129,6 +129,11 @@ PACING_KEYS: tuple[Setting, ...] = (
        'waits, the step runs on, and the cycles and time spent are reported (null pacing)'),
     _S('null_cycles', '1', 100, 1, 10**6, 'so many cycles in a row outside count_tolerance '
        'interrupt the test: its levels are not reached'),
+    _S('frequency_min', 'Hz', 0.0, 0.0, 500.0, 'with count_tolerance, the frequency backs '
+       'off: backoff_cycles cycles in a row outside it lower the frequency by a fifth, down to '
+       'this, and the step goes on at it from where the axis is (the mean, then the taper, as '
+       'a resume); 0: the frequency stays and only the count waits'),
+    _S('backoff_cycles', '1', 10, 1, 10**6, 'see frequency_min'),
     _S('level_error', '1', 0.05, 0.0, 1.0, 'the levels detector: a cycle past its taper whose '
        'fitted peak or valley is further than this fraction of the specified range from its '
        'level is off; `level_cycles` off in a row interrupt the test, the levels named (0: '
@@ -362,6 +367,13 @@ def _step(k: int, doc: Any, default_mode: str) -> Step:
                              'program would skip the blocks of the cycles it does not count')
         if 'frequency' not in doc:
             raise InputError(f'{where}: a cyclic step needs `frequency`')
+        if values['frequency_min'] > 0 and not (
+                values['count_tolerance'] > 0
+                and values['frequency_min'] < values['frequency']):
+            raise InputError(f"{where}: `frequency_min` = {values['frequency_min']!r} Hz backs "
+                             'the frequency off while cycles are outside `count_tolerance`: '
+                             'give count_tolerance > 0 and frequency_min under `frequency` = '
+                             f"{values['frequency']!r} Hz")
         comp = values['compensation']
         if comp == 'apc' and (values['waveform'] != 'sine' or len(values['blocks']) > 1):
             raise InputError(f'{where}: `compensation` apc corrects a sine of one level; use '
