@@ -159,13 +159,27 @@ def test_a_window_that_fails_stops_its_machine_probes(monkeypatch):
 
 
 def _left_in_session(sid: int) -> list[str]:
-    """Kill what is still running in session ``sid``; return the command lines killed."""
+    """
+    Kill what is still running in session ``sid``; return the command lines killed.
+
+    A process still exiting when the benchmark's own has ended (a pool's worker whose memory
+    is already released: an empty command line) is given 5 s to be gone first: it was once
+    reported as left running.
+    """
     import psutil
-    left = []
+    found = {}
     for p in psutil.process_iter(['pid', 'cmdline', 'status']):
         try:
             if os.getsid(p.pid) == sid and p.info['status'] != psutil.STATUS_ZOMBIE:
-                left.append(' '.join(p.info['cmdline'] or [])[:200])
+                found[p] = ' '.join(p.info['cmdline'] or [])[:200]
+        except (ProcessLookupError, psutil.Error):
+            pass
+    _, alive = psutil.wait_procs(list(found), timeout=5.0)
+    left = []
+    for p in alive:
+        try:
+            if p.status() != psutil.STATUS_ZOMBIE:
+                left.append(found[p] or p.name())
                 p.kill()
         except (ProcessLookupError, psutil.Error):
             pass
