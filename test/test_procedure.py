@@ -961,6 +961,25 @@ def test_a_step_that_says_so_backs_its_frequency_off_until_its_cycles_count():
     assert np.all(np.abs(c[:, 6] + 0.005) <= 0.02 * 0.01 + 1e-9)
 
 
+def test_a_backed_off_frequency_survives_a_restart():
+    """The checkpoint keeps the frequency reached: a restarted node resumes at it."""
+    step = {**CYCLIC, 'compensation': 'none', 'count': 100, 'count_tolerance': 0.02,
+            'frequency_min': 5.0, 'backoff_cycles': 3}
+    r = ProcedureRunner(proc(step), latency=0.0)
+    ax = ScaledAxis(r)
+    ax.gain = 0.9                                 # never within 2 %: the frequency backs off
+    assert r.start(ax.stamp)[0]
+    ax.run(until=lambda r: r._freq.get(0, 10.0) < 7.0)
+    assert r._freq[0] == pytest.approx(10.0 * 0.8 ** 2)
+    cp = r.checkpoint()
+    again = ProcedureRunner(proc(step), latency=0.0)
+    again.restore(cp)
+    ax2 = ScaledAxis(again, ax.stamp, z=0.002)
+    assert again.resume(ax2.stamp)[0]
+    ax2.run(until=lambda r: bool(r._waves))
+    assert again._waves[0].wave.period == pytest.approx(1.0 / 6.4)
+
+
 @pytest.mark.parametrize('extra, words', [
     ({'frequency_min': 5.0}, ['frequency_min', 'count_tolerance > 0']),
     ({'frequency_min': 20.0, 'count_tolerance': 0.02}, ['frequency_min', 'under `frequency`']),
