@@ -208,13 +208,15 @@ def test_a_campaign_on_the_lock_step_bench_survives_a_power_cut_during_specimen_
 
     The campaign benchmark's bench part, as it runs: after the kill the same command goes on
     from the store and S04's checkpoint; six specimens, each once, each linked to its bags
-    (S04 to two), the report written, and S04's count as far from its coupon model's as the
+    (S04 to two, its cycle records in them 1..its count, each once), the report written, and
+    S04's count as far from its coupon model's as the
     uninterrupted failures' are (its crack carried over the restart).
     """
     from ros_ehs.benchmarks.campaign import bench_campaign
     b = bench_campaign(tmp_path)
     assert b['exit_codes'][1] == 0 and b['specimens'] == 6, b
     assert b['recorded_once'] and b['linked_to_bags'] and b['killed_and_resumed'], b
+    assert b['s04_records_each_once'], b
     assert b['report']
     assert [r['bags'] for r in b['results']] == [1, 1, 1, 2, 1, 1]
     off = b['offset_cycles']

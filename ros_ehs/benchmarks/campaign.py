@@ -262,7 +262,16 @@ def bench_campaign(folder, timeout: float = 900.0) -> dict:
                                              for r in recs),
         'killed_and_resumed': len(s04) == 1 and len(s04[0].bags) == 2 and
         s04[0].cycles > KILL_AT,
+        # the killed specimen's cycle records as our reader gives them from its two bags:
+        # every counted cycle, each once (1..its count)
+        's04_records_each_once': len(s04) == 1 and _counts(s04[0].bags) == list(
+            range(1, s04[0].cycles + 1)),
         'report': (out / 'report' / 'report.html').exists()}
+
+
+def _counts(bags) -> list[int]:
+    from ros_ehs.data.fatigue import read_cycles
+    return [int(c) for c in read_cycles(list(bags))[:, 0]]
 
 
 def main(argv=None) -> int:
