@@ -37,6 +37,7 @@ setup(
             'identify = ros_ehs.nodes.identify:main',
             'procedure = ros_ehs.nodes.procedure:main',
             'station = ros_ehs.nodes.station:main',
+            'campaign = ros_ehs.nodes.campaign:main',
         ],
     },
 )

@@ -38,7 +38,8 @@ from ros_ehs_msgs_py.conversions import (command_from_msg, CYCLE_RECORD, CYCLE_T
                                          statuses_from_msg, WRENCH_AXES)
 from ros_ehs_msgs_py.qos import (CLOCK_QOS, EVENTS_QOS, LOCKSTEP_QOS, LOOP_QOS, QosSpec,
                                  RECORD_QOS)
-from ros_ehs_msgs_py.topics import (by_name, CAPTURES, CLOCK, COMMAND, CONTROLLER_STATUS, CYCLES,
+from ros_ehs_msgs_py.topics import (by_name, CAMPAIGN_RESULTS, CAMPAIGN_STATUS, CAPTURES, CLOCK,
+                                    COMMAND, CONTROLLER_STATUS, CYCLES,
                                     DIAGNOSTICS, ESTIMATES, EVENTS, IDENTIFY_STATUS, JOINT_LOAD,
                                     JOINT_PISTON, JOINT_SPOOL, JOINT_VALVE, LOAD_CELL,
                                     LOCKSTEP_NODE_TOPICS, NODE_TOPICS, NodeTopics, PLANT_STATUS,
@@ -57,6 +58,7 @@ from ros_ehs_msgs_py.wire import (clock_from_cdr, clock_to_cdr, command_from_cdr
                                   state_from_cdr, state_to_cdr, wrench_from_cdr)
 
 __all__ = [
+    'CAMPAIGN_RESULTS', 'CAMPAIGN_STATUS',
     'CAPTURES', 'CYCLES', 'CYCLE_RECORD',
     'CYCLE_TAPERED', 'CYCLES_LABEL', 'PROCEDURE_EVENTS', 'PROCEDURE_STATUS',
     'cycles_from_bytes', 'cycles_to_bytes', 'fill_procedure_event', 'procedure_event_from_msg',

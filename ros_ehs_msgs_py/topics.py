@@ -25,7 +25,8 @@ __all__ = ['CLOCK', 'COMMAND', 'DIAGNOSTICS', 'ESTIMATES', 'EVENTS', 'JOINT_LOAD
            'LOCKSTEP_NODE_TOPICS', 'NODE_TOPICS', 'NodeTopics', 'PRESSURE_P', 'PRESSURE_T',
            'REFERENCE', 'REFERENCE_TRAJECTORY', 'STATE', 'TOPICS', 'Topic', 'by_name',
            'CONTROLLER_STATUS', 'IDENTIFY_STATUS', 'PLANT_STATUS', 'RECORDER_STATUS',
-           'REFERENCE_STATUS', 'STATION_EVENTS', 'STATION_STATUS']
+           'REFERENCE_STATUS', 'STATION_EVENTS', 'STATION_STATUS', 'CAMPAIGN_RESULTS',
+           'CAMPAIGN_STATUS']
 
 JOINT_PISTON = 'piston'
 JOINT_SPOOL = 'spool'
@@ -56,6 +57,11 @@ PROCEDURE_STATUS = 'ros_ehs/procedure'
 #: the operator's station: level OK serving (WARN: the controller not heard); values url,
 #: pages (open pages), updates_per_s (frames sent to the pages), actions, refused.
 STATION_STATUS = 'ros_ehs/station'
+#: the campaign node: level OK (WARN: the campaign has ended; ERROR: the store cannot be
+#: written); message what it waits for; values state (``ready``: ~/next gives a specimen;
+#: ``under_way``: a specimen's test; ``ended``), specimen, level, tested, failed, run_out,
+#: invalid, next_level, verdict (why it ended, or ''), store.
+CAMPAIGN_STATUS = 'ros_ehs/campaign'
 
 
 class Topic(NamedTuple):
@@ -137,9 +143,16 @@ STATION_EVENTS = Topic(
     '(done) or WARN (refused or not answered), message the answer; values action, origin (the '
     "page's address and browser), result, reason", EVENTS_QOS)
 
+CAMPAIGN_RESULTS = Topic(
+    'campaign/results', 'diagnostic_msgs/msg/DiagnosticArray',
+    'each specimen the campaign node recorded in its store, one status each: name '
+    '`ros_ehs/campaign/<specimen>`, level OK (failed or run out) or WARN (invalid), message '
+    'the result and its reason; values specimen, level, result, cycles, reason, peak, valley, '
+    'mean, amplitude, r_ratio, started, ended', EVENTS_QOS)
+
 TOPICS = (REFERENCE, STATE, LOAD_CELL, PRESSURE_P, PRESSURE_T, COMMAND, DIAGNOSTICS, EVENTS,
           ESTIMATES, CLOCK, REFERENCE_TRAJECTORY, PROCEDURE_EVENTS, CYCLES, CAPTURES,
-          STATION_EVENTS)
+          STATION_EVENTS, CAMPAIGN_RESULTS)
 
 
 class NodeTopics(NamedTuple):
@@ -158,6 +171,7 @@ NODE_TOPICS = {
                             (STATE, EVENTS, ESTIMATES)),
     'station': NodeTopics((DIAGNOSTICS, STATION_EVENTS),
                           (STATE, REFERENCE, DIAGNOSTICS, EVENTS, PROCEDURE_EVENTS, ESTIMATES)),
+    'campaign': NodeTopics((DIAGNOSTICS, CAMPAIGN_RESULTS), (DIAGNOSTICS, CYCLES)),
 }
 
 #: The same in lock-step (plant ``mode: lockstep``, controller ``lockstep: true``, reference

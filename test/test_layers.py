@@ -114,7 +114,7 @@ def test_no_module_of_the_core_imports_another_that_imports_it_back():
 def test_the_nodes_that_do_not_simulate_start_without_numba():
     # numba's import costs a node 0.3-0.4 CPU-s at every start, and the suite starts these
     # nodes hundreds of times; only the plant and the fitting nodes step the model's kernels
-    nodes = ['controller', 'reference', 'recorder', 'station', 'procedure']
+    nodes = ['controller', 'reference', 'recorder', 'station', 'procedure', 'campaign']
     code = ('import importlib, sys\n'
             'for n in sys.argv[1:]:\n'
             "    importlib.import_module('ros_ehs.nodes.' + n)\n"

@@ -651,9 +651,14 @@ def test_nodes_create_exactly_the_contract_topics(dom, tmp_path, ros, lockstep):
     topics = c.LOCKSTEP_NODE_TOPICS if lockstep else c.NODE_TOPICS
     proc = {'file': str(FIXTURES.parent / 'procedure_short.yaml'),
             'checkpoint': str(tmp_path / 'checkpoint.json')}
+    import yaml
+    from ros_ehs.benchmarks.campaign import BENCH_CAMPAIGN
+    plan = tmp_path / 'campaign.yaml'
+    plan.write_text(yaml.safe_dump(BENCH_CAMPAIGN))
     modes = {'plant': {'mode': 'lockstep'}, 'controller': {'lockstep': True},
              'reference': {'use_sim_time': True},
-             'procedure': {'use_sim_time': True, **proc}} if lockstep else {'procedure': proc}
+             'procedure': {'use_sim_time': True, **proc}} if lockstep else {
+        'procedure': proc, 'campaign': {'campaign': str(plan), 'out': str(tmp_path / 'c')}}
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         for n in topics:
             procs.start(n, modes.get(n))

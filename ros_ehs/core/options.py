@@ -33,7 +33,8 @@ from ros_ehs.core.settings import Setting
 from ros_ehs.core.sim.faults import FAULTS
 import ros_ehs_msgs_py as contract
 
-__all__ = ['CLI_OPTIONS', 'CLI_POSITIONAL', 'COMPRESSIONS', 'CONTROLLER', 'CONTROLLER_SPECS',
+__all__ = ['CAMPAIGN', 'CLI_OPTIONS', 'CLI_POSITIONAL', 'COMPRESSIONS', 'CONTROLLER',
+           'CONTROLLER_SPECS',
            'CPU_AFFINITY', 'DIAGNOSTICS_PERIOD', 'IDENTIFY', 'MODEL', 'NODE_OPTIONS', 'STATION',
            'NODE_PARAMS', 'PLANT', 'PLAYER', 'RATE_HZ', 'RECORDER', 'REFERENCE', 'RT_PRIORITY']
 
@@ -377,9 +378,24 @@ STATION = (
 )
 
 #: each node's options: what ``ros2 run ros_ehs <node>`` declares (besides its parameters)
+CAMPAIGN = (
+    Setting('campaign', '', '', meaning='the campaign file (YAML, docs/campaigns.md)'),
+    Setting('store', '', '', meaning='the results store: a SQLite file, or a database URL '
+            '(postgresql+psycopg://user@host/db); empty: campaign.db in `out`. A campaign '
+            'already in it goes on from its records'),
+    Setting('out', '', 'campaign', meaning="the campaign's folder: each specimen's procedure, "
+            'checkpoint and cycle records, and the specimen under way (current.json)'),
+    Setting('procedure', '', 'procedure', meaning='the procedure node the specimens are '
+            'loaded into (its `file` and `checkpoint` are set)'),
+    Setting('specimen', '', '', meaning="the next specimen's id (on the coupon), taken by "
+            "~/next; empty: the plan's (S01, S02...)", live=True),
+    DIAGNOSTICS_PERIOD,
+    CPU_AFFINITY,
+)
+
 NODE_OPTIONS = {'plant': PLANT, 'controller': CONTROLLER, 'reference': REFERENCE,
                 'recorder': RECORDER, 'player': PLAYER, 'identify': IDENTIFY,
-                'procedure': PROCEDURE, 'station': STATION}
+                'procedure': PROCEDURE, 'station': STATION, 'campaign': CAMPAIGN}
 
 #: the parameters the controller declares: its own, the safety layer's, the plant values its
 #: feedforward uses and the rest of the rig's envelope (a procedure node reads them from it)

@@ -82,7 +82,7 @@ DUMP_WAIT = 1.0
 
 #: The node executables of the package (``ros2 run ros_ehs <name>``).
 NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify', 'procedure',
-         'station')
+         'station', 'campaign')
 
 
 def _value(v: Any) -> str:
@@ -151,7 +151,7 @@ class NodeProcess:
 STATUS_OF = {'plant': contract.PLANT_STATUS, 'controller': contract.CONTROLLER_STATUS,
              'reference': contract.REFERENCE_STATUS, 'recorder': contract.RECORDER_STATUS,
              'identify': contract.IDENTIFY_STATUS, 'procedure': contract.PROCEDURE_STATUS,
-             'station': contract.STATION_STATUS}
+             'station': contract.STATION_STATUS, 'campaign': contract.CAMPAIGN_STATUS}
 
 
 def loop_closed(st: contract.NodeStatus) -> bool:
