@@ -54,13 +54,13 @@ PID's policy: 0 A and ``fault``).
 **A command not applied as the loop asked** (the driving loop's output at ``u_max``, or
 specimen protect's limit) begins a clipping episode: an event of kind ``clipped``
 (``detector`` says which: ``saturation``, ``specimen_protect``), and ``unclipped`` once no
-command has been clipped for ``CLIP_QUIET`` s. A procedure's compensation does not learn from
-the cycles between the two (a correction learnt from levels the valve could not give would
-wind the command up); the episode, not each period, is an event, so a rig clipped at every
-peak sends two. The command's rate limit is not counted: it is a rail for a late loop (whose
-own detector is ``loop_timing``), and it trims a triangle's corner for a period every cycle
-on the default rig (the velocity feedforward's step there), which peak/valley control
-corrects as it should.
+command has been clipped for ``CLIP_QUIET`` s. From the cycles between the two a procedure's
+compensation learns only what asks less of the rig (a larger command learnt from levels the
+valve could not give would wind it further into the limit); the episode, not each period, is
+an event, so a rig clipped at every peak sends two. The command's rate limit is not counted:
+it is a rail for a late loop (whose own detector is ``loop_timing``), and it trims a
+triangle's corner for a period every cycle on the default rig (the velocity feedforward's
+step there), which peak/valley control corrects as it should.
 """
 
 from __future__ import annotations
@@ -210,7 +210,7 @@ class AxisController:
                 self.events.append(Event(
                     stamp_ns, 'clipped', why, float(i), math.nan, 'A', self.supervisor.action,
                     f'the command is not what the {self.driving} loop asked ({why}): '
-                    f'{i * 1e3:.4g} mA; a compensation does not learn meanwhile'))
+                    f'{i * 1e3:.4g} mA; no compensation raises its command meanwhile'))
         elif self.clipping and stamp_ns - self._clip_at > CLIP_QUIET * 1e9:
             self.clipping = False
             self.events.append(Event(
