@@ -52,7 +52,9 @@ CONTROLLER_STATUS = 'ros_ehs/controller'
 IDENTIFY_STATUS = 'ros_ehs/identify'
 #: the procedure node: level OK (WARN interrupted or held, ERROR failed or a checkpoint that
 #: cannot be written); message the state; values state, step, step_index, step_cycles,
-#: total_cycles, time_to_go_s, result, reason, failed_at, checkpoint (the file), file.
+#: total_cycles, time_to_go_s, result, reason, failed_at, checkpoint (the file), file,
+#: controller_mode (the controller's, once read: '' until then, when a start or a resume is
+#: refused; wait for it).
 PROCEDURE_STATUS = 'ros_ehs/procedure'
 #: the operator's station: level OK serving (WARN: the controller not heard); values url,
 #: pages (open pages), updates_per_s (frames sent to the pages), actions, refused.

@@ -76,7 +76,7 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
         assert not r.success and 'C-0117 is under way' in r.message
         first = str(out / 'C-0117' / 'procedure.yaml')
         _status(procs, c.PROCEDURE_STATUS, lambda v: v['file'] == first and
-                v['state'] == 'idle')
+                v['state'] == 'idle' and v['controller_mode'])
         assert _trigger(ros, '/procedure/start').success
         # the campaign node killed while the test runs, and started again: it waits for the
         # same test's end and records it once

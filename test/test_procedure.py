@@ -493,7 +493,9 @@ def test_a_start_waits_for_the_controllers_mode_and_switches_it_to_the_first_ste
     ok, why = r.start(ax.stamp)
     assert not ok and why == "the controller's control mode is not known yet (asking it)"
     assert r.state == 'idle' and not r.events
+    assert r.status()['controller_mode'] == ''  # what a client waits on before ~/start
     r.controller_mode('displacement')          # the controller's answer
+    assert r.status()['controller_mode'] == 'displacement'
     ok, why = r.start(ax.stamp)
     assert ok, why
     assert r.state == 'switching' and r.request_mode == 'force'

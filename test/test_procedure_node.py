@@ -74,7 +74,8 @@ def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, t
     shutil.copy(FIXTURE, proc)
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         _loop(procs, bag, {'file': str(proc)})
-        _status(procs, lambda v: v['state'] == 'idle' and int(v['stamp_ns']) > 0)
+        _status(procs, lambda v: v['state'] == 'idle' and int(v['stamp_ns']) > 0 and
+                v['controller_mode'])
         res = _call(ros, '/procedure/resume')
         assert not res.success and 'idle' in res.message        # nothing to resume
         res = _call(ros, '/procedure/start')
@@ -131,7 +132,8 @@ def test_a_killed_procedure_resumes_at_its_count_and_no_cycle_counts_twice(
         procs.start('procedure', {'use_sim_time': True, 'ramp_time': 0.05, **FAST, **opts},
                     name='procedure2')
         # restored, and the plant's resent state measured
-        st = _status(procs, lambda v: v['state'] == 'interrupted' and int(v['stamp_ns']) > 0)
+        st = _status(procs, lambda v: v['state'] == 'interrupted' and int(v['stamp_ns']) > 0
+                     and v['controller_mode'])       # the controller's mode read: resume
         before = int(st['total_cycles'])
         res = _call(ros, '/procedure/resume')
         assert res.success, res.message
@@ -375,7 +377,8 @@ def test_a_new_file_loads_the_next_test_only_when_idle_or_finished(dom, tmp_path
                       .replace('count: 20', 'count: 6'))
     with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
         _loop(procs, bag, {'file': str(first)}, seconds=20.0)
-        _status(procs, lambda v: v['state'] == 'idle' and int(v['stamp_ns']) > 0)
+        _status(procs, lambda v: v['state'] == 'idle' and int(v['stamp_ns']) > 0 and
+                v['controller_mode'])
         assert _call(ros, '/procedure/start').success
         _status(procs, lambda v: int(v['total_cycles']) >= 2)
         busy = _set_file(ros, file=second)

@@ -372,8 +372,9 @@ def _resume(kills: int, seed: int) -> dict:
                         procs.start('procedure', {'use_sim_time': True, 'ramp_time': 0.05,
                                                   'diagnostics_period': 0.05, **opts},
                                     name='procedure_again')
+                    # restored, the controller's mode read (a resume waits for it)
                     st = _status(procs, lambda v: v['state'] == 'interrupted' and
-                                 int(v['stamp_ns']) > 0)
+                                 int(v['stamp_ns']) > 0 and v.get('controller_mode'))
                     restored = int(st['total_cycles'])
                     _call(node, exe, Trigger, '/procedure/resume')
                     st = _status(procs, lambda v: v['state'] == 'finished')

@@ -113,7 +113,7 @@ class BenchCoupons:
                 self._loop(procs, bag, p, opts)
                 if saved is not None:
                     self._wait(procs, lambda v: v['state'] == 'interrupted' and
-                               int(v['stamp_ns']) > 0)
+                               int(v['stamp_ns']) > 0 and v.get('controller_mode'))
                     self._trigger('/procedure/resume')
                 st = self._until_finished(procs)
                 procs.stop()

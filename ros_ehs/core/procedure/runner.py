@@ -1187,6 +1187,9 @@ class ProcedureRunner:
         """
         Return the status values: state, step, counts, time to go, result.
 
+        ``controller_mode``: the controller's control mode once known ('' while a node still
+        asks it: a start or a resume is refused until then, so a client waits for it).
+
         And for each failure detector of the step, ``<kind>.value`` (its newest judged value:
         the drop, the move or the range's fraction) and ``<kind>.reference_at`` (the cycle
         its reference was complete at, -1 while it has none).
@@ -1196,7 +1199,8 @@ class ProcedureRunner:
                'step_cycles': self.counts[k], 'total_cycles': self.total,
                'time_to_go_s': self.time_to_go(), 'result': self.result,
                'reason': self.reason, 'failed_at': self.failed_at
-               if self.failed_at is not None else -1, 'stamp_ns': self._last_ns}
+               if self.failed_at is not None else -1, 'stamp_ns': self._last_ns,
+               'controller_mode': self.mode if self.mode_known else ''}
         for d in self._detectors.get(k, []):
             out[f'{d.kind}.value'] = d.last_value
             out[f'{d.kind}.reference_at'] = d.reference['at'] if d.reference else -1
