@@ -377,7 +377,7 @@ STATION = (
     CPU_AFFINITY,
 )
 
-#: each node's options: what ``ros2 run ros_ehs <node>`` declares (besides its parameters)
+#: the campaign node's options (docs/campaigns.md)
 CAMPAIGN = (
     Setting('campaign', '', '', meaning='the campaign file (YAML, docs/campaigns.md)'),
     Setting('store', '', '', meaning='the results store: a SQLite file, or a database URL '
@@ -393,6 +393,7 @@ CAMPAIGN = (
     CPU_AFFINITY,
 )
 
+#: each node's options: what ``ros2 run ros_ehs <node>`` declares (besides its parameters)
 NODE_OPTIONS = {'plant': PLANT, 'controller': CONTROLLER, 'reference': REFERENCE,
                 'recorder': RECORDER, 'player': PLAYER, 'identify': IDENTIFY,
                 'procedure': PROCEDURE, 'station': STATION, 'campaign': CAMPAIGN}
