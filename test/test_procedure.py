@@ -48,15 +48,18 @@ class PerfectAxis:
             self.stamp += MS
             ref = self.r.sample(self.stamp)
             self.refs.append(ref)
-            if math.isfinite(ref.z_ref):
-                z, f = ref.z_ref, K * ref.z_ref
-            else:
-                z, f = ref.f_ref / K, ref.f_ref
+            z, f = self.carry(ref)
             self.r.measure(self.stamp, z, f)
             if until is not None and until(self.r):
                 return
         if until is not None:
             raise AssertionError(f'not reached in {bound} periods: {self.r.status()}')
+
+    def carry(self, ref):
+        """Return the (z, load) the axis measures for reference ``ref``."""
+        if math.isfinite(ref.z_ref):
+            return ref.z_ref, K * ref.z_ref
+        return ref.f_ref / K, ref.f_ref
 
 
 def started(p, **kw):
@@ -871,14 +874,9 @@ class ScaledAxis(PerfectAxis):
 
     gain = 1.0
 
-    def run(self, seconds=None, until=None, bound=10**6):
-        for _ in range(bound if seconds is None else int(round(seconds * 1000))):
-            self.stamp += MS
-            ref = self.r.sample(self.stamp)
-            z = 0.002 + self.gain * (ref.z_ref - 0.002)
-            self.r.measure(self.stamp, z, K * z)
-            if until is not None and until(self.r):
-                return
+    def carry(self, ref):
+        z = 0.002 + self.gain * (ref.z_ref - 0.002)
+        return z, K * z
 
 
 @pytest.mark.parametrize('gain', [0.9, 1.1])
@@ -909,15 +907,10 @@ def test_a_clipped_command_is_not_raised_by_the_compensation(gain):
 class AlternatingAxis(PerfectAxis):
     """An axis that overshoots the command's swing by 5 % a tenth of a second in three."""
 
-    def run(self, seconds=None, until=None, bound=10**6):
-        for _ in range(bound):
-            self.stamp += MS
-            ref = self.r.sample(self.stamp)
-            g = 1.05 if int((self.stamp - T0) * 1e-8) % 3 == 0 else 1.0
-            z = 0.002 + g * (ref.z_ref - 0.002)
-            self.r.measure(self.stamp, z, K * z)
-            if until is not None and until(self.r):
-                return
+    def carry(self, ref):
+        g = 1.05 if int((self.stamp - T0) * 1e-8) % 3 == 0 else 1.0
+        z = 0.002 + g * (ref.z_ref - 0.002)
+        return z, K * z
 
 
 @pytest.mark.parametrize('count', [10, 21])
