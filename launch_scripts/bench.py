@@ -77,8 +77,8 @@ from ros_ehs.data.synthetic_bag import SensorNoise  # noqa: E402
 from ros_ehs.nodes.fastdds_profile import ENV, PROFILE  # noqa: E402
 from ros_ehs.nodes.processes import NodeProcesses, StartupError  # noqa: E402
 from ros_ehs.nodes.recorder import default_bag_path  # noqa: E402
-from ros_ehs.nodes.scheduling import (BENCH_PRIORITY, realtime_allowed, RISK,  # noqa: E402
-                                      rtprio_limit)
+from ros_ehs.nodes.scheduling import (BENCH_PRIORITY, realtime_allowed,  # noqa: E402
+                                      RISK, rtprio_limit, setpoint_priority)
 import ros_ehs_msgs_py as contract  # noqa: E402
 
 #: at most this many CPUs get a probe (one each); a larger machine gets none
@@ -258,7 +258,8 @@ def main(argv=None) -> int:
                     help=f'SCHED_FIFO priority of the plant and controller (their rt_priority '
                     f'option; default {BENCH_PRIORITY} in real time, none in lock-step, where '
                     'nothing has a deadline; needs CAP_SYS_NICE or ulimit -r, else the bench '
-                    'says so once and they run on at normal priority); the nodes then get '
+                    'says so once and they run on at normal priority; the reference or '
+                    'procedure node 10 under it, at most 40); the nodes then get '
                     'the Fast DDS profile fastdds_rt.xml beside this script; 0: the default '
                     'scheduler')
     ap.add_argument('--machine-probe', action=argparse.BooleanOptionalAction, default=False,
@@ -352,6 +353,8 @@ def main(argv=None) -> int:
             plant['duration'] = float(a.duration)
         plant.update(a.plant_param)
         controller = {**loop, **dict(a.controller_param)}
+        # the setpoint's source under the loop's priority, above the station and a browser
+        setpoint = {'rt_priority': setpoint_priority(a.rt_priority)} if a.rt_priority else {}
         # in real time the reference runs at 250 Hz (the controller extrapolates it with its
         # velocity): a 1 kHz reference costs a quarter of a core for nothing
         recorder = {k: v for k, v in (('max_bag_size', a.max_bag_size),
@@ -364,9 +367,9 @@ def main(argv=None) -> int:
                              params_file=pf,
                              recorder=recorder, pin=a.cpu_affinity,
                              reference={'kind': a.reference,
-                                        'rate_hz': 1000.0 if lock else 250.0},
+                                        'rate_hz': 1000.0 if lock else 250.0, **setpoint},
                              procedure={'file': str(Path(a.procedure).resolve()),
-                                        'autostart': a.autostart}
+                                        'autostart': a.autostart, **setpoint}
                              if a.procedure else None)
         except StartupError as err:
             print(f'bench: {err}', file=sys.stderr)

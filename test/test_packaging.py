@@ -170,7 +170,7 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
     from domain_coordinator import domain_id
     from ros_ehs.nodes.processes import loop_closed, NodeProcesses
     from waits import BOUND
-    from ros_ehs_msgs_py import PLANT_STATUS, STATION_STATUS
+    from ros_ehs_msgs_py import PLANT_STATUS, REFERENCE_STATUS, STATION_STATUS
     with domain_id() as dom:
         built = {'PYTHONPATH': sourced['PYTHONPATH'], 'AMENT_PREFIX_PATH': prefix_path}
         with NodeProcesses(dom, tmp_path / 'logs', env=built, bound=BOUND) as procs:
@@ -180,20 +180,25 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
             # the station's page and its charting library came with the install
             procs.start('station', cmd=[str(lib / 'station'), '--ros-args', '-p', 'port:=0'])
             served = procs.wait_status(STATION_STATUS, lambda st: 'url' in st.values)
-            placed = {n: _placement(procs[n].pid) for n in ('plant', 'controller', 'station')}
+            procs.start('reference', cmd=[str(lib / 'reference')])
+            referenced = procs.wait_status(REFERENCE_STATUS, lambda st: True)
+            placed = {n: _placement(procs[n].pid)
+                      for n in ('plant', 'controller', 'station', 'reference')}
             url = procs.status(STATION_STATUS).values['url'] if served else ''
             page = urllib.request.urlopen(url, timeout=30).read() if served else b''
             lib_js = urllib.request.urlopen(url + 'static/vendor/uPlot.iife.min.js',
                                             timeout=30).read() if served else b''
-            codes = procs.stop(['station', 'controller', 'plant'])
+            codes = procs.stop(['station', 'reference', 'controller', 'plant'])
     assert ok, procs['plant'].output()[-2000:] + procs['controller'].output()[-2000:]
     assert served, procs['station'].output()[-2000:]
     assert b'ros_ehs station' in page and lib_js.startswith(b'/*! https://github.com/leeoniya')
-    assert codes == {'station': 0, 'controller': 0, 'plant': 0}
+    assert referenced, procs['reference'].output()[-2000:]
+    assert codes == {'station': 0, 'reference': 0, 'controller': 0, 'plant': 0}
     # started as `ros2 run` starts them, without options: the loop's nodes on SCHED_FIFO 50
-    # when this user may (else a warning of what that risks), on the loop's CPU; the station
-    # off it
-    from ros_ehs.nodes.scheduling import BENCH_PRIORITY, loop_placement, realtime_allowed, RISK
+    # when this user may (else a warning of what that risks), on the loop's CPU; the reference
+    # on SCHED_FIFO 40 under them, off it; the station off it at normal priority
+    from ros_ehs.nodes.scheduling import (BENCH_PRIORITY, loop_placement, realtime_allowed,
+                                          REFERENCE_PRIORITY, RISK)
     may = realtime_allowed(BENCH_PRIORITY)
     cpus = loop_placement()
     for name in ('plant', 'controller'):
@@ -203,6 +208,9 @@ def test_colcon_build_gives_the_ros2_run_layout(tmp_path):
         else:
             assert policy == os.SCHED_OTHER and RISK in procs[name].output(), name
         assert cpu == (None if cpus is None else {cpus[0]}), (name, placed)
+    assert placed['reference'][:2] == ((os.SCHED_FIFO, REFERENCE_PRIORITY) if may else
+                                       (os.SCHED_OTHER, 0)), placed
+    assert placed['reference'][2] == (None if cpus is None else {cpus[1]}), placed
     assert placed['station'][:2] == (os.SCHED_OTHER, 0), placed
     assert placed['station'][2] == (None if cpus is None else {cpus[1]}), placed
     where = subprocess.run([str(lib / 'identify'), '--ros-args', '-p', 'bags:=[nope]'],

@@ -127,6 +127,24 @@ def test_the_automatic_priority_is_the_benchs_in_real_time_none_in_lock_step():
         assert node_priority(option, True, lambda p: False) == (option, '')
 
 
+def test_the_setpoints_source_runs_under_the_loop():
+    from ros_ehs.nodes.scheduling import (AUTO_PRIORITY, node_priority, REFERENCE_PRIORITY,
+                                          setpoint_priority)
+    asked = []
+
+    def allowed(priority):
+        asked.append(priority)
+        return True
+    # the reference and procedure nodes' automatic priority: 40, under the loop's 50
+    assert node_priority(AUTO_PRIORITY, True, allowed, auto=REFERENCE_PRIORITY) == (40, '')
+    assert asked == [40]
+    assert node_priority(AUTO_PRIORITY, False, allowed, auto=REFERENCE_PRIORITY) == (0, '')
+    priority, said = node_priority(AUTO_PRIORITY, True, lambda p: False, auto=40)
+    assert priority == 0 and 'SCHED_FIFO 40 is not allowed' in said
+    # what bench.py gives it under a loop's priority: 10 under, at most 40, never 0 under one
+    assert [setpoint_priority(p) for p in (0, 1, 11, 30, 50, 90)] == [0, 1, 1, 20, 40, 40]
+
+
 def test_the_automatic_cpu_keeps_the_loop_on_its_own_and_the_rest_off_it():
     from ros_ehs.nodes.scheduling import AUTO_CPU, node_cpu
     assert node_cpu(AUTO_CPU, True, lambda: (1, 0)) == 1
@@ -150,4 +168,5 @@ def test_every_node_defaults_to_the_automatic_placement():
             assert by['cpu_affinity'].default == AUTO_CPU, node
         if 'rt_priority' in by:
             assert by['rt_priority'].default == AUTO_PRIORITY, node
-            assert node in ('plant', 'controller'), node
+            # the loop, and the setpoint's source under it
+            assert node in ('plant', 'controller', 'reference', 'procedure'), node

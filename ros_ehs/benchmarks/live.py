@@ -33,7 +33,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import BOUND, count, positive, report
+from ros_ehs.benchmarks import BOUND, count, LATE, positive, report
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
 
@@ -47,7 +47,7 @@ def _cpu(pid: int) -> float:
 
 def _round(dom: int, seconds: float, with_live: bool) -> dict:
     with NodeProcesses(dom, bound=BOUND) as procs:
-        procs.start_loop('realtime')
+        procs.start_loop('realtime', plant=LATE)
         live_cpu = 0.0
         if with_live:
             ref_cpu = (loop_placement(True) or (-1, -1))[1]

@@ -58,7 +58,7 @@ from ros_ehs.core.params import spec
 from ros_ehs.data.bag import open_bag, wait_for_counts
 from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, NodeProcesses
-from ros_ehs.nodes.scheduling import BENCH_PRIORITY
+from ros_ehs.nodes.scheduling import BENCH_PRIORITY, setpoint_priority
 import ros_ehs_msgs_py as contract
 
 #: the start left out: the ramp-on (1 s) and the reference's first second [s]
@@ -134,7 +134,8 @@ def _run(dom: int, tmp: Path, case: str, n: int, seconds: float, rt: int, pw) ->
     env = {ENV: str(profile)} if rt and profile.is_file() else {}
     with NodeProcesses(dom, tmp / f'logs_{n}_{case}', env=env, bound=BOUND) as procs:
         procs.start_loop('realtime', bag=bag, plant=loop, controller=loop,
-                         reference={'rate_hz': 250.0})
+                         reference={'rate_hz': 250.0,
+                                    **({'rt_priority': setpoint_priority(rt)} if rt else {})})
         ref_cpu = -1 if procs.placement is None else procs.placement[1]
         try:
             if case == 'busy':

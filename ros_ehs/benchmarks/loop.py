@@ -40,7 +40,7 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import BOUND, count, positive, report, wait_first_echo
+from ros_ehs.benchmarks import BOUND, count, LATE, positive, report, wait_first_echo
 from ros_ehs.nodes.processes import loop_closed, loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
 
@@ -61,7 +61,7 @@ def _measure(procs: NodeProcesses, names: tuple[str, str], seconds: float) -> di
 
 def _ours(dom: int, seconds: float, model: str, rt: dict) -> tuple[dict, dict]:
     with NodeProcesses(dom, bound=BOUND) as procs:
-        procs.start('plant', {'model': model, **rt})
+        procs.start('plant', {'model': model, **rt, **LATE})
         procs.start('controller', rt)
         if not procs.wait_status(contract.PLANT_STATUS, loop_closed):
             raise RuntimeError('the loop did not close:\n' + procs['plant'].output()[-2000:])

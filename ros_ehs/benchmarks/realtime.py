@@ -46,7 +46,7 @@ import tempfile
 
 from domain_coordinator import domain_id
 import numpy as np
-from ros_ehs.benchmarks import BOUND, positive, report
+from ros_ehs.benchmarks import BOUND, LATE, positive, report
 from ros_ehs.core.control.waveforms import Sine
 from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
@@ -144,7 +144,7 @@ def apc(dom: int, tmp: str, seconds: float, rt: int) -> dict:
         bag = Path(tmp) / f'apc_{corrected}'
         loop = {'rt_priority': rt} if rt else {}
         with NodeProcesses(dom, Path(tmp) / f'logs_apc_{corrected}', bound=BOUND) as procs:
-            procs.start_loop('realtime', bag=bag, plant=loop, controller=loop,
+            procs.start_loop('realtime', bag=bag, plant={**loop, **LATE}, controller=loop,
                              reference={'amplitude': a, 'frequency': f,
                                         'amplitude_phase_control': corrected})
             wait_for_counts(bag, {'/state': int(seconds * 1000)}, BAG_WAIT)
@@ -182,7 +182,7 @@ def rig(dom: int, tmp: str, seconds: float, rt: int = 0) -> dict:
         procs.stop(['recorder', 'reference', 'controller', 'driver'])
         figures = json.loads(procs['driver'].output().strip().splitlines()[-1])
     with NodeProcesses(dom, Path(tmp) / 'logs_ours', bound=BOUND) as procs:
-        procs.start_loop('realtime', bag=our_bag, plant={'rate_hz': RATE, **loop},
+        procs.start_loop('realtime', bag=our_bag, plant={'rate_hz': RATE, **loop, **LATE},
                          controller={'rate_hz': RATE, **loop})
         wait_for_counts(our_bag, {'/state': int((seconds + 1) * RATE)}, BAG_WAIT)
         procs.stop(['recorder', 'reference', 'plant', 'controller'])

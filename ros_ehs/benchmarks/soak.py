@@ -42,7 +42,7 @@ import time
 from domain_coordinator import domain_id
 import numpy as np
 import psutil
-from ros_ehs.benchmarks import BOUND, positive, report
+from ros_ehs.benchmarks import BOUND, LATE, positive, report
 from ros_ehs.data.bag import BagWriter, open_bag
 from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, NodeProcesses
@@ -90,7 +90,8 @@ def main(argv=None) -> int:
         bag = Path(a.keep) if a.keep else Path(tmp) / 'soak'
         with NodeProcesses(dom, Path(tmp) / 'logs', env=env, bound=BOUND) as procs:
             procs.start_loop(a.mode, bag=bag, controller=rt,
-                             plant={**rt, 'duration': a.seconds} if lock else rt,
+                             plant={**rt, **LATE, 'duration': a.seconds} if lock
+                             else {**rt, **LATE},
                              reference={'kind': 'sine', 'rate_hz': 1000.0 if lock else 250.0},
                              recorder={'max_bag_duration': a.max_bag_duration,
                                        'compression': a.compression})

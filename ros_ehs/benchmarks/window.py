@@ -54,7 +54,7 @@ import time
 from typing import Iterator
 
 from domain_coordinator import domain_id
-from ros_ehs.benchmarks import BOUND, count, positive, report, wait_first_echo
+from ros_ehs.benchmarks import BOUND, count, LATE_PERIODS, positive, report, wait_first_echo
 from ros_ehs.benchmarks.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
 from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, loop_placement, NodeProcesses
@@ -127,7 +127,8 @@ def _ours(dom: int, seconds: float, prio: int, pin: bool, tmp: Path,
     env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
     logs = tmp / f'w{i}_logs'
     cmd = [sys.executable, str(BENCH), '--duration', str(seconds), '--out',
-           str(tmp / f'w{i}'), '--log-dir', str(logs), '--no-machine-probe']
+           str(tmp / f'w{i}'), '--log-dir', str(logs), '--no-machine-probe',
+           '--plant-param', f'watchdog_periods={LATE_PERIODS}']
     cmd += ['--rt-priority', str(prio)] if prio else []
     cmd.append('--cpu-affinity' if pin else '--no-cpu-affinity')
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,

@@ -36,7 +36,8 @@ import ros_ehs_msgs_py as contract
 __all__ = ['CAMPAIGN', 'CLI_OPTIONS', 'CLI_POSITIONAL', 'COMPRESSIONS', 'CONTROLLER',
            'CONTROLLER_SPECS',
            'CPU_AFFINITY', 'DIAGNOSTICS_PERIOD', 'IDENTIFY', 'MODEL', 'NODE_OPTIONS', 'STATION',
-           'NODE_PARAMS', 'PLANT', 'PLAYER', 'RATE_HZ', 'RECORDER', 'REFERENCE', 'RT_PRIORITY']
+           'NODE_PARAMS', 'PLANT', 'PLAYER', 'RATE_HZ', 'RECORDER', 'REF_RT_PRIORITY', 'REFERENCE',
+           'RT_PRIORITY']
 
 #: MCAP chunk compressions a recorder can write.
 COMPRESSIONS = ('zstd', 'lz4', 'none')
@@ -55,6 +56,14 @@ CPU_AFFINITY = Setting('cpu_affinity', '', -2, -2, 1023, 'keep the threads of th
                        "controller on the loop's CPU, every other node on another (the first "
                        'two CPUs the process may use, or ROS_EHS_LOOP_CPUS=LOOP,OTHER), '
                        'anywhere with one CPU')
+#: the setpoint's source (reference, procedure): under the loop's priority, above the rest
+REF_RT_PRIORITY = Setting('rt_priority', '', -1, -1, 99, 'real time: SCHED_FIFO priority of all '
+                          'the threads of the node (1-99), so that a browser or a refit on '
+                          "its CPU cannot starve the loop's setpoints (the controller carries "
+                          'a silent reference on a straight line, which a curve leaves); 0: '
+                          "the default scheduler; -1 (automatic): 40, under the loop's 50, in "
+                          'real time when the process may, else the default scheduler and a '
+                          'warning; none in lock-step')
 RT_PRIORITY = Setting('rt_priority', '', -1, -1, 99, 'real time: SCHED_FIFO priority of all the '
                       'threads of the node (1-99), so that other work on the machine cannot '
                       'delay a period; 0: the default scheduler; -1 (automatic): 50 in real '
@@ -84,9 +93,12 @@ PLANT = (
     Setting('timing', '', 'timer', meaning='real time: an executor timer (one thread: no GIL '
             'handover; less CPU and a shorter round trip, measured) or a thread sleeping to '
             'each period', choices=('timer', 'thread')),
-    Setting('watchdog_periods', '', 3, 1, 10000, 'a command is never applied over a period '
+    Setting('watchdog_periods', '', 20, 1, 10000, 'a command is never applied over a period '
             'ending more than this many periods after it arrived: then the valve current is '
-            'zero', live=True),
+            "zero (a controller that died). 20 (20 ms at 1 kHz, the loop_timing detector's "
+            'limit): a stall the detector accepts rides through on the last command, as a DAC '
+            'holds it; closing the valve on a moving piston is a hydraulic shock '
+            '(docs/nodes.md, Watchdog)', live=True),
     Setting('initial_z', 'm', 0.0, -2.0, 2.0, 'initial piston position'),
     Setting('start_time', 's', 0.0, 0.0, 1.0e9, 'lock-step: sim time of the first state'),
     Setting('duration', 's', 0.0, 0.0, 1.0e9, 'lock-step: stop advancing at this sim time after '
@@ -199,6 +211,7 @@ REFERENCE = (
     LOAD_TOPIC,
     LOAD_AXIS,
     LOAD_JOINT,
+    REF_RT_PRIORITY,
     CPU_AFFINITY,
 )
 
@@ -349,6 +362,7 @@ PROCEDURE = (
     LOAD_AXIS,
     LOAD_JOINT,
     DIAGNOSTICS_PERIOD,
+    REF_RT_PRIORITY,
     CPU_AFFINITY,
 )
 

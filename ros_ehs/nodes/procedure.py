@@ -70,6 +70,7 @@ from ros_ehs.data.fatigue import read_cycles
 from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, qos_profile, read_msg, run,
                                       steady_clock, WARN)
+from ros_ehs.nodes.scheduling import REFERENCE_PRIORITY
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -170,6 +171,9 @@ class ProcedureNode(Node):
             self.get_logger().info("no rig_params: the procedure is checked against the rig's "
                                    'parameters the controller gives, at start')
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
+        # for run(): the setpoint's source on SCHED_FIFO under the loop, in real time
+        self.rt_priority, self.realtime = int(self.opt['rt_priority']), not self.sim_time
+        self.auto_priority = REFERENCE_PRIORITY
         rate = float(self.opt['rate_hz'])
         self.dt_ns = int(round(1e9 / rate))
         self.preview_ns = int(round(float(self.opt['preview']) * 1e9))

@@ -234,7 +234,8 @@ class NodeProcesses:
             self.watch = StatusWatch(int(dom) if dom else None, self.env)
         if self.watch is not None and node in STATUS_OF:   # a restarted node's old word is void
             self.watch.forget(STATUS_OF[node])
-        if cmd is None and params_file is None and node in ('plant', 'controller') and \
+        if cmd is None and params_file is None and \
+                node in ('plant', 'controller', 'reference', 'procedure') and \
                 'rt_priority' not in (params or {}):
             # a harness (bench.py, a benchmark, a test) says the priority it wants: its nodes
             # run as before unless asked (bench.py asks in real time, as `ros2 run`'s automatic

@@ -64,6 +64,7 @@ from ros_ehs.core.options import REFERENCE
 from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import (diagnostics, OK, PLANT_STATUS, qos_profile, read_msg, run,
                                       steady_clock)
+from ros_ehs.nodes.scheduling import REFERENCE_PRIORITY
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -84,6 +85,9 @@ class ReferenceNode(Node):
         self.cpu_affinity = int(self.opt['cpu_affinity'])   # applied by run()
         values = declare_settings(self, WAVEFORM)
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
+        # for run(): the setpoint's source on SCHED_FIFO under the loop, in real time
+        self.rt_priority, self.realtime = int(self.opt['rt_priority']), not self.sim_time
+        self.auto_priority = REFERENCE_PRIORITY
         self.gen = ReferenceGenerator(values, self.opt, sim_time=self.sim_time)
         # under sim time the reference follows /clock tick by tick (lock-step): every sample
         # counts, so it goes out over the lock-step QoS

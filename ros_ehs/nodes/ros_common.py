@@ -308,7 +308,9 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
         # the defaults (automatic): a loop node in real time on SCHED_FIFO when it may, or
         # said once what it risks; the loop's nodes on its CPU, the others off it
         priority, refused = node_priority(int(getattr(node, 'rt_priority', 0)),
-                                          bool(getattr(node, 'realtime', False)))
+                                          bool(getattr(node, 'realtime', False)),
+                                          auto=int(getattr(node, 'auto_priority',
+                                                           BENCH_PRIORITY)))
         cpu = node_cpu(int(getattr(node, 'cpu_affinity', -1)),
                        bool(getattr(node, 'carries_loop', False)))
         for said in (refused, set_realtime(priority), set_cpu_affinity(cpu)):

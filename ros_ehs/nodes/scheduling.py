@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import os
 
-__all__ = ['AUTO_CPU', 'AUTO_PRIORITY', 'BENCH_PRIORITY', 'LOOP_CPUS_ENV', 'RISK',
-           'SIDE_THREADS', 'loop_placement', 'node_cpu', 'node_priority', 'realtime_allowed',
-           'rtprio_limit', 'set_cpu_affinity', 'set_realtime']
+__all__ = ['AUTO_CPU', 'AUTO_PRIORITY', 'BENCH_PRIORITY', 'LOOP_CPUS_ENV', 'REFERENCE_PRIORITY',
+           'RISK', 'SIDE_THREADS', 'loop_placement', 'node_cpu', 'node_priority',
+           'realtime_allowed',
+           'rtprio_limit', 'set_cpu_affinity', 'set_realtime', 'setpoint_priority']
 
 
 def _thread_ids() -> list[int]:
@@ -52,6 +53,18 @@ def _thread_name(tid: int) -> str:
 #: The SCHED_FIFO priority a real-time bench gives its plant and controller unless told
 #: otherwise (``launch_scripts/bench.py``; the ``load`` benchmark runs the bench so)
 BENCH_PRIORITY = 50
+#: The SCHED_FIFO priority the setpoint's source (reference, procedure node) takes by default
+#: in real time: under the loop's, above everything else (a browser on its CPU once held the
+#: reference 91 ms: the controller carried it on a straight line and the piston, 4.5 mm off
+#: the sine when the next came, was pulled back with 15 kN)
+REFERENCE_PRIORITY = 40
+
+
+def setpoint_priority(loop: int) -> int:
+    """Return the setpoint source's priority under a loop at ``loop`` (0: none)."""
+    return min(REFERENCE_PRIORITY, max(1, loop - 10)) if loop > 0 else 0
+
+
 #: What a loop without real-time priority risks, said wherever it cannot have it.
 RISK = ('the loop runs at normal priority: any other busy process on this machine (a browser, '
         'a build, a live refit) can delay its periods, the valve holding its last command '
@@ -164,22 +177,25 @@ def rtprio_limit() -> str:
         return '?'
 
 
-def node_priority(option: int, realtime: bool, allowed=realtime_allowed) -> tuple[int, str]:
+def node_priority(option: int, realtime: bool, allowed=realtime_allowed,
+                  auto: int = BENCH_PRIORITY) -> tuple[int, str]:
     """
     Resolve a node's ``rt_priority`` option: return the priority to apply and what to say.
 
     ``option`` as set (:data:`AUTO_PRIORITY`: the default); ``realtime``: the node runs
     against the wall clock (not lock-step, not on sim time); ``allowed(priority)``: whether
-    this process may take it. The returned sentence is empty, or once-only news for the
-    node's log: the automatic priority refused, and what running without it risks.
+    this process may take it; ``auto``: the automatic priority (the loop's
+    :data:`BENCH_PRIORITY`, the setpoint source's :data:`REFERENCE_PRIORITY`). The returned
+    sentence is empty, or once-only news for the node's log: the automatic priority refused,
+    and what running without it risks.
     """
     if option != AUTO_PRIORITY:
         return option, ''
     if not realtime:
         return 0, ''
-    if allowed(BENCH_PRIORITY):
-        return BENCH_PRIORITY, ''
-    return 0, (f'rt_priority {AUTO_PRIORITY} (automatic): SCHED_FIFO {BENCH_PRIORITY} is not '
+    if allowed(auto):
+        return auto, ''
+    return 0, (f'rt_priority {AUTO_PRIORITY} (automatic): SCHED_FIFO {auto} is not '
                f'allowed to this process (no CAP_SYS_NICE, ulimit -r {rtprio_limit()}); '
                f'{RISK}')
 

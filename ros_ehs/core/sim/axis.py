@@ -139,7 +139,7 @@ class SimulatedAxis:
     """
 
     def __init__(self, params: Params, model: str = 'simplified', rate_hz: float = 1000.0, *,
-                 lockstep: bool = False, watchdog_periods: int = 3, initial_z: float = 0.0,
+                 lockstep: bool = False, watchdog_periods: int = 20, initial_z: float = 0.0,
                  t0_ns: int = 0, wall0_ns: int = 0, duration: float = 0.0,
                  wait_subscribers: int = 1, start_delay: float = 0.5,
                  clock_period: float = 0.01, resend_period: float = 0.05,
