@@ -50,9 +50,9 @@ cleanly, 1 otherwise (their logs say why).
 
 With ``--machine-probe`` (real time), beside the nodes a probe runs on each CPU
 (``ros_ehs.benchmarks.sleeper``: a 1 kHz sleep loop without ROS, at the same ``--rt-priority``),
-a diagnostic for a machine you do not trust: the summary says how many of the plant's
-watchdog trips fell in a stall of the machine that a probe saw in the same run (a gap over 2
-ms), and how many more in a shorter hiccup of the machine
+a diagnostic for a machine you do not trust: the summary says how many of the plant's late
+commands (over 3 periods old) fell in a stall of the machine that a probe saw in the same run
+(a gap over 2 ms), and how many more in a shorter hiccup of the machine
 (``ros_ehs.benchmarks.sleeper.hiccups``).
 """
 
@@ -99,7 +99,7 @@ def _start_probes(procs: NodeProcesses, rt_priority: int) -> list[str]:
 
 
 def _probe_lines(procs: NodeProcesses, probes: list[str], trip_log: list) -> None:
-    """Print what the probes saw, and how many watchdog trips fell in a stall they saw."""
+    """Print what the probes saw, and how many late commands fell in a stall they saw."""
     gaps, top = [], 0.0
     for name in probes:
         try:
@@ -111,8 +111,8 @@ def _probe_lines(procs: NodeProcesses, probes: list[str], trip_log: list) -> Non
         top = max(top, f['max_gap_ms'])
         for said in f.get('not_applied', []):
             print(f'bench: machine probe {name}: {said}', file=sys.stderr)
-    # each trip's span without a fresh command, [t - age, t]: did a probe stall over 2 ms in
-    # it (held a period or more: what trips the watchdog with a round trip of zero)?
+    # each late command's span without a fresh one, [t - age, t]: did a probe stall over 2 ms
+    # in it (held a period or more: what makes a command late with a round trip of zero)?
     spans = [(t, age) for t, _, age, _ in trip_log]
     hit = coincident(spans, [(g[0], g[1]) for g in gaps if g[1] > STALL_MS])
     alone = sum(h for h, (*_, a) in zip(hit, trip_log) if a)
@@ -120,7 +120,7 @@ def _probe_lines(procs: NodeProcesses, probes: list[str], trip_log: list) -> Non
     hic = sum(h and not s for h, s in zip(coincident(spans, hiccups(gaps)), hit))
     print(f'bench: machine probes ({len(probes)}, a 1 kHz sleep loop without ROS on each CPU, '
           f'same priority, same run): {len(gaps)} gaps over {HICCUP_MS:g} ms, longest '
-          f'{top:.2f} ms; {sum(hit)} of the {len(trip_log)} watchdog trips fell in a gap over '
+          f'{top:.2f} ms; {sum(hit)} of the {len(trip_log)} late commands fell in a gap over '
           f'{STALL_MS:g} ms ({alone} of them at late plant ticks alone), {hic} more in a '
           f'hiccup (a probe the machine woke {HICCUP_MS - 1:.1f} ms late or more)')
 
@@ -437,13 +437,14 @@ def main(argv=None) -> int:
     try:
         f = procs['plant'].figures()
         span = max(f['sim_time_s'], 1e-9)
-        late = f['watchdog_trips_late_tick']
-        print(f"bench: watchdog trips {f['watchdog_trips']} in {span:.1f} s of loop "
-              f"({f['watchdog_trips'] / span:.2f}/s): {f['watchdog_trips'] - late} from late "
-              f'commands, {late} from late plant ticks alone; fresh cycles '
+        late = f['late_commands_late_tick']
+        print(f"bench: late commands (over 3 periods) {f['late_commands']} in {span:.1f} s of "
+              f"loop ({f['late_commands'] / span:.2f}/s): {f['late_commands'] - late} from a "
+              f'late controller, {late} from late plant ticks alone; watchdog trips (the valve '
+              f"zeroed) {f['watchdog_trips']}; fresh cycles "
               f"{f['fresh_cycle_fraction']:.4f}, longest period {f['period_max_ms']:.2f} ms")
         if probes:
-            _probe_lines(procs, probes, f['watchdog_trip_log'])
+            _probe_lines(procs, probes, f['late_log'])
     except (RuntimeError, KeyError, ValueError):
         print('bench: the plant left no figures (see its log)', file=sys.stderr)
     bad = {n: c for n, c in codes.items() if c != 0}

@@ -234,10 +234,11 @@ def test_the_bench_campaign_gives_the_same_store_in_postgresql_and_sqlite(tmp_pa
 
     The two stores hold the same six specimens, row for row: ids, results, counts, reasons,
     bags (named relative to each run's folder), the procedure's hash, the rig's values and the
-    notes exactly; the achieved levels within 1e-5 of each other (their times aside). Two runs
-    of the bench over DDS differ there in the sixth digit (measured; the cycle table's float32
-    peaks), and so may a reason's figures: the levels cannot tell a store's rounding from the
-    run's, and the in-process campaign above compares them exactly.
+    notes exactly; the achieved levels within 0.1 % of each other (their times aside). Two runs
+    of the bench over DDS are not bit for bit the same: their levels differed by up to 2e-4
+    (a spread, in a loaded suite run), and so may a reason's figures; the levels cannot tell
+    a store's rounding from the run's, and the in-process campaign above compares them
+    exactly.
     """
     from ros_ehs.benchmarks.campaign import BENCH_CAMPAIGN, BENCH_RIG
     from ros_ehs.nodes.processes import launch_script
@@ -270,7 +271,7 @@ def test_the_bench_campaign_gives_the_same_store_in_postgresql_and_sqlite(tmp_pa
 
     def same(k, x, y):
         if k in levels:
-            return math.isclose(x, y, rel_tol=1e-5)
+            return math.isclose(x, y, rel_tol=1e-3)
         if k == 'reason':        # its figures in 6 digits: the detector and the cycle exact
             return re.sub(r'[0-9.]+e[+-][0-9]+|[0-9]+[.][0-9]+', '#', x) == \
                 re.sub(r'[0-9.]+e[+-][0-9]+|[0-9]+[.][0-9]+', '#', y)

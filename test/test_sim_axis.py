@@ -82,6 +82,34 @@ def test_the_watchdog_zeroes_the_valve_from_the_tick_a_command_would_outlive_its
     assert a.applied == 0.002 and not a.tripped and a.figures(0.0)['watchdog'] == 'ok'
 
 
+def test_a_stall_under_the_watchdog_rides_through_on_the_last_command_and_is_counted_late():
+    a = _running()                       # the default watchdog: 20 periods
+    assert a.watchdog_periods == 20
+    a.tick(2 * MS)
+    a.step()
+    # the controller stalls 8 ms: the valve keeps its last command (as a DAC holds it); each
+    # period from the one ending 3 ms after the command is late, one episode, counted
+    for k in range(3, 11):
+        assert a.tick(k * MS) == 1
+        a.step()
+        assert a.applied == 0.001 and not a.tripped
+    f = a.figures(0.0)
+    assert (f['late_commands'], f['watchdog_trips']) == (1, 0)
+    # found at the tick due at 4 ms: its period ends 3.8 ms after the command came
+    assert a.late.log[-1].command_age_ms == pytest.approx(2.8)
+    assert a.command(a.stamp_ns(), 0.002, 10.1e-3) == 'applied'
+    a.tick(11 * MS)
+    a.step()
+    assert a.applied == 0.002 and not a.late.on
+    # a controller that died: late from 3 periods, the valve zero from 20
+    for k in range(12, 40):
+        a.tick(k * MS)
+        a.step()
+        assert (a.applied == 0.0) == (k >= 30) and a.late.on == (k >= 13), k
+    f = a.figures(0.0)
+    assert (f['late_commands'], f['watchdog_trips']) == (2, 1)
+
+
 def test_a_late_tick_alone_is_counted_apart():
     a = _running(watchdog_periods=3)
     a.tick(2 * MS)

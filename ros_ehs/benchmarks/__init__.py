@@ -28,15 +28,6 @@ from ros_ehs.core.settings import parse_value, Setting
 BOUND = 180.0
 
 
-#: The loop benchmarks (loop, live, station, window, soak, realtime) judge the loop's timing: each
-#: counts a command more than this many periods late as a watchdog trip, as the bare ping-pong
-#: counts it, so their plant's watchdog is set to it (the plant's default, 20 periods, rides
-#: through shorter stalls on the last command: the load benchmark runs that, as the bench does)
-LATE_PERIODS = 3
-#: the plant's parameters that set it
-LATE = {'watchdog_periods': LATE_PERIODS}
-
-
 #: what the bare ping (``ros_ehs.benchmarks.pingpong``) prints when its first echo is back
 FIRST_ECHO = 'pingpong: first echo'
 

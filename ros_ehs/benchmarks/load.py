@@ -45,6 +45,7 @@ case within 1.5x the quiet RMS, 2x its worst and 1.2x its force peak, or its
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 import subprocess
 import sys
@@ -123,6 +124,41 @@ def figures(bag: Path, skip: float = SKIP) -> dict:
             'current_jumps': int(np.sum(di > JUMP)),
             'trips': sorted({ev.detector for ev in trips}),
             'held_after_s': round((end - tr[0]) * 1e-9, 3) if end <= ts[-1] else None}
+
+
+#: the piston's figures a loop benchmark reports per kind of round (:func:`pooled`)
+PISTON = ('rms_mm', 'max_mm', 'periods_over_1mm', 'force_peak_kn', 'current_peak_ma',
+          'current_step_ma')
+
+
+def piston(bag: Path) -> dict:
+    """Return a bench bag's piston figures (:data:`PISTON`), its states and its trips."""
+    f = figures(bag)
+    return {'states': f['states'], **{k: f[k] for k in PISTON}, 'trips': f['trips']}
+
+
+def pooled(rows: list[dict]) -> dict:
+    """
+    Return the piston's figures of several rounds (:func:`figures` each) as one.
+
+    The RMS over every state counted, the periods beyond 1 mm summed, the rest the worst.
+    """
+    rows = [r for r in rows if r.get('states')]
+    n = sum(r['states'] for r in rows)
+    if not n:
+        return dict.fromkeys(PISTON)
+    return {'rms_mm': round(math.sqrt(sum(r['rms_mm'] ** 2 * r['states'] for r in rows) / n),
+                            4),
+            'max_mm': max(r['max_mm'] for r in rows),
+            'periods_over_1mm': sum(r['periods_over_1mm'] for r in rows),
+            'force_peak_kn': max(r['force_peak_kn'] for r in rows),
+            'current_peak_ma': max(r['current_peak_ma'] for r in rows),
+            'current_step_ma': max(r['current_step_ma'] for r in rows)}
+
+
+def piston_ratios(with_: dict, without: dict) -> dict:
+    """Return each piston figure with the load over the same without it (None: no figure)."""
+    return {k: _ratio(with_[k], without[k]) for k in PISTON if k != 'periods_over_1mm'}
 
 
 def _run(dom: int, tmp: Path, case: str, n: int, seconds: float, rt: int, pw) -> dict:

@@ -19,10 +19,10 @@ plain ``rclpy.init``, one node, the EventsExecutor, best effort depth 1, JointSt
 
 * ``ping``: a 1 kHz steady timer publishes a JointState (the size of our ``state``) stamped
   with its sequence number; a cycle is fresh when the echo of the previous ping came back
-  before this tick; the round trip is timed from publish to echo; ``watchdog_trips`` counts
-  what the plant's watchdog would (no echo for the 3 periods ending at the next tick), and
-  lists the newest 100 as ``trip_log`` (``[time.monotonic(), ms without an echo]``, as the
-  plant's ``watchdog_trip_log`` starts).
+  before this tick; the round trip is timed from publish to echo; ``late_commands`` counts
+  what the plant counts so (no echo for the 3 periods ending at the next tick: its
+  ``LATE_PERIODS``), and lists the newest 100 as ``late_log`` (``[time.monotonic(), ms
+  without an echo]``, as the plant's ``late_log`` starts).
 * ``pong``: echoes each ping from its subscription callback, with the same stamp.
 * ``volley``: the next ping goes out as soon as the echo of the last is back (a bare
   lock-step): round trips per second.
@@ -188,7 +188,7 @@ def main(argv=None) -> int:
                 if st['rx'] is not None:     # from the first echo, as the plant counts
                     st['cycles'] += 1
                     st['fresh'] += st['back'] == st['k']
-                    # the plant's watchdog rule (3 periods), counted the same way
+                    # the plant's late-command rule (3 periods), counted the same way
                     late = st['rx'] is not None and time.monotonic() + 1e-3 - st['rx'] > 3e-3
                     if late and not st['tripped']:
                         st['trips'] += 1
@@ -222,12 +222,12 @@ def main(argv=None) -> int:
     if role == 'ping':
         ms = 1e3
         print(json.dumps({'cycles': st['cycles'], 'fresh_cycles': st['fresh'],
-                          'watchdog_trips': st['trips'],
+                          'late_commands': st['trips'],
                           'fresh_cycle_fraction': st['fresh'] / max(1, st['cycles']),
                           'rtt_p50_ms': _pct(rtt, 50) * ms, 'rtt_p99_ms': _pct(rtt, 99) * ms,
                           'rtt_max_ms': max(rtt, default=float('nan')) * ms,
                           'period_max_ms': st['period_max'] * ms,
-                          'trip_log': list(trip_log)}), flush=True)
+                          'late_log': list(trip_log)}), flush=True)
     elif role == 'volley':
         dt = time.monotonic() - (st['t0'] or time.monotonic())
         n = st['n']

@@ -19,12 +19,15 @@ The bench's real-time loop (plant, controller and the reference's 1 Hz sine, pla
 rounds without and with the station in the order without, with, with, without (so a drift
 of the machine's load weighs on both alike). With it: the station node on the reference's
 CPU and one page open in headless Chromium (Debian's, driven by Playwright) at the default
-5 s time base. Prints each round's fresh-cycle fraction and watchdog trips, the station's CPU
-share, the browser's (every Chromium process) and the frames the page received a second;
+5 s time base. Every round is recorded and its piston judged from the bag
+(:func:`ros_ehs.benchmarks.load.figures`). Prints each round's fresh-cycle fraction, late
+commands (over 3 periods old), the station's CPU share, the browser's (every Chromium
+process), the frames the page received a second and the piston;
 ``--rt-priority`` runs plant and controller under SCHED_FIFO; ``--no-page`` runs the station
 without a page on this machine (as when it is open on another); ``--browser-cpu N`` starts
 Chromium pinned to CPU N (taskset), away from the loop's CPU. The last line is one JSON
-object with ``fresh_with``, ``fresh_without``, ``trips_with``, ``trips_without``,
+object with ``fresh_with``, ``fresh_without``, ``late_commands_with``,
+``late_commands_without``, ``piston_with``, ``piston_without`` and their ratio,
 ``station_cpu`` (fraction of a core, the worst round), ``browser_cpu`` and ``updates_per_s``
 (what the page received, the slowest round), and the spread of the rounds without it.
 """
@@ -33,13 +36,15 @@ from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 import sys
 import tempfile
 import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import BOUND, count, cpu, LATE, positive, report, setting
+from ros_ehs.benchmarks import BOUND, count, cpu, positive, report, setting
+from ros_ehs.benchmarks.load import piston, piston_ratios, pooled
 from ros_ehs.core.options import RT_PRIORITY
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
@@ -75,10 +80,10 @@ def _frames(page) -> int:
 
 
 def _round(dom: int, seconds: float, browser, with_station: bool, rt_priority: int,
-           page_open: bool) -> dict:
+           page_open: bool, bag: Path) -> dict:
     loop = {'rt_priority': rt_priority} if rt_priority else {}
-    with NodeProcesses(dom, bound=BOUND) as procs:
-        procs.start_loop('realtime', plant={**loop, **LATE}, controller=loop)
+    with NodeProcesses(dom, bag.parent / f'logs_{bag.name}', bound=BOUND) as procs:
+        procs.start_loop('realtime', bag=bag, plant=loop, controller=loop)
         station_cpu = updates = browser_cpu = 0.0
         if with_station:
             ref_cpu = (loop_placement(True) or (-1, -1))[1]
@@ -103,12 +108,14 @@ def _round(dom: int, seconds: float, browser, with_station: bool, rt_priority: i
             if page is not None:
                 page.close()
             procs.stop(['station'])
-        procs.stop(['plant', 'controller', 'reference'])     # the plant first: no stale tail
+        # the plant first (no stale tail), the recorder after it (every state it sent)
+        procs.stop(['plant', 'controller', 'reference', 'recorder'])
         f = procs['plant'].figures()
     return {'with_station': with_station, 'cycles': f['cycles'],
             'fresh_cycle_fraction': f['fresh_cycle_fraction'],
-            'watchdog_trips': f['watchdog_trips'], 'station_cpu': round(station_cpu, 3),
-            'browser_cpu': round(browser_cpu, 3), 'updates_per_s': round(updates, 1)}
+            'late_commands': f['late_commands'], 'watchdog_trips': f['watchdog_trips'],
+            'station_cpu': round(station_cpu, 3), 'browser_cpu': round(browser_cpu, 3),
+            'updates_per_s': round(updates, 1), 'piston': piston(bag)}
 
 
 def main(argv=None) -> int:
@@ -138,13 +145,15 @@ def main(argv=None) -> int:
         try:
             for r in range(a.rounds):
                 res = _round(dom, a.seconds, browser, r % 4 in (1, 2), a.rt_priority,  # ABBA
-                             a.page)
+                             a.page, Path(tmp) / f'r{r}')
                 rounds.append(res)
+                p = res['piston']
                 print(f'round {r + 1}: station {"on " if res["with_station"] else "off"}  '
-                      f'fresh {res["fresh_cycle_fraction"]:.5f}  watchdog trips '
-                      f'{res["watchdog_trips"]}  station CPU {res["station_cpu"]:.3f}  browser '
-                      f'CPU {res["browser_cpu"]:.3f}  page updates {res["updates_per_s"]:.1f}/s',
-                      flush=True)
+                      f'fresh {res["fresh_cycle_fraction"]:.5f}  late commands '
+                      f'{res["late_commands"]}  station CPU {res["station_cpu"]:.3f}  browser '
+                      f'CPU {res["browser_cpu"]:.3f}  page updates {res["updates_per_s"]:.1f}/s'
+                      f'  piston {p["rms_mm"]} mm RMS, {p["max_mm"]} mm worst, '
+                      f'{p["force_peak_kn"]} kN', flush=True)
         finally:
             browser.close()
     figures = {'seconds': a.seconds, 'rounds': a.rounds, 'rt_priority': a.rt_priority,
@@ -155,9 +164,13 @@ def main(argv=None) -> int:
         n = sum(r['cycles'] for r in rs)
         figures[f'fresh_{kind}'] = round(sum(r['fresh_cycle_fraction'] * r['cycles']
                                              for r in rs) / n, 5) if n else None
-        figures[f'trips_{kind}'] = sum(r['watchdog_trips'] for r in rs) if rs else None
+        figures[f'late_commands_{kind}'] = sum(r['late_commands'] for r in rs) if rs else None
+        figures[f'watchdog_trips_{kind}'] = sum(r['watchdog_trips'] for r in rs) if rs else None
+        figures[f'piston_{kind}'] = pooled([r['piston'] for r in rs])
         fr = [r['fresh_cycle_fraction'] for r in rs]
         figures[f'fresh_spread_{kind}'] = round(max(fr) - min(fr), 5) if fr else None
+    figures['piston_ratio_with_vs_without'] = piston_ratios(figures['piston_with'],
+                                                            figures['piston_without'])
     with_ = [r for r in rounds if r['with_station']]
     figures['station_cpu'] = max((r['station_cpu'] for r in with_), default=None)
     figures['updates_per_s'] = min((r['updates_per_s'] for r in with_), default=None)

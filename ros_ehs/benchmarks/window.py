@@ -14,7 +14,8 @@
 """
 ``python -m ros_ehs.benchmarks window``: the demo run's bench, window by window, beside bare rclpy.
 
-The demo run's target is that a 10 s bench has no watchdog trip *on a quiet machine*. This
+The demo run's target is that a 10 s bench has no late command (a command over 3 periods old
+at a period's end: the plant's ``late_commands``; a *trip* here) *on a quiet machine*. This
 benchmark says which windows were quiet. It runs ``--windows`` pairs of ``--seconds`` long
 windows, alternating (ours first, then the bare loop first, ...):
 
@@ -24,11 +25,11 @@ windows, alternating (ours first, then the bare loop first, ...):
   (``ours_trips_in_start_up``, and of those the ones in a machine stall or hiccup that the
   probes, started before the bench, saw);
 * **bare**: the barest rclpy ping-pong (``ros_ehs.benchmarks.pingpong``, no code of ours) at the
-  same priority, with the plant's watchdog rule.
+  same priority, with the plant's late-command rule.
 
 In every window a machine probe runs on each CPU (``ros_ehs.benchmarks.sleeper``: a 1 kHz sleep
 loop without ROS, same priority). A window is *quiet* when no probe was held over 2 ms in it:
-a stall that long trips any 1 kHz loop with the 3-period watchdog. Per window it prints the
+a stall that long makes any 1 kHz loop's command late. Per window it prints the
 trips, the stalls and how many trips fell in one; the last line is one JSON object with the
 trip-free share of all windows and of the quiet ones, ours and bare.
 
@@ -54,7 +55,7 @@ import time
 from typing import Iterator
 
 from domain_coordinator import domain_id
-from ros_ehs.benchmarks import BOUND, count, LATE_PERIODS, positive, report, wait_first_echo
+from ros_ehs.benchmarks import BOUND, count, positive, report, wait_first_echo
 from ros_ehs.benchmarks.sleeper import coincident, command, HICCUP_MS, hiccups, STALL_MS
 from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.processes import launch_script, loop_placement, NodeProcesses
@@ -127,8 +128,7 @@ def _ours(dom: int, seconds: float, prio: int, pin: bool, tmp: Path,
     env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
     logs = tmp / f'w{i}_logs'
     cmd = [sys.executable, str(BENCH), '--duration', str(seconds), '--out',
-           str(tmp / f'w{i}'), '--log-dir', str(logs), '--no-machine-probe',
-           '--plant-param', f'watchdog_periods={LATE_PERIODS}']
+           str(tmp / f'w{i}'), '--log-dir', str(logs), '--no-machine-probe']
     cmd += ['--rt-priority', str(prio)] if prio else []
     cmd.append('--cpu-affinity' if pin else '--no-cpu-affinity')
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -144,7 +144,7 @@ def _ours(dom: int, seconds: float, prio: int, pin: bool, tmp: Path,
     if p.wait() != 0 or t0 is None or t1 is None:
         raise RuntimeError(f'the bench failed (exit {p.returncode}):\n' + ''.join(lines[-30:]))
     f = json.loads((logs / 'plant.figures.json').read_text())
-    return [(t, age) for t, _, age, _ in f['watchdog_trip_log']], t0, t1
+    return [(t, age) for t, _, age, _ in f['late_log']], t0, t1
 
 
 def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, float]:
@@ -170,7 +170,7 @@ def _bare(dom: int, seconds: float, prio: int, pin: bool) -> tuple[list, float, 
                                f'pong exit {codes["pong"]}); ping said:\n{said[-2000:]}'
                                ) from None
     # trips in the warm-up are not in the window (ours count from the loop's start)
-    return [(t, ms) for t, ms in f['trip_log'] if t >= t0], t0, t1
+    return [(t, ms) for t, ms in f['late_log'] if t >= t0], t0, t1
 
 
 def main(argv=None) -> int:
@@ -209,7 +209,7 @@ def main(argv=None) -> int:
                     s_, h_ = _explained(early, all_stalls, all_hics, loop_cpu)
                     start_up = [start_up[0] + len(early), start_up[1] + sum(s_),
                                 start_up[2] + sum(h_)]
-                    print(f'window {i + 1} {kind}: {len(early)} watchdog trips in the '
+                    print(f'window {i + 1} {kind}: {len(early)} late commands in the '
                           f'start-up ({sum(s_)} in a machine stall, {sum(h_)} more in a '
                           'hiccup)', flush=True)
                 trips = [(t, ms) for t, ms in trips if t0 <= t <= t1]
@@ -219,7 +219,7 @@ def main(argv=None) -> int:
                 rows[kind].append((len(trips), len(stalls), sum(in_stall), hic))
                 at = ', '.join(f'{g:.1f} ms on CPU {cpu} at {e - t0:.2f} s'
                                for e, g, cpu in stalls)
-                print(f'window {i + 1} {kind}: {len(trips)} watchdog trips in {t1 - t0:.1f} s '
+                print(f'window {i + 1} {kind}: {len(trips)} late commands in {t1 - t0:.1f} s '
                       f'({sum(in_stall)} in a machine stall, {hic} more in a hiccup); machine '
                       f'stalls over {STALL_MS:g} ms: {len(stalls)}{" (" + at + ")" if at else ""}'
                       f'; hiccups: {len(hics)}', flush=True)
@@ -231,7 +231,7 @@ def main(argv=None) -> int:
             f'{kind}_trip_free_windows': sum(t == 0 for t, *_ in r),
             f'{kind}_quiet_windows': len(quiet),
             f'{kind}_quiet_trip_free_windows': sum(t == 0 for t, _ in quiet),
-            f'{kind}_watchdog_trips': sum(t for t, *_ in r),
+            f'{kind}_late_commands': sum(t for t, *_ in r),
             f'{kind}_trips_in_machine_stalls': sum(x[2] for x in r),
             f'{kind}_quiet_trips': sum(t for t, _ in quiet),
             f'{kind}_quiet_trips_in_hiccups': sum(h for _, h in quiet),

@@ -136,7 +136,7 @@ PLANT = (
             'begins', live=True),
     DIAGNOSTICS_PERIOD,
     Setting('figures_file', '', '', meaning='at exit, write the figures (loop timing, watchdog '
-            'trips) there as JSON (empty: not written)'),
+            'trips, late commands) there as JSON (empty: not written)'),
     RT_PRIORITY,
     CPU_AFFINITY,
 )

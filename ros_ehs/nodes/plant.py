@@ -357,7 +357,8 @@ class PlantNode(Node):
         if self._loop is not None:
             self._stop.set()
             self._loop.join(timeout=1.0)
-        f = {**self.figures(), 'watchdog_trip_log': [t.as_list() for t in self.axis.trip_log]}
+        f = {**self.figures(), 'watchdog_trip_log': [t.as_list() for t in self.axis.trip_log],
+             'late_log': [t.as_list() for t in self.axis.late.log]}
         path = self.opt['figures_file']
         if path:
             try:

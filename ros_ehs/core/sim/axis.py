@@ -34,7 +34,9 @@ counted in ``overruns``). **Watchdog**: a command is never applied over a period
 more than ``watchdog_periods`` periods after it arrived; from the tick where that would
 happen the valve current is zero until fresh commands return. A trip at a tick so late that
 an on-time one would have applied the command is counted apart (``trips_late_tick``), unless
-a later on-time tick finds the command too old as well (a controller that stopped).
+a later on-time tick finds the command too old as well (a controller that stopped). A command
+older than ``LATE_PERIODS`` (3) at a period's end is counted as late the same way
+(``late_commands``), and nothing else: the loop benchmarks' measure of its timing.
 
 **Lock-step**: :meth:`poll` (every ``resend_period``) waits for the subscribers, then
 ``start_delay``, then says to send the first state, and to send it again after
@@ -83,13 +85,17 @@ from ros_ehs.core.params import Params
 from ros_ehs.core.sim.faults import FAULTS, LOAD_DRIFT, LOST_SUPPLY
 from ros_ehs_msgs_py import AxisState, Load
 
-__all__ = ['FAULTS', 'LOST_SUPPLY', 'MAX_CATCHUP', 'PACE_CREDIT', 'PACE_TICK', 'SPECIMEN_PARAMS',
-           'Sample', 'SimulatedAxis', 'TRIP_LOG', 'WatchdogTrip']
+__all__ = ['Episodes', 'FAULTS', 'LATE_PERIODS', 'LOST_SUPPLY', 'MAX_CATCHUP', 'PACE_CREDIT',
+           'PACE_TICK', 'SPECIMEN_PARAMS', 'Sample', 'SimulatedAxis', 'TRIP_LOG', 'WatchdogTrip']
 
 #: Periods a late tick may step before the grid is moved on.
 MAX_CATCHUP = 50
-#: Watchdog trips kept (the newest).
+#: Watchdog trips kept (the newest), and late-command episodes.
 TRIP_LOG = 100
+#: A command older than this many periods at a period's end is late: counted
+#: (``late_commands``), never acted on (the watchdog acts, after ``watchdog_periods``). The
+#: loop benchmarks' measure of the loop's timing, as the bare ping-pong counts it.
+LATE_PERIODS = 3
 #: Lock-step at a real-time factor: the node polls at least this often [s] (the longest burst).
 PACE_TICK = 0.005
 #: Lock-step at a real-time factor: the most wall time a run may catch up at full speed [s].
@@ -110,6 +116,42 @@ class WatchdogTrip:
         """Return ``[time_s, tick_late_ms, command_age_ms, late_tick_only]``, rounded."""
         return [round(self.time_s, 6), round(self.tick_late_ms, 4),
                 round(self.command_age_ms, 4), self.late_tick_only]
+
+
+class Episodes:
+    """
+    Episodes of a command older than a limit at a period's end, each counted once.
+
+    ``on`` while it lasts; ``count`` episodes; ``late_tick`` of them, those an on-time tick
+    would not have had (the axis's own lateness), until a tick finds the command too old on
+    time as well; ``log`` the newest :data:`TRIP_LOG`.
+    """
+
+    def __init__(self) -> None:
+        self.on = False
+        self.count = 0
+        self.late_tick = 0
+        self._late_only = False
+        self.log: deque[WatchdogTrip] = deque(maxlen=TRIP_LOG)
+
+    def judge(self, age: float, on_time_age: float, limit: float, now: float,
+              tick_late_ms: float, command_age_ms: float) -> bool:
+        """Judge a period whose command is ``age`` old at its end [s]; say if it is over."""
+        if not age > limit:
+            self.on = False
+            return False
+        late_only = on_time_age <= limit
+        if not self.on:
+            self.on = True
+            self.count += 1
+            self._late_only = late_only
+            self.late_tick += late_only
+            self.log.append(WatchdogTrip(now, tick_late_ms, command_age_ms, late_only))
+        elif self._late_only and not late_only:
+            self._late_only = False
+            self.late_tick -= 1
+            self.log[-1].late_tick_only = False
+        return True
 
 
 class Sample(NamedTuple):
@@ -196,11 +238,8 @@ class SimulatedAxis:
         self.k = 0
         self.started = self.lockstep     # real time: once the state has its subscribers
         self.armed = False       # a first command has come
-        self.tripped = False
-        self.trips = 0
-        self.trips_late_tick = 0
-        self._trip_late = False
-        self.trip_log: deque[WatchdogTrip] = deque(maxlen=TRIP_LOG)
+        self.watchdog = Episodes()     # over watchdog_periods: the valve zeroed
+        self.late = Episodes()         # over LATE_PERIODS: counted
         self.counts = dict.fromkeys(('non_finite', 'future', 'stale', 'not_current'), 0)
         self.model_faults = 0
         self._failing = False
@@ -347,30 +386,38 @@ class SimulatedAxis:
         now = now_ns * 1e-9
         self.tick_fresh, self._fresh = self._fresh, False
         age = now + self.dt - self._last_rx   # the command's age at the coming period's end
-        wd = self.watchdog_periods * self.dt
         if not self.armed:
             self._i_tick = 0.0
-        elif age > wd:
-            self._i_tick = 0.0
-            # would an on-time tick have applied the command? Then the axis's own lateness
-            # (the machine) tripped it, not a late controller: counted apart, until a tick
-            # finds the command too old on time as well (a controller that has stopped)
-            late_only = due_ns * 1e-9 + self.dt - self._last_rx <= wd
-            if not self.tripped:
-                self.tripped = True
-                self.trips += 1
-                self._trip_late = late_only
-                self.trips_late_tick += late_only
-                self.trip_log.append(WatchdogTrip(now, (now_ns - due_ns) * 1e-6,
-                                                  (now - self._last_rx) * 1e3, late_only))
-            elif self._trip_late and not late_only:
-                self._trip_late = False
-                self.trips_late_tick -= 1
-                self.trip_log[-1].late_tick_only = False
-        else:
-            self._i_tick = self.i_cmd
-            self.tripped = False
+            return int(n)
+        # an on-time tick's age: when only this tick's lateness (the machine) makes the
+        # command too old, it is counted apart, until a tick finds it too old on time as well
+        # (a controller that has stopped)
+        on_time = due_ns * 1e-9 + self.dt - self._last_rx
+        said = (now, (now_ns - due_ns) * 1e-6, (now - self._last_rx) * 1e3)
+        self.late.judge(age, on_time, LATE_PERIODS * self.dt, *said)
+        zero = self.watchdog.judge(age, on_time, self.watchdog_periods * self.dt, *said)
+        self._i_tick = 0.0 if zero else self.i_cmd
         return int(n)
+
+    @property
+    def tripped(self) -> bool:
+        """Say whether the watchdog holds the valve at zero now."""
+        return self.watchdog.on
+
+    @property
+    def trips(self) -> int:
+        """Return the watchdog trips so far."""
+        return self.watchdog.count
+
+    @property
+    def trips_late_tick(self) -> int:
+        """Return how many of those the axis's own late tick made (see :class:`Episodes`)."""
+        return self.watchdog.late_tick
+
+    @property
+    def trip_log(self) -> deque:
+        """Return the newest watchdog trips (:attr:`Episodes.log` of the watchdog)."""
+        return self.watchdog.log
 
     # -- lock-step ---------------------------------------------------------------------------
     def poll(self, now: float, subscribers: int) -> str | None:
@@ -550,6 +597,7 @@ class SimulatedAxis:
              'watchdog_trips': self.trips, 'watchdog_trips_late_tick': self.trips_late_tick,
              'watchdog_latency_ms': last.command_age_ms if last else math.nan,
              'watchdog_tick_late_ms': last.tick_late_ms if last else math.nan,
+             'late_commands': self.late.count, 'late_commands_late_tick': self.late.late_tick,
              'current_a': float(self.u[0]), 'bad_commands': self.counts['non_finite'],
              'stale_commands': self.counts['stale'] + self.counts['not_current'],
              'future_commands': self.counts['future'], 'model_faults': self.model_faults,
