@@ -108,6 +108,10 @@ def test_a_stall_under_the_watchdog_rides_through_on_the_last_command_and_is_cou
         assert (a.applied == 0.0) == (k >= 30) and a.late.on == (k >= 13), k
     f = a.figures(0.0)
     assert (f['late_commands'], f['watchdog_trips']) == (2, 1)
+    # what the piston did, the model's own: the current's peak and its largest step (the
+    # watchdog's 2 mA to 0), the hydraulic force's peak and the travel
+    assert f['current_peak_a'] == 0.002 and f['current_step_a'] == pytest.approx(0.002)
+    assert f['force_peak_n'] > 0.0 and f['z_range_m'] > 0.0
 
 
 def test_a_late_tick_alone_is_counted_apart():

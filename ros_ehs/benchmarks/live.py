@@ -16,10 +16,11 @@
 
 The bench's loop (plant, controller and the reference's 1 Hz sine, placed as
 ``NodeProcesses.start_loop`` places them: plant and controller on one CPU, the reference on the
-other) runs in real time for ``--seconds`` per round, in ``--rounds`` rounds without and with
-the identify node in the order without, with, with, without (so a drift of the machine's load
-over the run weighs on both alike) in live mode (window 10 s, period 5 s, pushing to the
-controller), placed on the reference's CPU, its refits at idle priority. Every round is
+other; at the bench's priorities, ``--rt-priority``) runs in real time for ``--seconds`` per
+round, in ``--rounds`` rounds without and with the identify node in the order without, with,
+with, without (so a drift of the machine's load over the run weighs on both alike) in live
+mode (window 10 s, period 5 s, pushing to the controller), placed on the reference's CPU, its
+refits at idle priority. Every round is
 recorded and its piston judged from the bag (:func:`ros_ehs.benchmarks.load.figures`: the
 tracking error's RMS and worst, the periods beyond 1 mm, the hydraulic force's and the
 current's peaks, after the ramp-on). Prints each round's fresh-cycle fraction, late commands
@@ -39,9 +40,11 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import BOUND, count, positive, report
-from ros_ehs.benchmarks.load import piston, piston_ratios, pooled
+from ros_ehs.benchmarks import BOUND, count, positive, report, setting
+from ros_ehs.benchmarks.load import bench_priority, piston, piston_ratios, pooled
+from ros_ehs.core.options import RT_PRIORITY
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
+from ros_ehs.nodes.scheduling import BENCH_PRIORITY
 import ros_ehs_msgs_py as contract
 
 LIVE = {'live': True, 'push': True, 'window': 10.0, 'period': 5.0}
@@ -52,9 +55,10 @@ def _cpu(pid: int) -> float:
     return t.user + t.system
 
 
-def _round(dom: int, seconds: float, with_live: bool, bag: Path) -> dict:
-    with NodeProcesses(dom, bag.parent / f'logs_{bag.name}', bound=BOUND) as procs:
-        procs.start_loop('realtime', bag=bag)
+def _round(dom: int, seconds: float, with_live: bool, bag: Path, rt: int) -> dict:
+    env, loop, ref = bench_priority(rt)
+    with NodeProcesses(dom, bag.parent / f'logs_{bag.name}', env=env, bound=BOUND) as procs:
+        procs.start_loop('realtime', bag=bag, plant=loop, controller=loop, reference=ref)
         live_cpu = 0.0
         if with_live:
             ref_cpu = (loop_placement(True) or (-1, -1))[1]
@@ -88,11 +92,15 @@ def main(argv=None) -> int:
     ap.add_argument('--seconds', type=positive, default=40.0, help='seconds per round')
     ap.add_argument('--rounds', type=count, default=4,
                     help='rounds: without, with, with, without the live node, ...')
+    ap.add_argument('--rt-priority', type=setting(RT_PRIORITY), default=BENCH_PRIORITY,
+                    help="SCHED_FIFO priority of plant and controller (the bench's default; the "
+                         'reference 10 under it; 0: the default scheduler)')
     a = ap.parse_args(argv)
     rounds = []
     with domain_id() as dom, tempfile.TemporaryDirectory() as tmp:
         for r in range(a.rounds):
-            res = _round(dom, a.seconds, r % 4 in (1, 2), Path(tmp) / f'r{r}')     # ABBA
+            res = _round(dom, a.seconds, r % 4 in (1, 2), Path(tmp) / f'r{r}',  # ABBA
+                         a.rt_priority)
             rounds.append(res)
             p = res['piston']
             print(f'round {r + 1}: live node {"on " if res["with_live"] else "off"}  fresh '
@@ -100,7 +108,8 @@ def main(argv=None) -> int:
                   f'  live CPU {res["live_cpu_frac"]:.3f}  refits {res["refits"]}  pushes '
                   f'{res["pushes"]}  piston {p["rms_mm"]} mm RMS, {p["max_mm"]} mm worst, '
                   f'{p["force_peak_kn"]} kN', flush=True)
-    figures = {'seconds': a.seconds, 'rounds': a.rounds, 'per_round': rounds}
+    figures = {'seconds': a.seconds, 'rounds': a.rounds, 'rt_priority': a.rt_priority,
+               'per_round': rounds}
     for kind, on in (('with', True), ('without', False)):
         rs = [r for r in rounds if r['with_live'] == on]
         n = sum(r['cycles'] for r in rs)

@@ -131,6 +131,20 @@ PISTON = ('rms_mm', 'max_mm', 'periods_over_1mm', 'force_peak_kn', 'current_peak
           'current_step_ma')
 
 
+def bench_priority(rt: int) -> tuple[dict, dict, dict]:
+    """
+    Return what bench.py gives its nodes at SCHED_FIFO ``rt`` (0: none).
+
+    The environment (the Fast DDS profile ``fastdds_rt.xml``), the loop's parameters (plant
+    and controller) and the setpoint source's (the reference, under the loop).
+    """
+    profile = launch_script('fastdds_rt.xml')
+    env = {ENV: str(profile)} if rt and profile.is_file() else {}
+    loop = {'rt_priority': rt} if rt else {}
+    ref = {'rt_priority': setpoint_priority(rt)} if rt else {}
+    return env, loop, ref
+
+
 def piston(bag: Path) -> dict:
     """Return a bench bag's piston figures (:data:`PISTON`), its states and its trips."""
     f = figures(bag)
@@ -163,15 +177,12 @@ def piston_ratios(with_: dict, without: dict) -> dict:
 
 def _run(dom: int, tmp: Path, case: str, n: int, seconds: float, rt: int, pw) -> dict:
     bag = tmp / f'{n}_{case}'
-    loop = {'rt_priority': rt} if rt else {}
     spinners: list[subprocess.Popen] = []
     browser = None
-    profile = launch_script('fastdds_rt.xml')
-    env = {ENV: str(profile)} if rt and profile.is_file() else {}
+    env, loop, ref = bench_priority(rt)
     with NodeProcesses(dom, tmp / f'logs_{n}_{case}', env=env, bound=BOUND) as procs:
         procs.start_loop('realtime', bag=bag, plant=loop, controller=loop,
-                         reference={'rate_hz': 250.0,
-                                    **({'rt_priority': setpoint_priority(rt)} if rt else {})})
+                         reference={'rate_hz': 250.0, **ref})
         ref_cpu = -1 if procs.placement is None else procs.placement[1]
         try:
             if case == 'busy':

@@ -18,7 +18,8 @@ Runs plant and controller as separate processes in real time for ``--seconds`` (
 after the loop closes and, in the same run, a bare rclpy ping-pong with the same executor,
 QoS and message size for as long, in ``--rounds`` alternating rounds (ours first, then the
 bare loop first, ...): counts are summed over the rounds, percentiles averaged, maxima
-kept. Prints the plant's loop figures, the CPU share of each process and the round-trip and
+kept. Prints the plant's loop figures (with the piston it held: its travel and the force's
+and the current's peaks, the model's own), the CPU share of each process and the round-trip and
 CPU ratios to the bare ping-pong (``ros_ehs.benchmarks.pingpong``: rclpy alone, no code of ours),
 and which of the loop's targets the run met; the last line is one JSON object. Each round
 also runs the machine alone (``ros_ehs.benchmarks.sleeper``: a 1 kHz sleep loop without ROS, at
@@ -167,6 +168,13 @@ def main(argv=None) -> int:
         'cpu_ratio_controller_vs_pong': round(cpu['controller'] / cpu_bare['pong'], 3),
         'bare_rtt_max_ms': round(b['rtt_max_ms'], 3),
         'bare_late_commands': b['late_commands'],
+        # the piston held where it was (no reference: the controller holds the first
+        # position), the model's own, worst of the rounds: its travel, the hydraulic force's
+        # and the current's peaks and the current's largest step from one period to the next
+        'piston': {'travel_mm': round(max(r['z_range_m'] for r in ours) * 1e3, 4),
+                   'force_peak_kn': round(max(r['force_peak_n'] for r in ours) * 1e-3, 3),
+                   'current_peak_ma': round(max(r['current_peak_a'] for r in ours) * 1e3, 3),
+                   'current_step_ma': round(max(r['current_step_a'] for r in ours) * 1e3, 3)},
         # the machine alone, no ROS, in the same rounds: each stall trips any 1 kHz loop
         'machine_stalls_2ms': sum(m['stalls_2ms'] for m in machine),
         'machine_max_gap_ms': round(max(m['max_gap_ms'] for m in machine), 3),

@@ -44,7 +44,7 @@ import time
 from domain_coordinator import domain_id
 import psutil
 from ros_ehs.benchmarks import BOUND, count, cpu, positive, report, setting
-from ros_ehs.benchmarks.load import piston, piston_ratios, pooled
+from ros_ehs.benchmarks.load import bench_priority, piston, piston_ratios, pooled
 from ros_ehs.core.options import RT_PRIORITY
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
@@ -81,9 +81,9 @@ def _frames(page) -> int:
 
 def _round(dom: int, seconds: float, browser, with_station: bool, rt_priority: int,
            page_open: bool, bag: Path) -> dict:
-    loop = {'rt_priority': rt_priority} if rt_priority else {}
-    with NodeProcesses(dom, bag.parent / f'logs_{bag.name}', bound=BOUND) as procs:
-        procs.start_loop('realtime', bag=bag, plant=loop, controller=loop)
+    env, loop, ref = bench_priority(rt_priority)
+    with NodeProcesses(dom, bag.parent / f'logs_{bag.name}', env=env, bound=BOUND) as procs:
+        procs.start_loop('realtime', bag=bag, plant=loop, controller=loop, reference=ref)
         station_cpu = updates = browser_cpu = 0.0
         if with_station:
             ref_cpu = (loop_placement(True) or (-1, -1))[1]
@@ -125,7 +125,8 @@ def main(argv=None) -> int:
     ap.add_argument('--rounds', type=count, default=4,
                     help='rounds: without, with, with, without the station, ...')
     ap.add_argument('--rt-priority', type=setting(RT_PRIORITY), default=0,
-                    help='SCHED_FIFO priority of plant and controller (0: none)')
+                    help='SCHED_FIFO priority of plant and controller, the reference 10 under '
+                         'it, with the Fast DDS profile fastdds_rt.xml, as bench.py (0: none)')
     ap.add_argument('--browser-cpu', type=cpu, default=None, metavar='CPU',
                     help='start Chromium pinned to this CPU (taskset), away from the loop')
     ap.add_argument('--page', action=argparse.BooleanOptionalAction, default=True,

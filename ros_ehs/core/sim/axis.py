@@ -239,6 +239,11 @@ class SimulatedAxis:
         self.started = self.lockstep     # real time: once the state has its subscribers
         self.armed = False       # a first command has come
         self.watchdog = Episodes()     # over watchdog_periods: the valve zeroed
+        # real time: the piston's extremes from the first command on (figures): |F|, |i|, the
+        # largest step of i from one period to the next [N, A, A], z's least and most [m]
+        # (not in lock-step: a microsecond a step is 4 % of a virtual test's period)
+        self._peaks = [0.0, 0.0, 0.0, math.inf, -math.inf]
+        self._i_prev = 0.0
         self.late = Episodes()         # over LATE_PERIODS: counted
         self.counts = dict.fromkeys(('non_finite', 'future', 'stale', 'not_current'), 0)
         self.model_faults = 0
@@ -511,6 +516,14 @@ class SimulatedAxis:
         if ok:
             self.x, self._x_next = nxt, self.x
             self._failing = False
+            if self.armed and not self.lockstep:    # the model's own extremes (real time)
+                pk, zt = self._peaks, float(nxt[self._iz])
+                pk[0] = max(pk[0], abs(self._A_p * float(nxt[self._ipa] - nxt[self._ipb])))
+                pk[1] = max(pk[1], abs(i))
+                pk[2] = max(pk[2], abs(i - self._i_prev))
+                pk[3] = min(pk[3], zt)
+                pk[4] = max(pk[4], zt)
+            self._i_prev = i
             sp = self.specimen
             if not sp.broken and sp.present:
                 if sp.update(sp.force(xs[self._iz], xs[self._iv])):
@@ -590,7 +603,14 @@ class SimulatedAxis:
 
     # -- figures -----------------------------------------------------------------------------
     def figures(self, now: float) -> dict:
-        """Return the axis's figures at ``now`` [s] (the node adds its loop timing)."""
+        """
+        Return the axis's figures at ``now`` [s] (the node adds its loop timing).
+
+        In real time with the piston's extremes from the first command on, the model's own (not
+        the sensors'): ``force_peak_n`` (|A_p p_L|), ``current_peak_a`` and ``current_step_a``
+        (the current the valve had, and its largest step from one period to the next),
+        ``z_range_m`` (the travel).
+        """
         last = self.trip_log[-1] if self.trip_log else None
         f = {'steps': self.k, 'sim_time_s': self.k * self.dt,
              'watchdog': 'tripped' if self.tripped else 'ok' if self.armed else 'waiting',
@@ -598,6 +618,9 @@ class SimulatedAxis:
              'watchdog_latency_ms': last.command_age_ms if last else math.nan,
              'watchdog_tick_late_ms': last.tick_late_ms if last else math.nan,
              'late_commands': self.late.count, 'late_commands_late_tick': self.late.late_tick,
+             'force_peak_n': self._peaks[0], 'current_peak_a': self._peaks[1],
+             'current_step_a': self._peaks[2],
+             'z_range_m': max(0.0, self._peaks[4] - self._peaks[3]),
              'current_a': float(self.u[0]), 'bad_commands': self.counts['non_finite'],
              'stale_commands': self.counts['stale'] + self.counts['not_current'],
              'future_commands': self.counts['future'], 'model_faults': self.model_faults,
