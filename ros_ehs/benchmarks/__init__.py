@@ -28,6 +28,14 @@ from ros_ehs.core.settings import parse_value, Setting
 BOUND = 180.0
 
 
+#: Debian's Chromium, as the station and load benchmarks drive it (Playwright)
+CHROMIUM = '/usr/bin/chromium'
+#: Chromium on a machine without a network (the flags keep it from calling home)
+CHROMIUM_ARGS = ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+                 '--disable-background-networking', '--disable-component-update',
+                 '--disable-sync']
+
+
 #: what the bare ping (``ros_ehs.benchmarks.pingpong``) prints when its first echo is back
 FIRST_ECHO = 'pingpong: first echo'
 

@@ -53,7 +53,7 @@ import tempfile
 
 from domain_coordinator import domain_id
 import numpy as np
-from ros_ehs.benchmarks import BOUND, positive, report, setting
+from ros_ehs.benchmarks import BOUND, CHROMIUM, CHROMIUM_ARGS, positive, report, setting
 from ros_ehs.core.options import CONTROLLER, RT_PRIORITY
 from ros_ehs.core.params import spec
 from ros_ehs.data.bag import open_bag, wait_for_counts
@@ -195,7 +195,6 @@ def _run(dom: int, tmp: Path, case: str, n: int, seconds: float, rt: int, pw) ->
                                          lambda st: 'url' in st.values):
                     raise RuntimeError('the station did not start:\n'
                                        + procs['station'].output()[-3000:])
-                from ros_ehs.benchmarks.station import CHROMIUM, CHROMIUM_ARGS
                 browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS,
                                              headless=True)
                 page = browser.new_page()

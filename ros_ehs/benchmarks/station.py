@@ -43,17 +43,12 @@ import time
 
 from domain_coordinator import domain_id
 import psutil
-from ros_ehs.benchmarks import BOUND, count, cpu, positive, report, setting
+from ros_ehs.benchmarks import (BOUND, CHROMIUM, CHROMIUM_ARGS, count, cpu, positive, report,
+                                setting)
 from ros_ehs.benchmarks.load import bench_priority, piston, piston_ratios, pooled
 from ros_ehs.core.options import RT_PRIORITY
 from ros_ehs.nodes.processes import loop_placement, NodeProcesses
 import ros_ehs_msgs_py as contract
-
-CHROMIUM = '/usr/bin/chromium'
-#: Chromium on a machine without a network (the flags keep it from calling home)
-CHROMIUM_ARGS = ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
-                 '--disable-background-networking', '--disable-component-update',
-                 '--disable-sync']
 
 
 def _cpu(pid: int) -> float:
