@@ -156,19 +156,21 @@ def test_a_stale_reference_is_held_still_and_the_axis_ramps_back_onto_it():
     loop.reference(Reference(T0, 0.01, 0.2), 0.0)
     _answer(loop, 0)
     assert loop.axis.demand.mode == 'ramp'     # the start's ramp-on, over by 50 ms
-    for k in range(1, 100):                    # a moving piston (a still one reads frozen)
-        _answer(loop, k, z=k * 1e-6, now=k * 1e-3 - 1e-4)
+    z = 0.0
+    for k in range(1, 100):                    # a piston that follows its demand
+        _answer(loop, k, z=z, now=k * 1e-3 - 1e-4)
+        z = loop.axis.demand.z_ref
     assert loop.axis.demand.mode == 'run' and loop.counts['reference_stale'] == 0
     # 0.1 s after it came, no new reference: held at its position, no velocity; once
-    _answer(loop, 100, z=1e-4, now=0.1001)
+    _answer(loop, 100, z=z, now=0.1001)
     assert loop.axis.demand.v_ref == 0.0 and loop.counts['reference_stale'] == 1
-    _answer(loop, 101, z=1.01e-4, now=0.1011)
+    _answer(loop, 101, z=z + 1e-6, now=0.1011)
     assert loop.counts['reference_stale'] == 1
     assert any('no reference for 0.1 s' in t for _, t in loop.notes)
     # back 60 mm on: the demand ramps from where it was held, no jump
     held = loop.axis.demand.z_ref
     loop.reference(Reference(T0 + 102 * MS, 0.07, 0.0), 0.102)
-    _answer(loop, 102, z=1.02e-4, now=0.102)
+    _answer(loop, 102, z=z + 2e-6, now=0.102)
     assert loop.axis.demand.mode == 'ramp' and abs(loop.axis.demand.z_ref - held) < 1e-6
     assert any('ramping onto it' in t for _, t in loop.notes)
 
@@ -253,6 +255,17 @@ def test_delta_p_without_the_force_in_the_state_is_one_error_until_it_returns():
     _answer(loop, 2, f=100.0)
     assert not loop.no_force and ('info', 'the hydraulic force is back in the state: delta-P '
                                   'on') in loop.notes
+
+
+def test_an_interlock_says_the_input_fault_behind_it():
+    """0 A for want of the force: the piston falls behind, the tracking error holds it."""
+    loop = _loop(params=Params().replace(dp_gain=1e-7, ramp_time=0.0))
+    loop.reference(Reference(T0, 0.01, 0.0), 0.0)
+    for k in range(60):                       # 10 mm behind for 60 ms: above 5 mm for 50
+        _answer(loop, k, f=math.nan)
+    level, msg = loop.diagnosis()
+    assert level == 2 and msg == ('interlock hold: limit_error (~/reset); no hydraulic force '
+                                  'in the state for dp_gain: command 0 A')
 
 
 def test_a_trip_comes_back_in_the_reply_and_reset_and_enable_are_the_supervisors():

@@ -57,9 +57,11 @@ def test_a_limit_trips_above_it_not_at_it_and_reports_once(det, field, limit, in
 def test_an_off_detector_never_trips_and_the_protecting_ones_are_on_by_default():
     cfg = SafetyConfig()
     # on by default: the feedback, the position limits (inside the stroke), the load limits,
-    # the force error, the specimen's break, the load cell, a hold not obeyed, a late loop
+    # the tracking and force errors, the specimen's break, the load cell, a hold not obeyed,
+    # a late loop
     assert {d: cfg.action(d) for d in DETECTORS} == {
         **dict.fromkeys(DETECTORS, 'off'), 'feedback': 'power_off', 'specimen_break': 'hold',
+        'limit_error': 'hold',
         'load_feedback': 'hold', 'limit_position_max': 'hold', 'limit_position_min': 'hold',
         'limit_load_max': 'hold', 'limit_load_min': 'hold', 'limit_force_error': 'hold',
         'hold_error': 'power_off', 'loop_timing': 'hold'}
@@ -87,6 +89,21 @@ def test_a_timed_detector_trips_only_after_longer_than_its_time(det):
         assert ev == [], k
     d, ev = period(5)                 # 6 periods: longer
     assert [e.detector for e in ev] == [det] and d.mode == 'hold'
+
+
+@pytest.mark.parametrize('det', ['limit_error', 'saturation'])
+def test_a_timed_detectors_time_is_the_states_stamps_a_late_one_counts_its_gap(det):
+    """Three periods then a state 18 ms late is 21 ms, not four times 18 ms."""
+    if det == 'limit_error':
+        sup = _sup(limit_error=1e-3, limit_error_time=0.05, limit_error_action='hold')
+        kw = {'z_traj': 0.002}
+    else:
+        sup = _sup(limit_saturation_time=0.05, saturation_action='hold')
+        kw = {'sat': True, 'i': 0.015}
+    for k in (0, 1, 2, 20):
+        assert _feed(sup, k, **kw)[1] == [], k
+    trips = [k for k in range(21, 60) if _feed(sup, k, **kw)[1]]
+    assert trips[0] == 50                 # 51 ms from the first (its own period counted)
 
 
 def test_a_timed_detector_restarts_its_time_when_the_condition_breaks():
@@ -223,22 +240,23 @@ def test_nan_in_every_input():
 
 
 def test_a_frozen_position_trips_only_while_the_command_drives_the_valve():
+    # the reference at the reading: no tracking error, the frozen reading's rule alone
     sup = _sup(frozen_periods=10, frozen_current=3e-4)
     for k in range(30):             # identical, but no command: a piston at rest
-        assert _feed(sup, k, z=0.01, i=1e-4)[1] == []
+        assert _feed(sup, k, z=0.01, z_traj=0.01, i=1e-4)[1] == []
     for k in range(30, 39):         # unchanged while |i| >= 0.3 mA: 9 periods, then 10
-        d, ev = _feed(sup, k, z=0.01, i=-1e-3)
+        d, ev = _feed(sup, k, z=0.01, z_traj=0.01, i=-1e-3)
         assert ev == [] and d.power, k
-    d, ev = _feed(sup, 39, z=0.01, i=-1e-3)
+    d, ev = _feed(sup, 39, z=0.01, z_traj=0.01, i=-1e-3)
     assert ev[0].detector == 'feedback' and 'frozen' in ev[0].message and not d.power
     sup = _sup(frozen_periods=10)   # zero crossings of the command pause the count only
     for k in range(9):
-        assert _feed(sup, k, z=0.01, i=-1e-3 if k % 3 else 1e-4)[1] == []
-    trips = [k for k in range(9, 20) if _feed(sup, k, z=0.01, i=1e-3)[1]]
+        assert _feed(sup, k, z=0.01, z_traj=0.01, i=-1e-3 if k % 3 else 1e-4)[1] == []
+    trips = [k for k in range(9, 20) if _feed(sup, k, z=0.01, z_traj=0.01, i=1e-3)[1]]
     assert trips == [12]        # 6 commanding periods of the first 9, then 4 more
     rng = np.random.default_rng(0)  # a live sensor's noise never repeats
     sup = _sup(frozen_periods=10)
-    assert all(_feed(sup, k, z=0.01 + 5e-6 * rng.standard_normal(), i=1e-3)[1] == []
+    assert all(_feed(sup, k, z_traj=0.01, z=0.01 + 5e-6 * rng.standard_normal(), i=1e-3)[1] == []
                for k in range(200))
 
 
@@ -334,18 +352,36 @@ def test_the_error_detector_catches_a_lost_supply():
 
 
 def test_sensor_faults_in_the_closed_loop():
+    """
+    A position reading frozen on the sine: the tracking error holds the axis first.
+
+    On its own the frozen-feedback detector powers off 100 periods on, the valve driven
+    into its limit on the frozen reading meanwhile; by default the tracking error (5 mm for
+    50 ms) holds sooner, and the hold's command on a reading that no longer moves is the
+    valve's null: the piston stops short of where the power-off alone would leave it.
+    """
     p = Params().replace(ramp_time=0.0)
 
     def frozen(k, z, v, f):
         return (0.01, v, f) if k >= 300 else (z, v, f)
 
+    alone = run_closed_loop(p, Sine(0.04, 1.0), 1.0, model='simplified', supervised=True,
+                            fault=frozen, controller_params=p.replace(limit_error_action='off'))
+    # the loop winds into the valve's limit on the frozen reading (an episode), then trips
+    ev = [e for e in alone.events if e.kind == 'trip'][0]
+    assert ev.detector == 'feedback' and 'frozen' in ev.message
+    assert [e.detector for e in alone.events if e.kind == 'clipped'] == ['saturation']
+    assert 300 + 100 <= ev.stamp_ns // MS <= 300 + 110
+    assert np.all(alone.i[ev.stamp_ns // MS:-1] == 0)
     r = run_closed_loop(p, Sine(0.04, 1.0), 1.0, model='simplified', supervised=True,
                         fault=frozen)
-    # the loop winds into the valve's limit on the frozen reading (an episode), then trips
-    ev = [e for e in r.events if e.kind == 'trip'][0]
-    assert ev.detector == 'feedback' and 'frozen' in ev.message
-    assert [e.detector for e in r.events if e.kind == 'clipped'] == ['saturation']
-    assert 300 + 100 <= ev.stamp_ns // MS <= 300 + 110 and np.all(r.i[ev.stamp_ns // MS:-1] == 0)
+    ev = [e for e in r.events if e.kind == 'trip']
+    assert [(e.detector, e.action) for e in ev] == [('limit_error', 'hold')]
+    k = ev[0].stamp_ns // MS
+    assert 300 + 50 <= k <= 300 + 70
+    assert np.all(np.abs(r.i[k + 20:-1]) < 3e-4)         # the valve at its null, held
+    assert np.ptp(r.z[k + 50:]) < 1e-4                   # the piston still
+    assert r.z[-1] < alone.z[-1] - 0.01                  # and short of the power-off's
 
 
 # -- the contract's record over a reader we did not write --------------------------------------
@@ -390,7 +426,10 @@ def test_ramp_again_blends_a_jumped_trajectory_from_the_last_demand():
         d, _ = _feed(sup, k, z=0.01, z_traj=0.01)
     assert d.mode == 'run' and d.z_ref == 0.01
     sup.ramp_again()
-    zs = [_feed(sup, k, z=0.01, z_traj=0.05)[0].z_ref for k in range(200, 400)]
+    zs, z = [], 0.01
+    for k in range(200, 400):                  # a piston that follows its demand
+        zs.append(_feed(sup, k, z=z, z_traj=0.05)[0].z_ref)
+        z = zs[-1]
     assert zs[0] == pytest.approx(0.01) and zs[-1] == 0.05       # from the demand, onto it
     assert max(np.abs(np.diff(zs))) < 0.04 / 100 * 2              # spread over the 100 periods
 

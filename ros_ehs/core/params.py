@@ -290,7 +290,7 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
        'is above it for longer than limit_error_time', 'safety', 'I'),
     _p('limit_error_time', 's', 0.05, 0.0, 60.0, 'how long the tracking error must stay '
        'above limit_error', 'safety', 'I'),
-    _action('limit_error', 'off', 'tracking error'),
+    _action('limit_error', 'hold', 'tracking error'),
     _p('feedback_timeout', 's', 1.0, 1.0e-3, 60.0, 'real time: no state for this long '
        'latches the feedback detector (the controller sends 0 A, unlatched, after 10 '
        'stale_timeout already)', 'safety', 'D'),

@@ -482,20 +482,30 @@ class ControlLoop:
         return f
 
     def diagnosis(self) -> tuple[int, str]:
-        """Return the diagnostics' level (0 OK, 1 WARN, 2 ERROR) and message now."""
+        """
+        Return the diagnostics' level (0 OK, 1 WARN, 2 ERROR) and message now.
+
+        An interlock comes first, with the input fault behind it where there is one (a
+        controller that commands 0 A for want of the hydraulic force lets the piston fall
+        behind its reference until the tracking error holds it: the hold is the news, the
+        missing force its cause).
+        """
         level, msg = 0, 'running'
         sup = self.axis.supervisor
         act = sup.action
+        fault = '' if not self.axis.fault else (
+            'no hydraulic force in the state for dp_gain: command 0 A'
+            if self.axis.ctrl.force_missing(self.measured.force) else
+            'non-finite input: command 0 A')
         if act in ('hold', 'stop', 'power_off'):
-            level, msg = 2, f'interlock {act}: {", ".join(sup.tripped())} (~/reset)'
+            level, msg = 2, f'interlock {act}: {", ".join(sup.tripped())} (~/reset)' + (
+                f'; {fault}' if fault else '')
         elif not sup.enabled:
             level, msg = 1, 'hydraulics off: 0 A (~/enable)'
         elif act == 'indicate':
             level, msg = 1, f'limit indicated: {", ".join(sup.tripped())} (~/reset)'
-        elif self.axis.fault:
-            level, msg = 2, ('no hydraulic force in the state for dp_gain: command 0 A'
-                             if self.axis.ctrl.force_missing(self.measured.force) else
-                             'non-finite input: command 0 A')
+        elif fault:
+            level, msg = 2, fault
         elif self.lost:
             level, msg = 1, 'no state: command 0 A'
         elif self.counts['future'] > self._future_seen:

@@ -332,13 +332,14 @@ def break_travel(params: Mapping[str, object], force: float, dt: float) -> float
 
 
 class _Latch:
-    """One detector's state: latched, and the periods its condition has held."""
+    """One detector's state: latched, the periods its condition has held and for how long."""
 
-    __slots__ = ('tripped', 'count')
+    __slots__ = ('tripped', 'count', 'ns')
 
     def __init__(self) -> None:
         self.tripped = False
         self.count = 0
+        self.ns = 0          # the states' stamps' time over those periods [ns]
 
 
 class Supervisor:
@@ -527,8 +528,10 @@ class Supervisor:
         cfg = self.config
         events: list[Event] = []
         dt = self.dt
+        dt_ns = round(dt * 1e9)
         if self._last_stamp is not None and stamp_ns > self._last_stamp:
-            dt = (stamp_ns - self._last_stamp) * 1e-9
+            dt_ns = stamp_ns - self._last_stamp
+            dt = dt_ns * 1e-9
         finite = math.isfinite(z)
         if not math.isfinite(z_dot) and finite and math.isfinite(self._last_z):
             z_dot = (z - self._last_z) / dt
@@ -562,9 +565,11 @@ class Supervisor:
         self._check_specimen(stamp_ns, z, load, needs_load, powered, events)
         # saturation: the previous command at its limit for longer than the time
         sat = self.latches['saturation']
-        sat.count = sat.count + 1 if (saturated and powered) else 0
-        if sat.count and sat.count * dt > cfg.limit_saturation_time:
-            self._check('saturation', True, stamp_ns, sat.count * dt, '', events)
+        # a timed detector's time is the states' (a period after a stall counts as long as
+        # the stall, not the periods before it)
+        sat.count, sat.ns = (sat.count + 1, sat.ns + dt_ns) if (saturated and powered) else (0, 0)
+        if sat.count and sat.ns > round(cfg.limit_saturation_time * 1e9):
+            self._check('saturation', True, stamp_ns, sat.ns * 1e-9, '', events)
         self._last_z = z if finite else self._last_z
         self._last_stamp = stamp_ns
         demand = self._demand(stamp_ns, z, z_traj, v_traj)
@@ -573,10 +578,10 @@ class Supervisor:
         e = demand.z_ref - z if (finite and demand.power) else math.nan
         bad = math.isfinite(e) and abs(e) > cfg.limit_error and demand.mode != 'waiting' and \
             (track_position or demand.mode in ('hold', 'stop')) and not limited
-        err.count = err.count + 1 if bad else 0
-        if bad and err.count * dt > cfg.limit_error_time and self._check(
+        err.count, err.ns = (err.count + 1, err.ns + dt_ns) if bad else (0, 0)
+        if bad and err.ns > round(cfg.limit_error_time * 1e9) and self._check(
                 'limit_error', True, stamp_ns, e, f'|z_ref - z| = {abs(e):.6g} m above '
-                f'{cfg.limit_error:g} m for {err.count * dt:.6g} s', events):
+                f'{cfg.limit_error:g} m for {err.ns * 1e-9:.6g} s', events):
             demand = self._demand(stamp_ns, z, z_traj, v_traj)
         return demand, events
 
@@ -911,7 +916,7 @@ class Supervisor:
         cleared = self.tripped()
         for s in self.latches.values():
             s.tripped = False
-            s.count = 0
+            s.count = s.ns = 0
         self._same = 0
         self._load_same = 0
         self._hold_at = math.nan
