@@ -62,7 +62,9 @@ STATION_STATUS = 'ros_ehs/station'
 #: the campaign node: level OK (WARN: the campaign has ended; ERROR: the store cannot be
 #: written); message what it waits for; values state (``ready``: ~/next gives a specimen;
 #: ``under_way``: a specimen's test; ``ended``), specimen, level, tested, failed, run_out,
-#: invalid, next_level, verdict (why it ended, or ''), store.
+#: invalid, next_level, verdict (why it ended, or ''), store, name, unit (the levels': N or m),
+#: run_out (cycles), fit_a, fit_k, fit_s (the S-N fit so far, Basquin log10 N = a - k log10 S
+#: with scatter s decades; nan before three failures at two levels).
 CAMPAIGN_STATUS = 'ros_ehs/campaign'
 
 
@@ -147,7 +149,9 @@ STATION_EVENTS = Topic(
 
 CAMPAIGN_RESULTS = Topic(
     'campaign/results', 'diagnostic_msgs/msg/DiagnosticArray',
-    'each specimen the campaign node recorded in its store, one status each: name '
+    'each specimen the campaign node recorded in its store (at its start, those the store '
+    'holds already: one record per specimen, the newest, is what a reader keeps), one status '
+    'each: name '
     '`ros_ehs/campaign/<specimen>`, level OK (failed or run out) or WARN (invalid), message '
     'the result and its reason; values specimen, level, result, cycles, reason, peak, valley, '
     'mean, amplitude, r_ratio, started, ended', EVENTS_QOS)
@@ -172,7 +176,8 @@ NODE_TOPICS = {
     'procedure': NodeTopics((REFERENCE, DIAGNOSTICS, PROCEDURE_EVENTS, CYCLES, CAPTURES),
                             (STATE, EVENTS, ESTIMATES)),
     'station': NodeTopics((DIAGNOSTICS, STATION_EVENTS),
-                          (STATE, REFERENCE, DIAGNOSTICS, EVENTS, PROCEDURE_EVENTS, ESTIMATES)),
+                          (STATE, REFERENCE, DIAGNOSTICS, EVENTS, PROCEDURE_EVENTS, ESTIMATES,
+                           CAMPAIGN_RESULTS)),
     'campaign': NodeTopics((DIAGNOSTICS, CAMPAIGN_RESULTS), (DIAGNOSTICS, CYCLES)),
 }
 

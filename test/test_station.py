@@ -19,12 +19,13 @@ import numpy as np
 import pytest
 from ros_ehs.core.station.access import Access
 from ros_ehs.core.station.board import Board
+from ros_ehs.core.station.campaign import CampaignPanel, Z90
 from ros_ehs.core.station.meters import Meter
 from ros_ehs.core.station.scope import Scope, TIME_BASES
 from ros_ehs.core.station.station import Station
 from ros_ehs.web.app import make_app, Pacer, StationServer
 import ros_ehs_msgs_py as c
-from ros_ehs_msgs_py.values import AxisState, ParameterEstimate, Reference
+from ros_ehs_msgs_py.values import AxisState, NodeStatus, ParameterEstimate, Reference
 from waits import BOUND
 
 
@@ -209,6 +210,108 @@ def test_the_station_scope_takes_states_and_restarts_with_a_new_run():
     assert 'board' not in st.frame(0.0, 1.0, board=False)
 
 
+# -- the campaign panel ------------------------------------------------------------------------
+#: a campaign's specimens as its node records them: (id, level [N], result, cycles)
+SPECIMENS = [('S01', 9000.0, 'failed', 61_000), ('S02', 9000.0, 'failed', 83_000),
+             ('S03', 7000.0, 'failed', 420_000), ('S04', 7000.0, 'run_out', 1_000_000),
+             ('S05', 8000.0, 'invalid', 1_200), ('S06', 8000.0, 'failed', 190_000)]
+
+
+def _record(sid, level, result, cycles, **extra):
+    """Return one specimen's record as the campaign node publishes it (values as text)."""
+    vals = {'specimen': sid, 'level': f'{level:.9g}', 'result': result, 'cycles': str(cycles),
+            'reason': 'stopped by the operator' if result == 'invalid' else '',
+            'mean': '4950', 'amplitude': '4050', 'r_ratio': '0.1', 'peak': f'{level:.9g}',
+            'valley': f'{0.1 * level:.9g}', 'started': '2026-12-05T10:00:00Z',
+            'ended': '2026-12-05T11:00:00Z', **extra}
+    return NodeStatus(0, f'ros_ehs/campaign/{sid}', 1 if result == 'invalid' else 0,
+                      result, vals)
+
+
+def _campaign_status(**values):
+    vals = {'state': 'ready', 'specimen': '', 'level': 'nan', 'tested': '6',
+            'next_level': '8000', 'verdict': '', 'unit': 'N', 'name': 'bench',
+            'run_out': '1000000', 'fit_a': 'nan', 'fit_k': 'nan', 'fit_s': 'nan', **values}
+    return NodeStatus(0, c.CAMPAIGN_STATUS, 0, 'ready: ~/next gives a specimen at 8000', vals)
+
+
+def test_the_campaign_panel_plots_failures_and_run_outs_and_lists_every_specimen_once():
+    panel = CampaignPanel()
+    assert panel.snapshot() is None                       # no campaign heard: no panel
+    for r in SPECIMENS:
+        panel.take_result(_record(*r))
+    panel.take_result(_record(*SPECIMENS[0]))             # a replay (transient-local): one row
+    snap = panel.snapshot()
+    ids = [r['specimen'] for r in snap['specimens']]
+    assert ids == ['S02', 'S03', 'S04', 'S05', 'S06', 'S01']
+    assert snap['records'] == 7 and snap['heard'] is False
+    assert snap['counts'] == {'failed': 4, 'run_out': 1, 'invalid': 1}
+    # an invalid specimen is listed, never plotted: its life says nothing of its level
+    assert sorted(zip(*snap['points']['failed'])) == [(61_000, 9000.0), (83_000, 9000.0),
+                                                      (190_000, 8000.0), (420_000, 7000.0)]
+    assert snap['points']['run_out'] == [[1_000_000], [7000.0]]
+    assert snap['fit'] is None and snap['curves'] is None  # the node has not fitted yet
+    panel.take_status(_campaign_status())
+    snap = panel.snapshot()
+    assert (snap['state'], snap['unit'], snap['next_level'], snap['run_out']) == \
+        ('ready', 'N', 8000.0, 1e6)
+    assert snap['under_way_level'] is None
+    json.dumps(snap, allow_nan=False)
+
+
+def test_the_campaign_panel_draws_the_campaign_nodes_own_fit_at_10_50_and_90_percent():
+    from ros_ehs.core.campaign.sn import fit_basquin, SNData
+    from scipy.stats import norm
+    assert Z90 == pytest.approx(norm.ppf(0.9), rel=1e-12)
+    plotted = [r for r in SPECIMENS if r[2] != 'invalid']
+    fit = fit_basquin(SNData.of([r[1] for r in plotted], [r[3] for r in plotted],
+                                [r[2] == 'failed' for r in plotted]), slope_interval=False)
+    panel = CampaignPanel()
+    for r in SPECIMENS:
+        panel.take_result(_record(*r))
+    panel.take_status(_campaign_status(fit_a=f'{fit.a:.9g}', fit_k=f'{fit.k:.9g}',
+                                       fit_s=f'{fit.s:.9g}'))
+    cv = panel.snapshot()['curves']
+    loads = np.array(cv['load'])
+    assert loads[0] == pytest.approx(7000.0 / 1.1) and loads[-1] == pytest.approx(9000 * 1.1)
+    for name, p in (('p10', 0.1), ('p50', 0.5), ('p90', 0.9)):
+        np.testing.assert_allclose(cv[name], fit.life(loads, p), rtol=1e-7)
+    # a fit no page can draw is not drawn (and never breaks the frame's JSON)
+    panel.take_status(_campaign_status(fit_a='900', fit_k='1', fit_s='0.1'))
+    assert panel.snapshot()['curves'] is None and panel.snapshot()['fit'] is not None
+    panel.take_status(_campaign_status(fit_a='12', fit_k='-3', fit_s='0.1'))
+    assert panel.snapshot()['fit'] is None
+
+
+def test_the_campaign_panel_refuses_a_record_it_cannot_place_and_stays_bounded():
+    panel = CampaignPanel(max_specimens=3)
+    with pytest.raises(ValueError, match='names no specimen'):
+        panel.take_result(_record('', 9000.0, 'failed', 10))
+    with pytest.raises(ValueError, match="S09: result 'broken'"):
+        panel.take_result(_record('S09', 9000.0, 'broken', 10))
+    rec = _record('S10', 9000.0, 'failed', 10)
+    panel.take_result(rec._replace(values={**rec.values, 'level': 'nan', 'cycles': 'lots'}))
+    row = panel.snapshot()['specimens'][0]
+    assert row['level'] is None and row['cycles'] is None       # said as unknown, not plotted
+    assert panel.snapshot()['points']['failed'] == [[], []]
+    for k in range(5):
+        panel.take_result(_record(f'S2{k}', 9000.0, 'failed', 1000 + k))
+    assert [r['specimen'] for r in panel.snapshot()['specimens']] == ['S22', 'S23', 'S24']
+    with pytest.raises(ValueError, match='max_specimens'):
+        CampaignPanel(0)
+
+
+def test_the_station_sends_the_campaign_panel_with_the_board():
+    st = Station(1000, 20)
+    assert st.frame(0.0, 1.0)['board']['campaign'] is None
+    st.take_campaign_result(_record(*SPECIMENS[0]))
+    st.take_campaign_status(_campaign_status(state='under_way', specimen='S07', level='8000'))
+    board = st.frame(0.0, 1.0)['board']
+    assert board['campaign']['under_way_level'] == 8000.0
+    assert board['campaign']['specimens'][0]['specimen'] == 'S01'
+    assert 'board' not in st.frame(0.0, 1.0, board=False)
+
+
 # -- the web server ----------------------------------------------------------------------------
 class FakeDesk:
     """Records what the web server asks; answers actions as a node would."""
@@ -221,8 +324,8 @@ class FakeDesk:
     def frame(self, span, board=True):
         return self.station.frame(0.0, span, board)
 
-    async def act(self, action):
-        self.acted.append(action)
+    async def act(self, action, specimen=None):
+        self.acted.append(action if specimen is None else (action, specimen))
         if self.answer is None:
             raise asyncio.TimeoutError
         return self.answer
@@ -275,6 +378,26 @@ def test_an_action_goes_to_the_desk_and_is_logged_with_its_origin():
         results = [x[2] for x in desk.logged]
         assert results == ['refused', 'refused', 'done', 'refused', 'unanswered']
         assert desk.acted == ['reset', 'enable', 'hold']
+    finally:
+        server.stop()
+
+
+def test_the_next_specimen_takes_the_typed_id_under_the_access_rule():
+    desk = FakeDesk((True, 'C-0117 at 9000: loading it into the procedure node'))
+    server, port = _serve(desk)
+    try:
+        url = f'http://127.0.0.1:{port}/api/action/next'
+        assert _post(url, {'specimen': ' C-0117 '}) == (200, {'ok': True,
+                                                              'message': desk.answer[1]})
+        assert _post(url, {})[0] == 200                     # no id: the plan's
+        assert desk.acted == [('next', 'C-0117'), ('next', '')]
+        for bad in (17, 'x' * 65, None):
+            status, body = _post(url, {'specimen': bad})
+            assert status == 403 and '"specimen" must be a text' in body['message'], bad
+        status, body = _post(url, {'specimen': 'C-1'}, {'Origin': 'http://evil.example'})
+        assert status == 403 and len(desk.acted) == 2
+        assert [x[2] for x in desk.logged] == ['done', 'done', 'refused', 'refused', 'refused',
+                                               'refused']
     finally:
         server.stop()
 

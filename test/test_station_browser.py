@@ -304,3 +304,68 @@ def test_bench_py_starts_the_station_beside_the_bench_and_stops_it_cleanly(
     assert 'bench: done' in out, out
     station_log = (tmp_path / 'logs' / 'station.log').read_text()
     assert 'the web server did not stop' not in station_log, station_log
+
+
+def test_the_page_shows_the_campaign_and_loads_the_operators_next_specimen(
+        dom, tmp_path, browser):
+    """
+    A campaign under way on the rig: the store holds four specimens, the campaign node fits.
+
+    The page draws what the campaign node published (its store's records at its start, its
+    fit in its status), and its Next specimen sets the typed id and calls ``~/next`` as a
+    ROS client does: the campaign node's own status says the specimen is under way.
+    """
+    import yaml
+    from ros_ehs.benchmarks.campaign import BENCH_CAMPAIGN
+    from ros_ehs.data.store import ResultStore, SpecimenRecord
+    plan = tmp_path / 'campaign.yaml'
+    plan.write_text(yaml.safe_dump(BENCH_CAMPAIGN))
+    out, bag = tmp_path / 'out', tmp_path / 'bag'
+    out.mkdir()
+    store = ResultStore(out / 'campaign.db')
+    try:
+        cid = store.campaign(BENCH_CAMPAIGN['name'])
+        for sid, level, result, n in (('S01', 9000.0, 'failed', 61), ('S02', 9000.0, 'failed',
+                                                                      83),
+                                      ('S03', 7000.0, 'failed', 190),
+                                      ('S04', 7000.0, 'run_out', 250)):
+            store.record(cid, SpecimenRecord(sid, level, result, n, peak=level,
+                                             valley=0.1 * level))
+    finally:
+        store.close()
+    with NodeProcesses(dom, tmp_path / 'logs', bound=BOUND) as procs:
+        procs.start('recorder', {'out': str(bag), 'discovery_period': 0.05})
+        procs.start('controller', FAST)       # heard: the page's buttons act only then
+        procs.start('campaign', {'campaign': str(plan), 'out': str(out), **FAST})
+        assert procs.wait_status(c.CAMPAIGN_STATUS, lambda st: st.values.get('state') ==
+                                 'ready', BOUND), procs['campaign'].output()[-3000:]
+        st = procs.status(c.CAMPAIGN_STATUS).values
+        assert st['next_level'] == '5000' and float(st['fit_k']) > 0, st
+        page = _page(browser)
+        page.goto(_station(procs))
+        # the campaign panel: 3 failures, 1 run-out, the fit's curves, the next level
+        _wait(page, '!document.getElementById("campaign").hidden && document.querySelectorAll('
+                    '"#chart-sn [data-result]").length === 4')
+        assert len(page.query_selector_all('#chart-sn [data-result=failed]')) == 3
+        assert len(page.query_selector_all('#chart-sn [data-result=run_out]')) == 1
+        for curve in ('sn-p10', 'sn-p50', 'sn-p90', 'sn-band'):
+            assert page.query_selector(f'[data-testid={curve}]'), curve
+        assert page.inner_text('[data-testid=next-level]') == '5000'
+        rows = page.query_selector_all('#specimens tr')
+        assert [r.get_attribute('data-specimen') for r in rows] == ['S01', 'S02', 'S03', 'S04']
+        # the operator types the coupon's id and presses Next specimen
+        page.fill('[data-testid=specimen-id]', 'C-0117')
+        _press(page, 'next')
+        text = _answer(page, 'next: done', 'C-0117 at 5000')
+        assert procs.wait_status(c.CAMPAIGN_STATUS, lambda st: st.values.get('specimen') ==
+                                 'C-0117', BOUND), text
+        assert procs.status(c.CAMPAIGN_STATUS).values['state'] == 'under_way'
+        _wait(page, 'document.querySelector("[data-testid=campaign-phase]").textContent === '
+                    '"under_way" && document.querySelector("[data-testid=next]").disabled')
+        assert page.input_value('[data-testid=specimen-id]') == ''
+        assert page.errors == []
+        page.close()
+        procs.stop(['station', 'campaign', 'controller', 'recorder'])
+    events = _station_events(bag)
+    assert [(e['action'], e['result']) for e in events] == [('next', 'done')], events
+    assert 'C-0117 at 5000' in events[0]['reason'], events

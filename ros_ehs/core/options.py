@@ -379,6 +379,8 @@ STATION = (
             '`~/enable`, status and events'),
     Setting('procedure', '', 'procedure', meaning='the procedure node: its `~/start`, '
             '`~/hold`, `~/resume`, `~/stop` and status'),
+    Setting('campaign', '', 'campaign', meaning='the campaign node: its status and results '
+            "(the page's campaign panel) and its `~/next` (the page's next specimen)"),
     Setting('push_rate', 'Hz', 25.0, 1.0, 60.0, 'frames a second sent to each open page'),
     Setting('scope_samples', '', 131072, 1000, 2000000, "the scope's memory: the newest "
             'states kept at full rate (131072: 2 min at 1 kHz)'),

@@ -26,8 +26,11 @@ node decodes, calls and publishes:
   the reason, while a specimen is under way or once the campaign has ended;
 * in: the procedure node's cycle records (``procedure/cycles``) and its status in
   ``diagnostics``: a finished test of the specimen under way is recorded in the store, once;
-* out: each record on ``campaign/results``, and the campaign's status ``ros_ehs/campaign``
-  in ``diagnostics`` (what it waits for, the counts so far, the next level, the verdict).
+* out: each record on ``campaign/results`` (at its start, the records already in the store
+  too: the topic is transient-local, so a station or a recorder started later gets the
+  campaign whole; a reader keeps one record per specimen), and the campaign's status
+  ``ros_ehs/campaign`` in ``diagnostics`` (what it waits for, the counts so far, the next
+  level, the fit so far, the verdict).
 
 Killed and started again, it finds the specimen under way (``<out>/current.json``) and waits
 for its test's end as before.
@@ -74,6 +77,7 @@ class CampaignNode(Node):
         self.store = ResultStore(self.opt['store'] or out / 'campaign.db')
         self._where = self.store.engine.url.render_as_string(hide_password=True)
         self.rules = RigCampaign(campaign, self.opt['campaign'], self.store, out)
+        self._unit = campaign.unit
         self._lock = threading.Lock()
         self._error = ''
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
@@ -93,6 +97,8 @@ class CampaignNode(Node):
         self._pending: dict | None = None      # a specimen to load once the node answers
         self.create_timer(0.5, self._retry, clock=steady_clock())
         cur = self.rules.current
+        for rec in self.store.results(self.rules.cid):
+            self.pub_results.publish(_result_msg(self, rec))
         self.get_logger().info(
             f'campaign {campaign.name!r} in {self._where}: '
             + (f"specimen {cur['specimen']} under way: waiting for its test's end"
@@ -210,10 +216,15 @@ class CampaignNode(Node):
         counts = {k: sum(r.result == k for r in recs)
                   for k in ('failed', 'run_out', 'invalid')}
         nxt = v.next_specimen
+        fit = v.fit
         values = {'state': state, 'specimen': cur['specimen'] if cur else '',
                   'level': float(cur['level']) if cur else float('nan'), 'tested': len(recs),
                   **counts, 'next_level': float(nxt.level) if nxt and not cur else float('nan'),
-                  'verdict': v.reason if v.done else '', 'store': self._where}
+                  'verdict': v.reason if v.done else '', 'store': self._where,
+                  'name': self.rules.campaign.name, 'unit': self._unit,
+                  'run_out': float(self.rules.campaign.run_out),
+                  **{'fit_' + k: float(getattr(fit, k)) if fit else float('nan')
+                     for k in ('a', 'k', 's')}}
         msg = {'under_way': f"{cur['specimen'] if cur else ''}: waiting for its test's end",
                'ready': f'ready: ~/next gives a specimen at {nxt.level:g}' if nxt else 'ready',
                'ended': f'the campaign has ended: {v.reason}'}[state]

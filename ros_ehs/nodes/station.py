@@ -22,11 +22,14 @@ node decodes, calls and publishes:
 
 * in: ``state`` and ``reference`` (best effort, whatever the loop's QoS: the page never
   slows the loop), ``diagnostics`` (the controller's, plant's, procedure's and live identify
-  node's statuses), ``events``, ``procedure/events``, ``parameter_estimates``;
+  node's statuses), ``events``, ``procedure/events``, ``parameter_estimates``, and the
+  campaign node's status and ``campaign/results`` (the campaign panel);
 * a page's button calls the same services a ROS client does: the controller's ``~/reset``
   (std_srvs/Trigger) and ``~/enable`` (std_srvs/SetBool), the procedure's ``~/start``,
-  ``~/hold``, ``~/resume``, ``~/stop``; the answer, or why it was refused, goes back to the
-  page;
+  ``~/hold``, ``~/resume``, ``~/stop``; the next specimen sets the campaign node's
+  ``specimen`` parameter to the id the operator typed and calls its ``~/next``, as
+  ``ros2 param set`` and ``ros2 service call`` would; the answer, or why it was refused,
+  goes back to the page;
 * out: every action, done or refused, on ``station/events`` with where it came from (so it is
   in the bag) and logged once; its status ``ros_ehs/station`` in ``diagnostics`` (url, open
   pages, frames sent a second, actions, refusals).
@@ -39,6 +42,8 @@ import functools
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from ros_ehs.core.options import STATION
 from ros_ehs.core.station.access import Access
@@ -89,7 +94,8 @@ class StationNode(Node):
                                  qos_profile(contract.DIAGNOSTICS.qos, depth=50))
         for topic, take in ((contract.EVENTS, self._on_safety_event),
                             (contract.PROCEDURE_EVENTS, self._on_procedure_event),
-                            (contract.ESTIMATES, self._on_estimate)):
+                            (contract.ESTIMATES, self._on_estimate),
+                            (contract.CAMPAIGN_RESULTS, self._on_campaign_result)):
             self.create_subscription(DiagnosticArray, topic.name, take, qos_profile(topic.qos))
         ctl, proc = o['controller'], o['procedure']
         self.clients_ = {'reset': (self.create_client(Trigger, f'/{ctl}/reset'), Trigger, None),
@@ -98,6 +104,10 @@ class StationNode(Node):
                                      False)}
         for name in ('start', 'hold', 'resume', 'stop'):
             self.clients_[name] = (self.create_client(Trigger, f'/{proc}/{name}'), Trigger, None)
+        camp = o['campaign']
+        self.clients_['next'] = (self.create_client(Trigger, f'/{camp}/next'), Trigger, None)
+        self.campaign_params = self.create_client(SetParameters, f'/{camp}/set_parameters')
+        self._next_lock: asyncio.Lock | None = None      # made on the web server's loop
         self.create_timer(float(o['diagnostics_period']), self._diagnose, clock=steady_clock())
         app = make_app(self, self.access, float(o['push_rate']))
         self.server = StationServer(app, str(o['host']), int(o['port']))
@@ -132,6 +142,17 @@ class StationNode(Node):
             source = _SOURCES.get(st.name)
             if source is not None:
                 self.station.take_status(source, now, st)
+            elif st.name == contract.CAMPAIGN_STATUS:
+                self.station.take_campaign_status(st)
+
+    def _on_campaign_result(self, msg: DiagnosticArray) -> None:
+        for st in contract.statuses_from_msg(msg):
+            try:
+                self.station.take_campaign_result(st)
+            except ValueError as err:
+                self.counts['malformed'] += 1
+                self.get_logger().warning(f'ignored a campaign record: {err}',
+                                          throttle_duration_sec=1.0)
 
     def _on_safety_event(self, msg: DiagnosticArray) -> None:
         e = read_msg(self, contract.event_from_msg, msg, 'event')
@@ -160,21 +181,26 @@ class StationNode(Node):
         body['station'] = {'url': self.url, 'pages': self.counts['pages']}
         return body
 
-    async def act(self, action: str) -> tuple[bool, str]:
-        """Call ``action``'s service; (success, its message)."""
+    async def act(self, action: str, specimen: str = '') -> tuple[bool, str]:
+        """Call ``action``'s service; (success, its message). ``specimen``: ``next``'s id."""
         client, srv, data = self.clients_[action]
-        if not client.service_is_ready():
-            return False, (f'{action}: the service {client.srv_name} is not available (is '
-                           f'its node running?)')
-        request = srv.Request() if data is None else srv.Request(data=data)
-        loop = asyncio.get_running_loop()
-        answer: asyncio.Future = loop.create_future()
-
-        def done(f) -> None:
-            loop.call_soon_threadsafe(lambda: answer.done() or answer.set_result(f.result()))
-
-        client.call_async(request).add_done_callback(done)
-        res = await asyncio.wait_for(answer, ANSWER_TIMEOUT)
+        for c in (client, self.campaign_params) if action == 'next' else (client,):
+            if not c.service_is_ready():
+                return False, (f'{action}: the service {c.srv_name} is not available (is '
+                               f'its node running?)')
+        if action != 'next':
+            res = await _call(client, srv.Request() if data is None else srv.Request(data=data))
+            return bool(res.success), str(res.message)
+        if self._next_lock is None:
+            self._next_lock = asyncio.Lock()
+        async with self._next_lock:          # one page's id, then its ~/next, not another's
+            value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=specimen)
+            res = await _call(self.campaign_params, SetParameters.Request(
+                parameters=[Parameter(name='specimen', value=value)]))
+            bad = [r.reason for r in res.results if not r.successful]
+            if bad:
+                return False, f'next: the campaign node refused the id {specimen!r}: {bad[0]}'
+            res = await _call(client, Trigger.Request())
         return bool(res.success), str(res.message)
 
     def log_action(self, action: str, origin: str, result: str, reason: str) -> None:
@@ -218,6 +244,18 @@ class StationNode(Node):
         if not self.server.stop(STOP_TIMEOUT):
             self.get_logger().warning(f'the web server did not stop within {STOP_TIMEOUT:g} s: '
                                       'left behind')
+
+
+async def _call(client, request):
+    """Return a service's answer, awaited on the calling asyncio loop (ANSWER_TIMEOUT)."""
+    loop = asyncio.get_running_loop()
+    answer: asyncio.Future = loop.create_future()
+
+    def done(f) -> None:
+        loop.call_soon_threadsafe(lambda: answer.done() or answer.set_result(f.result()))
+
+    client.call_async(request).add_done_callback(done)
+    return await asyncio.wait_for(answer, ANSWER_TIMEOUT)
 
 
 def main(args=None) -> int:

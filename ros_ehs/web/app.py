@@ -29,7 +29,8 @@ Routes:
 * ``POST /api/meters/reset``: the meters' min/max and cycles forgotten (the station's own
   state, nothing on the axis; the access rule applies);
 * ``POST /api/action/<name>`` (JSON ``{"token": ..., "confirm": true}``): one of
-  :data:`ACTIONS`, answered ``{"ok", "message"}``.
+  :data:`ACTIONS`, answered ``{"ok", "message"}``; ``next`` (the campaign's next specimen)
+  takes ``"specimen"``, the id on the coupon (empty: the plan's).
 
 An action goes to the :class:`Desk` (the station node calls the same services a ROS client
 does), after the access rule (:class:`~ros_ehs.core.station.access.Access`): refused with its
@@ -55,7 +56,7 @@ from aiohttp import web, WSCloseCode, WSMsgType
 from ros_ehs.core.station.access import Access
 from ros_ehs.core.station.scope import TIME_BASES
 
-__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'Pacer', 'STATIC',
+__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'Pacer', 'SPECIMEN_MAX', 'STATIC',
            'StationServer', 'STOP_TIMEOUT', 'WINDOW']
 
 #: the open pages' WebSockets (each is closed when the station stops)
@@ -64,9 +65,11 @@ PAGES = web.AppKey('pages', weakref.WeakSet)
 STOP_TIMEOUT = 5.0
 STATIC = Path(__file__).resolve().with_name('static')
 #: what a page may ask: the controller's and the procedure's services
-ACTIONS = ('reset', 'enable', 'disable', 'start', 'hold', 'resume', 'stop')
+ACTIONS = ('reset', 'enable', 'disable', 'start', 'hold', 'resume', 'stop', 'next')
 #: actions that need ``confirm`` in the request (the page asks the operator first)
 CONFIRM = ('enable', 'disable')
+#: the longest specimen id ``next`` takes (the campaign node's own rule checks the rest)
+SPECIMEN_MAX = 64
 DEFAULT_SPAN = 5.0
 #: how often a page gets the board (statuses, detectors, events) [Hz]: read by eye
 BOARD_HZ = 5.0
@@ -129,8 +132,12 @@ class Desk(Protocol):
     def frame(self, span: float, board: bool = True) -> dict:
         """Return one frame for time base ``span`` [s] (with the board when ``board``)."""
 
-    async def act(self, action: str) -> tuple[bool, str]:
-        """Do ``action`` through its service; (done, the answer or why not)."""
+    async def act(self, action: str, specimen: str = '') -> tuple[bool, str]:
+        """
+        Do ``action`` through its service; (done, the answer or why not).
+
+        ``specimen``: the id ``next`` gives the campaign node.
+        """
 
     def log_action(self, action: str, origin: str, result: str, reason: str) -> None:
         """Log an action (done, refused or unanswered) with where it came from."""
@@ -213,11 +220,16 @@ def make_app(desk: Desk, access: Access, push_rate: float = 25.0) -> web.Applica
         body, why = await _gate(request, access)
         if not why and name in CONFIRM and body.get('confirm') is not True:
             why = f'{name}: hydraulics change only with "confirm": true (the page asks first)'
+        specimen = body.get('specimen', '')
+        if not why and name == 'next' and not (isinstance(specimen, str) and
+                                               len(specimen) <= SPECIMEN_MAX):
+            why = f'next: "specimen" must be a text of at most {SPECIMEN_MAX} characters'
         if why:
             desk.log_action(name, origin, 'refused', why)
             return web.json_response({'ok': False, 'message': why}, status=403)
         try:
-            ok, message = await desk.act(name)
+            ok, message = await (desk.act(name, specimen.strip()) if name == 'next' else
+                                 desk.act(name))
         except asyncio.TimeoutError:
             desk.log_action(name, origin, 'unanswered', 'no answer from the node')
             return web.json_response({'ok': False, 'message': f'{name}: no answer from the '

@@ -115,6 +115,12 @@ class Campaign:
     source: str
     level_tolerance: float = 0.02
 
+    @property
+    def unit(self) -> str:
+        """Return the levels' unit: N when the level's step is in force control, else m."""
+        step = self.level_step_of(self.procedure(max(self.planned_levels())))
+        return 'N' if step.control_mode == 'force' else 'm'
+
     def procedure(self, level: float, specimen: str = '') -> Procedure:
         """Return the procedure of one specimen at ``level`` (checked)."""
         return parse_procedure(self.procedure_doc(level, specimen),

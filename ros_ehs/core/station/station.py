@@ -16,8 +16,9 @@ The station: scope, meters and board together, fed from one thread and read from
 
 :class:`Station` is what the station node holds: it takes each state and reference (their
 own stamps, no clock of its own), the nodes' statuses and events (with ``now`` passed in),
-and answers :meth:`Station.frame`, one page update: the scope's envelope for the page's time
-base, every meter, the board. The node's executor writes and the web server's thread reads:
+the campaign node's status and records, and answers :meth:`Station.frame`, one page update:
+the scope's envelope for the page's time base, every meter, the board and the campaign
+panel. The node's executor writes and the web server's thread reads:
 one lock guards both, held for a copy, never for a wait.
 
 The scope's reference and error take the newest reference carried to the state's stamp with
@@ -35,6 +36,7 @@ import threading
 from typing import Any
 
 from ros_ehs.core.station.board import Board
+from ros_ehs.core.station.campaign import CampaignPanel
 from ros_ehs.core.station.meters import Meter
 from ros_ehs.core.station.scope import CHANNELS, Scope, TIME_BASES
 from ros_ehs_msgs_py.values import AxisState, NodeStatus, ParameterEstimate, Reference
@@ -59,6 +61,7 @@ class Station:
         self.scope = Scope(scope_samples)
         self.meters = {name: Meter(FLOORS[name]) for name, _ in CHANNELS}
         self.board = Board(lost_after)
+        self.campaign = CampaignPanel()
         self.buckets = buckets
         self.force_source = 'none'
         self.states = 0
@@ -116,13 +119,24 @@ class Station:
         with self._lock:
             self.board.take_estimate(now, e)
 
+    def take_campaign_status(self, status: NodeStatus) -> None:
+        """Take the campaign node's status (see :meth:`CampaignPanel.take_status`)."""
+        with self._lock:
+            self.campaign.take_status(status)
+
+    def take_campaign_result(self, record: NodeStatus) -> None:
+        """Take one specimen's record (see :meth:`CampaignPanel.take_result`)."""
+        with self._lock:
+            self.campaign.take_result(record)
+
     # -- the page ----------------------------------------------------------------------------
     def frame(self, now: float, span: float, board: bool = True) -> dict:
         """
         Return one page update for time base ``span`` [s] (one of :data:`TIME_BASES`).
 
         The scope (:meth:`Scope.packed`) and the meters always; the board (statuses,
-        detectors, events, estimates) when ``board`` (a page takes it a few times a second).
+        detectors, events, estimates) and the campaign panel (None without a campaign) when
+        ``board`` (a page takes them a few times a second).
         """
         if span not in TIME_BASES:
             raise ValueError(f'time base {span!r} s is not one of {TIME_BASES}')
@@ -133,5 +147,6 @@ class Station:
                    'meters': {k: m.as_dict() for k, m in self.meters.items()},
                    'states': self.states}
             if board:
-                out['board'] = self.board.snapshot(now)
+                out['board'] = {**self.board.snapshot(now),
+                                'campaign': self.campaign.snapshot()}
             return out

@@ -153,6 +153,94 @@
     })));
   }
 
+  // the campaign's S-N plot as SVG: lives (cycles) across, levels up, both logarithmic;
+  // failures filled, run-outs open with an arrow (their lives are longer than shown), the
+  // median curve and its 10 % .. 90 % band. Drawn here, not with uPlot: uPlot's line charts
+  // need one life per point across (run-outs share theirs)
+  const SN = { w: 560, h: 300, l: 64, r: 12, t: 10, b: 36 };
+  function snSvg(c) {
+    const pts = c.points;
+    const cv = c.curves;
+    const xs = pts.failed[0].concat(pts.run_out[0], cv ? cv.p10.concat(cv.p90) : []);
+    const ys = pts.failed[1].concat(pts.run_out[1], cv ? cv.load : []);
+    if (!xs.length) return '<p class="note">no specimen ended yet</p>';
+    const lx = xs.map(Math.log10);
+    const ly = ys.map(Math.log10);
+    const x0 = Math.floor(Math.min(...lx));
+    const x1 = Math.max(Math.ceil(Math.max(...lx) + 0.3), x0 + 1);
+    let y0 = Math.min(...ly);
+    let y1 = Math.max(...ly);
+    const pad = Math.max(0.02, (y1 - y0) * 0.08);
+    y0 -= pad; y1 += pad;
+    const W = SN.w - SN.l - SN.r;
+    const H = SN.h - SN.t - SN.b;
+    const X = (n) => SN.l + (Math.log10(n) - x0) / (x1 - x0) * W;
+    const Y = (s) => SN.t + (1 - (Math.log10(s) - y0) / (y1 - y0)) * H;
+    const out = [`<svg class="sn" width="${SN.w}" height="${SN.h}" ` +
+                 `viewBox="0 0 ${SN.w} ${SN.h}" role="img" aria-label="S-N plot">`];
+    for (let d = x0; d <= x1; d += 1) {
+      const x = X(10 ** d).toFixed(1);
+      out.push(`<line class="grid" x1="${x}" x2="${x}" y1="${SN.t}" y2="${SN.t + H}"/>` +
+               `<text x="${x}" y="${SN.t + H + 14}" text-anchor="middle">1e${d}</text>`);
+    }
+    for (let j = 0; j <= 4; j += 1) {
+      const v = 10 ** (y0 + (y1 - y0) * j / 4);
+      const y = Y(v).toFixed(1);
+      out.push(`<line class="grid" x1="${SN.l}" x2="${SN.l + W}" y1="${y}" y2="${y}"/>` +
+               `<text x="${SN.l - 4}" y="${y}" text-anchor="end" dy="4">` +
+               `${Number(v.toPrecision(3))}</text>`);
+    }
+    out.push(`<rect class="frame" x="${SN.l}" y="${SN.t}" width="${W}" height="${H}"/>`,
+             `<text x="${SN.l + W / 2}" y="${SN.h - 4}" text-anchor="middle">cycles</text>`,
+             `<text transform="translate(12 ${SN.t + H / 2}) rotate(-90)" ` +
+             `text-anchor="middle">level [${esc(c.unit || '-')}]</text>`);
+    if (cv) {
+      const line = (ns) => ns.map((n, k) => `${X(n).toFixed(1)},${Y(cv.load[k]).toFixed(1)}`);
+      out.push(`<polygon class="band" data-testid="sn-band" points="` +
+               `${line(cv.p10).concat(line(cv.p90).reverse()).join(' ')}"/>`);
+      for (const p of ['p10', 'p50', 'p90']) {
+        out.push(`<polyline class="${p}" data-testid="sn-${p}" points="${line(cv[p]).join(' ')}"/>`);
+      }
+    }
+    pts.failed[0].forEach((n, k) => {
+      out.push(`<circle class="failed" data-result="failed" cx="${X(n).toFixed(1)}" ` +
+               `cy="${Y(pts.failed[1][k]).toFixed(1)}" r="4"/>`);
+    });
+    pts.run_out[0].forEach((n, k) => {
+      const x = X(n);
+      const y = Y(pts.run_out[1][k]);
+      out.push(`<path class="arrow" d="M${(x + 5).toFixed(1)},${y.toFixed(1)} h14 ` +
+               `m-5,-4 l5,4 l-5,4"/><circle class="run_out" data-result="run_out" ` +
+               `cx="${x.toFixed(1)}" cy="${y.toFixed(1)}" r="4"/>`);
+    });
+    out.push('</svg>');
+    return out.join('');
+  }
+
+  function drawCampaign(f) {
+    const c = f.campaign;
+    $('campaign').hidden = !c;
+    if (!c) return;
+    const u = c.unit ? ` ${esc(c.unit)}` : '';
+    const n = c.counts;
+    $('campaign-name').textContent = c.name || '';
+    put('campaign-state', `<div>state <b data-testid="campaign-phase">${esc(c.state || '-')}` +
+      `</b> &middot; ${esc(c.message)}</div><div>${n.failed} failed, ${n.run_out} run out, ` +
+      `${n.invalid} invalid` + (c.state === 'under_way' ? ` &middot; under way: ` +
+      `<b>${esc(c.specimen)}</b> at ${fmt(c.under_way_level)}${u}` : '') +
+      (c.next_level !== null ? ` &middot; next level <b data-testid="next-level">` +
+       `${fmt(c.next_level)}</b>${u}` : '') +
+      (c.fit ? ` &middot; fit: k ${fmt(c.fit.k, 3)}, scatter ${fmt(c.fit.s, 2)} decades` : '') +
+      (c.verdict ? `</div><div><b>ended</b>: ${esc(c.verdict)}` : '') + '</div>');
+    put('chart-sn', snSvg(c));
+    put('specimens', c.specimens.map((r) =>
+      `<tr class="${esc(r.result)}" data-specimen="${esc(r.specimen)}"><td>${esc(r.specimen)}` +
+      `</td><td>${fmt(r.level)}</td><td>${esc(r.result)}</td>` +
+      `<td>${r.cycles === null ? '-' : Math.round(r.cycles)}</td>` +
+      `<td>${fmt(r.mean)}</td><td>${fmt(r.amplitude)}</td><td>${fmt(r.r_ratio, 3)}</td>` +
+      `<td class="note">${esc(r.reason)}</td></tr>`).join(''));
+  }
+
   // an event's own stamp: wall time in real time; in lock-step the loop's simulated seconds
   // (a stamp before 1973), with the time the station heard it
   function when(e) {
@@ -170,7 +258,7 @@
   }
 
   // why the buttons are off now ('' when on), as last logged
-  const buttons = { why: null, noProcedure: null };
+  const buttons = { why: null, noProcedure: null, noNext: null };
   function drawHeader(f) {
     const link = $('link');
     if (f.lost) { link.textContent = f.lost; link.className = 'badge error'; }
@@ -182,19 +270,24 @@
     const may = f.may_act;
     $('rights').textContent = may.allowed ? 'operator' : 'read-only';
     $('rights').title = may.why;
-    setButtons(!may.allowed ? may.why : (f.lost || ''), !f.procedure);
+    setButtons(!may.allowed ? may.why : (f.lost || ''), !f.procedure,
+               !(f.campaign && f.campaign.state === 'ready'));
   }
 
-  // every button that acts (the axis's, the procedure's, the meters' reset): off while
-  // ``why`` says why; the procedure's also while no procedure runs
+  // every button that acts (the axis's, the procedure's, the campaign's, the meters' reset):
+  // off while ``why`` says why; the procedure's also while no procedure runs, the next
+  // specimen's while the campaign is not ready for one
   const PROCEDURE_ACTIONS = ['start', 'hold', 'resume', 'stop'];
-  function setButtons(why, noProcedure) {
-    if (why !== buttons.why || noProcedure !== buttons.noProcedure) {
-      note(why ? `buttons off: ${why}` : `buttons on${noProcedure ? ' (no procedure)' : ''}`);
-      Object.assign(buttons, { why, noProcedure });
+  function setButtons(why, noProcedure, noNext) {
+    if (why !== buttons.why || noProcedure !== buttons.noProcedure ||
+        noNext !== buttons.noNext) {
+      note(why ? `buttons off: ${why}` : `buttons on${noProcedure ? ' (no procedure)' : ''}` +
+                 `${noNext ? '' : ' (next specimen)'}`);
+      Object.assign(buttons, { why, noProcedure, noNext });
     }
     document.querySelectorAll('button.act, #meters-reset').forEach((b) => {
-      b.disabled = Boolean(why) || (PROCEDURE_ACTIONS.includes(b.dataset.action) && noProcedure);
+      b.disabled = Boolean(why) || (PROCEDURE_ACTIONS.includes(b.dataset.action) && noProcedure) ||
+                   (b.dataset.action === 'next' && noNext);
     });
   }
 
@@ -216,6 +309,7 @@
     drawSafety(f);
     drawProcedure(f);
     drawEstimate(f);
+    drawCampaign(f);
     drawEvents(f);
   }
 
@@ -234,7 +328,7 @@
     ws.onclose = (e) => {
       state.connected = false;
       note(`link closed (${e.code})`);
-      setButtons('the link to the station is closed', buttons.noProcedure);
+      setButtons('the link to the station is closed', buttons.noProcedure, buttons.noNext);
       $('link').textContent = 'station disconnected: retrying';
       $('link').className = 'badge error';
       setTimeout(connect, 1000);
@@ -281,8 +375,9 @@
     note(`press on ${b ? (b.dataset.testid || b.id) + (b.disabled ? ' (disabled)' : '')
                        : e.target.tagName.toLowerCase()}`);
     if (b && b.disabled && (b.classList.contains('act') || b.id === 'meters-reset')) {
-      answer(false, `${b.dataset.action || 'meters'}: not sent: ` +
-                    (buttons.why || 'no procedure node heard'));
+      answer(false, `${b.dataset.action || 'meters'}: not sent: ` + (buttons.why ||
+        (b.dataset.action === 'next' ? 'the campaign is not ready for a specimen'
+                                     : 'no procedure node heard')));
     }
   }, true);
   document.querySelectorAll('button.act').forEach((b) => b.addEventListener('click', async () => {
@@ -291,9 +386,11 @@
     const body = {};
     if (ASK[action] && !(await confirmed(ASK[action]))) return;
     if (action === 'enable' || action === 'disable') body.confirm = true;
+    if (action === 'next') body.specimen = $('specimen-id').value.trim();
     try {
       const r = await post(`/api/action/${action}`, body);
       answer(r.ok, `${action}: ${r.ok ? 'done' : 'refused'}: ${r.message}`);
+      if (action === 'next' && r.ok) $('specimen-id').value = '';
       note(`${action}: ${r.ok ? 'done' : 'refused'}`);
     } catch (err) {
       answer(false, `${action}: no answer from the station (${err})`);
