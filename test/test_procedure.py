@@ -513,6 +513,32 @@ def test_a_start_waits_for_the_controllers_mode_and_switches_it_to_the_first_ste
     assert ok and again.state == 'running' and again.request_mode is None
 
 
+def test_a_mode_another_node_set_is_known_and_the_start_switches_from_it():
+    """
+    The campaign node puts the controller in specimen protect for a coupon's installation.
+
+    A runner that took the controller in force, then heard it switch to protect, switches it
+    back at the start (it once did not, and drove a force step into a position loop whose
+    output protect limits: the levels were not reached).
+    """
+    p = proc({'name': 'load', 'type': 'ramp', 'to': 2000.0, 'rate': 1.0e4,
+              'control_mode': 'force'})
+    r = ProcedureRunner(p, latency=0.0)
+    r.controller_mode('force')
+    ax = PerfectAxis(r)
+    r.event('mode', 'displacement_force_limited', 'indicate', ax.stamp)
+    assert r.mode == 'displacement_force_limited' and r.quantity == 'displacement'
+    assert r.status()['controller_mode'] == 'displacement_force_limited'
+    ref = r.sample(ax.stamp)                     # idle: the measured position, held
+    assert math.isfinite(ref.z_ref) and math.isnan(ref.f_ref)
+    ok, why = r.start(ax.stamp)
+    assert ok, why
+    assert r.state == 'switching' and r.request_mode == 'force'
+    r.mode_switched(True, '', ax.stamp)
+    ax.run(until=finished)
+    assert r.result == 'completed' and r.mode == 'force'
+
+
 def test_a_resume_waits_for_the_controllers_mode_too():
     p = proc(CYCLIC)
     r, ax = started(p)

@@ -75,6 +75,7 @@ from typing import Any, Mapping
 import numpy as np
 from ros_ehs.core.control.apc import AmplitudePhaseControl
 from ros_ehs.core.control.levels import CycleLevels, FITTED
+from ros_ehs.core.control.modes import MODES as CONTROLLER_MODES
 from ros_ehs.core.control.pvc import Block, PeakValleyControl
 from ros_ehs.core.control.safety import ramp_weight
 from ros_ehs.core.control.waveforms import Samples
@@ -410,17 +411,17 @@ class ProcedureRunner:
         seg = self._seg_at(stamp_ns)
         if seg is None:       # nothing to run yet: hold what was measured
             z, f = self._last_meas
-            v = f if self.mode == 'force' else z
+            v = f if self.quantity == 'force' else z
             frozen = self.state in ('held', 'interrupted')
-            if not self._segs and frozen and self.mode == 'force' and self._last_ns >= 0 \
+            if not self._segs and frozen and self.quantity == 'force' and self._last_ns >= 0 \
                     and math.isfinite(v):
                 # a restored or restarted force test holds the load it was first measured at:
                 # a force reference that follows the load cell holds nothing, and a load
                 # that crept 3 kN over the peak in 0.5 s was followed. (A position that
                 # follows its measurement stays where the valve's integrator holds it; held
                 # at a fixed value the friction's stick-slip hunts about it, 0.15 mm.)
-                self._push(_Segment('level', stamp_ns, self.mode, v0=v))
-            return self._ref(stamp_ns, v, 0.0, self.mode)
+                self._push(_Segment('level', stamp_ns, self.quantity, v0=v))
+            return self._ref(stamp_ns, v, 0.0, self.quantity)
         v, r = self._value(seg, stamp_ns)
         return self._ref(stamp_ns, v, r, seg.mode)
 
@@ -460,6 +461,11 @@ class ProcedureRunner:
             self._end_step(end, 'completed')
 
     # -- operator ------------------------------------------------------------------------------
+    @property
+    def quantity(self) -> str:
+        """Return what the controller's mode tracks: ``force``, else ``displacement``."""
+        return 'force' if self.mode == 'force' else 'displacement'
+
     def controller_mode(self, mode: str) -> None:
         """
         Take the controller's control mode as read from it, before a start or a resume.
@@ -541,17 +547,20 @@ class ProcedureRunner:
         Take a controller event: an acting trip interrupts; a specimen break fails the test.
 
         A ``mode`` event (the controller ended force control itself: a break, a lost load
-        cell) holds the measured position in that mode from ``latency`` on. Between a
+        cell; or another node switched it: the campaign's specimen protect for a coupon's
+        installation) holds the measured position in that mode from ``latency`` on, and a
+        start or a resume then switches it to its step's mode. Between a
         ``clipped`` and an ``unclipped`` event (the controller did not apply its command as
         asked: the valve saturated, a limit) the compensation learns only what asks less of
         the rig (:meth:`~ros_ehs.core.control.cycles.CycleCorrection.clip`).
         """
-        if kind == 'mode' and detector in ('displacement', 'force') and detector != self.mode:
+        if kind == 'mode' and detector in CONTROLLER_MODES and detector != self.mode:
             self.mode = detector
             if self._segs and self.state != 'idle':
                 t = stamp_ns + self.latency_ns
+                q = self.quantity
                 # a stop under way ends there: the axis holds where it is
-                self._push(_Segment('level', t, detector, v0=self._measured(detector),
+                self._push(_Segment('level', t, q, v0=self._measured(q),
                                     end=t if self.state == 'stopping' else None))
             self.notes.append(('info', f'the controller switched to {detector} control'))
             return
@@ -584,7 +593,8 @@ class ProcedureRunner:
                 self.reason = f'{self.reason}; {why}'
             self._note_event('interlock', detector, float(self.total), why)
             t = stamp_ns + self.latency_ns
-            self._push(_Segment('level', t, self.mode, v0=self._measured(self.mode), end=t))
+            self._push(_Segment('level', t, self.quantity, v0=self._measured(self.quantity),
+                                end=t))
             self._finish_stop(t)
 
     def estimate(self, stamp_ns: int, k_L: float, stderr: float, adequate: bool) -> None:
@@ -665,8 +675,9 @@ class ProcedureRunner:
             self._switch_to = step.control_mode
             self.request_mode = step.control_mode
             self.state = 'switching'
-            v = self._value(self._segs[-1], t0)[0] if self._segs else self._measured(self.mode)
-            self._push(_Segment('level', t0, self.mode, v0=v))
+            q = self.quantity
+            v = self._value(self._segs[-1], t0)[0] if self._segs else self._measured(q)
+            self._push(_Segment('level', t0, q, v0=v))
             self.notes.append(('info', f'{step.label}: switching the controller to '
                                f'{step.control_mode}'))
             return
@@ -1075,11 +1086,12 @@ class ProcedureRunner:
             seg.end = min(seg.end or t0, t0)
         seg = self._seg_at(t0) or (self._segs[-1] if self._segs else None)
         v = self._in_envelope(seg, t0, self._value(seg, t0)[0]) if seg is not None else \
-            self._measured(self.mode)
+            self._measured(self.quantity)
+        q = self.quantity
         rate = self.procedure.stop_rate or next(
-            (s['rate'] for s in self.steps if s.type == 'ramp' and s.control_mode == self.mode),
-            STOP_RATE[self.mode])
-        self._push(_Segment('ramp', t0, self.mode, v0=v, v1=self.procedure.stop_level,
+            (s['rate'] for s in self.steps if s.type == 'ramp' and s.control_mode == q),
+            STOP_RATE[q])
+        self._push(_Segment('ramp', t0, q, v0=v, v1=self.procedure.stop_level,
                             rate=rate))
         self._set('stopping', t0, f'to {self.procedure.stop_level:g} at {rate:g}/s: '
                   f'{self.reason}')
@@ -1159,7 +1171,7 @@ class ProcedureRunner:
     def time_to_go(self) -> float:
         """Return the seconds the steps still planned take, NaN where a condition decides."""
         total = 0.0
-        level = self._measured(self.mode)
+        level = self._measured(self.quantity)
         level = level if math.isfinite(level) else 0.0
         elapsed = max(0, self._last_ns - self._step_t0) * 1e-9
         for k in range(self.step_index, len(self.steps)):
