@@ -63,8 +63,11 @@ STATION_STATUS = 'ros_ehs/station'
 #: written); message what it waits for; values state (``ready``: ~/next gives a specimen;
 #: ``under_way``: a specimen's test; ``ended``), specimen, level, tested, failed, run_out,
 #: invalid, next_level, verdict (why it ended, or ''), store, name, unit (the levels': N or m),
-#: run_out (cycles), fit_a, fit_k, fit_s (the S-N fit so far, Basquin log10 N = a - k log10 S
-#: with scatter s decades; nan before three failures at two levels).
+#: run_out_cycles (the plan's run-out count), protect (what ~/next asked of the controller for
+#: the coupon under way's installation: on (specimen protect switched on), asked, refused:
+#: why, not set: why; off with no coupon under way), fit_a, fit_k, fit_s (the S-N fit so far,
+#: Basquin log10 N = a - k log10 S with scatter s decades; nan before three failures at two
+#: levels).
 CAMPAIGN_STATUS = 'ros_ehs/campaign'
 
 

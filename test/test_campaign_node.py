@@ -5,8 +5,9 @@ Its rules are tested in ``test_campaign_rig.py``; here the node's part over DDS,
 procedure node it loads (plant, controller, procedure node, recorder: the bench a rig's
 nodes make): ``~/next`` loads the specimen, the operator starts it at the procedure node, the
 campaign node killed during the test and started again records it once in the store and on
-``campaign/results``, and the next specimen loads. Every wait is on a status, a reply or the
-store.
+``campaign/results``, and the next specimen, on a new coupon, runs and is recorded too;
+``~/next`` puts the controller in specimen protect for each coupon's installation. Every
+wait is on a status, a reply or the store.
 """
 
 from pathlib import Path
@@ -19,7 +20,7 @@ from ros_ehs.core.settings import parse_assignment
 from ros_ehs.data.store import ResultStore
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
-from waits import BOUND, call_service
+from waits import BOUND, call_service, set_parameter
 import yaml
 
 pytestmark = pytest.mark.ros
@@ -74,10 +75,15 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
         assert r.success and r.message.startswith('C-0117 at 9000'), r.message
         r = _trigger(ros, '/campaign/next')
         assert not r.success and 'C-0117 is under way' in r.message
+        # specimen protect while the coupon is installed; the procedure's start leaves it
+        _status(procs, c.CAMPAIGN_STATUS, lambda v: v['protect'] == 'on')
+        _status(procs, c.CONTROLLER_STATUS,
+                lambda v: v['control_mode'] == 'displacement_force_limited')
         first = str(out / 'C-0117' / 'procedure.yaml')
         _status(procs, c.PROCEDURE_STATUS, lambda v: v['file'] == first and
                 v['state'] == 'idle' and v['controller_mode'])
         assert _trigger(ros, '/procedure/start').success
+        _status(procs, c.CONTROLLER_STATUS, lambda v: v['control_mode'] == 'force')
         # the campaign node killed while the test runs, and started again: it waits for the
         # same test's end and records it once
         _status(procs, c.PROCEDURE_STATUS, lambda v: int(v['total_cycles']) >= 20)
@@ -85,8 +91,8 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
         procs.start('campaign', camp, name='campaign2')
         st = _status(procs, c.CAMPAIGN_STATUS, lambda v: v['tested'] == '1')
         assert st['state'] == 'ready' and st['next_level'] == '9000'
-        # the plan's id next, loaded into the procedure node (one plant: its coupon is broken,
-        # so this one is not run here)
+        # the plan's id next, loaded into the procedure node; the operator installs a new
+        # coupon (the plant's specimen: a change of its seed installs one) and starts it
         assert _set(ros, 'campaign', specimen='').successful
         r = _trigger(ros, '/campaign/next')
         assert r.success and r.message.startswith('S02 at 9000'), r.message
@@ -95,13 +101,21 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
                 v['state'] == 'idle')
         st = _status(procs, c.CAMPAIGN_STATUS, lambda v: v['state'] == 'under_way')
         assert st['specimen'] == 'S02'
+        _status(procs, c.CONTROLLER_STATUS,
+                lambda v: v['control_mode'] == 'displacement_force_limited')
+        assert set_parameter(ros, '/plant', 'specimen_seed', 2.0).successful
+        assert _trigger(ros, '/procedure/start').success
+        st = _status(procs, c.CAMPAIGN_STATUS, lambda v: v['tested'] == '2')
+        assert st['state'] == 'ready' and st['next_level'] == '7000', st
+        assert int(st['failed']) + int(st['run_out']) == 2 and st['run_out_cycles'] == '250'
         procs.stop(['campaign2', 'procedure', 'plant', 'controller', 'recorder'])
     store = ResultStore(out / 'campaign.db')
     try:
         recs = store.results(store.campaign(BENCH_CAMPAIGN['name']))
     finally:
         store.close()
-    assert [r.specimen for r in recs] == ['C-0117']
+    assert [r.specimen for r in recs] == ['C-0117', 'S02']
+    assert recs[1].result in ('failed', 'run_out') and recs[1].cycles > 20, recs[1]
     r = recs[0]
     assert r.result in ('failed', 'run_out') and r.cycles > 20, r
     assert abs(r.peak - 9000.0) < 0.02 * 8100.0, r
@@ -118,4 +132,4 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
         for conn, _, raw in rd.messages(conns):
             m = ts.deserialize_cdr(raw, conn.msgtype)
             names += [s.name for s in m.status]
-    assert names == ['ros_ehs/campaign/C-0117']
+    assert names == ['ros_ehs/campaign/C-0117', 'ros_ehs/campaign/S02']

@@ -231,7 +231,7 @@ def _record(sid, level, result, cycles, **extra):
 def _campaign_status(**values):
     vals = {'state': 'ready', 'specimen': '', 'level': 'nan', 'tested': '6',
             'next_level': '8000', 'verdict': '', 'unit': 'N', 'name': 'bench',
-            'run_out': '1000000', 'fit_a': 'nan', 'fit_k': 'nan', 'fit_s': 'nan', **values}
+            'run_out_cycles': '1000000', 'fit_a': 'nan', 'fit_k': 'nan', 'fit_s': 'nan', **values}
     return NodeStatus(0, c.CAMPAIGN_STATUS, 0, 'ready: ~/next gives a specimen at 8000', vals)
 
 
@@ -253,7 +253,7 @@ def test_the_campaign_panel_plots_failures_and_run_outs_and_lists_every_specimen
     assert snap['fit'] is None and snap['curves'] is None  # the node has not fitted yet
     panel.take_status(_campaign_status())
     snap = panel.snapshot()
-    assert (snap['state'], snap['unit'], snap['next_level'], snap['run_out']) == \
+    assert (snap['state'], snap['unit'], snap['next_level'], snap['run_out_cycles']) == \
         ('ready', 'N', 8000.0, 1e6)
     assert snap['under_way_level'] is None
     json.dumps(snap, allow_nan=False)

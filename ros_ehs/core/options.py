@@ -403,6 +403,12 @@ CAMPAIGN = (
             'checkpoint and cycle records, and the specimen under way (current.json)'),
     Setting('procedure', '', 'procedure', meaning='the procedure node the specimens are '
             'loaded into (its `file` and `checkpoint` are set)'),
+    Setting('controller', '', 'controller', meaning='the controller node ~/next switches to '
+            'specimen protect (`protect`)'),
+    Setting('protect', '', True, meaning='~/next switches the controller to specimen protect '
+            '(control_mode displacement_force_limited: the load held within protect_force) '
+            'while the operator installs the coupon; the procedure switches it to its first '
+            "step's mode at its start"),
     Setting('specimen', '', '', meaning="the next specimen's id (on the coupon), taken by "
             "~/next; empty: the plan's (S01, S02...)", live=True),
     DIAGNOSTICS_PERIOD,

@@ -23,7 +23,12 @@ node decodes, calls and publishes:
   Its procedure is written to ``<out>/<specimen>/`` and set into the procedure node (its
   ``file`` and ``checkpoint``, through its parameter service); the operator then starts the
   test there (``/procedure/start``, or the station) once the coupon is in. Refused, with
-  the reason, while a specimen is under way or once the campaign has ended;
+  the reason, while a specimen is under way or once the campaign has ended. With
+  ``protect`` (the default) it also switches the controller to specimen protect
+  (``control_mode`` ``displacement_force_limited``, through its parameter service) while the
+  operator installs the coupon: gripping a coupon loads it, and protect keeps that load
+  within ``protect_force``; a refusal (no valid load cell reading, an interlock) is said in
+  the log and in the status's ``protect``, and the coupon is loaded all the same;
 * in: the procedure node's cycle records (``procedure/cycles``) and its status in
   ``diagnostics``: a finished test of the specimen under way is recorded in the store, once;
 * out: each record on ``campaign/results`` (at its start, the records already in the store
@@ -90,6 +95,9 @@ class CampaignNode(Node):
                                  qos_profile(contract.DIAGNOSTICS.qos))
         self.loader = self.create_client(SetParameters,
                                          f'/{self.opt["procedure"]}/set_parameters')
+        self.protector = self.create_client(SetParameters,
+                                            f'/{self.opt["controller"]}/set_parameters')
+        self._protect = 'off'                  # the status's word on specimen protect
         self.create_service(Trigger, '~/next', self._on_next)
         self.add_on_set_parameters_callback(self._on_set)
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
@@ -123,6 +131,8 @@ class CampaignNode(Node):
         if ok:
             self.get_logger().info(f'~/next: {why}')
             self._load(job)
+            if self.opt['protect']:
+                self._protect_on(job['specimen'])
         else:
             self.get_logger().warning(f'~/next: {why}')
         return response
@@ -140,13 +150,36 @@ class CampaignNode(Node):
             return
         self._pending = None
 
-        def value(s: str) -> ParameterValue:
-            return ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=s)
         req = SetParameters.Request(parameters=[
-            Parameter(name='file', value=value(job['file'])),
-            Parameter(name='checkpoint', value=value(job['checkpoint']))])
+            Parameter(name='file', value=_text(job['file'])),
+            Parameter(name='checkpoint', value=_text(job['checkpoint']))])
         fut = self.loader.call_async(req)
         fut.add_done_callback(lambda f: self._loaded(f, job))
+
+    def _protect_on(self, specimen: str) -> None:
+        """Switch the controller to specimen protect for the coupon's installation."""
+        ctl = self.opt['controller']
+        if not self.protector.service_is_ready():
+            self._protect = f'not set: /{ctl} does not answer'
+            self.get_logger().warning(f'{specimen}: specimen protect {self._protect}')
+            return
+        req = SetParameters.Request(parameters=[Parameter(
+            name='control_mode', value=_text('displacement_force_limited'))])
+        self._protect = 'asked'
+        self.protector.call_async(req).add_done_callback(
+            lambda f: self._protected(f, specimen))
+
+    def _protected(self, fut, specimen: str) -> None:
+        try:
+            res = fut.result().results[0]
+            ok, why = res.successful, res.reason
+        except Exception as err:                # noqa: BLE001 the service failed
+            ok, why = False, str(err)
+        self._protect = 'on' if ok else f'refused: {why}'
+        if ok:          # rclpy ties a severity to its call site: two calls
+            self.get_logger().info(f'{specimen}: specimen protect on for its installation')
+        else:
+            self.get_logger().warning(f'{specimen}: specimen protect {self._protect}')
 
     def _retry(self) -> None:
         if self._pending is not None:
@@ -222,7 +255,8 @@ class CampaignNode(Node):
                   **counts, 'next_level': float(nxt.level) if nxt and not cur else float('nan'),
                   'verdict': v.reason if v.done else '', 'store': self._where,
                   'name': self.rules.campaign.name, 'unit': self._unit,
-                  'run_out': float(self.rules.campaign.run_out),
+                  'protect': self._protect if cur else 'off',
+                  'run_out_cycles': float(self.rules.campaign.run_out),
                   **{'fit_' + k: float(getattr(fit, k)) if fit else float('nan')
                      for k in ('a', 'k', 's')}}
         msg = {'under_way': f"{cur['specimen'] if cur else ''}: waiting for its test's end",
@@ -235,6 +269,10 @@ class CampaignNode(Node):
     def close(self) -> None:
         """Close the store."""
         self.store.close()
+
+
+def _text(s: str) -> ParameterValue:
+    return ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=s)
 
 
 def _result_msg(node: Node, rec) -> DiagnosticArray:

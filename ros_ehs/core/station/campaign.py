@@ -110,7 +110,7 @@ class CampaignPanel:
             'message': st.message if st else 'no campaign status yet (its results only)',
             **{k: str(v.get(k, '')) for k in ('state', 'specimen', 'verdict', 'unit', 'name',
                                               'store')},
-            **{k: _num(v.get(k)) for k in ('next_level', 'run_out')},
+            **{k: _num(v.get(k)) for k in ('next_level', 'run_out_cycles')},
             'under_way_level': _num(v.get('level')),
             'specimens': list(self._rows.values()), 'records': self.records}
         points: dict[str, list] = {'failed': [[], []], 'run_out': [[], []]}
