@@ -499,18 +499,23 @@ def test_a_start_waits_for_the_controllers_mode_and_switches_it_to_the_first_ste
     assert r.status()['controller_mode'] == ''  # what a client waits on before ~/start
     r.controller_mode('displacement')          # the controller's answer
     assert r.status()['controller_mode'] == 'displacement'
-    ok, why = r.start(ax.stamp)
-    assert ok, why
-    assert r.state == 'switching' and r.request_mode == 'force'
-    r.mode_switched(True, '', ax.stamp)
-    ax.run(until=finished)
-    assert r.result == 'completed' and r.mode == 'force'
+    _starts_switching_to_force(r, ax)
     # the same controller already in force: no switch at all
     again = ProcedureRunner(p, latency=0.0)
     again.mode_known = False
     again.controller_mode('force')
     ok, _ = again.start(PerfectAxis(again).stamp)
     assert ok and again.state == 'running' and again.request_mode is None
+
+
+def _starts_switching_to_force(r, ax):
+    """Start ``r``: it asks the controller for force first, then runs to its end."""
+    ok, why = r.start(ax.stamp)
+    assert ok, why
+    assert r.state == 'switching' and r.request_mode == 'force'
+    r.mode_switched(True, '', ax.stamp)
+    ax.run(until=finished)
+    assert r.result == 'completed' and r.mode == 'force'
 
 
 def test_a_mode_another_node_set_is_known_and_the_start_switches_from_it():
@@ -531,12 +536,7 @@ def test_a_mode_another_node_set_is_known_and_the_start_switches_from_it():
     assert r.status()['controller_mode'] == 'displacement_force_limited'
     ref = r.sample(ax.stamp)                     # idle: the measured position, held
     assert math.isfinite(ref.z_ref) and math.isnan(ref.f_ref)
-    ok, why = r.start(ax.stamp)
-    assert ok, why
-    assert r.state == 'switching' and r.request_mode == 'force'
-    r.mode_switched(True, '', ax.stamp)
-    ax.run(until=finished)
-    assert r.result == 'completed' and r.mode == 'force'
+    _starts_switching_to_force(r, ax)
 
 
 def test_a_resume_waits_for_the_controllers_mode_too():
