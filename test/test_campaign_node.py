@@ -119,9 +119,9 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
     r = recs[0]
     assert r.result in ('failed', 'run_out') and r.cycles > 20, r
     assert abs(r.peak - 9000.0) < 0.02 * 8100.0, r
-    # the records published while the campaign node was down are said to be missing
-    have, total = r.note.split('from ')[1].split(' cycle')[0].split(' of ')
-    assert int(total) == r.cycles and 0 < int(have) <= r.cycles
+    # the records published while the campaign node was down came again (the topic keeps
+    # them for a subscriber that comes late; the test's end waited for them)
+    assert r.note.endswith(f'from {r.cycles} of {r.cycles} cycle records'), r.note
     # the results on the contract topic, read from the recorder's bag by rosbags
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import get_typestore, Stores

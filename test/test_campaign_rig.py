@@ -15,7 +15,7 @@ from ros_ehs.core.params import ALL_SPECS, preset
 from ros_ehs.core.procedure.spec import load_procedure
 from ros_ehs.core.settings import parse_assignment
 from ros_ehs.core.sim.virtual_test import run_procedure
-from ros_ehs.data.campaign_rig import RigCampaign
+from ros_ehs.data.campaign_rig import RECORDS_WAIT_S, RigCampaign
 from ros_ehs.data.store import ResultStore
 import yaml
 
@@ -81,10 +81,45 @@ def test_a_restarted_campaign_node_waits_for_the_test_under_way_and_records_it(t
     assert rc.current['specimen'] == 'S01'
     assert not rc.next_specimen()[0]
     rc.take_cycles(rows[40:])                               # 30..39 published while down
-    rec = rc.status(status)
+    # the test's end came before the records published while down: they are waited for,
+    # and come (the topic keeps them for a subscriber that comes late)
+    assert rc.status(status, now=100.0) is None
+    assert rc.status(status, now=100.0 + RECORDS_WAIT_S - 0.01) is None
+    rc.take_cycles(rows[20:40])                             # replayed: each count kept once
+    rec = rc.status(status, now=101.0)
     assert rec.cycles == r.total_cycles and rec.note.endswith(
-        f'from {r.total_cycles - 10} of {r.total_cycles} cycle records')
+        f'from {r.total_cycles} of {r.total_cycles} cycle records')
     assert [x.specimen for x in store.results(rc.cid)] == ['S01']
+
+
+def test_specimen_protect_is_switched_on_only_before_the_coupons_test_starts(tmp_path):
+    c, f, store = _setup(tmp_path)
+    rc = RigCampaign(c, f, store, tmp_path / 'out')
+    assert not rc.may_protect('S01', None)                  # nothing under way
+    ok, _, job = rc.next_specimen()
+    mine = job['file']
+    assert rc.may_protect('S01', None)                      # the procedure node not heard
+    assert rc.may_protect('S01', ('old.yaml', 'finished'))  # not loaded yet
+    assert rc.may_protect('S01', (mine, 'idle'))            # loaded, not started
+    assert not rc.may_protect('S01', (mine, 'running'))     # would take the test over
+    assert not rc.may_protect('S01', (mine, 'switching'))
+    assert not rc.may_protect('S02', (mine, 'idle'))        # not the coupon under way
+
+
+def test_records_that_never_come_leave_the_achieved_levels_to_those_that_did(tmp_path):
+    c, f, store = _setup(tmp_path)
+    rc = RigCampaign(c, f, store, tmp_path / 'out')
+    ok, _, job = rc.next_specimen()
+    rows, status, r = _run(job, _rig())
+    rc.take_cycles(rows[:30] + rows[40:])                   # 30..39 lost for good
+    assert rc.status(status, now=7.0) is None
+    rec = rc.status(status, now=7.0 + RECORDS_WAIT_S)
+    assert rec.note.endswith(f'from {r.total_cycles - 10} of {r.total_cycles} cycle records')
+    # without a clock (a caller that cannot wait): at once, with what has come
+    ok, _, job = rc.next_specimen()
+    rows, status, r = _run(job, _rig())
+    rc.take_cycles(rows[:5])
+    assert rc.status(status).note.endswith(f'from 5 of {r.total_cycles} cycle records')
 
 
 def test_an_id_that_is_not_one_or_tested_already_is_refused_and_an_ended_campaign_says_why(

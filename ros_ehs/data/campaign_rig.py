@@ -29,8 +29,12 @@ the achieved levels from those records, and the campaign judges again.
 asked to load it and removed only after its record is committed: a campaign node restarted
 (killed, a power cut) finds it and waits for that test's end again, so the specimen is
 recorded once. The store is the truth for what has ended. Cycle records published while the
-campaign node was down are not in ``cycles.csv``: the achieved levels are then from those it
-has, and the record's note says how many of how many.
+campaign node was down come again when it subscribes again (the topic keeps its newest 100
+batches for a subscriber that comes late), but not always before the test's end does: a test
+that ended with records missing is recorded once they have come, or ``RECORDS_WAIT_S`` after
+its end was first heard (the clock passed in). Records that never come (the procedure node
+restarted too, its history gone) leave the achieved levels to those it has, and the record's
+note says how many of how many.
 """
 
 from __future__ import annotations
@@ -49,7 +53,10 @@ from ros_ehs.core.errors import InputError
 from ros_ehs.data.campaign import campaign_hash, procedure_hash, utc_now
 from ros_ehs.data.store import ResultStore, SpecimenRecord
 
-__all__ = ['RigCampaign', 'SPECIMEN_ID']
+__all__ = ['RECORDS_WAIT_S', 'RigCampaign', 'SPECIMEN_ID']
+
+#: how long a test's end waits for cycle records still missing [s]
+RECORDS_WAIT_S = 5.0
 
 #: what a specimen id may be: letters, digits, ``_ . -`` (it names a folder)
 SPECIMEN_ID = re.compile(r'^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$')
@@ -74,6 +81,7 @@ class RigCampaign:
         self.prefix = prefix
         self.cid = store.campaign(campaign.name, campaign_hash(campaign_file))
         self._current_file = self.out / 'current.json'
+        self._ended_at: float | None = None   # when the test's end came with records missing
         self.current: dict | None = None    #: the specimen under way, or None
         if self._current_file.exists():
             try:
@@ -139,17 +147,24 @@ class RigCampaign:
             fh.flush()
             os.fsync(fh.fileno())
 
-    def status(self, values: Mapping[str, Any]) -> SpecimenRecord | None:
+    def status(self, values: Mapping[str, Any],
+               now: float | None = None) -> SpecimenRecord | None:
         """
         Take the procedure node's status; record the specimen when its test has finished.
 
-        Returns the record (committed to the store), or None.
+        Returns the record (committed to the store), or None. ``now`` [s], a monotonic
+        clock: a finished test with cycle records missing waits for them up to
+        :data:`RECORDS_WAIT_S` (None: recorded at once with what has come).
         """
         cur = self.current
         if cur is None or values.get('file') != cur['file'] or \
                 values.get('state') != 'finished':
             return None
         table = self._cycles()
+        if now is not None and len(table) < int(values.get('total_cycles', 0)):
+            self._ended_at = now if self._ended_at is None else self._ended_at
+            if now - self._ended_at < RECORDS_WAIT_S:
+                return None
         proc = self.campaign.procedure(cur['level'], cur['specimen'])
         step = self.campaign.level_step_of(proc)
         ach = achieved_levels(table, step.control_mode)
@@ -170,6 +185,20 @@ class RigCampaign:
         self.store.record(self.cid, rec)
         self._clear()
         return rec
+
+    def may_protect(self, specimen: str, procedure: tuple[str, str] | None) -> bool:
+        """
+        Return whether specimen protect may still be switched on for ``specimen``'s coupon.
+
+        Only for the specimen under way, and only before its test starts: ``procedure`` is
+        the procedure node's (file, state) as last heard (None: not heard). A status of
+        another file (the specimen's not loaded yet) or ``idle`` allows it; protect switched
+        on under a running test would take it over.
+        """
+        cur = self.current
+        if cur is None or cur['specimen'] != specimen:
+            return False
+        return procedure is None or procedure[0] != cur['file'] or procedure[1] == 'idle'
 
     # -- inside -------------------------------------------------------------------------------
     def _cycles(self) -> np.ndarray:
@@ -192,6 +221,7 @@ class RigCampaign:
         return any(r.specimen == sid for r in self.store.results(self.cid))
 
     def _clear(self) -> None:
+        self._ended_at = None
         self.current = None
         self._current_file.unlink(missing_ok=True)
 

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 from pathlib import Path
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue, SetParametersResult
@@ -98,6 +99,8 @@ class CampaignNode(Node):
         self.protector = self.create_client(SetParameters,
                                             f'/{self.opt["controller"]}/set_parameters')
         self._protect = 'off'                  # the status's word on specimen protect
+        self._protect_pending: str | None = None   # a coupon whose protect waits to be set
+        self._procedure: tuple[str, str] | None = None   # the procedure node's file, state
         self.create_service(Trigger, '~/next', self._on_next)
         self.add_on_set_parameters_callback(self._on_set)
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
@@ -160,9 +163,14 @@ class CampaignNode(Node):
         """Switch the controller to specimen protect for the coupon's installation."""
         ctl = self.opt['controller']
         if not self.protector.service_is_ready():
-            self._protect = f'not set: /{ctl} does not answer'
-            self.get_logger().warning(f'{specimen}: specimen protect {self._protect}')
+            # asked again until it answers, as a load is (never waited for in a callback)
+            if self._protect_pending is None:
+                self.get_logger().warning(f'{specimen}: specimen protect waits for /{ctl}, '
+                                          'which does not answer yet')
+            self._protect_pending = specimen
+            self._protect = f'not set: /{ctl} does not answer yet'
             return
+        self._protect_pending = None
         req = SetParameters.Request(parameters=[Parameter(
             name='control_mode', value=_text('displacement_force_limited'))])
         self._protect = 'asked'
@@ -184,6 +192,16 @@ class CampaignNode(Node):
     def _retry(self) -> None:
         if self._pending is not None:
             self._load(self._pending)
+        if self._protect_pending is not None:
+            # only while its test has not started: protect would take a running test over
+            if self.rules.may_protect(self._protect_pending, self._procedure):
+                self._protect_on(self._protect_pending)
+            else:
+                self._protect = ('not set: the test started (or ended) before the controller '
+                                 'answered')
+                self.get_logger().warning(f'{self._protect_pending}: specimen protect '
+                                          f'{self._protect}')
+                self._protect_pending = None
 
     def _loaded(self, fut, job: dict) -> None:
         try:
@@ -221,9 +239,10 @@ class CampaignNode(Node):
         for st in contract.statuses_from_msg(msg):
             if st.name != contract.PROCEDURE_STATUS:
                 continue
+            self._procedure = (str(st.values.get('file', '')), str(st.values.get('state', '')))
             with self._lock:
                 try:
-                    rec = self.rules.status(st.values)
+                    rec = self.rules.status(st.values, time.monotonic())
                 except Exception as err:        # noqa: BLE001 the store: said, kept trying
                     self._error = f'the record was not stored: {err}'
                     self.get_logger().error(self._error, throttle_duration_sec=10.0)
