@@ -236,9 +236,10 @@ def test_the_bench_campaign_gives_the_same_store_in_postgresql_and_sqlite(tmp_pa
     bags (named relative to each run's folder), the procedure's hash, the rig's values and the
     notes exactly; the achieved levels within 0.1 % of each other (their times aside). Two runs
     of the bench over DDS are not bit for bit the same: their levels differed by up to 2e-4
-    (a spread, in a loaded suite run), and so may a reason's figures; the levels cannot tell
-    a store's rounding from the run's, and the in-process campaign above compares them
-    exactly.
+    (a spread, in a loaded suite run), and so may a reason's figures (the procedure's switch
+    to force control lands at a state the wall clock picks: docs/campaigns.md); the levels
+    cannot tell a store's rounding from the run's, and the in-process campaign above
+    compares them exactly.
     """
     from ros_ehs.benchmarks.campaign import BENCH_CAMPAIGN, BENCH_RIG
     from ros_ehs.nodes.processes import launch_script
