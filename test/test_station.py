@@ -237,11 +237,11 @@ def _campaign_status(**values):
 
 def test_the_campaign_panel_plots_failures_and_run_outs_and_lists_every_specimen_once():
     panel = CampaignPanel()
-    assert panel.snapshot() is None                       # no campaign heard: no panel
+    assert panel.snapshot(0.0) is None                       # no campaign heard: no panel
     for r in SPECIMENS:
         panel.take_result(_record(*r))
     panel.take_result(_record(*SPECIMENS[0]))             # a replay (transient-local): one row
-    snap = panel.snapshot()
+    snap = panel.snapshot(0.0)
     ids = [r['specimen'] for r in snap['specimens']]
     assert ids == ['S02', 'S03', 'S04', 'S05', 'S06', 'S01']
     assert snap['records'] == 7 and snap['heard'] is False
@@ -251,12 +251,19 @@ def test_the_campaign_panel_plots_failures_and_run_outs_and_lists_every_specimen
                                                       (190_000, 8000.0), (420_000, 7000.0)]
     assert snap['points']['run_out'] == [[1_000_000], [7000.0]]
     assert snap['fit'] is None and snap['curves'] is None  # the node has not fitted yet
-    panel.take_status(_campaign_status())
-    snap = panel.snapshot()
+    panel.take_status(_campaign_status(), 0.0)
+    snap = panel.snapshot(0.0)
     assert (snap['state'], snap['unit'], snap['next_level'], snap['run_out_cycles']) == \
         ('ready', 'N', 8000.0, 1e6)
-    assert snap['under_way_level'] is None
+    assert snap['under_way_level'] is None and snap['lost'] == ''
     json.dumps(snap, allow_nan=False)
+    # a campaign node that stops: said after lost_after (3 s), the page then offers no next
+    assert panel.snapshot(3.0)['lost'] == ''
+    assert panel.snapshot(3.5)['lost'] == 'no status from the campaign node for 3.5 s'
+    assert CampaignPanel().snapshot(0.0) is None
+    only = CampaignPanel()
+    only.take_result(_record(*SPECIMENS[0]))               # its records, never its status
+    assert only.snapshot(0.0)['lost'] == 'no status from the campaign node yet'
 
 
 def test_the_campaign_panel_draws_the_campaign_nodes_own_fit_at_10_50_and_90_percent():
@@ -270,17 +277,17 @@ def test_the_campaign_panel_draws_the_campaign_nodes_own_fit_at_10_50_and_90_per
     for r in SPECIMENS:
         panel.take_result(_record(*r))
     panel.take_status(_campaign_status(fit_a=f'{fit.a:.9g}', fit_k=f'{fit.k:.9g}',
-                                       fit_s=f'{fit.s:.9g}'))
-    cv = panel.snapshot()['curves']
+                                       fit_s=f'{fit.s:.9g}'), 0.0)
+    cv = panel.snapshot(0.0)['curves']
     loads = np.array(cv['load'])
     assert loads[0] == pytest.approx(7000.0 / 1.1) and loads[-1] == pytest.approx(9000 * 1.1)
     for name, p in (('p10', 0.1), ('p50', 0.5), ('p90', 0.9)):
         np.testing.assert_allclose(cv[name], fit.life(loads, p), rtol=1e-7)
     # a fit no page can draw is not drawn (and never breaks the frame's JSON)
-    panel.take_status(_campaign_status(fit_a='900', fit_k='1', fit_s='0.1'))
-    assert panel.snapshot()['curves'] is None and panel.snapshot()['fit'] is not None
-    panel.take_status(_campaign_status(fit_a='12', fit_k='-3', fit_s='0.1'))
-    assert panel.snapshot()['fit'] is None
+    panel.take_status(_campaign_status(fit_a='900', fit_k='1', fit_s='0.1'), 0.0)
+    assert panel.snapshot(0.0)['curves'] is None and panel.snapshot(0.0)['fit'] is not None
+    panel.take_status(_campaign_status(fit_a='12', fit_k='-3', fit_s='0.1'), 0.0)
+    assert panel.snapshot(0.0)['fit'] is None
 
 
 def test_the_campaign_panel_refuses_a_record_it_cannot_place_and_stays_bounded():
@@ -291,21 +298,24 @@ def test_the_campaign_panel_refuses_a_record_it_cannot_place_and_stays_bounded()
         panel.take_result(_record('S09', 9000.0, 'broken', 10))
     rec = _record('S10', 9000.0, 'failed', 10)
     panel.take_result(rec._replace(values={**rec.values, 'level': 'nan', 'cycles': 'lots'}))
-    row = panel.snapshot()['specimens'][0]
+    row = panel.snapshot(0.0)['specimens'][0]
     assert row['level'] is None and row['cycles'] is None       # said as unknown, not plotted
-    assert panel.snapshot()['points']['failed'] == [[], []]
+    assert panel.snapshot(0.0)['points']['failed'] == [[], []]
     for k in range(5):
         panel.take_result(_record(f'S2{k}', 9000.0, 'failed', 1000 + k))
-    assert [r['specimen'] for r in panel.snapshot()['specimens']] == ['S22', 'S23', 'S24']
+    assert [r['specimen'] for r in panel.snapshot(0.0)['specimens']] == ['S22', 'S23', 'S24']
     with pytest.raises(ValueError, match='max_specimens'):
         CampaignPanel(0)
+    with pytest.raises(ValueError, match='lost_after'):
+        CampaignPanel(lost_after=math.nan)
 
 
 def test_the_station_sends_the_campaign_panel_with_the_board():
     st = Station(1000, 20)
     assert st.frame(0.0, 1.0)['board']['campaign'] is None
     st.take_campaign_result(_record(*SPECIMENS[0]))
-    st.take_campaign_status(_campaign_status(state='under_way', specimen='S07', level='8000'))
+    st.take_campaign_status(0.0, _campaign_status(state='under_way', specimen='S07',
+                                                  level='8000'))
     board = st.frame(0.0, 1.0)['board']
     assert board['campaign']['under_way_level'] == 8000.0
     assert board['campaign']['specimens'][0]['specimen'] == 'S01'

@@ -143,7 +143,7 @@ class StationNode(Node):
             if source is not None:
                 self.station.take_status(source, now, st)
             elif st.name == contract.CAMPAIGN_STATUS:
-                self.station.take_campaign_status(st)
+                self.station.take_campaign_status(now, st)
 
     def _on_campaign_result(self, msg: DiagnosticArray) -> None:
         for st in contract.statuses_from_msg(msg):

@@ -27,7 +27,9 @@ station draws what the campaign decides on, it does not fit again. They span the
 tested, widened by a tenth each way.
 
 A record heard twice (a transient-local topic replays its history to a station that starts
-or reconnects) is one row: the newest. Bounded: at most ``max_specimens`` rows, the newest
+or reconnects) is one row: the newest. A campaign node not heard for ``lost_after`` seconds
+(``now`` passed in, a monotonic clock) is said in ``lost``: the page then offers no next
+specimen. Bounded: at most ``max_specimens`` rows, the newest
 kept (the count of all stays); 24 specimens make a design campaign.
 """
 
@@ -64,17 +66,22 @@ def _num(text: Any) -> float | None:
 class CampaignPanel:
     """The campaign as the page shows it (see the module docstring)."""
 
-    def __init__(self, max_specimens: int = 1000) -> None:
+    def __init__(self, max_specimens: int = 1000, lost_after: float = 3.0) -> None:
         if not (isinstance(max_specimens, int) and max_specimens >= 1):
             raise ValueError(f'`max_specimens` = {max_specimens!r} must be an int >= 1')
+        if not (math.isfinite(lost_after) and lost_after > 0):
+            raise ValueError(f'`lost_after` = {lost_after!r} s must be finite and > 0')
         self.max_specimens = max_specimens
+        self.lost_after = float(lost_after)
         self.status: NodeStatus | None = None
+        self.heard = math.nan                  # when the status came [s, the caller's clock]
         self.records = 0                       # records taken, repeats included
         self._rows: dict[str, dict] = {}       # by specimen id, in the order first heard
 
-    def take_status(self, status: NodeStatus) -> None:
-        """Take the campaign node's status."""
+    def take_status(self, status: NodeStatus, now: float) -> None:
+        """Take the campaign node's status, heard at ``now`` [s]."""
         self.status = status
+        self.heard = float(now)
 
     def take_result(self, record: NodeStatus) -> None:
         """
@@ -99,13 +106,16 @@ class CampaignPanel:
         while len(self._rows) > self.max_specimens:
             del self._rows[next(iter(self._rows))]
 
-    def snapshot(self) -> dict | None:
-        """Return what the page draws, JSON-able (None until the campaign is heard)."""
+    def snapshot(self, now: float) -> dict | None:
+        """Return what the page draws at ``now`` [s], JSON-able (None: no campaign heard)."""
         if self.status is None and not self._rows:
             return None
         st = self.status
         v = st.values if st is not None else {}
+        age = now - self.heard
         out: dict[str, Any] = {
+            'lost': (f'no status from the campaign node for {age:.1f} s' if age > self.lost_after
+                     else '') if st is not None else 'no status from the campaign node yet',
             'heard': st is not None, 'level': st.level if st else None,
             'message': st.message if st else 'no campaign status yet (its results only)',
             **{k: str(v.get(k, '')) for k in ('state', 'specimen', 'verdict', 'unit', 'name',

@@ -61,7 +61,7 @@ class Station:
         self.scope = Scope(scope_samples)
         self.meters = {name: Meter(FLOORS[name]) for name, _ in CHANNELS}
         self.board = Board(lost_after)
-        self.campaign = CampaignPanel()
+        self.campaign = CampaignPanel(lost_after=lost_after)
         self.buckets = buckets
         self.force_source = 'none'
         self.states = 0
@@ -119,10 +119,10 @@ class Station:
         with self._lock:
             self.board.take_estimate(now, e)
 
-    def take_campaign_status(self, status: NodeStatus) -> None:
+    def take_campaign_status(self, now: float, status: NodeStatus) -> None:
         """Take the campaign node's status (see :meth:`CampaignPanel.take_status`)."""
         with self._lock:
-            self.campaign.take_status(status)
+            self.campaign.take_status(status, now)
 
     def take_campaign_result(self, record: NodeStatus) -> None:
         """Take one specimen's record (see :meth:`CampaignPanel.take_result`)."""
@@ -148,5 +148,5 @@ class Station:
                    'states': self.states}
             if board:
                 out['board'] = {**self.board.snapshot(now),
-                                'campaign': self.campaign.snapshot()}
+                                'campaign': self.campaign.snapshot(now)}
             return out

@@ -225,7 +225,9 @@
     const n = c.counts;
     $('campaign-name').textContent = c.name || '';
     put('campaign-state', `<div>state <b data-testid="campaign-phase">${esc(c.state || '-')}` +
-      `</b> &middot; ${esc(c.message)}</div><div>${n.failed} failed, ${n.run_out} run out, ` +
+      `</b> &middot; ${esc(c.message)}` + (c.lost ? ` <span class="tag" data-testid=` +
+      `"campaign-lost">${esc(c.lost)}</span>` : '') +
+      `</div><div>${n.failed} failed, ${n.run_out} run out, ` +
       `${n.invalid} invalid` + (c.state === 'under_way' ? ` &middot; under way: ` +
       `<b>${esc(c.specimen)}</b> at ${fmt(c.under_way_level)}${u}` : '') +
       (c.next_level !== null ? ` &middot; next level <b data-testid="next-level">` +
@@ -271,7 +273,7 @@
     $('rights').textContent = may.allowed ? 'operator' : 'read-only';
     $('rights').title = may.why;
     setButtons(!may.allowed ? may.why : (f.lost || ''), !f.procedure,
-               !(f.campaign && f.campaign.state === 'ready'));
+               !(f.campaign && f.campaign.state === 'ready' && !f.campaign.lost));
   }
 
   // every button that acts (the axis's, the procedure's, the campaign's, the meters' reset):
@@ -376,7 +378,7 @@
                        : e.target.tagName.toLowerCase()}`);
     if (b && b.disabled && (b.classList.contains('act') || b.id === 'meters-reset')) {
       answer(false, `${b.dataset.action || 'meters'}: not sent: ` + (buttons.why ||
-        (b.dataset.action === 'next' ? 'the campaign is not ready for a specimen'
+        (b.dataset.action === 'next' ? 'the campaign node is not ready for a specimen (or not heard)'
                                      : 'no procedure node heard')));
     }
   }, true);
