@@ -48,7 +48,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from ros_ehs.core.campaign.spec import load_campaign
@@ -57,7 +57,8 @@ from ros_ehs.core.options import CAMPAIGN
 from ros_ehs.data.campaign_rig import RigCampaign
 from ros_ehs.data.store import ResultStore
 from ros_ehs.nodes.parameters import declare_settings
-from ros_ehs.nodes.ros_common import diagnostics, ERROR, OK, qos_profile, run, steady_clock, WARN
+from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, qos_profile, run,
+                                      set_parameters_request, steady_clock, WARN)
 import ros_ehs_msgs_py as contract
 from std_msgs.msg import UInt8MultiArray
 from std_srvs.srv import Trigger
@@ -153,10 +154,8 @@ class CampaignNode(Node):
             return
         self._pending = None
 
-        req = SetParameters.Request(parameters=[
-            Parameter(name='file', value=_text(job['file'])),
-            Parameter(name='checkpoint', value=_text(job['checkpoint']))])
-        fut = self.loader.call_async(req)
+        fut = self.loader.call_async(set_parameters_request(file=job['file'],
+                                                            checkpoint=job['checkpoint']))
         fut.add_done_callback(lambda f: self._loaded(f, job))
 
     def _protect_on(self, specimen: str) -> None:
@@ -171,10 +170,9 @@ class CampaignNode(Node):
             self._protect = f'not set: /{ctl} does not answer yet'
             return
         self._protect_pending = None
-        req = SetParameters.Request(parameters=[Parameter(
-            name='control_mode', value=_text('displacement_force_limited'))])
         self._protect = 'asked'
-        self.protector.call_async(req).add_done_callback(
+        self.protector.call_async(set_parameters_request(
+            control_mode='displacement_force_limited')).add_done_callback(
             lambda f: self._protected(f, specimen))
 
     def _protected(self, fut, specimen: str) -> None:
@@ -288,10 +286,6 @@ class CampaignNode(Node):
     def close(self) -> None:
         """Close the store."""
         self.store.close()
-
-
-def _text(s: str) -> ParameterValue:
-    return ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=s)
 
 
 def _result_msg(node: Node, rec) -> DiagnosticArray:

@@ -56,7 +56,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue, SetParametersResult
+from rcl_interfaces.msg import ParameterType, SetParametersResult
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
 from ros_ehs.core.errors import InputError
@@ -69,7 +69,7 @@ from ros_ehs.data.checkpoint import resume_point, write_checkpoint
 from ros_ehs.data.fatigue import read_cycles
 from ros_ehs.nodes.parameters import declare_settings
 from ros_ehs.nodes.ros_common import (diagnostics, ERROR, OK, qos_profile, read_msg, run,
-                                      steady_clock, WARN)
+                                      set_parameters_request, steady_clock, WARN)
 from ros_ehs.nodes.scheduling import REFERENCE_PRIORITY
 import ros_ehs_msgs_py as contract
 from rosgraph_msgs.msg import Clock
@@ -450,9 +450,7 @@ class ProcedureNode(Node):
                                       'not answer', max(self.runner.last_stamp, 0))
             self._after()
             return
-        val = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=mode)
-        req = SetParameters.Request(parameters=[Parameter(name='control_mode', value=val)])
-        self._mode_call = self.mode_client.call_async(req)
+        self._mode_call = self.mode_client.call_async(set_parameters_request(control_mode=mode))
         self._mode_call.add_done_callback(self._switched)
         self._mode_sent = (mode, time.monotonic(), self._mode_sent[2] + 1
                            if self._mode_sent and self._mode_sent[0] == mode else 1)

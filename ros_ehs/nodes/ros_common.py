@@ -57,7 +57,7 @@ import ros_ehs_msgs_py as contract
 
 __all__ = ['ERROR', 'OK', 'PLANT_STATUS', 'RESEND', 'WARN', 'call_service', 'call_until_answered',
            'diagnostics', 'msg_class', 'qos_profile', 'qos_spec', 'read_msg', 'ros_args', 'run',
-           'steady_clock', 'STOP_DUMP', 'STOP_GRACE']
+           'set_parameters_request', 'steady_clock', 'STOP_DUMP', 'STOP_GRACE']
 
 OK, WARN, ERROR = 0, 1, 2
 #: The plant's status in ``diagnostics`` (level OK once its loop is closed; see the contract)
@@ -101,6 +101,14 @@ def msg_class(msg_type: str):
         return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
     except (ValueError, ImportError, AttributeError):
         raise KeyError(f'message type {msg_type!r} is not installed') from None
+
+
+def set_parameters_request(**values: Any):
+    """Return a ``SetParameters`` request setting ``values`` (rclpy's own conversion)."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+    return SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg()
+                                             for k, v in values.items()])
 
 
 def steady_clock() -> Clock:

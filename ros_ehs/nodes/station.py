@@ -42,15 +42,14 @@ import functools
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from ros_ehs.core.options import STATION
 from ros_ehs.core.station.access import Access
 from ros_ehs.core.station.station import Station
 from ros_ehs.nodes.parameters import declare_settings
-from ros_ehs.nodes.ros_common import (diagnostics, OK, qos_profile, read_msg, run, steady_clock,
-                                      WARN)
+from ros_ehs.nodes.ros_common import (diagnostics, OK, qos_profile, read_msg, run,
+                                      set_parameters_request, steady_clock, WARN)
 from ros_ehs.web.app import make_app, StationServer, STOP_TIMEOUT
 import ros_ehs_msgs_py as contract
 from ros_ehs_msgs_py.qos import LOOP_QOS
@@ -194,9 +193,7 @@ class StationNode(Node):
         if self._next_lock is None:
             self._next_lock = asyncio.Lock()
         async with self._next_lock:          # one page's id, then its ~/next, not another's
-            value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=specimen)
-            res = await _call(self.campaign_params, SetParameters.Request(
-                parameters=[Parameter(name='specimen', value=value)]))
+            res = await _call(self.campaign_params, set_parameters_request(specimen=specimen))
             bad = [r.reason for r in res.results if not r.successful]
             if bad:
                 return False, f'next: the campaign node refused the id {specimen!r}: {bad[0]}'
