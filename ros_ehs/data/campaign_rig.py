@@ -43,12 +43,11 @@ import json
 import math
 import os
 from pathlib import Path
-import re
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 from ros_ehs.core.campaign.runner import achieved_levels, judge, specimen_result, Verdict
-from ros_ehs.core.campaign.spec import Campaign
+from ros_ehs.core.campaign.spec import Campaign, SPECIMEN_ID, SPECIMEN_MAX
 from ros_ehs.core.errors import InputError
 from ros_ehs.data.campaign import campaign_hash, procedure_hash, utc_now
 from ros_ehs.data.store import ResultStore, SpecimenRecord
@@ -57,9 +56,6 @@ __all__ = ['RECORDS_WAIT_S', 'RigCampaign', 'SPECIMEN_ID']
 
 #: how long a test's end waits for cycle records still missing [s]
 RECORDS_WAIT_S = 5.0
-
-#: what a specimen id may be: letters, digits, ``_ . -`` (it names a folder)
-SPECIMEN_ID = re.compile(r'^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$')
 
 
 class RigCampaign:
@@ -114,8 +110,8 @@ class RigCampaign:
         nxt = v.next_specimen
         sid = specimen.strip() or nxt.specimen
         if not SPECIMEN_ID.match(sid):
-            return False, (f'specimen id {sid!r}: letters, digits and _ . - only, 64 at '
-                           'most (it names a folder)'), None
+            return False, (f'specimen id {sid!r}: letters, digits and _ . - only, '
+                           f'{SPECIMEN_MAX} at most (it names a folder)'), None
         if self._recorded(sid):
             return False, f'specimen {sid} is in the store already', None
         d = self.out / sid

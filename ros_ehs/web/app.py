@@ -53,10 +53,11 @@ from typing import Protocol
 import weakref
 
 from aiohttp import web, WSCloseCode, WSMsgType
+from ros_ehs.core.campaign.spec import SPECIMEN_MAX
 from ros_ehs.core.station.access import Access
 from ros_ehs.core.station.scope import TIME_BASES
 
-__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'Pacer', 'SPECIMEN_MAX', 'STATIC',
+__all__ = ['ACTIONS', 'BOARD_HZ', 'CONFIRM', 'Desk', 'make_app', 'Pacer', 'STATIC',
            'StationServer', 'STOP_TIMEOUT', 'WINDOW']
 
 #: the open pages' WebSockets (each is closed when the station stops)
@@ -68,8 +69,6 @@ STATIC = Path(__file__).resolve().with_name('static')
 ACTIONS = ('reset', 'enable', 'disable', 'start', 'hold', 'resume', 'stop', 'next')
 #: actions that need ``confirm`` in the request (the page asks the operator first)
 CONFIRM = ('enable', 'disable')
-#: the longest specimen id ``next`` takes (the campaign node's own rule checks the rest)
-SPECIMEN_MAX = 64
 DEFAULT_SPAN = 5.0
 #: how often a page gets the board (statuses, detectors, events) [Hz]: read by eye
 BOARD_HZ = 5.0

@@ -41,6 +41,7 @@ import copy
 from dataclasses import dataclass
 import math
 from pathlib import Path
+import re
 from typing import Any, Mapping, Sequence
 
 from ros_ehs.core.errors import InputError
@@ -48,8 +49,13 @@ from ros_ehs.core.errors import InputError
 from ros_ehs.core.procedure.spec import _check, _mapping, _unknown, parse_procedure, Procedure
 from ros_ehs.core.settings import Setting
 
-__all__ = ['CAMPAIGN_KEYS', 'Campaign', 'LEVEL_KINDS', 'PLANS', 'TARGETS', 'load_campaign',
-           'parse_campaign']
+__all__ = ['CAMPAIGN_KEYS', 'Campaign', 'LEVEL_KINDS', 'PLANS', 'SPECIMEN_ID', 'SPECIMEN_MAX',
+           'TARGETS', 'load_campaign', 'parse_campaign']
+
+#: the longest specimen id (it names a folder)
+SPECIMEN_MAX = 64
+#: what a specimen id may be: letters, digits, ``_ . -``, at most :data:`SPECIMEN_MAX`
+SPECIMEN_ID = re.compile(rf'^[A-Za-z0-9][A-Za-z0-9_.-]{{0,{SPECIMEN_MAX - 1}}}$')
 
 #: how a level S sets the cyclic step: max_load (peak S, valley R S), amplitude (mean +- S)
 LEVEL_KINDS = ('max_load', 'amplitude')
