@@ -1085,9 +1085,9 @@ class ProcedureRunner:
         for seg in self._waves:
             seg.end = min(seg.end or t0, t0)
         seg = self._seg_at(t0) or (self._segs[-1] if self._segs else None)
-        v = self._in_envelope(seg, t0, self._value(seg, t0)[0]) if seg is not None else \
-            self._measured(self.quantity)
         q = self.quantity
+        v = self._in_envelope(seg, t0, self._value(seg, t0)[0]) if seg is not None else \
+            self._measured(q)
         rate = self.procedure.stop_rate or next(
             (s['rate'] for s in self.steps if s.type == 'ramp' and s.control_mode == q),
             STOP_RATE[q])

@@ -76,7 +76,7 @@ class CampaignPanel:
         self.status: NodeStatus | None = None
         self.heard = math.nan                  # when the status came [s, the caller's clock]
         self.records = 0                       # records taken, repeats included
-        self._rows: dict[str, dict] = {}       # by specimen id, in the order first heard
+        self._rows: dict[str, dict] = {}       # by specimen id, in the order last heard
 
     def take_status(self, status: NodeStatus, now: float) -> None:
         """Take the campaign node's status, heard at ``now`` [s]."""
