@@ -395,7 +395,9 @@ def reference_trajectory_to_cdr(refs: Sequence[Reference]) -> bytes:
     if not refs:
         raise ValueError('a reference trajectory needs at least one point')
     n = len(refs)
-    force = refs[0].f_ref == refs[0].f_ref       # not NaN: the points carry F_ref
+    # any F_ref: every point carries one (NaN where a point has none), so a window that
+    # turns from displacement to force at a switch keeps its force points
+    force = any(r.f_ref == r.f_ref for r in refs)
     key = (n, force)
     if key not in _TRAJ:
         if len(_TRAJ) > 16:

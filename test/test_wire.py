@@ -172,6 +172,14 @@ def test_the_state_carries_the_load_cell_and_references_a_force_both_ways():
     got = c.reference_trajectory_from_cdr(c.reference_trajectory_to_cdr(plain))
     assert [x[:3] for x in got] == [x[:3] for x in plain]
     assert all(math.isnan(x.f_ref) for x in got)
+    # a window that turns to force at a mode switch: its force points keep F_ref
+    mixed = plain + [c.Reference(k, math.nan, math.nan, 50.0 * k) for k in range(3, 6)]
+    data = c.reference_trajectory_to_cdr(mixed)
+    got = c.reference_trajectory_from_cdr(data)
+    assert [x.f_ref for x in got[3:]] == [150.0, 200.0, 250.0]
+    assert all(math.isnan(x.f_ref) for x in got[:3]) and [x.z_ref for x in got[:3]] == [0.0] * 3
+    assert [x.f_ref for x in c.reference_trajectory_from_msg(
+        deserialize_message(data, JointTrajectory))[3:]] == [150.0, 200.0, 250.0]
 
 
 def test_the_load_cell_wrench_is_rclpys_both_ways_on_any_axis():
