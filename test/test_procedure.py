@@ -508,6 +508,71 @@ def test_a_start_waits_for_the_controllers_mode_and_switches_it_to_the_first_ste
     assert ok and again.state == 'running' and again.request_mode is None
 
 
+def test_in_lock_step_a_window_once_sent_holds_and_a_switch_waits_at_its_stamp():
+    """
+    Lock-step: what a window sent says does not change, and a switch lands at one state.
+
+    The loop runs as fast as the windows come, so which of two values sent for one stamp it
+    used would depend on when each arrived: the hold before the start is a level at the first
+    state (in real time it follows the measurement), and a step that switches the controller
+    ends the window at its stamp, so the loop waits at the state after it, where the switch
+    is sent and answered whenever the answer comes.
+    """
+    p = proc({'name': 'load', 'type': 'ramp', 'to': 2000.0, 'rate': 1.0e4,
+              'control_mode': 'force'})
+    ms = 10**6
+    free = ProcedureRunner(p, latency=0.02)
+    r = ProcedureRunner(p, latency=0.02, lockstep=True)
+    for x in (r, free):
+        x.controller_mode('displacement')
+        x.measure(0, 1.0e-3, 10.0)
+        assert {ref.z_ref for ref in x.window(0, 20 * ms)} == {1.0e-3}
+        x.measure(ms, 1.2e-3, 12.0)
+    assert {ref.z_ref for ref in r.window(ms, 20 * ms)} == {1.0e-3}
+    assert {ref.z_ref for ref in free.window(ms, 20 * ms)} == {1.2e-3}   # real time: follows
+    ok, why = r.start(ms)
+    assert ok and r.state == 'switching' and r.request_mode == 'force', why
+    assert r.park_ns == 21 * ms
+    assert [ref.stamp_ns for ref in r.window(10 * ms, 20 * ms)][-1] == 21 * ms
+    assert r.window(22 * ms, 20 * ms) == []
+    for k in range(2, 22):
+        r.measure(k * ms, 1.0e-3, 10.0)
+        assert not r.parked
+    r.measure(22 * ms, 1.0e-3, 10.0)     # the loop waits here for the reference at 22 ms
+    assert r.parked
+    r.mode_switched(True, '', r.last_stamp)
+    assert r.state == 'running' and r.park_ns is None and not r.parked
+    w = r.window(22 * ms, 40 * ms)
+    assert w[0].stamp_ns == 22 * ms and len(w) == 41
+    assert w[-1].f_ref == pytest.approx(10.0 + 1.0e4 * 0.02)   # the ramp from 42 ms, 1e4 N/s
+
+
+def test_a_window_sent_again_from_its_start_says_what_it_said_across_a_steps_start():
+    """
+    A window asks again from its start: the segment in force there stays.
+
+    A cyclic step that begins while the controller still ramps on lays three segments at once
+    (the level, the mean's move, the wave); the ramp before them must stay for the stamps up
+    to its end, or the next window would send them again as a hold of the measured load.
+    """
+    p = proc({'name': 'up', 'type': 'ramp', 'to': 4000.0, 'rate': 1.6e4},
+             {'name': 'fatigue', 'type': 'cyclic', 'peak': 9000.0, 'valley': 1000.0,
+              'frequency': 20.0, 'count': 5}, control_mode='force')
+    ms = 10**6
+    r = ProcedureRunner(p, latency=0.02, lockstep=True, ramp_time=1.0)
+    r.measure(0, 0.0, 0.0)
+    sent = {ref.stamp_ns: [ref.f_ref] for ref in r.window(0, 20 * ms)}   # idle: a level
+    assert r.start(0)[0]
+    for t in range(15, 400, 10):          # the ramp ends at 270 ms: inside two windows
+        for k in range(t - 9, t + 1):
+            r.measure(k * ms, 0.0, 584.0)              # a load that lags far behind
+        for ref in r.window(t * ms, 20 * ms):
+            sent.setdefault(ref.stamp_ns, []).append(ref.f_ref)
+    changed = {t: v for t, v in sent.items() if len(set(v)) > 1}
+    assert not changed, changed
+    assert r.step_index == 1 and len(r._segs) <= 4
+
+
 def _starts_switching_to_force(r, ax):
     """Start ``r``: it asks the controller for force first, then runs to its end."""
     ok, why = r.start(ax.stamp)

@@ -31,7 +31,10 @@ decodes, calls and publishes:
   ``ros_ehs/procedure`` in ``diagnostics``;
 * services ``~/start``, ``~/hold``, ``~/resume``, ``~/stop`` (std_srvs/Trigger: success and
   the reason); a step in the other control mode sets the controller's ``control_mode``
-  through its parameter service;
+  through its parameter service (under sim time the window answering ``/clock`` t goes out
+  once state t is measured, and ends at the switch's stamp: the lock-step loop waits at the
+  next state, the switch is sent then, and the window goes on from there once answered, so
+  the switch lands at the same state in every run);
 * before the first start it reads the controller's ``control_mode`` and the rig's values it
   holds (:data:`~ros_ehs.core.procedure.envelope.RIG_NAMES`, nominal or identified) through
   its ``get_parameters``; a start or a resume of a procedure that rig cannot follow is
@@ -235,6 +238,8 @@ class ProcedureNode(Node):
         self._mode_read: tuple | None = None   # (future, when sent)
         self.create_timer(0.1, self._read_mode, clock=steady_clock())
         self._mode_call = None
+        self._clock_due = -1            # sim time: the newest /clock not answered yet [ns]
+        self._parked = False            # ... and whether the loop waits for a switch
         self._mode_sent: tuple | None = None   # (mode, when, requests)
         self.create_timer(MODE_RESEND / 5.0, self._resend_mode, clock=steady_clock())
         self.create_timer(float(self.opt['diagnostics_period']), self._diagnose,
@@ -251,7 +256,8 @@ class ProcedureNode(Node):
         runner = ProcedureRunner(procedure, latency=float(self.opt['preview']),
                                  harmonics=int(self.opt['apc_harmonics']),
                                  rate_hz=float(self.opt['rate_hz']),
-                                 ramp_time=float(self.opt['ramp_time']))
+                                 ramp_time=float(self.opt['ramp_time']),
+                                 lockstep=bool(self.get_parameter('use_sim_time').value))
         return procedure, runner, Path(checkpoint or file + '.checkpoint.json')
 
     def _on_set(self, changes) -> SetParametersResult:
@@ -365,12 +371,22 @@ class ProcedureNode(Node):
     @_guarded
     def _on_clock(self, data: bytes) -> None:
         t = read_msg(self, contract.clock_from_cdr, data, '/clock')
-        if t is None or self.runner.last_stamp < 0:
-            return                      # nothing measured yet: nothing to hold
-        refs = self.runner.window(t, self.preview_ns)
+        if t is None:
+            return
+        self._clock_due = max(self._clock_due, t)
+        self._after()
+
+    def _answer_clock(self) -> None:
+        """Publish the window of the newest ``/clock`` once its state is measured."""
+        r, t = self.runner, self._clock_due
+        if t < 0 or r.last_stamp < t:
+            return              # nothing measured yet (nothing to hold), or not its state yet
+        refs = r.window(t, self.preview_ns)
+        if not refs:
+            return              # switching, the loop waits past the window's end: said later
+        self._clock_due = -1
         self.pub_traj.publish(contract.reference_trajectory_to_cdr(refs))
         self.pub.publish(contract.reference_to_cdr(refs[0]))
-        self._after()
 
     @_guarded
     def _tick(self) -> None:
@@ -434,8 +450,15 @@ class ProcedureNode(Node):
             self.get_logger().info(r.notes.pop(0)[1])
         if r.checkpoint_due:
             self.writer.put(self._checkpoint())
-        if r.request_mode is not None and self._mode_call is None:
+        if r.request_mode is not None and self._mode_call is None and \
+                (r.parked or not self.sim_time):
             self._switch(r.request_mode)
+        if self.sim_time:
+            if self._parked and r.state != 'switching':
+                # the loop waits at the state measured last, and no /clock comes while it does
+                self._clock_due = max(self._clock_due, r.last_stamp)
+            self._parked = r.parked
+            self._answer_clock()
 
     def _log(self, warn: bool, text: str) -> None:
         # rclpy allows one severity per call site

@@ -290,12 +290,17 @@ class ProcedureRunner:
     ``observe``: the failure detectors report when they trip and the test goes on (a virtual
     test that tells when each would trip); ``ramp_time``: the controller's ramp-on [s] (from
     its first state, and from each ``reset`` and ``enabled`` event): a waveform step waits
-    for it to end, and the compensation does not learn from a cycle it attenuated.
+    for it to end, and the compensation does not learn from a cycle it attenuated;
+    ``lockstep``: the samples go out in windows (:meth:`window`) to a loop that runs as fast
+    as they come: the hold before the start is a level at the first state measured, so a
+    window once sent never changes (a hold that follows the measurement, as in real time,
+    would send each stamp again with another value, and which one the loop used would depend
+    on when each arrived).
     """
 
     def __init__(self, procedure: Procedure, *, latency: float = 0.02, harmonics: int = 5,
                  rate_hz: float = 1000.0, observe: bool = False,
-                 ramp_time: float = 0.0) -> None:
+                 ramp_time: float = 0.0, lockstep: bool = False) -> None:
         if not isinstance(procedure, Procedure):
             raise InputError(f'`procedure` must be a Procedure, got {type(procedure).__name__}')
         if not (math.isfinite(latency) and latency >= 0):
@@ -322,6 +327,7 @@ class ProcedureRunner:
         self.dt_ns = int(round(1e9 / rate_hz))
         self.harmonics = int(harmonics)
         self.observe = bool(observe)    # failure detectors report, the test goes on (virtual)
+        self.lockstep = bool(lockstep)
         self.tripped: dict[str, int] = {}     #: each failure detector's trip cycle
         self.state = 'idle'
         self.result = ''
@@ -357,20 +363,28 @@ class ProcedureRunner:
         self._det_state: dict[int, list[dict]] = {}
         self._last_ns = -1
         self._last_meas = (math.nan, math.nan)
+        self._park = -1                        # switching: the window's last stamp [ns]
+        self._floor = -1                       # the oldest stamp still asked for [ns]
         self._last_checkpoint = -1
         self._step_t0 = 0                      # the step's start stamp (its time)
         self._time_in_step = 0.0
 
     # -- the timeline ----------------------------------------------------------------------
     def _push(self, seg: _Segment) -> None:
-        self._segs = [s for s in self._segs if s.t0 < seg.t0][-2:] + [seg]
+        # from seg.t0 on the timeline is seg's; a segment is dropped once the next one began
+        # at or before the oldest stamp still asked for (a window asks again from its start:
+        # the one in force there must stay, or those stamps would change when sent again)
+        segs = [s for s in self._segs if s.t0 < seg.t0] + [seg]
+        k = 0
+        while k + 1 < len(segs) and segs[k + 1].t0 <= self._floor:
+            k += 1
+        self._segs = segs[k:]
 
     def _seg_at(self, stamp: int) -> _Segment | None:
-        seg = None
-        for s in self._segs:
+        for s in reversed(self._segs):       # in t0's order: the newest begun is in force
             if s.t0 <= stamp:
-                seg = s
-        return seg
+                return s
+        return None
 
     def _value(self, seg: _Segment, stamp: int) -> tuple[float, float]:
         key = (id(seg), stamp)
@@ -407,14 +421,19 @@ class ProcedureRunner:
 
     def sample(self, stamp_ns: int) -> Reference:
         """Return the reference at ``stamp_ns`` (advancing to a step whose start is due)."""
+        self._floor = max(self._floor, stamp_ns)
+        return self._sample(stamp_ns)
+
+    def _sample(self, stamp_ns: int) -> Reference:
         self._advance(stamp_ns)
         seg = self._seg_at(stamp_ns)
         if seg is None:       # nothing to run yet: hold what was measured
             z, f = self._last_meas
             v = f if self.quantity == 'force' else z
             frozen = self.state in ('held', 'interrupted')
-            if not self._segs and frozen and self.quantity == 'force' and self._last_ns >= 0 \
-                    and math.isfinite(v):
+            if not self._segs and self._last_ns >= 0 and math.isfinite(v) and (
+                    frozen and self.quantity == 'force' or
+                    self.lockstep and self.state == 'idle'):
                 # a restored or restarted force test holds the load it was first measured at:
                 # a force reference that follows the load cell holds nothing, and a load
                 # that crept 3 kN over the peak in 0.5 s was followed. (A position that
@@ -636,9 +655,39 @@ class ProcedureRunner:
         return self._last_ns
 
     def window(self, t_ns: int, preview_ns: int) -> list[Reference]:
-        """Return the samples at ``t_ns``, one period apart, up to ``t_ns + preview_ns``."""
+        """
+        Return the samples at ``t_ns``, one period apart, up to ``t_ns + preview_ns``.
+
+        While the step waits for the controller's switch (``switching``) the window ends at
+        :attr:`park_ns`: a lock-step loop stops at the first state past it, and the switch
+        lands there, at a state that does not depend on when the controller's answer comes
+        (:attr:`parked`).
+        """
         n = max(0, -(-preview_ns // self.dt_ns))
-        return [self.sample(t_ns + j * self.dt_ns) for j in range(n + 1)]
+        self._floor = max(self._floor, t_ns)
+        out = []
+        for j in range(n + 1):
+            t = t_ns + j * self.dt_ns
+            r = self._sample(t)
+            if self.state == 'switching' and t > self._park:
+                break
+            out.append(r)
+        return out
+
+    @property
+    def park_ns(self) -> int | None:
+        """Return the stamp the window ends at while ``switching`` [ns] (None: not)."""
+        return self._park if self.state == 'switching' else None
+
+    @property
+    def parked(self) -> bool:
+        """
+        Return whether a state past :attr:`park_ns` was measured (the loop waits there).
+
+        A lock-step node sends the switch then: the controller switches before it answers
+        that state, whichever moment its answer takes.
+        """
+        return self.state == 'switching' and self._last_ns > self._park
 
     def state_measured(self) -> tuple[float, float]:
         """Return the newest measured (position [m], load [N])."""
@@ -664,6 +713,7 @@ class ProcedureRunner:
         if self.state in ('running', 'switching', 'stopping'):
             self._freeze(None, 'interrupted', 'the loop restarted (a new run of stamps)')
         self._last_ns = -1
+        self._floor = -1
         self._segs = []
 
     # -- the steps -----------------------------------------------------------------------------
@@ -675,6 +725,7 @@ class ProcedureRunner:
             self._switch_to = step.control_mode
             self.request_mode = step.control_mode
             self.state = 'switching'
+            self._park = t0
             q = self.quantity
             v = self._value(self._segs[-1], t0)[0] if self._segs else self._measured(q)
             self._push(_Segment('level', t0, q, v0=v))
