@@ -290,13 +290,57 @@ def test_a_force_hold_reverses_the_rate_feedforward_for_one_period_then_holds_it
     assert rate_ff > 0
     f.hold(5300.0)
     f.step(4 * MS, 5300.0, 9e3)
-    assert f.target == 5300.0 and f.last_ff == pytest.approx(-rate_ff)
+    assert RIG['hold_brake'] == 3.0          # reversed three times over (docs/safety.md)
+    assert f.target == 5300.0 and f.last_ff == pytest.approx(-3.0 * rate_ff)
     f.step(5 * MS, 5300.0, 9e3)                 # one period only
     assert f.last_ff == 0.0
     f.release()
     assert f.reference(6 * MS, 9e3) == 9e3
     f.release()                                 # twice: nothing more
     assert f.reference(6 * MS, 8e3) == 8e3
+
+
+def test_a_force_holds_brake_is_its_setting_and_zero_steps_the_valve_to_its_null():
+    f = ForceLoop(RIG.replace(hold_brake=0.0), 1e-3)
+    f.start(0, 5000.0, 0.0, blend_time=0.0)
+    for k in range(1, 4):
+        f.step(k * MS, 5000.0 + 100.0 * k, 5000.0 + 100.0 * k)
+    assert f.last_ff > 0
+    f.hold(5300.0)
+    f.step(4 * MS, 5300.0, 9e3)
+    assert f.last_ff == 0.0
+
+
+def test_a_force_hold_damps_with_the_hydraulic_force_and_goes_on_without_it_if_the_load_leaves():
+    """
+    A force hold damps the oil column with the hydraulic force, and stops if the load leaves.
+
+    It takes ``hold_dp_gain`` times the hydraulic force, high-passed with ``dp_tau`` from the
+    hold's first state, off its command (the PID's own state untouched); a hold the load
+    leaves by more than ``hold_error_force`` goes on without it.
+    """
+    g, tau, dt = 4e-7, RIG['dp_tau'], 1e-3
+    loads = [2100.0, 2150.0, 2180.0, 2120.0, 2060.0, 3200.0, 3100.0]
+    forces = [2300.0, 2500.0, 2200.0, 1900.0, 2050.0, 3300.0, 2900.0]
+
+    def run(gain):
+        ax = _axis(control_mode='force', limit_load_max=2000.0, limit_load_max_action='hold',
+                   command_rate=0.0, hold_dp_gain=gain, hold_error_time=1.0)
+        ax.step(0, 0.0, 0.0, 1500.0, 0.0, 0.0, 1500.0, 1500.0)
+        out = [ax.step(k * MS, 2e-4, 0.0, f, NAN, NAN, load, 2500.0)
+               for k, (load, f) in enumerate(zip(loads, forces), start=1)]
+        assert ax.supervisor.tripped() == ['limit_load_max']
+        return np.array(out)
+    hp, want = 0.0, []
+    for k in range(5):                           # held from the first (the trip's) period
+        if k:
+            hp = tau / (tau + dt) * (hp + forces[k] - forces[k - 1])
+        want.append(-g * hp)
+    d = run(g) - run(0.0)
+    assert d[:5] == pytest.approx(want, abs=1e-15) and min(d[:5]) < -5e-5
+    assert list(d[5:]) == [0.0, 0.0]            # 1100 N from the held load: damping off
+    with pytest.raises(ValueError, match='hold_dp_gain'):
+        RIG.replace(hold_dp_gain=-1e-7)
 
 
 def test_a_force_hold_takes_the_valve_null_current_of_its_load_into_the_integrator():

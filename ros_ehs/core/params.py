@@ -252,6 +252,14 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'that the force rate needs through the load train and the oil column, '
        'dF_ref/dt (1/k_L + l_iac/(2 beta_e A_p)) (0: off)',
        'modes', 'D'),
+    _p('hold_brake', '1', 3.0, 0.0, 10.0, "a force hold's first period: the rate's "
+       'feedforward reversed this many times over, so the spool closes within its lag and the '
+       'load stops near where the hold began (0: the valve steps to its null)', 'modes', 'D'),
+    _p('hold_dp_gain', 'A/N', 4.0e-7, 0.0, 1.0e-4, "a force hold's delta-P damping: current "
+       'per newton of the hydraulic force A_p (p_P - p_T), high-passed with dp_tau from the '
+       "hold's start, taken off the command: damps the oil column the stop excites (needs "
+       'the force in the state; off for the rest of a hold the load leaves by more than '
+       'hold_error_force; 0: off)', 'modes', 'D'),
     _p('mode_blend_time', 's', 0.2, 0.0, 60.0, 'a mode switch, and force control coming on: '
        "the new loop's reference blends from its measured value to the reference over this "
        'time (quintic)', 'modes', 'D'),

@@ -115,6 +115,7 @@ class ForceLoop:
         self._l_iac = float(params['l_iac'])
         self._c_oil = 1.0 / (2.0 * float(params['beta_e']) * float(params['A_p']))
         self.blend_time = float(params['mode_blend_time'])
+        self.hold_brake = float(params['hold_brake'])
         g = self.pid.gains
         tau = g.kp / g.ki if g.ki > 0 and g.kp > 0 else 1.0
         self._mean_a = self.dt / (tau + self.dt)
@@ -151,7 +152,9 @@ class ForceLoop:
         Hold ``load`` [N] from now on (a fault's hold), until :meth:`release`.
 
         The target steps to ``load`` and no rate is fed forward. For one period the rate's
-        feedforward is reversed, which closes the spool within its lag rather than after it.
+        feedforward is reversed ``hold_brake`` times over, which closes the spool within its
+        lag rather than after it (the oil column the stop excites is damped by the axis's
+        delta-P term, ``hold_dp_gain``).
         The integrator takes the valve's null current under ``load`` at once
         (:func:`~ros_ehs.core.model.coefficients.null_load_gain` times the load less the
         target's mean over the integrator's time constant ``force_kp / force_ki``: at rest
@@ -163,7 +166,7 @@ class ForceLoop:
         """
         self._blend = 0.0
         self._hold = float(load)
-        self._brake = -self.last_ff
+        self._brake = -self.hold_brake * self.last_ff
         if math.isfinite(load):
             self.pid.i_term += self.i_per_load * (float(load) - self._mean)
         self._holding = True

@@ -67,7 +67,7 @@ from __future__ import annotations
 
 import math
 
-from ros_ehs.core.control.controller import Controller
+from ros_ehs.core.control.controller import Controller, DeltaP
 from ros_ehs.core.control.modes import ForceLimit, ForceLoop, LOAD_MODES, MODES
 from ros_ehs.core.control.safety import Demand, Event, SafetyConfig, Supervisor
 from ros_ehs.core.params import Params
@@ -96,6 +96,10 @@ class AxisController:
         self.driving: str | None = None   # the loop that drove the valve last, None: 0 A
         self.limited = False              # specimen protect limited the last command
         self.blend_time = float(params['mode_blend_time'])
+        self.dt = float(dt)
+        # a force hold's delta-P damping (its filter from the hold's first state on)
+        self.hold_dp = DeltaP(params['hold_dp_gain'], params['dp_tau'])
+        self._dp_off = False              # the hold's damping switched off (it rang)
         self.command_rate = float(params['command_rate'])
         self.rate_limited = 0             # commands the rate limit changed
         self._sent = math.nan             # the last command returned [A]
@@ -129,6 +133,7 @@ class AxisController:
         self.protect.set_params(params)
         self.supervisor.set_config(SafetyConfig.from_params(params))
         self.blend_time = float(params['mode_blend_time'])
+        self.hold_dp.set_gains(params['hold_dp_gain'], params['dp_tau'])
         self.command_rate = float(params['command_rate'])
 
     def restart(self) -> None:
@@ -270,6 +275,8 @@ class AxisController:
             if not math.isfinite(self._f_hold):     # the trip's period: hold its load
                 self._f_hold, self._z_fhold = load, z
                 self.force.hold(load)
+                self.hold_dp.reset()
+                self._dp_off = False
             f_traj = math.nan                       # the loop holds what hold() gave it
             want = 'force'
         else:
@@ -295,7 +302,17 @@ class AxisController:
         if want == 'force':
             i = self.force.step(stamp_ns, load, f_traj, z)
             if d.mode == 'hold':
-                return i
+                # delta-P damping of the oil column the stop rings: the hydraulic force is
+                # collocated with the valve's flow (the load cell, past the piston's mass, is
+                # not: fed back as fast, it rang up). A hold the load leaves by more than
+                # hold_error_force goes on without it: a gain too high for the rig's valve
+                # rings the hold up (twice the default on the full model), the plain hold
+                # does not
+                if abs(self._f_hold - load) > self.supervisor.config.hold_error_force:
+                    self._dp_off = True
+                if self._dp_off or not math.isfinite(force):
+                    return i
+                return i - self.hold_dp.update(force, self.dt)
             new = sup.judge_force_error(stamp_ns, self.force.error)
             events.extend(new)
             if new and any(e.action in _ACTING for e in new):   # held from the next state on
