@@ -311,34 +311,36 @@ def test_a_force_holds_brake_is_its_setting_and_zero_steps_the_valve_to_its_null
     assert f.last_ff == 0.0
 
 
-def test_a_force_hold_damps_with_the_hydraulic_force_and_goes_on_without_it_if_the_load_leaves():
+def test_a_force_hold_damps_with_the_hydraulic_force_within_hold_dp_max():
     """
-    A force hold damps the oil column with the hydraulic force, and stops if the load leaves.
+    A force hold damps the oil column with the hydraulic force, within ``hold_dp_max``.
 
     It takes ``hold_dp_gain`` times the hydraulic force, high-passed with ``dp_tau`` from the
-    hold's first state, off its command (the PID's own state untouched); a hold the load
-    leaves by more than ``hold_error_force`` goes on without it.
+    hold's first state, off its command (the PID's own state untouched), never more than
+    ``hold_dp_max`` either way; without a hydraulic force in the state, nothing.
     """
     g, tau, dt = 4e-7, RIG['dp_tau'], 1e-3
-    loads = [2100.0, 2150.0, 2180.0, 2120.0, 2060.0, 3200.0, 3100.0]
-    forces = [2300.0, 2500.0, 2200.0, 1900.0, 2050.0, 3300.0, 2900.0]
+    loads = [2100.0, 2150.0, 2180.0, 2120.0, 2060.0, 2050.0, 2050.0]
+    forces = [2300.0, 2500.0, 2200.0, 1900.0, 2050.0, 6000.0, -3000.0]
 
-    def run(gain):
+    def run(gain, force=True):
         ax = _axis(control_mode='force', limit_load_max=2000.0, limit_load_max_action='hold',
-                   command_rate=0.0, hold_dp_gain=gain, hold_error_time=1.0)
+                   command_rate=0.0, hold_dp_gain=gain)
         ax.step(0, 0.0, 0.0, 1500.0, 0.0, 0.0, 1500.0, 1500.0)
-        out = [ax.step(k * MS, 2e-4, 0.0, f, NAN, NAN, load, 2500.0)
+        out = [ax.step(k * MS, 2e-4, 0.0, f if force else NAN, NAN, NAN, load, 2500.0)
                for k, (load, f) in enumerate(zip(loads, forces), start=1)]
         assert ax.supervisor.tripped() == ['limit_load_max']
         return np.array(out)
     hp, want = 0.0, []
-    for k in range(5):                           # held from the first (the trip's) period
+    for k in range(len(forces)):                 # held from the first (the trip's) period
         if k:
             hp = tau / (tau + dt) * (hp + forces[k] - forces[k - 1])
-        want.append(-g * hp)
+        want.append(-min(max(g * hp, -1e-3), 1e-3))
     d = run(g) - run(0.0)
-    assert d[:5] == pytest.approx(want, abs=1e-15) and min(d[:5]) < -5e-5
-    assert list(d[5:]) == [0.0, 0.0]            # 1100 N from the held load: damping off
+    assert d == pytest.approx(want, abs=1e-15) and min(d[:5]) < -5e-5
+    assert list(d[5:]) == [-1e-3, 1e-3]          # hold_dp_max, both ways
+    assert RIG['hold_dp_max'] == 1e-3
+    assert list(run(g, force=False) - run(0.0, force=False)) == [0.0] * len(forces)
     with pytest.raises(ValueError, match='hold_dp_gain'):
         RIG.replace(hold_dp_gain=-1e-7)
 

@@ -609,3 +609,30 @@ def test_a_load_cell_that_does_not_follow_the_piston_or_drifts_trips_load_feedba
     assert trips and 'drifted' in trips[0][1] and 2100 <= trips[0][0] <= 2300, trips
     # a still piston tells nothing: the same drift is not judged
     assert _load_check(4000, lambda k: 0.0, lambda k: max(0.0, k - 200) * 1.0) == []
+
+
+def test_a_hold_that_rings_past_its_limit_does_not_hold_and_one_overshoot_is_not_judged():
+    """
+    ``hold_error`` counts a ringing hold's troughs on: beyond its limit at each swing is beyond.
+
+    Troughs up to half of ``hold_error_time`` are bridged; a single swing beyond the limit
+    that comes back (shorter than ``hold_error_time``) is not judged, nor two swings further
+    apart than that.
+    """
+    def first_trip(e_of, n=200):
+        sup = _sup(hold_error_force=1000.0, hold_error_time=0.02, hold_error_action='power_off')
+        for k in range(n):
+            ev = sup.judge_hold(k * MS, e_of(k), True)
+            if any(e.kind == 'trip' for e in ev):
+                return k, ev[0].message
+        return None
+    # 57 Hz about the held load, 1500 N: beyond 1000 N for 4.4 ms of each 8.8 ms swing
+    k, why = first_trip(lambda k: 1500.0 * math.sin(2 * math.pi * 57.0 * k * 1e-3))
+    assert 20 <= k <= 30 and 'does not hold' in why
+    # without the bridge (the old rule) the same ringing was never judged: each stretch
+    # beyond is 4-5 periods; a swing of 15 ms beyond, then within: not judged
+    assert first_trip(lambda k: 1500.0 if 10 <= k < 25 else 0.0) is None
+    # two such swings 11 ms apart (more than half of hold_error_time): not judged
+    assert first_trip(lambda k: 1500.0 if (10 <= k < 15 or 26 <= k < 31) else 0.0) is None
+    # a stuck valve, beyond all along: after hold_error_time, as before
+    assert first_trip(lambda k: 1500.0)[0] == 20

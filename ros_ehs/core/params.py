@@ -258,8 +258,10 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
     _p('hold_dp_gain', 'A/N', 4.0e-7, 0.0, 1.0e-4, "a force hold's delta-P damping: current "
        'per newton of the hydraulic force A_p (p_P - p_T), high-passed with dp_tau from the '
        "hold's start, taken off the command: damps the oil column the stop excites (needs "
-       'the force in the state; off for the rest of a hold the load leaves by more than '
-       'hold_error_force; 0: off)', 'modes', 'D'),
+       'the force in the state; 0: off)', 'modes', 'D'),
+    _p('hold_dp_max', 'A', 1.0e-3, 0.0, 0.1, "the most a force hold's delta-P damping takes "
+       "off the command: a gain too high for the rig's valve rings the hold within this "
+       'current instead of ringing it up', 'modes', 'D'),
     _p('mode_blend_time', 's', 0.2, 0.0, 60.0, 'a mode switch, and force control coming on: '
        "the new loop's reference blends from its measured value to the reference over this "
        'time (quintic)', 'modes', 'D'),

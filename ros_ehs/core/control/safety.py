@@ -334,11 +334,12 @@ def break_travel(params: Mapping[str, object], force: float, dt: float) -> float
 class _Latch:
     """One detector's state: latched, the periods its condition has held and for how long."""
 
-    __slots__ = ('tripped', 'count', 'ns')
+    __slots__ = ('tripped', 'count', 'ns', 'gap')
 
     def __init__(self) -> None:
         self.tripped = False
         self.count = 0
+        self.gap = 0         # periods within the limit since the last beyond (bridged)
         self.ns = 0          # the states' stamps' time over those periods [ns]
 
 
@@ -697,16 +698,24 @@ class Supervisor:
                            f'{cfg.limit_force_error:g} N for {t:.6g} s')
 
     def _timed(self, det: str, stamp_ns: int, e: float, limit: float, time: float,
-               dt: float, why) -> list[Event]:
+               dt: float, why, bridge: int = 0) -> list[Event]:
         """
         Latch ``det`` once ``|e|`` has been beyond ``limit`` for longer than ``time`` [s].
 
         ``why(t)``: its message after ``t`` s; a non-finite ``e`` clears the count.
+        ``bridge``: up to this many periods within ``|e|`` count on (a ringing error's
+        troughs: beyond at each swing, it is beyond all along).
         """
         events: list[Event] = []
         lat = self.latches[det]
         bad = math.isfinite(e) and abs(e) > limit
-        lat.count = lat.count + 1 if bad else 0
+        if bad:
+            lat.count += 1 + lat.gap
+            lat.gap = 0
+        elif lat.count and lat.gap < bridge and math.isfinite(e):
+            lat.gap += 1
+        else:
+            lat.count = lat.gap = 0
         t = lat.count * dt
         if bad and t > time:
             self._check(det, True, stamp_ns, e, why(t), events)
@@ -723,7 +732,8 @@ class Supervisor:
         travel ``hold_error_force`` makes on the specimen (over ``k_L``) the load path is
         lost (a break the break detector did not name), whatever the load cell reads. Call
         it once per period while the axis holds; past its limit for longer than
-        ``hold_error_time`` it latches ``hold_error`` (power off by default: a stuck valve).
+        ``hold_error_time`` it latches ``hold_error`` (power off by default: a stuck valve),
+        troughs within it up to half of that time counting on (a hold that rings).
         """
         cfg = self.config
         limit = cfg.hold_error_force if force else cfg.hold_error_position
@@ -739,10 +749,14 @@ class Supervisor:
                                f'{abs(travel) * 1e3:.4g} mm from where the hold in force '
                                f'began (reach {reach * 1e3:.4g} mm: hold_error_position and '
                                f'hold_error_force over k_L) for {t:.6g} s')
+        # a hold that rings past its limit at each swing does not hold either: troughs up
+        # to half of hold_error_time count on (a 57 Hz oil column's swings are 9 ms apart);
+        # one overshoot that comes back is not judged
         return self._timed('hold_error', stamp_ns, r if math.isfinite(e) else math.nan, 1.0,
                            cfg.hold_error_time, self.dt,
                            lambda t: f'hold_error: the axis does not hold: {abs(e):.6g} {unit} '
-                           f'from the held {what} (limit {limit:g} {unit}) for {t:.6g} s')
+                           f'from the held {what} (limit {limit:g} {unit}) for {t:.6g} s',
+                           bridge=int(0.5 * cfg.hold_error_time / self.dt))
 
     def _check(self, det: str, cond: bool, stamp_ns: int, value: float, why: str,
                events: list[Event]) -> bool:
@@ -916,7 +930,7 @@ class Supervisor:
         cleared = self.tripped()
         for s in self.latches.values():
             s.tripped = False
-            s.count = s.ns = 0
+            s.count = s.ns = s.gap = 0
         self._same = 0
         self._load_same = 0
         self._hold_at = math.nan

@@ -99,7 +99,7 @@ class AxisController:
         self.dt = float(dt)
         # a force hold's delta-P damping (its filter from the hold's first state on)
         self.hold_dp = DeltaP(params['hold_dp_gain'], params['dp_tau'])
-        self._dp_off = False              # the hold's damping switched off (it rang)
+        self.hold_dp_max = float(params['hold_dp_max'])
         self.command_rate = float(params['command_rate'])
         self.rate_limited = 0             # commands the rate limit changed
         self._sent = math.nan             # the last command returned [A]
@@ -134,6 +134,7 @@ class AxisController:
         self.supervisor.set_config(SafetyConfig.from_params(params))
         self.blend_time = float(params['mode_blend_time'])
         self.hold_dp.set_gains(params['hold_dp_gain'], params['dp_tau'])
+        self.hold_dp_max = float(params['hold_dp_max'])
         self.command_rate = float(params['command_rate'])
 
     def restart(self) -> None:
@@ -276,7 +277,6 @@ class AxisController:
                 self._f_hold, self._z_fhold = load, z
                 self.force.hold(load)
                 self.hold_dp.reset()
-                self._dp_off = False
             f_traj = math.nan                       # the loop holds what hold() gave it
             want = 'force'
         else:
@@ -304,15 +304,13 @@ class AxisController:
             if d.mode == 'hold':
                 # delta-P damping of the oil column the stop rings: the hydraulic force is
                 # collocated with the valve's flow (the load cell, past the piston's mass, is
-                # not: fed back as fast, it rang up). A hold the load leaves by more than
-                # hold_error_force goes on without it: a gain too high for the rig's valve
-                # rings the hold up (twice the default on the full model), the plain hold
-                # does not
-                if abs(self._f_hold - load) > self.supervisor.config.hold_error_force:
-                    self._dp_off = True
-                if self._dp_off or not math.isfinite(force):
+                # not: fed back as fast, it rang up). Within hold_dp_max: a gain too high for
+                # the rig's valve (twice the default on the full model) rings the hold within
+                # that current instead of ringing it up
+                if not math.isfinite(force):
                     return i
-                return i - self.hold_dp.update(force, self.dt)
+                cap = self.hold_dp_max
+                return i - min(max(self.hold_dp.update(force, self.dt), -cap), cap)
             new = sup.judge_force_error(stamp_ns, self.force.error)
             events.extend(new)
             if new and any(e.action in _ACTING for e in new):   # held from the next state on
