@@ -11,6 +11,7 @@ wait is on a status, a reply or the store.
 """
 
 from pathlib import Path
+import time
 
 import pytest
 from ros_ehs.benchmarks.campaign import BENCH_CAMPAIGN, BENCH_RIG
@@ -21,6 +22,7 @@ from ros_ehs.data.store import ResultStore
 from ros_ehs.nodes.processes import NodeProcesses
 import ros_ehs_msgs_py as c
 from waits import BOUND, call_service, set_parameter
+
 import yaml
 
 pytestmark = pytest.mark.ros
@@ -86,9 +88,15 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
         _status(procs, c.CONTROLLER_STATUS, lambda v: v['control_mode'] == 'force')
         # the campaign node killed while the test runs, and started again: it waits for the
         # same test's end and records it once
+        # (held meanwhile, so that it is still under way when the new node comes)
         _status(procs, c.PROCEDURE_STATUS, lambda v: int(v['total_cycles']) >= 20)
+        assert _trigger(ros, '/procedure/hold').success
         procs.kill('campaign')
+        t0 = time.time_ns()
         procs.start('campaign', camp, name='campaign2')
+        assert procs.wait_status(c.CAMPAIGN_STATUS, lambda st: st.stamp_ns > t0 and
+                                 st.values['specimen'] == 'C-0117', BOUND)
+        assert _trigger(ros, '/procedure/resume').success
         st = _status(procs, c.CAMPAIGN_STATUS, lambda v: v['tested'] == '1')
         assert st['state'] == 'ready' and st['next_level'] == '9000'
         # the plan's id next, loaded into the procedure node; the operator installs a new
@@ -105,10 +113,16 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
                 lambda v: v['control_mode'] == 'displacement_force_limited')
         assert set_parameter(ros, '/plant', 'specimen_seed', 2.0).successful
         assert _trigger(ros, '/procedure/start').success
+        # the campaign node killed, and its coupon's test ends while it is down: started
+        # again it records that test (loaded again, the procedure node would put it aside)
+        _status(procs, c.PROCEDURE_STATUS, lambda v: int(v['total_cycles']) >= 5)
+        procs.kill('campaign2')
+        _status(procs, c.PROCEDURE_STATUS, lambda v: v['state'] == 'finished')
+        procs.start('campaign', camp, name='campaign3')
         st = _status(procs, c.CAMPAIGN_STATUS, lambda v: v['tested'] == '2')
         assert st['state'] == 'ready' and st['next_level'] == '7000', st
         assert int(st['failed']) + int(st['run_out']) == 2 and st['run_out_cycles'] == '250'
-        procs.stop(['campaign2', 'procedure', 'plant', 'controller', 'recorder'])
+        procs.stop(['campaign3', 'procedure', 'plant', 'controller', 'recorder'])
     store = ResultStore(out / 'campaign.db')
     try:
         recs = store.results(store.campaign(BENCH_CAMPAIGN['name']))
@@ -132,4 +146,5 @@ def test_the_operators_specimens_are_loaded_run_and_recorded_once_through_a_rest
         for conn, _, raw in rd.messages(conns):
             m = ts.deserialize_cdr(raw, conn.msgtype)
             names += [s.name for s in m.status]
-    assert names == ['ros_ehs/campaign/C-0117', 'ros_ehs/campaign/S02']
+    # C-0117 as recorded, again as the third node republished the store at its start, S02
+    assert names == ['ros_ehs/campaign/C-0117'] * 2 + ['ros_ehs/campaign/S02']

@@ -106,6 +106,26 @@ def test_specimen_protect_is_switched_on_only_before_the_coupons_test_starts(tmp
     assert not rc.may_protect('S02', (mine, 'idle'))        # not the coupon under way
 
 
+def test_a_restarted_campaign_leaves_a_procedure_node_that_runs_its_specimen_as_it_is(tmp_path):
+    """Loaded again, a test that ended while the campaign node was down would be put aside."""
+    c, f, store = _setup(tmp_path)
+    rc = RigCampaign(c, f, store, tmp_path / 'out')
+    assert rc.must_load(('old.yaml', 'finished')) is False  # nothing under way
+    rc.next_specimen()
+    again = RigCampaign(c, f, store, tmp_path / 'out')      # the campaign node restarted
+    mine = again.current['file']
+    assert again.must_load(None) is None                    # not heard yet: ask again
+    for state in ('finished', 'running', 'held', 'interrupted', 'idle'):
+        assert again.must_load((mine, state)) is False, state
+    assert again.must_load(('launch.yaml', 'idle')) is True  # the procedure node restarted
+    # the test that ended while it was down is recorded from the node's status, once
+    rows, status, r = _run(again.current, _rig())
+    again.take_cycles(rows)
+    rec = again.status(status, now=0.0)
+    assert rec is not None and rec.specimen == 'S01' and rec.cycles == r.total_cycles
+    assert again.status(status, now=1.0) is None
+
+
 def test_records_that_never_come_leave_the_achieved_levels_to_those_that_did(tmp_path):
     c, f, store = _setup(tmp_path)
     rc = RigCampaign(c, f, store, tmp_path / 'out')

@@ -196,6 +196,24 @@ class RigCampaign:
             return False
         return procedure is None or procedure[0] != cur['file'] or procedure[1] == 'idle'
 
+    def must_load(self, procedure: tuple[str, str] | None) -> bool | None:
+        """
+        Return whether the specimen under way must be loaded into the procedure node again.
+
+        For a campaign node that starts with a specimen under way (it was restarted):
+        ``procedure`` is the procedure node's (file, state) as first heard (None: not yet:
+        returns None, ask again). A node that runs the specimen's file already is left as it
+        is, whatever its state: loaded again, a test that ended while the campaign node was
+        down would be put aside for a new one, and its result never recorded. Another file
+        (the procedure node restarted with its own) is loaded over.
+        """
+        cur = self.current
+        if cur is None:
+            return False
+        if procedure is None:
+            return None
+        return procedure[0] != cur['file']
+
     # -- inside -------------------------------------------------------------------------------
     def _cycles(self) -> np.ndarray:
         """Return the specimen's cycle table (n x 10, end in s), each count once."""

@@ -38,7 +38,9 @@ node decodes, calls and publishes:
   level, the fit so far, the verdict).
 
 Killed and started again, it finds the specimen under way (``<out>/current.json``) and waits
-for its test's end as before.
+for its test's end as before: a procedure node that runs the specimen's file already is left
+as it is, so a test that ended while this node was down is recorded; one that runs another
+file (restarted too) is given the specimen's file and checkpoint again.
 """
 
 from __future__ import annotations
@@ -115,8 +117,9 @@ class CampaignNode(Node):
             f'campaign {campaign.name!r} in {self._where}: '
             + (f"specimen {cur['specimen']} under way: waiting for its test's end"
                if cur else f'{len(self.store.results(self.rules.cid))} specimens recorded'))
-        if cur:
-            self._load(cur)               # the procedure node may have been restarted too
+        # a specimen under way: loaded again only into a procedure node that does not run
+        # it (restarted too), once its status is heard (RigCampaign.must_load)
+        self._reload = cur
 
     # -- the operator -----------------------------------------------------------------------
     def _on_set(self, changes) -> SetParametersResult:
@@ -238,6 +241,13 @@ class CampaignNode(Node):
             if st.name != contract.PROCEDURE_STATUS:
                 continue
             self._procedure = (str(st.values.get('file', '')), str(st.values.get('state', '')))
+            if self._reload is not None:
+                job, self._reload = self._reload, None
+                if self.rules.must_load(self._procedure):
+                    self._load(job)     # the procedure node was restarted too
+                else:
+                    self.get_logger().info(f"{job['specimen']}: /{self.opt['procedure']} runs "
+                                           f'it already ({self._procedure[1]})')
             with self._lock:
                 try:
                     rec = self.rules.status(st.values, time.monotonic())
