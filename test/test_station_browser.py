@@ -343,9 +343,11 @@ def test_the_page_shows_the_campaign_and_loads_the_operators_next_specimen(
         assert st['next_level'] == '5000' and float(st['fit_k']) > 0, st
         page = _page(browser)
         page.goto(_station(procs))
-        # the campaign panel: 3 failures, 1 run-out, the fit's curves, the next level
+        # the campaign panel: 3 failures, 1 run-out, the fit's curves, the next level (the
+        # points come with the results, the fit with the campaign node's next status)
         _wait(page, '!document.getElementById("campaign").hidden && document.querySelectorAll('
-                    '"#chart-sn [data-result]").length === 4')
+                    '"#chart-sn [data-result]").length === 4 && '
+                    'document.querySelector("[data-testid=sn-p10]") !== null')
         assert len(page.query_selector_all('#chart-sn [data-result=failed]')) == 3
         assert len(page.query_selector_all('#chart-sn [data-result=run_out]')) == 1
         for curve in ('sn-p10', 'sn-p50', 'sn-p90', 'sn-band'):
