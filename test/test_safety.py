@@ -106,6 +106,21 @@ def test_a_timed_detectors_time_is_the_states_stamps_a_late_one_counts_its_gap(d
     assert trips[0] == 50                 # 51 ms from the first (its own period counted)
 
 
+def test_the_force_errors_and_a_holds_time_is_the_states_stamps_too():
+    """Three periods then a state 18 ms late is 21 ms beyond, not four periods."""
+    sup = _sup(limit_force_error=500.0, limit_error_time=0.02,
+               limit_force_error_action='hold', hold_error_force=1000.0,
+               hold_error_time=0.02, hold_error_action='power_off')
+    for k in (0, 1, 2):
+        assert sup.judge_force_error(k * MS, 600.0) == [], k
+        assert sup.judge_hold(k * MS, 1500.0, True) == [], k
+    # 21 ms of stamps beyond (the late state's own period counted): past 20 ms
+    ev = sup.judge_force_error(20 * MS, 600.0)
+    assert [e.detector for e in ev] == ['limit_force_error'] and 'for 0.021 s' in ev[0].message
+    ev = sup.judge_hold(20 * MS, 1500.0, True)
+    assert [e.detector for e in ev] == ['hold_error'] and 'for 0.021 s' in ev[0].message
+
+
 def test_a_timed_detector_restarts_its_time_when_the_condition_breaks():
     sup = _sup(limit_error=1e-3, limit_error_time=0.003, limit_error_action='hold')
     for k in range(3):

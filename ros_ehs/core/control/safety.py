@@ -334,13 +334,14 @@ def break_travel(params: Mapping[str, object], force: float, dt: float) -> float
 class _Latch:
     """One detector's state: latched, the periods its condition has held and for how long."""
 
-    __slots__ = ('tripped', 'count', 'ns', 'gap')
+    __slots__ = ('tripped', 'count', 'ns', 'since', 'last')
 
     def __init__(self) -> None:
         self.tripped = False
         self.count = 0
-        self.gap = 0         # periods within the limit since the last beyond (bridged)
         self.ns = 0          # the states' stamps' time over those periods [ns]
+        self.since = 0       # _timed: the stamp its condition began at [ns]
+        self.last = 0        # ... and the last stamp it held at [ns]
 
 
 class Supervisor:
@@ -698,26 +699,30 @@ class Supervisor:
                            f'{cfg.limit_force_error:g} N for {t:.6g} s')
 
     def _timed(self, det: str, stamp_ns: int, e: float, limit: float, time: float,
-               dt: float, why, bridge: int = 0) -> list[Event]:
+               dt: float, why, bridge: float = 0.0) -> list[Event]:
         """
         Latch ``det`` once ``|e|`` has been beyond ``limit`` for longer than ``time`` [s].
 
-        ``why(t)``: its message after ``t`` s; a non-finite ``e`` clears the count.
-        ``bridge``: up to this many periods within ``|e|`` count on (a ringing error's
-        troughs: beyond at each swing, it is beyond all along).
+        The time is the states' stamps' (from the first state beyond, its own period ``dt``
+        counted): a state late after a stall counts its gap, not a period. ``why(t)``: its
+        message after ``t`` s; a non-finite ``e`` clears the count. ``bridge`` [s]: states
+        within the limit up to this long after the last one beyond count on (a ringing
+        error's troughs: beyond at each swing, it is beyond all along).
         """
         events: list[Event] = []
         lat = self.latches[det]
         bad = math.isfinite(e) and abs(e) > limit
         if bad:
-            lat.count += 1 + lat.gap
-            lat.gap = 0
-        elif lat.count and lat.gap < bridge and math.isfinite(e):
-            lat.gap += 1
-        else:
-            lat.count = lat.gap = 0
-        t = lat.count * dt
-        if bad and t > time:
+            if not lat.count:
+                lat.since = stamp_ns
+            lat.count += 1
+            lat.last = stamp_ns
+        elif not (lat.count and math.isfinite(e) and
+                  stamp_ns - lat.last <= round(bridge * 1e9)):
+            lat.count = 0
+        t_ns = stamp_ns - lat.since + round(dt * 1e9)
+        t = t_ns * 1e-9
+        if bad and t_ns > round(time * 1e9):
             self._check(det, True, stamp_ns, e, why(t), events)
         return events
 
@@ -756,7 +761,7 @@ class Supervisor:
                            cfg.hold_error_time, self.dt,
                            lambda t: f'hold_error: the axis does not hold: {abs(e):.6g} {unit} '
                            f'from the held {what} (limit {limit:g} {unit}) for {t:.6g} s',
-                           bridge=int(0.5 * cfg.hold_error_time / self.dt))
+                           bridge=0.5 * cfg.hold_error_time)
 
     def _check(self, det: str, cond: bool, stamp_ns: int, value: float, why: str,
                events: list[Event]) -> bool:
@@ -930,7 +935,7 @@ class Supervisor:
         cleared = self.tripped()
         for s in self.latches.values():
             s.tripped = False
-            s.count = s.ns = s.gap = 0
+            s.count = s.ns = 0
         self._same = 0
         self._load_same = 0
         self._hold_at = math.nan
