@@ -231,34 +231,37 @@ def _changes(p_force, p_disp) -> list[dict]:
     return out
 
 
+def _load_limit_hold(p_force, model: str, kind: str, value: float, t20: float,
+                     rng: float) -> dict:
+    """Return the case of ``limit_load_max`` at ``value`` [N] with a hold, on ``model``."""
+    p = p_force.replace(limit_load_max=value, limit_load_max_action='hold')
+    r, arr, ev = _run(_force(), p, 'force', max_seconds=t20 + 1.0, model=model)
+    trip = [e for e in ev if e[1] == 'trip' and e[2] == 'limit_load_max']
+    case = {'case': f'{kind}/load_limit_hold_max_{value:.0f}', 'result': r.result,
+            'cmd_peak': round(float(np.nanmax(arr['cmd'])), 3)}
+    if trip:
+        t_trip, f_trip = trip[0][0], trip[0][4]
+        m = arr['t'] >= t_trip
+        case.update(tripped_at_n=round(f_trip, 1),
+                    from_trip_pct=round(float(np.abs(arr['load'][m] - f_trip).max()) / rng
+                                        * 100.0, 3),
+                    held=[round(float(arr['load'][m].min()), 1),
+                          round(float(arr['load'][m].max()), 1)])
+    return case
+
+
 def _faults(p_force) -> list[dict]:
     out = []
     rng = PEAK - VALLEY
     base, barr, _ = _run(_force(), p_force, 'force')
     t20 = _cycle_start(base, 20)
     steady = _steady(base, barr['load'], barr['t'], _cycle_start(base, 10), t20)
-    # load limits under the peak, with a hold: the nearer the mean, the
-    # faster the load moves at the trip
-    # on the reduced model, and on the 10-state model (the two-stage valve closes slower)
-    for model, value in [(m, v) for m in ('simplified', 'full')
-                         for v in (9.5e3, 9.0e3, 8.5e3, 8.0e3)]:
-        name = 'max'
-        p = p_force.replace(**{f'limit_load_{name}': value,
-                               f'limit_load_{name}_action': 'hold'})
-        r, arr, ev = _run(_force(), p, 'force', max_seconds=t20 + 1.0, model=model)
-        trip = [e for e in ev if e[1] == 'trip' and e[2] == f'limit_load_{name}']
-        kind = 'force' if model == 'simplified' else 'force_10state'
-        case = {'case': f'{kind}/load_limit_hold_{name}_{value:.0f}', 'result': r.result,
-                'cmd_peak': round(float(np.nanmax(arr['cmd'])), 3)}
-        if trip:
-            t_trip, f_trip = trip[0][0], trip[0][4]
-            m = arr['t'] >= t_trip
-            case.update(tripped_at_n=round(f_trip, 1),
-                        from_trip_pct=round(float(np.abs(arr['load'][m] - f_trip).max()) / rng
-                                            * 100.0, 3),
-                        held=[round(float(arr['load'][m].min()), 1),
-                              round(float(arr['load'][m].max()), 1)])
-        out.append(case)
+    # load limits under the peak, with a hold: the nearer the mean, the faster the load
+    # moves at the trip; on the reduced model, and on the 10-state model (the two-stage
+    # valve closes slower)
+    for model, kind in (('simplified', 'force'), ('full', 'force_10state')):
+        for value in (9.5e3, 9.0e3, 8.5e3, 8.0e3):
+            out.append(_load_limit_hold(p_force, model, kind, value, t20, rng))
     # a stuck valve: the force error trips, its hold is not obeyed, hydraulics off
     r, arr, ev = _run(_force(), p_force, 'force', fault='stuck_valve',
                       fault_time=t20 + 0.25 / FREQ, max_seconds=t20 + 1.0)

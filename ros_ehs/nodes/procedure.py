@@ -257,7 +257,7 @@ class ProcedureNode(Node):
                                  harmonics=int(self.opt['apc_harmonics']),
                                  rate_hz=float(self.opt['rate_hz']),
                                  ramp_time=float(self.opt['ramp_time']),
-                                 lockstep=bool(self.get_parameter('use_sim_time').value))
+                                 lockstep=self.sim_time)
         return procedure, runner, Path(checkpoint or file + '.checkpoint.json')
 
     def _on_set(self, changes) -> SetParametersResult:
