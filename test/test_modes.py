@@ -174,6 +174,22 @@ def test_an_interlocks_hold_in_force_control_holds_the_load_it_tripped_at_in_for
     assert ax.driving == 'force' and ax.force.target == 1500.0
 
 
+def test_a_load_limit_tripped_ahead_of_the_load_holds_the_limit_with_a_share_of_the_brake():
+    """The load ahead passed the limit before the reading: the force loop holds the limit."""
+    ax = _axis(control_mode='force', limit_load_max=2025.0, limit_load_max_action='hold',
+               limit_load_lead=0.002)
+    for k in range(40):                          # 50 N a period, the reference 100 N ahead
+        ff = ax.force.last_ff
+        _step(ax, k, load=50.0 * k, f_traj=50.0 * k + 100.0)
+        if ax.events:
+            break
+    # the load ahead is 100 N on (2 ms at 50 N a period): 1900 N is 2000 N ahead, 1950 N
+    # 2050 N, half a period's change beyond the limit: it trips half a period late
+    assert k == 39 and [(e.kind, e.detector) for e in ax.events] == [('trip', 'limit_load_max')]
+    assert ax.force.target == 2025.0 and ax.demand.mode == 'hold'
+    assert ff > 0 and ax.force.last_ff == pytest.approx(-0.5 * RIG['hold_brake'] * ff)
+
+
 def test_a_hold_the_axis_does_not_obey_turns_the_hydraulics_off():
     """
     A stuck valve: the load runs on from the one held.
@@ -290,10 +306,16 @@ def test_a_force_hold_reverses_the_rate_feedforward_for_one_period_then_holds_it
     assert rate_ff > 0
     f.hold(5300.0)
     f.step(4 * MS, 5300.0, 9e3)
-    assert RIG['hold_brake'] == 3.0          # reversed three times over (docs/safety.md)
-    assert f.target == 5300.0 and f.last_ff == pytest.approx(-3.0 * rate_ff)
+    assert RIG['hold_brake'] == 2.0          # reversed twice over (docs/safety.md)
+    assert f.target == 5300.0 and f.last_ff == pytest.approx(-2.0 * rate_ff)
     f.step(5 * MS, 5300.0, 9e3)                 # one period only
     assert f.last_ff == 0.0
+    f.start(6 * MS, 5300.0, 0.0, blend_time=0.0)
+    for k in range(7, 10):
+        f.step(k * MS, 5300.0 + 100.0 * k, 5300.0 + 100.0 * k)
+    f.hold(6300.0, brake=0.25)                  # a share of the brake: a quarter of it
+    f.step(10 * MS, 6250.0, 9e3)
+    assert f.last_ff == pytest.approx(-0.5 * rate_ff)
     f.release()
     assert f.reference(6 * MS, 9e3) == 9e3
     f.release()                                 # twice: nothing more

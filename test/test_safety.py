@@ -468,6 +468,68 @@ def test_a_load_limit_trips_beyond_it_not_at_it_skipping_a_non_finite_load(
     assert [(e.detector, e.value, e.limit, e.unit) for e in ev] == [(det, beyond, limit, 'N')]
 
 
+@pytest.mark.parametrize('side', [1.0, -1.0])
+def test_a_load_moving_toward_its_limit_trips_when_the_load_its_lead_ahead_is_beyond(side):
+    """
+    A load at 100 kN/s, 2 ms lead: the load ahead is the reading plus 200 N.
+
+    Over 89 periods the rate, smoothed over the lead, has settled on 100 N a period. The
+    reading 8800 N (ahead 9000 N) does not trip; 8900 N (ahead 9100 N) does, and the hold
+    holds the limit with the brake's share of a period it came late: (9100 - 9000) / 100 N.
+    """
+    det = 'limit_load_max' if side > 0 else 'limit_load_min'
+    lim = side * 9000.0
+    sup = _sup(limit_load_max=9000.0, limit_load_min=-9000.0, limit_load_lead=0.002,
+               **{det + '_action': 'hold'})
+    for k in range(89):
+        assert _feed_load(sup, k, side * (100.0 * k))[1] == [], k      # up to 8800 N
+        assert sup.load_trip is None
+    ev = _feed_load(sup, 89, side * 8900.0)[1]
+    assert [(e.detector, e.limit) for e in ev] == [(det, lim)]
+    assert ev[0].value == pytest.approx(side * 9100.0)                # the load ahead
+    assert '8900 N' in ev[0].message and '9100 N 2 ms ahead' in ev[0].message, ev[0].message
+    held, share = sup.load_trip
+    assert held == lim and share == pytest.approx(1.0)
+    assert _feed_load(sup, 90, side * 9000.0)[0].mode == 'hold'
+    assert sup.load_trip is None                     # told once: the trip's own period
+    # half a period late: half the brake
+    sup = _sup(limit_load_max=8950.0, limit_load_min=-8950.0, limit_load_lead=0.002,
+               **{det + '_action': 'hold'})
+    for k in range(89):
+        if _feed_load(sup, k, side * (100.0 * k))[1]:
+            break
+    assert k == 88 and sup.load_trip == (side * 8950.0, pytest.approx(0.5))   # 8800 N
+
+
+def test_a_load_beyond_its_limit_trips_by_the_reading_whichever_way_it_moves():
+    sup = _sup(limit_load_max=9000.0, limit_load_max_action='hold', limit_load_lead=0.002)
+    for k in range(50):
+        _feed_load(sup, k, 9500.0 - 10.0 * k)       # falling, but from above its limit
+        if sup.tripped():
+            break
+    assert k == 0 and sup.load_trip == (9500.0, 1.0)     # the reading held, the whole brake
+    # the lead 0: the reading alone (the load 9000 N at 100 kN/s trips only above it)
+    sup = _sup(limit_load_max=9000.0, limit_load_max_action='hold', limit_load_lead=0.0)
+    for k in range(91):
+        assert _feed_load(sup, k, 100.0 * k)[1] == []
+    assert [e.value for e in _feed_load(sup, 91, 9100.0)[1]] == [9100.0]
+
+
+def test_the_loads_rate_is_not_differenced_across_a_missing_reading():
+    """A reading lost between two: the next one starts the rate again (no step across)."""
+    sup = _sup(limit_load_max=9000.0, limit_load_max_action='hold', limit_load_lead=0.002)
+    for k in range(20):
+        _feed_load(sup, k, 1000.0)
+    assert _feed_load(sup, 20, math.nan)[1] == []
+    for k in range(21, 30):       # 9000 N at rest, exactly at the limit: never beyond it
+        assert _feed_load(sup, k, 9000.0)[1] == [], k
+    # without the gap, 8000 N in a period puts the load ahead beyond it at once
+    sup = _sup(limit_load_max=9000.0, limit_load_max_action='hold', limit_load_lead=0.002)
+    for k in range(20):
+        _feed_load(sup, k, 1000.0)
+    assert [e.detector for e in _feed_load(sup, 20, 9000.0)[1]] == ['limit_load_max']
+
+
 @pytest.mark.parametrize('det,limit,inside,beyond', [
     ('limit_specimen_max', 0.125, 0.375, 0.375 + 1e-9),
     ('limit_specimen_min', -0.125, 0.125, 0.125 - 1e-9),

@@ -252,9 +252,10 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'that the force rate needs through the load train and the oil column, '
        'dF_ref/dt (1/k_L + l_iac/(2 beta_e A_p)) (0: off)',
        'modes', 'D'),
-    _p('hold_brake', '1', 3.0, 0.0, 10.0, "a force hold's first period: the rate's "
+    _p('hold_brake', '1', 2.0, 0.0, 10.0, "a force hold's first period: the rate's "
        'feedforward reversed this many times over, so the spool closes within its lag and the '
-       'load stops near where the hold began (0: the valve steps to its null)', 'modes', 'D'),
+       'load stops near where the hold began (0: the valve steps to its null); a load limit '
+       'tripped ahead of the load brakes by the share of a period it came late', 'modes', 'D'),
     _p('hold_dp_gain', 'A/N', 4.0e-7, 0.0, 1.0e-4, "a force hold's delta-P damping: current "
        'per newton of the hydraulic force A_p (p_P - p_T), high-passed with dp_tau from the '
        "hold's start, taken off the command: damps the oil column the stop excites (needs "
@@ -329,6 +330,10 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
     _p('limit_load_min', 'N', -1.0e5, -1.0e7, 1.0e7, 'lower load limit: trips when the load '
        'cell reads below it', 'safety', 'I'),
     _action('limit_load_min', 'hold', 'lower load limit'),
+    _p('limit_load_lead', 's', 2.4e-3, 0.0, 0.05, 'the load limits also judge the load this '
+       'far ahead at its rate (differenced, smoothed over as long): the time the axis takes to '
+       "stop the load (a period, the valve's lag, the oil column); a trip ahead of the "
+       'reading holds the limit; 0: the reading alone', 'safety', 'D'),
     _p('limit_specimen_max', 'm', 0.01, -2.0, 2.0, 'upper specimen limit: trips when the '
        'displacement from the installed position, z - z_L, is above it', 'safety', 'I'),
     _action('limit_specimen_max', 'off', 'upper specimen displacement limit'),

@@ -147,14 +147,15 @@ class ForceLoop:
         self._prev = None
         self.target = float(load)
 
-    def hold(self, load: float) -> None:
+    def hold(self, load: float, brake: float = 1.0) -> None:
         """
         Hold ``load`` [N] from now on (a fault's hold), until :meth:`release`.
 
         The target steps to ``load`` and no rate is fed forward. For one period the rate's
-        feedforward is reversed ``hold_brake`` times over, which closes the spool within its
-        lag rather than after it (the oil column the stop excites is damped by the axis's
-        delta-P term, ``hold_dp_gain``).
+        feedforward is reversed ``brake`` times ``hold_brake`` over, which closes the spool
+        within its lag rather than after it (the oil column the stop excites is damped by the
+        axis's delta-P term, ``hold_dp_gain``). ``brake`` is 1 for a hold of the reading; a
+        load limit tripped ahead of the load gives the share of a period it came late.
         The integrator takes the valve's null current under ``load`` at once
         (:func:`~ros_ehs.core.model.coefficients.null_load_gain` times the load less the
         target's mean over the integrator's time constant ``force_kp / force_ki``: at rest
@@ -166,7 +167,7 @@ class ForceLoop:
         """
         self._blend = 0.0
         self._hold = float(load)
-        self._brake = -self.hold_brake * self.last_ff
+        self._brake = -self.hold_brake * brake * self.last_ff
         if math.isfinite(load):
             self.pid.i_term += self.i_per_load * (float(load) - self._mean)
         self._holding = True

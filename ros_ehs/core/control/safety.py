@@ -31,8 +31,9 @@ Detectors (``ros_ehs.core.params.SAFETY_SPECS`` holds their limits and actions):
                         frozen: bit-identical for ``frozen_periods`` periods with
                         ``|i| >= frozen_current`` (periods without neither count nor clear)
 ``saturation``          the command at ``u_max`` for longer than ``limit_saturation_time``
-``limit_load_max``      the load cell above ``limit_load_max`` (when there is a reading)
-``limit_load_min``      the load cell below ``limit_load_min``
+``limit_load_max``      the load cell above ``limit_load_max`` (when there is a reading), or
+                        the load ``limit_load_lead`` ahead at its rate
+``limit_load_min``      the load cell, or the load ahead, below ``limit_load_min``
 ``limit_specimen_max``  the specimen's displacement ``z - z_L`` above ``limit_specimen_max``
 ``limit_specimen_min``  ``z - z_L`` below ``limit_specimen_min``
 ``limit_force_error``   force control: ``|F_ref - F| > limit_force_error`` for longer than
@@ -58,14 +59,20 @@ Detectors (``ros_ehs.core.params.SAFETY_SPECS`` holds their limits and actions):
 Edge-case policy (each branch tested in ``test/test_safety.py``):
 
 * a value exactly at its limit does not trip (the break detector: a drop and a travel
-  exactly at theirs do not); a time-qualified detector trips when the
+  exactly at theirs do not). A load limit also judges the load ``limit_load_lead`` ahead:
+  the reading plus the lead times its rate (differenced stamp to stamp, smoothed over the
+  lead, started again after a missing reading): the axis stops a moving load that much after
+  the command that holds it, so a limit judged on the reading is passed by the rate times
+  it. A time-qualified detector trips when the
   condition has held for *longer* than its time (``n`` periods with ``n dt > T``);
 * a trip is **latched** (and reported once, as an :class:`Event`) until :meth:`reset`
   succeeds; the action applies from the command that answers the state on which the
   condition became true: the period after it;
 * several latched detectors: the most severe action rules
   (``indicate < hold < stop < power_off``);
-* ``hold`` freezes the reference at the measured position of the trip; ``stop`` ramps it
+* ``hold`` freezes the reference at the measured position of the trip (in force control
+  the force loop holds the load of the trip; a load limit tripped ahead of its reading:
+  the limit, :attr:`Supervisor.load_trip`); ``stop`` ramps it
   from there to ``safe_position`` at ``safe_velocity``, then holds; ``power_off`` zeroes the
   valve current; from ``hold`` or ``stop`` a more severe action starts from the measured
   position again;
@@ -123,8 +130,8 @@ _NUMBERS = ('limit_position_max', 'limit_position_min', 'limit_velocity', 'limit
             'limit_error', 'limit_error_time', 'feedback_timeout', 'frozen_periods',
             'frozen_current', 'limit_saturation_time', 'limit_hysteresis', 'safe_position',
             'safe_velocity', 'ramp_time', 'limit_load_max', 'limit_load_min',
-            'limit_specimen_max', 'limit_specimen_min', 'limit_force_error', 'break_drop',
-            'break_travel', 'break_window', 'z_L', 'k_L', 'load_frozen_force',
+            'limit_load_lead', 'limit_specimen_max', 'limit_specimen_min', 'limit_force_error',
+            'break_drop', 'break_travel', 'break_window', 'z_L', 'k_L', 'load_frozen_force',
             'hold_error_position', 'hold_error_force', 'hold_error_time', 'load_check_window',
             'load_check_force', 'load_drift_force', 'loop_timing_late')
 #: the pairs of limits whose hysteresis is a fraction of their span
@@ -155,7 +162,8 @@ LIMITS_OF = {'limit_position_max': ('limit_position_max',),
              'limit_error': ('limit_error', 'limit_error_time'),
              'feedback': ('feedback_timeout', 'frozen_periods', 'frozen_current'),
              'saturation': ('limit_saturation_time',),
-             'limit_load_max': ('limit_load_max',), 'limit_load_min': ('limit_load_min',),
+             'limit_load_max': ('limit_load_max', 'limit_load_lead'),
+             'limit_load_min': ('limit_load_min', 'limit_load_lead'),
              'limit_specimen_max': ('limit_specimen_max',),
              'limit_specimen_min': ('limit_specimen_min',),
              'limit_force_error': ('limit_force_error',),
@@ -210,6 +218,7 @@ class SafetyConfig:
     ramp_time: float = _default('ramp_time')
     limit_load_max: float = _default('limit_load_max')
     limit_load_min: float = _default('limit_load_min')
+    limit_load_lead: float = _default('limit_load_lead')
     limit_specimen_max: float = _default('limit_specimen_max')
     limit_specimen_min: float = _default('limit_specimen_min')
     limit_force_error: float = _default('limit_force_error')
@@ -387,7 +396,40 @@ class Supervisor:
         self._load_same = 0             # periods it has repeated
         self._z_load = math.nan         # the position when it last changed [m]
         self._hold_at = math.nan        # where a hold holds instead of the measured position
+        self.load_trip: tuple[float, float] | None = None   #: a load limit's trip (update())
+        self._rate_clear()
         self._lc_clear()
+
+    def _load_limit(self, det: str, stamp_ns: int, load: float, ahead: float, h: float,
+                    events: list[Event]) -> None:
+        """
+        Trip a load limit the reading or the load ahead passed; set :attr:`load_trip`.
+
+        ``load_trip`` is (the load to hold, the brake's share): a trip ahead of the reading
+        holds the limit (the load is still on its way there) and brakes by the share of a
+        period it came late (how far the load ahead passed the limit over what the load
+        changes in a period ``h`` [s]); a trip by the reading holds the reading with the whole
+        brake (it came the axis's stopping time late).
+        """
+        cfg = self.config
+        lim = getattr(cfg, det)
+        side = 1.0 if det == 'limit_load_max' else -1.0
+        if side * (load - lim) > 0:          # the reading itself
+            value, held, share, why = load, load, 1.0, ''
+        else:
+            step = abs(self._rate) * h
+            value, held, share = ahead, lim, min(1.0, side * (ahead - lim) / step)
+            why = (f'{det}: the load {load:.6g} N moving at {self._rate:.4g} N/s is '
+                   f'{ahead:.6g} N {cfg.limit_load_lead * 1e3:g} ms ahead, '
+                   f'{"above" if side > 0 else "below"} {lim:g} N')
+        if self._check(det, True, stamp_ns, value, why, events):
+            self.load_trip = (held, share)
+
+    def _rate_clear(self) -> None:
+        """Forget the load's rate (the load limits' lead)."""
+        self._rate = 0.0                # the load's rate, smoothed over the lead [N/s]
+        self._rate_load = math.nan      # the reading it was differenced from [N]
+        self._rate_stamp = 0            # ... and its stamp [ns]
 
     def _lc_clear(self) -> None:
         """Forget the load check's window (its zero-load reference stays)."""
@@ -529,6 +571,7 @@ class Supervisor:
         """
         cfg = self.config
         events: list[Event] = []
+        self.load_trip = None
         dt = self.dt
         dt_ns = round(dt * 1e9)
         if self._last_stamp is not None and stamp_ns > self._last_stamp:
@@ -616,6 +659,7 @@ class Supervisor:
             self._load_last = load
             self._z_load = z
         if not (math.isfinite(load) and math.isfinite(z)):
+            self._rate_clear()
             if self._lc_k:
                 self._lc_clear()
             win.clear()
@@ -627,10 +671,19 @@ class Supervisor:
                             'load_feedback: no valid load cell reading (non-finite, missing or '
                             'stale) under force control or specimen protect', events)
             return
-        if load > cfg.limit_load_max:
-            self._check('limit_load_max', True, stamp_ns, load, '', events)
-        if load < cfg.limit_load_min:
-            self._check('limit_load_min', True, stamp_ns, load, '', events)
+        # the load limits: the reading, and the load limit_load_lead ahead at its rate
+        lead = cfg.limit_load_lead
+        ahead, h = load, self.dt
+        if lead > 0:
+            if math.isfinite(self._rate_load) and stamp_ns > self._rate_stamp:
+                h = (stamp_ns - self._rate_stamp) * 1e-9
+                self._rate += h / (lead + h) * ((load - self._rate_load) / h - self._rate)
+            self._rate_load, self._rate_stamp = load, stamp_ns
+            ahead = load + lead * self._rate
+        if load > cfg.limit_load_max or ahead > cfg.limit_load_max:
+            self._load_limit('limit_load_max', stamp_ns, load, ahead, h, events)
+        if load < cfg.limit_load_min or ahead < cfg.limit_load_min:
+            self._load_limit('limit_load_min', stamp_ns, load, ahead, h, events)
         # the break: against each reading in the window, the drop of |F| and the travel the
         # way that loaded it (sign of that reading's force); only when the window's largest
         # |F| is more than the drop above this one (the window's maxima kept in order)
@@ -939,6 +992,7 @@ class Supervisor:
         self._same = 0
         self._load_same = 0
         self._hold_at = math.nan
+        self._rate_clear()
         self._lc_clear()
         self._lc_zero_clear()
         self._window.clear()

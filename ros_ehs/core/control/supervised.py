@@ -274,8 +274,10 @@ class AxisController:
             return 0.0
         if d.mode == 'hold' and self.mode == 'force' and math.isfinite(load):
             if not math.isfinite(self._f_hold):     # the trip's period: hold its load
-                self._f_hold, self._z_fhold = load, z
-                self.force.hold(load)
+                # (a load limit tripped ahead of the reading: the limit, braked less)
+                held, brake = sup.load_trip or (load, 1.0)
+                self._f_hold, self._z_fhold = held, z
+                self.force.hold(held, brake)
                 self.hold_dp.reset()
             f_traj = math.nan                       # the loop holds what hold() gave it
             want = 'force'
