@@ -106,6 +106,27 @@ def test_a_timed_detectors_time_is_the_states_stamps_a_late_one_counts_its_gap(d
     assert trips[0] == 50                 # 51 ms from the first (its own period counted)
 
 
+@pytest.mark.parametrize('det', ['limit_error', 'saturation'])
+def test_after_a_stall_an_error_first_seen_counts_a_period_a_saturated_command_the_stall(det):
+    """
+    States 18 ms late after three on time, 5 ms to trip.
+
+    The tracking error is a sample: first beyond at the late state, it counts that state's
+    period and trips 6 ms on. The saturation is of the command answering the state before the
+    stall, applied all of it: 18 ms at once.
+    """
+    if det == 'limit_error':
+        sup = _sup(limit_error=1e-3, limit_error_time=0.005, limit_error_action='hold')
+        on, off = {'z_traj': 0.002}, {}
+    else:
+        sup = _sup(limit_saturation_time=0.005, saturation_action='hold')
+        on, off = {'sat': True, 'i': 0.015}, {}
+    for k in (0, 1, 2):
+        assert _feed(sup, k, **off)[1] == [], k
+    trips = [k for k in [20] + list(range(21, 40)) if _feed(sup, k, **on)[1]]
+    assert trips[0] == (25 if det == 'limit_error' else 20)
+
+
 def test_the_force_errors_and_a_holds_time_is_the_states_stamps_too():
     """Three periods then a state 18 ms late is 21 ms beyond, not four periods."""
     sup = _sup(limit_force_error=500.0, limit_error_time=0.02,

@@ -349,7 +349,7 @@ class _Latch:
         self.tripped = False
         self.count = 0
         self.ns = 0          # the states' stamps' time over those periods [ns]
-        self.since = 0       # _timed: the stamp its condition began at [ns]
+        self.since = 0       # _held: the stamp its condition began at [ns]
         self.last = 0        # ... and the last stamp it held at [ns]
 
 
@@ -608,10 +608,10 @@ class Supervisor:
         if abs(force) > cfg.limit_force and math.isfinite(force):
             self._check('limit_force', True, stamp_ns, force, '', events)
         self._check_specimen(stamp_ns, z, load, needs_load, powered, events)
-        # saturation: the previous command at its limit for longer than the time
+        # saturation: the previous command at its limit for longer than the time. Its time is
+        # the gaps' before each state judged: the command a state answers for was applied all
+        # that time (a state after a stall counts the stall, not a period)
         sat = self.latches['saturation']
-        # a timed detector's time is the states' (a period after a stall counts as long as
-        # the stall, not the periods before it)
         sat.count, sat.ns = (sat.count + 1, sat.ns + dt_ns) if (saturated and powered) else (0, 0)
         if sat.count and sat.ns > round(cfg.limit_saturation_time * 1e9):
             self._check('saturation', True, stamp_ns, sat.ns * 1e-9, '', events)
@@ -623,10 +623,10 @@ class Supervisor:
         e = demand.z_ref - z if (finite and demand.power) else math.nan
         bad = math.isfinite(e) and abs(e) > cfg.limit_error and demand.mode != 'waiting' and \
             (track_position or demand.mode in ('hold', 'stop')) and not limited
-        err.count, err.ns = (err.count + 1, err.ns + dt_ns) if bad else (0, 0)
-        if bad and err.ns > round(cfg.limit_error_time * 1e9) and self._check(
+        t_ns = self._held(err, bad, stamp_ns)
+        if bad and t_ns > round(cfg.limit_error_time * 1e9) and self._check(
                 'limit_error', True, stamp_ns, e, f'|z_ref - z| = {abs(e):.6g} m above '
-                f'{cfg.limit_error:g} m for {err.ns * 1e-9:.6g} s', events):
+                f'{cfg.limit_error:g} m for {t_ns * 1e-9:.6g} s', events):
             demand = self._demand(stamp_ns, z, z_traj, v_traj)
         return demand, events
 
@@ -763,21 +763,33 @@ class Supervisor:
         error's troughs: beyond at each swing, it is beyond all along).
         """
         events: list[Event] = []
-        lat = self.latches[det]
         bad = math.isfinite(e) and abs(e) > limit
+        t_ns = self._held(self.latches[det], bad, stamp_ns, dt,
+                          round(bridge * 1e9) if math.isfinite(e) else -1)
+        if bad and t_ns > round(time * 1e9):
+            self._check(det, True, stamp_ns, e, why(t_ns * 1e-9), events)
+        return events
+
+    def _held(self, lat: _Latch, bad: bool, stamp_ns: int, dt: float | None = None,
+              bridge_ns: int = -1) -> int:
+        """
+        Return how long [ns] a sampled condition has held, ``bad`` at ``stamp_ns``.
+
+        The stamps' span from the first state it held at, that state's own period ``dt``
+        (the nominal one) counted: a later state counts the gap before it, but the first
+        counts a period, not a stall before it (what the condition was before that state is
+        not known). States where it does not hold within ``bridge_ns`` of the last one where
+        it did count on (-1: none).
+        """
         if bad:
             if not lat.count:
                 lat.since = stamp_ns
             lat.count += 1
             lat.last = stamp_ns
-        elif not (lat.count and math.isfinite(e) and
-                  stamp_ns - lat.last <= round(bridge * 1e9)):
+        elif not (lat.count and stamp_ns - lat.last <= bridge_ns):
             lat.count = 0
-        t_ns = stamp_ns - lat.since + round(dt * 1e9)
-        t = t_ns * 1e-9
-        if bad and t_ns > round(time * 1e9):
-            self._check(det, True, stamp_ns, e, why(t), events)
-        return events
+            return 0
+        return stamp_ns - lat.since + round((self.dt if dt is None else dt) * 1e9)
 
     def judge_hold(self, stamp_ns: int, e: float, force: bool,
                    travel: float = 0.0) -> list[Event]:
