@@ -96,7 +96,6 @@ class AxisController:
         self.driving: str | None = None   # the loop that drove the valve last, None: 0 A
         self.limited = False              # specimen protect limited the last command
         self.blend_time = float(params['mode_blend_time'])
-        self.dt = float(dt)
         # a force hold's delta-P damping (its filter from the hold's first state on)
         self.hold_dp = DeltaP(params['hold_dp_gain'], params['dp_tau'])
         self.hold_dp_max = float(params['hold_dp_max'])
@@ -312,7 +311,7 @@ class AxisController:
                 if not math.isfinite(force):
                     return i
                 cap = self.hold_dp_max
-                return i - min(max(self.hold_dp.update(force, self.dt), -cap), cap)
+                return i - min(max(self.hold_dp.update(force, sup.dt), -cap), cap)
             new = sup.judge_force_error(stamp_ns, self.force.error)
             events.extend(new)
             if new and any(e.action in _ACTING for e in new):   # held from the next state on
