@@ -44,6 +44,8 @@ def test_table1_presets_carry_the_papers_columns():
     ('kp', 'fast', r'`kp` = .fast. must be a number'),
     ('friction_law', 'lugre', r'`friction_law` = .lugre. is not one of'),
     ('no_such', 1.0, r'unknown parameter `no_such`'),
+    ('limit_load_lead', 0.1, r'`limit_load_lead` = 0.1 s is outside its valid range'),
+    ('limit_load_lead', math.nan, r'`limit_load_lead` = nan is not finite'),
 ])
 def test_bad_parameter_names_the_parameter_its_value_and_range(name, value, match):
     with pytest.raises(ParameterError, match=match):
