@@ -209,6 +209,9 @@ def test_lost_states_send_zero_once_and_the_pid_restarts_when_they_return():
     assert loop.diagnosis() == (1, 'no state: command 0 A')
     r = _answer(loop, 70, now=0.07)
     assert not loop.lost and r is not None
+    # the 0 A the tick sent is what the valve had: not a late loop's held command
+    assert 'loop_timing' not in [e.detector for e in r.events]
+    assert not loop.axis.supervisor.latches['loop_timing'].tripped
     assert ('info', 'states are back; PID restarted from rest') in loop.notes
 
 
@@ -385,6 +388,32 @@ def test_a_state_answered_later_than_loop_timing_late_trips_loop_timing_once():
     assert loop.axis.demand.mode == 'hold'
     ok, why, _ = loop.reset(0.05)                        # nothing left to judge: clears
     assert ok, why
+
+
+def test_a_stall_the_newest_state_hides_trips_loop_timing_by_the_command_it_held():
+    # the loop topics keep one state: a loop that stalled 25 ms wakes to a fresh state (age
+    # 0.2 ms), and the valve held the answer to state 5 for the 24 states in between
+    loop = _loop(params=Params().replace(loop_timing_late=0.02, stale_timeout=0.005))
+    for k in range(6):
+        assert _answer(loop, k).events == ()
+    r = loop.state(_st(30), 0.0302, T0 + 30 * MS + 200_000)
+    assert [(e.kind, e.detector, e.action) for e in r.events] == [('trip', 'loop_timing',
+                                                                  'hold')]
+    assert r.events[0].value == pytest.approx(0.0242)
+    assert '24 states in between never answered' in r.events[0].message
+    assert 'too busy' in r.events[0].message and loop.counts['stale'] == 0
+
+
+def test_states_skipped_within_loop_timing_late_are_not_a_late_loop():
+    loop = _loop(params=Params().replace(loop_timing_late=0.02, stale_timeout=0.005))
+    _answer(loop, 0)
+    # 19 states never answered, the 20th answered 0.9 ms after its stamp: 19.9 ms held
+    r = loop.state(_st(20), 0.0209, T0 + 20 * MS + 900_000)
+    assert r.events == () and not loop.axis.supervisor.latches['loop_timing'].tripped
+    # a plant that starts again (its stamps jump back) is a new run, not a stall
+    _answer(loop, 100)
+    r = loop.state(_st(10), 0.2, T0 + 10 * MS + 100_000)
+    assert loop.counts['epochs'] == 1 and r.events == ()
 
 
 def test_without_the_wall_clock_lateness_is_not_judged():

@@ -374,9 +374,10 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
     _p('hold_error_time', 's', 0.02, 0.0, 10.0, '...for longer than this (a stuck valve)',
        'safety', 'D'),
     _action('hold_error', 'power_off', 'hold not obeyed'),
-    _p('loop_timing_late', 's', 0.02, 1.0e-3, 10.0, 'real time: a state answered more than '
-       'this after its stamp trips loop_timing (the machine too busy to run the loop on '
-       'time: the valve held its last command meanwhile)',
+    _p('loop_timing_late', 's', 0.02, 1.0e-3, 10.0, 'real time: the valve holding one '
+       'command longer than this trips loop_timing (a state answered this long after its '
+       'stamp, or after the one answered before it: the machine too busy to run the loop on '
+       'time)',
        'safety', 'D'),
     _action('loop_timing', 'hold', 'loop timing (real time)'),
 )

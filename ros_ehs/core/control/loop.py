@@ -37,9 +37,12 @@ one command stamped with that state's stamp.
   lock-step references are forgotten, and the stamp is answered at once;
 * real time: a state older than ``stale_timeout`` on arrival is not used: the held command
   is repeated (``stale``);
-* real time: every state's age when it is taken (its answer's lateness) is judged by the
-  ``loop_timing`` detector (:meth:`ros_ehs.core.control.safety.Supervisor.judge_timing`):
-  beyond ``loop_timing_late`` the machine is too busy to run the loop on time.
+* real time: every state taken is judged by the ``loop_timing`` detector
+  (:meth:`ros_ehs.core.control.safety.Supervisor.judge_timing`) by how long the valve held
+  one command: the state's age when answered, plus the periods of the states between it and
+  the one answered before, which were never answered (the loop topics keep the newest state
+  only, so a loop that stalled wakes to a fresh one). Beyond ``loop_timing_late`` the machine
+  is too busy to run the loop on time.
 
 **References.** Before the first reference, the first measured position is held. In real
 time the newest reference is carried with its velocity to each state's stamp (a first-order
@@ -310,7 +313,8 @@ class ControlLoop:
                 return None
             self._new_run(s.stamp_ns, now)
         if self.wall:
-            self._late.extend(self.axis.supervisor.judge_timing(age * 1e-9, s.stamp_ns))
+            late, unanswered = self._late_by(s, age)
+            self._late.extend(self.axis.supervisor.judge_timing(late, s.stamp_ns, unanswered))
         if self.wall and age > self.stale_timeout * 1e9:
             self.counts['stale'] += 1
             self.last_stamp = s.stamp_ns
@@ -322,6 +326,21 @@ class ControlLoop:
             return self._try_waiting()
         ref = self._reference_for(s, now)
         return self._answer(self._load_for(s), *ref, now=now)
+
+    def _late_by(self, s: AxisState, age: int) -> tuple[float, int]:
+        """
+        Return how long the valve held one command when ``s`` (``age`` [ns] old) is answered.
+
+        [s], and how many states came between it and the one answered before, never answered:
+        the loop topics keep only the newest state, so a loop that stalled wakes to a fresh
+        one, and the valve held the earlier answer for those periods as well. Not across a
+        new run or lost states (0 A went out; the tick said so).
+        """
+        last = self.last_stamp
+        if last < 0 or self.lost or s.stamp_ns <= last:
+            return age * 1e-9, 0
+        gap = s.stamp_ns - last
+        return max(age, age + gap - self.dt_ns) * 1e-9, max(0, round(gap / self.dt_ns) - 1)
 
     def _new_run(self, stamp_ns: int, now: float) -> None:
         """Start a new run at ``stamp_ns``: PID from rest, lock-step references forgotten."""

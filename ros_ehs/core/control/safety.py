@@ -51,9 +51,11 @@ Detectors (``ros_ehs.core.params.SAFETY_SPECS`` holds their limits and actions):
                         ``hold_error_position`` from the held position (or, held in force
                         control, the load more than ``hold_error_force`` from the held load)
                         for longer than ``hold_error_time`` (:meth:`Supervisor.judge_hold`)
-``loop_timing``         real time: a state answered more than ``loop_timing_late`` after its
-                        stamp (:meth:`Supervisor.judge_timing`): the machine is too busy to
-                        run the loop on time
+``loop_timing``         real time: the valve held one command more than ``loop_timing_late``:
+                        a state answered that long after its stamp, or that long after the
+                        one answered before it (the states between never answered)
+                        (:meth:`Supervisor.judge_timing`): the machine is too busy to run the
+                        loop on time
 =====================  ======================================================================
 
 Edge-case policy (each branch tested in ``test/test_safety.py``):
@@ -921,23 +923,28 @@ class Supervisor:
                     's)', events)
         return events
 
-    def judge_timing(self, late_s: float, stamp_ns: int) -> list[Event]:
+    def judge_timing(self, late_s: float, stamp_ns: int, unanswered: int = 0) -> list[Event]:
         """
-        Judge how late the loop is: ``late_s`` [s] from a state's stamp to its answer.
+        Judge how late the loop is: ``late_s`` [s], how long the valve held its last command.
 
         The controller calls it in real time for every state it takes, stale ones too (a
-        state that never comes is the feedback detector's). Beyond
-        ``loop_timing_late`` it latches ``loop_timing``: the valve held its last command all
-        that time. Nothing is left to judge at a reset: it counts as clear.
+        state that never comes is the feedback detector's): ``late_s`` is that state's age
+        when answered, or more when ``unanswered`` states came between it and the one
+        answered before (the loop's topics keep only the newest state, so a stalled loop
+        wakes to a fresh one: the valve held the earlier answer all that time). Beyond
+        ``loop_timing_late`` it latches ``loop_timing``. Nothing is left to judge at a reset:
+        it counts as clear.
         """
         late = self.config.loop_timing_late
         if not (late_s > late):
             return []
         events: list[Event] = []
+        why = (f'the valve held one command {late_s * 1e3:.4g} ms ({unanswered} states in '
+               'between never answered)' if unanswered > 0 else
+               f'a state answered {late_s * 1e3:.4g} ms after its stamp')
         self._check('loop_timing', True, stamp_ns, float(late_s),
-                    f'loop_timing: a state answered {late_s * 1e3:.4g} ms after its stamp '
-                    f'(limit {late * 1e3:g} ms): the machine is too busy to run the loop on '
-                    'time', events)
+                    f'loop_timing: {why} (limit {late * 1e3:g} ms): the machine is too busy '
+                    'to run the loop on time', events)
         return events
 
     # -- operator ----------------------------------------------------------------------------
