@@ -115,8 +115,8 @@ SHORT = {
     'station': (['--seconds', '2', '--rounds', '2'], 'updates_per_s'),
     'freeze': (['--pauses', '0.2', '--runs', '1', '--seconds', '2'], 'per_pause'),
     'transitions': (['--only', 'starts', 'faults', '--hold', '0.2'], 'worst'),
-    'load': (['--seconds', '2', '--cases'], 'quiet'),     # the loads themselves would
-    # starve the suite's other workers: the short run is the two quiet runs
+    'load': (['--seconds', '2', '--cases', 'stall'], 'met'),   # busy, browser and live
+    # would starve the suite's other workers: the short run is the quiet runs and the stall
     'integrity': (['--only', 'envelope', '--cycles', '5'], 'met'),
     'campaign': (['--sets', '1', '--no-bench'], 'fit'),
     'rehearsal': (['--cases', '1', '--runout', '2000', '--failure', '2000', '--replicates',

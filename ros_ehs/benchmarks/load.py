@@ -25,7 +25,11 @@ beside one load a user brings:
 * ``busy``: two processes spinning at normal priority;
 * ``browser``: the station beside the bench (on the reference's CPU, as the bench puts it)
   and its page open in headless Chromium (Debian's, driven by Playwright);
-* ``live``: the identify node's live refits beside the bench (as ``--live-identify``).
+* ``live``: the identify node's live refits beside the bench (as ``--live-identify``);
+* ``stall``: the controller stopped as a whole (SIGSTOP) for ``STALL`` s every ``STALL_EVERY``
+  s from ``SKIP`` s on, then continued: past ``loop_timing_late`` and short of the lost
+  states' 50 ms, a stall the newest state hides (the loop's topics keep one): met only by
+  its ``loop_timing`` trip.
 
 Per case, read from the bag after the ramp-on (``SKIP`` s), every state counted (nothing left
 out for a late period: the piston is judged, not the loop): the tracking error ``z_ref - z``
@@ -39,17 +43,21 @@ controller's ``reference_timeout`` is held and ramped back onto by design: those
 left out and reported (``reference_gap_s``). Each figure also as a ratio to the mean of the
 two quiet runs. The last line is one JSON object; ``met`` holds the targets: each loaded
 case within 1.5x the quiet RMS, 2x its worst and 1.2x its force peak, or its
-``loop_timing`` trip.
+``loop_timing`` trip (the stalled case by the trip alone).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 
 from domain_coordinator import domain_id
 import numpy as np
@@ -65,7 +73,11 @@ import ros_ehs_msgs_py as contract
 #: the start left out: the ramp-on (1 s) and the reference's first second [s]
 SKIP = 2.0
 #: the cases, in the order they run (the quiet one twice: first and last)
-CASES = ('quiet', 'busy', 'browser', 'live', 'quiet')
+CASES = ('quiet', 'busy', 'browser', 'live', 'stall', 'quiet')
+#: the stalled case: the controller stopped this long [s] ...
+STALL = 0.03
+#: ... every this many seconds [s]
+STALL_EVERY = 2.0
 #: the controller's reference_timeout and ramp_time (their defaults) [s]
 REF_TIMEOUT = next(o.default for o in CONTROLLER if o.name == 'reference_timeout')
 RAMP = spec('ramp_time').default
@@ -175,10 +187,26 @@ def piston_ratios(with_: dict, without: dict) -> dict:
     return {k: _ratio(with_[k], without[k]) for k in PISTON if k != 'periods_over_1mm'}
 
 
+def _stall(pid: int, done: threading.Event) -> None:
+    """Stop process ``pid`` for ``STALL`` s every ``STALL_EVERY`` s from ``SKIP`` s on."""
+    wait = SKIP
+    while not done.wait(wait):
+        try:
+            os.kill(pid, signal.SIGSTOP)
+            try:
+                time.sleep(STALL)
+            finally:
+                os.kill(pid, signal.SIGCONT)
+        except ProcessLookupError:
+            return
+        wait = STALL_EVERY
+
+
 def _run(dom: int, tmp: Path, case: str, n: int, seconds: float, rt: int, pw) -> dict:
     bag = tmp / f'{n}_{case}'
     spinners: list[subprocess.Popen] = []
-    browser = None
+    browser = stall = None
+    done = threading.Event()
     env, loop, ref = bench_priority(rt)
     with NodeProcesses(dom, tmp / f'logs_{n}_{case}', env=env, bound=BOUND) as procs:
         procs.start_loop('realtime', bag=bag, plant=loop, controller=loop,
@@ -187,6 +215,10 @@ def _run(dom: int, tmp: Path, case: str, n: int, seconds: float, rt: int, pw) ->
         try:
             if case == 'busy':
                 spinners = [subprocess.Popen([sys.executable, '-c', SPIN]) for _ in range(2)]
+            elif case == 'stall':
+                stall = threading.Thread(target=_stall, args=(procs['controller'].pid, done),
+                                         daemon=True)
+                stall.start()
             elif case == 'live':
                 procs.start('identify', {'live': True, 'push': True, 'cpu_affinity': ref_cpu})
             elif case == 'browser':
@@ -203,6 +235,9 @@ def _run(dom: int, tmp: Path, case: str, n: int, seconds: float, rt: int, pw) ->
                 page.wait_for_function('window.station.frames > 0')
             wait_for_counts(bag, {'/state': int((seconds + SKIP) * 1000)}, BAG_WAIT)
         finally:
+            done.set()
+            if stall is not None:
+                stall.join()
             for p in spinners:
                 p.kill()
                 p.wait()
@@ -260,7 +295,8 @@ def main(argv=None) -> int:
         rr = r['ratios']
         within = rr['rms_mm'] is not None and rr['rms_mm'] <= 1.5 and rr['max_mm'] <= 2.0 \
             and rr['force_peak_kn'] <= 1.2
-        met[r['case']] = bool(within or 'loop_timing' in r['trips'])
+        tripped = 'loop_timing' in r['trips']
+        met[r['case']] = tripped if r['case'] == 'stall' else bool(within or tripped)
     return report({'seconds': a.seconds, 'rt_priority': a.rt_priority, 'cases': rows,
                    'quiet': {k: (round(v, 4) if v is not None else None)
                              for k, v in yard.items()}, 'met': met})
