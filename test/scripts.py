@@ -25,13 +25,25 @@ import signal
 import subprocess
 
 
+class ScriptTimeout(subprocess.TimeoutExpired):
+    """A timeout whose message ends with the tail of what the command wrote (for the log)."""
+
+    def __str__(self) -> str:
+        tail = []
+        for name, text in (('stdout', self.stdout), ('stderr', self.stderr)):
+            if text:
+                tail.append(f'--- {name}, its last 3000 characters ---\n{text[-3000:]}')
+        return '\n'.join([super().__str__(), *tail])
+
+
 def run_script(cmd: list[str], *, timeout: float, **kwargs) -> subprocess.CompletedProcess:
     """
     Run ``cmd`` as ``subprocess.run(cmd, capture_output=True, text=True, timeout=...)`` does.
 
     It runs in a session of its own; on timeout the whole session (the command and every
-    process it started) is killed, then :class:`subprocess.TimeoutExpired` is raised with
-    what the command had written.
+    process it started) is killed, then :class:`ScriptTimeout` (a
+    :class:`subprocess.TimeoutExpired`) is raised with what the command had written, its
+    tail in the message.
     """
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          start_new_session=True, **kwargs)
@@ -40,5 +52,5 @@ def run_script(cmd: list[str], *, timeout: float, **kwargs) -> subprocess.Comple
     except subprocess.TimeoutExpired:
         os.killpg(p.pid, signal.SIGKILL)
         out, err = p.communicate()
-        raise subprocess.TimeoutExpired(cmd, timeout, out, err) from None
+        raise ScriptTimeout(cmd, timeout, out, err) from None
     return subprocess.CompletedProcess(cmd, p.returncode, out, err)
