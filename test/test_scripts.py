@@ -32,6 +32,7 @@ def test_a_command_that_times_out_is_killed_with_what_it_started():
     with pytest.raises(subprocess.TimeoutExpired) as err:
         run_script([sys.executable, '-c', code], timeout=10.0)
     child = int(err.value.stdout.split()[0])
+    assert f'--- stdout, its last 3000 characters ---\n{child}' in str(err.value)
     try:
         fd = os.pidfd_open(child)       # readable once the process has exited
     except ProcessLookupError:
