@@ -709,6 +709,51 @@ def test_a_load_cell_that_does_not_follow_the_piston_or_drifts_trips_load_feedba
     assert _load_check(4000, lambda k: 0.0, lambda k: max(0.0, k - 200) * 1.0) == []
 
 
+def test_a_hold_begun_at_speed_is_allowed_its_braking_distance_one_begun_at_rest_is_not():
+    """Held in position, ``hold_error`` allows the braking distance at the hold's first speed."""
+    def first_trip(v0, e_mm, n=60):
+        sup = _sup(limit_position_max=0.03, limit_position_max_action='hold',
+                   hold_error_position=1e-3, hold_error_time=0.02,
+                   hold_error_action='power_off', braking_time=0.005)
+        d, ev = _feed(sup, 0, z=0.0301, z_dot=v0)               # the trip: hold from here
+        assert d.mode == 'hold' and ev[0].detector == 'limit_position_max'
+        for k in range(n):
+            if k:
+                _feed(sup, k, z=0.0301, z_dot=0.0)               # stopped: it slows no more
+            ev = sup.judge_hold(k * MS, -e_mm * 1e-3, False)
+            if any(e.kind == 'trip' for e in ev):
+                return k, ev[0].message
+        return None
+    # from 0.5 m/s: 1 mm + 0.5 m/s (5 ms + 2 periods) = 4.5 mm allowed
+    assert first_trip(0.5, 4.4) is None
+    k, why = first_trip(0.5, 4.6)
+    assert k == 20 and 'does not hold' in why and '(limit 0.0045 m)' in why
+    # a hold begun at rest keeps hold_error_position
+    assert first_trip(0.0, 1.1)[0] == 20
+    # the rig's braking time comes from its parameters
+    p = preset('table1_estimated')
+    assert SafetyConfig.from_params(p).braking_time == pytest.approx(
+        braking_distance(p, 1.0, 0.0))
+
+
+def test_a_hold_at_half_a_metre_a_second_holds_where_it_powered_off():
+    """
+    The full model; the 40 mm sine at 3 Hz against a 30 mm limit (0.5 m/s there), held.
+
+    The piston stops within the braking distance and comes back, more than 1 mm from the hold
+    for longer than 20 ms: ``hold_error`` judged on ``hold_error_position`` alone powered the
+    valve off on it.
+    """
+    p = preset('table1_estimated')
+    cp = p.replace(limit_position_max=0.03, limit_position_max_action='hold', ramp_time=0.0)
+    r = run_closed_loop(p, Sine(0.04, 3.0), 1.0, model='full', controller_params=cp,
+                        supervised=True)
+    assert [e.detector for e in r.events if e.kind == 'trip'] == ['limit_position_max']
+    k = int(np.argmax(r.z_meas > 0.03))
+    assert r.z.max() - 0.03 <= braking_distance(p, r.z_dot[k], 1e-3)
+    assert np.all(r.i[-100:] != 0.0) and abs(r.z[-1] - r.z_meas[k]) < 1e-3    # held there
+
+
 def test_a_hold_that_rings_past_its_limit_does_not_hold_and_one_overshoot_is_not_judged():
     """
     ``hold_error`` counts a ringing hold's troughs on: beyond its limit at each swing is beyond.

@@ -48,9 +48,10 @@ Detectors (``ros_ehs.core.params.SAFETY_SPECS`` holds their limits and actions):
                         changed; a reading of exactly 0 N is not judged: a simulated broken
                         specimen's); a hold then holds the position where it last changed
 ``hold_error``          a hold the axis does not obey: the piston more than
-                        ``hold_error_position`` from the held position (or, held in force
-                        control, the load more than ``hold_error_force`` from the held load)
-                        for longer than ``hold_error_time`` (:meth:`Supervisor.judge_hold`)
+                        ``hold_error_position`` plus the braking distance at the speed the
+                        hold began at from the held position (or, held in force control, the
+                        load more than ``hold_error_force`` from the held load) for longer
+                        than ``hold_error_time`` (:meth:`Supervisor.judge_hold`)
 ``loop_timing``         real time: the valve held one command more than ``loop_timing_late``:
                         a state answered that long after its stamp, or that long after the
                         one answered before it (the states between never answered)
@@ -239,6 +240,9 @@ class SafetyConfig:
     loop_timing_late: float = _default('loop_timing_late')
     actions: Mapping[str, str] = field(default_factory=lambda: {
         d: spec(d + '_action').default for d in DETECTORS})
+    #: the rig's braking distance per unit of speed, the detection's periods left out [s]
+    #: (:func:`braking_distance` at 1 m/s and dt 0, from the rig's parameters; 0 without them)
+    braking_time: float = 0.0
 
     def __post_init__(self) -> None:
         """Validate every value against its declaration in ros_ehs.core.params."""
@@ -260,8 +264,11 @@ class SafetyConfig:
     @classmethod
     def from_params(cls, params: Mapping[str, object]) -> 'SafetyConfig':
         """Build from a :class:`~ros_ehs.core.params.Params` (or any mapping with the names)."""
+        rig = ('beta_e', 'A_p', 'l_iac', 'm_p', 'm_s', 'K_w')
+        braking = braking_distance(params, 1.0, 0.0) if all(k in params for k in rig) else 0.0
         return cls(**{n: float(params[n]) for n in _NUMBERS},
-                   actions={d: str(params[d + '_action']) for d in DETECTORS})
+                   actions={d: str(params[d + '_action']) for d in DETECTORS},
+                   braking_time=braking)
 
     def action(self, detector: str) -> str:
         """Return what ``detector`` does when it trips."""
@@ -390,7 +397,9 @@ class Supervisor:
         self.ramp = 0.0                 #: the ramp-on's progress: 0 waiting/off, 1 on
         self._mode = 'run'              # 'run' | 'hold' | 'stop' | 'power_off'
         self._hold_z = math.nan
+        self._hold_speed = math.nan     # the piston's speed as the hold began (judge_hold)
         self._last_z = math.nan
+        self._z_dot = math.nan          # the newest state's velocity (measured or differenced)
         self._last_stamp: int | None = None
         self._same = 0
         self._last_ref = math.nan
@@ -582,6 +591,7 @@ class Supervisor:
         finite = math.isfinite(z)
         if not math.isfinite(z_dot) and finite and math.isfinite(self._last_z):
             z_dot = (z - self._last_z) / dt
+        self._z_dot = z_dot
         powered = self.enabled and self._mode != 'power_off'
         # feedback: non-finite, or frozen while the command drives the valve. A period without
         # a command (|i| below frozen_current: a sine's zero crossing) neither counts nor
@@ -806,9 +816,17 @@ class Supervisor:
         it once per period while the axis holds; past its limit for longer than
         ``hold_error_time`` it latches ``hold_error`` (power off by default: a stuck valve),
         troughs within it up to half of that time counting on (a hold that rings).
+        Held in position, the limit is ``hold_error_position`` plus the braking distance
+        (:func:`braking_distance`, the rig's ``braking_time``) at the piston's speed in the
+        hold's first period (the state's, measured or differenced): a piston that stops
+        within it from that speed obeyed the hold.
         """
         cfg = self.config
-        limit = cfg.hold_error_force if force else cfg.hold_error_position
+        if not math.isfinite(self._hold_speed):
+            v = self._z_dot
+            self._hold_speed = abs(v) if math.isfinite(v) else 0.0
+        limit = cfg.hold_error_force if force else cfg.hold_error_position + \
+            self._hold_speed * (cfg.braking_time + 2.0 * self.dt)
         unit, what = ('N', 'load') if force else ('m', 'position')
         # judged as a fraction of its limit; held in force, the travel as one of its reach
         r = abs(e) / limit if math.isfinite(e) else 0.0
@@ -856,6 +874,7 @@ class Supervisor:
         if _SEVERITY[act] > _SEVERITY.get(self._mode, 0):
             self._mode = act
             self._hold_z = math.nan       # set from the measured position in _demand
+            self._hold_speed = math.nan   # set by the hold's first judge_hold
 
     def demand_for(self, stamp_ns: int, z: float, z_traj: float, v_traj: float) -> Demand:
         """Return this period's demand again (after a trip judged once the demand was made)."""
