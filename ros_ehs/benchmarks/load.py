@@ -88,15 +88,20 @@ BAG_WAIT = 600.0
 SPIN = 'import time\nwhile True:\n    pass\n'
 
 
+def safety_events(b) -> list:
+    """Return the controller's safety events an open bag ``b`` recorded (none: no topic)."""
+    topic = '/' + contract.EVENTS.name
+    return [contract.event_from_msg(m) for _, m in b.decoded([topic])] \
+        if topic in b.topics else []
+
+
 def figures(bag: Path, skip: float = SKIP) -> dict:
     """Return the piston's, the force's and the command's figures of a bench's bag."""
     b = open_bag(bag)
     ref = sorted(contract.reference_from_cdr(m.data) for m in b.messages(['/reference']))
     st = sorted((contract.state_from_cdr(m.data, contract.JOINT_PISTON)
                  for m in b.messages(['/state'])), key=lambda s: s.stamp_ns)
-    ev_topic = '/' + contract.EVENTS.name
-    events = [contract.event_from_msg(m) for _, m in b.decoded([ev_topic])] \
-        if ev_topic in b.topics else []
+    events = safety_events(b)
     if not ref or not st:
         raise RuntimeError(f'{bag}: no reference or no state recorded')
     tr = np.array([r.stamp_ns for r in ref])

@@ -54,7 +54,7 @@ import tempfile
 from domain_coordinator import domain_id
 import numpy as np
 from ros_ehs.benchmarks import BOUND, positive, report
-from ros_ehs.benchmarks.load import piston
+from ros_ehs.benchmarks.load import piston, safety_events
 from ros_ehs.core.control.waveforms import Sine
 from ros_ehs.core.params import Params
 from ros_ehs.core.sim.closed_loop import run_closed_loop
@@ -215,12 +215,8 @@ def rig(dom: int, tmp: str, seconds: float, rt: int = 0) -> dict:
 
 def _indicated(bag: Path) -> int:
     """Return how many times a bag's controller indicated ``loop_timing`` (its events)."""
-    b = open_bag(bag)
-    topic = '/' + contract.EVENTS.name
-    if topic not in b.topics:
-        return 0
-    return sum(1 for _, m in b.decoded([topic])
-               if (e := contract.event_from_msg(m)).kind == 'trip' and e.detector == 'loop_timing')
+    return sum(1 for e in safety_events(open_bag(bag))
+               if e.kind == 'trip' and e.detector == 'loop_timing')
 
 
 def main(argv=None) -> int:
