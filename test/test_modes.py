@@ -338,8 +338,9 @@ def test_a_force_hold_damps_with_the_hydraulic_force_within_hold_dp_max():
     A force hold damps the oil column with the hydraulic force, within ``hold_dp_max``.
 
     It takes ``hold_dp_gain`` times the hydraulic force, high-passed with ``dp_tau`` from the
-    hold's first state, off its command (the PID's own state untouched), never more than
-    ``hold_dp_max`` either way; without a hydraulic force in the state, nothing.
+    held load (here the reading beyond the limit, 2100 N), off its command (the PID's own
+    state untouched), never more than ``hold_dp_max`` either way; without a hydraulic force
+    in the state, nothing.
     """
     g, tau, dt = 4e-7, RIG['dp_tau'], 1e-3
     loads = [2100.0, 2150.0, 2180.0, 2120.0, 2060.0, 2050.0, 2050.0]
@@ -353,10 +354,9 @@ def test_a_force_hold_damps_with_the_hydraulic_force_within_hold_dp_max():
                for k, (load, f) in enumerate(zip(loads, forces), start=1)]
         assert ax.supervisor.tripped() == ['limit_load_max']
         return np.array(out)
-    hp, want = 0.0, []
-    for k in range(len(forces)):                 # held from the first (the trip's) period
-        if k:
-            hp = tau / (tau + dt) * (hp + forces[k] - forces[k - 1])
+    hp, prev, want = 0.0, loads[0], []
+    for f in forces:                             # held from the first (the trip's) period
+        hp, prev = tau / (tau + dt) * (hp + f - prev), f
         want.append(-min(max(g * hp, -1e-3), 1e-3))
     d = run(g) - run(0.0)
     assert d == pytest.approx(want, abs=1e-15) and min(d[:5]) < -5e-5
@@ -365,6 +365,33 @@ def test_a_force_hold_damps_with_the_hydraulic_force_within_hold_dp_max():
     assert list(run(g, force=False) - run(0.0, force=False)) == [0.0] * len(forces)
     with pytest.raises(ValueError, match='hold_dp_gain'):
         RIG.replace(hold_dp_gain=-1e-7)
+
+
+def test_a_load_limit_tripped_ahead_damps_about_the_limit_not_the_force_at_the_trip():
+    """
+    Tripped ahead of its reading, a load limit's hold damps about the limit it holds.
+
+    The delta-P's memory starts at the held load: a hydraulic force still short of the
+    limit at the trip adds current toward it, and the term is zero where the force reaches
+    the limit. Started at the force at the trip, it pulled the stopped load back there (the
+    swing back of some 2 % of the range in the ``transitions`` benchmark).
+    """
+    def run(gain):
+        ax = _axis(control_mode='force', limit_load_max=2000.0, limit_load_max_action='hold',
+                   command_rate=0.0, hold_dp_gain=gain)
+        out = []
+        for k, load in enumerate((1000.0, 1400.0, 1800.0)):    # ahead: 1800 + 3.4 ms rate
+            out.append(ax.step(k * MS, 2e-4, 0.0, load - 100.0, NAN, NAN, load, 2500.0))
+        assert ax.supervisor.tripped() == ['limit_load_max']
+        assert ax.supervisor.load_trip[0] == 2000.0             # the hold holds the limit
+        out.append(ax.step(3 * MS, 2e-4, 0.0, 2000.0, NAN, NAN, 1950.0, 2500.0))
+        return np.array(out)
+    g, tau, dt = 4e-7, RIG['dp_tau'], 1e-3
+    d = run(g) - run(0.0)
+    assert d[:2] == pytest.approx([0.0, 0.0], abs=1e-15)       # before the trip: no term
+    assert d[2] == pytest.approx(g * tau / (tau + dt) * (2000.0 - 1700.0), rel=1e-12)
+    hp = tau / (tau + dt) * (-300.0 * tau / (tau + dt) + 2000.0 - 1700.0)
+    assert d[3] == pytest.approx(-g * hp, rel=1e-12) and abs(d[3]) < 0.1 * d[2]
 
 
 def test_a_force_hold_takes_the_valve_null_current_of_its_load_into_the_integrator():

@@ -257,9 +257,10 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
        'load stops near where the hold began (0: the valve steps to its null); a load limit '
        'tripped ahead of the load brakes by the share of a period it came late', 'modes', 'D'),
     _p('hold_dp_gain', 'A/N', 4.0e-7, 0.0, 1.0e-4, "a force hold's delta-P damping: current "
-       'per newton of the hydraulic force A_p (p_P - p_T), high-passed with dp_tau from the '
-       "hold's start, taken off the command: damps the oil column the stop excites (needs "
-       'the force in the state; 0: off)', 'modes', 'D'),
+       'per newton of the hydraulic force A_p (p_P - p_T) less the held load, high-passed '
+       "with dp_tau from the hold's start, taken off the command: damps the oil column the "
+       'stop excites about the load held (needs the force in the state; 0: off)', 'modes',
+       'D'),
     _p('hold_dp_max', 'A', 1.0e-3, 0.0, 0.1, "the most a force hold's delta-P damping takes "
        "off the command: a gain too high for the rig's valve rings the hold within this "
        'current instead of ringing it up', 'modes', 'D'),
@@ -330,7 +331,7 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
     _p('limit_load_min', 'N', -1.0e5, -1.0e7, 1.0e7, 'lower load limit: trips when the load '
        'cell reads below it', 'safety', 'I'),
     _action('limit_load_min', 'hold', 'lower load limit'),
-    _p('limit_load_lead', 's', 2.4e-3, 0.0, 0.05, 'the load limits also judge the load this '
+    _p('limit_load_lead', 's', 3.4e-3, 0.0, 0.05, 'the load limits also judge the load this '
        'far ahead at its rate (differenced, smoothed over as long): the time the axis takes to '
        "stop the load (a period, the valve's lag, the oil column); a trip ahead of the "
        'reading holds the limit; 0: the reading alone', 'safety', 'D'),

@@ -121,7 +121,8 @@ class DeltaP:
     The delta-P current [A]: ``gain`` times the force [N] high-passed with ``tau`` [s].
 
     ``update(force, dt)`` returns ``gain * HP(force)``; the first force after :meth:`reset`
-    sets the filter's memory, so the first output is 0 A.
+    sets the filter's memory, so the first output is 0 A, unless the reset gave the memory
+    (then the first output is ``gain`` times the force's difference from it, high-passed).
     """
 
     def __init__(self, gain: float, tau: float) -> None:
@@ -140,9 +141,9 @@ class DeltaP:
             self.reset()
         self.last = self.gain * self.hp
 
-    def reset(self) -> None:
-        """Forget the filter's memory."""
-        self.prev: float | None = None
+    def reset(self, memory: float | None = None) -> None:
+        """Forget the filter's memory, or start it at the force ``memory`` [N]."""
+        self.prev: float | None = memory
         self.hp = 0.0
         self.last = 0.0
 

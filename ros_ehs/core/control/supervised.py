@@ -277,7 +277,11 @@ class AxisController:
                 held, brake = sup.load_trip or (load, 1.0)
                 self._f_hold, self._z_fhold = held, z
                 self.force.hold(held, brake)
-                self.hold_dp.reset()
+                # the delta-P's memory starts at the held load (at rest, the hydraulic
+                # force that holds it): the term damps the stop about the load held, not
+                # about the hydraulic force at the trip, which a trip ahead of the load
+                # leaves some 400 N short of the limit and which pulled the load back there
+                self.hold_dp.reset(memory=held)
             f_traj = math.nan                       # the loop holds what hold() gave it
             want = 'force'
         else:
