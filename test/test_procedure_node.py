@@ -62,9 +62,9 @@ def _checkpointed(path, n):
     raise AssertionError(f'after {BOUND:g} s the checkpoint holds {read_checkpoint(path)}')
 
 
-def _status(procs, pred):
+def _status(procs, pred, name='procedure'):
     assert procs.wait_status(c.PROCEDURE_STATUS, lambda st: pred(st.values), BOUND), \
-        (procs.status(c.PROCEDURE_STATUS), procs['procedure'].output()[-3000:])
+        (procs.status(c.PROCEDURE_STATUS), procs.watch_report(), procs[name].output()[-3000:])
     return procs.status(c.PROCEDURE_STATUS).values
 
 
@@ -133,14 +133,14 @@ def test_a_killed_procedure_resumes_at_its_count_and_no_cycle_counts_twice(
                     name='procedure2')
         # restored, and the plant's resent state measured
         st = _status(procs, lambda v: v['state'] == 'interrupted' and int(v['stamp_ns']) > 0
-                     and v['controller_mode'])       # the controller's mode read: resume
+                     and v['controller_mode'], 'procedure2')    # the mode read: resume
         before = int(st['total_cycles'])
         res = _call(ros, '/procedure/resume')
         assert res.success, res.message
-        _status(procs, lambda v: int(v['total_cycles']) >= before + 3)
+        _status(procs, lambda v: int(v['total_cycles']) >= before + 3, 'procedure2')
         res = _call(ros, '/procedure/stop')
         assert res.success, res.message
-        st = _status(procs, lambda v: v['state'] == 'finished')
+        st = _status(procs, lambda v: v['state'] == 'finished', 'procedure2')
         procs.stop(['procedure2', 'plant', 'controller', 'recorder'])
     total = int(st['total_cycles'])
     assert st['result'] == 'stopped' and total >= before + 3, st

@@ -38,6 +38,23 @@ def test_the_watch_keeps_each_status_newest_and_forgets_a_restarted_nodes(dom):
 
 
 @pytest.mark.ros
+def test_a_message_the_watch_cannot_read_is_counted_and_said_and_the_watch_goes_on(dom):
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from ros_ehs.nodes.status_watch import StatusWatch
+    import ros_ehs_msgs_py as c
+    with StatusWatch(dom) as watch:
+        assert 'read, 0 rejected; statuses last heard: none' in watch.report()
+        watch._on_diagnostics(object())                       # not a DiagnosticArray
+        watch._on_diagnostics(DiagnosticArray(status=[DiagnosticStatus(
+            level=bytes([0]), name=c.REFERENCE_STATUS, message='sine')]))
+        assert (watch.received, watch.rejected) == (1, 1)
+        assert watch.status(c.REFERENCE_STATUS).message == 'sine'
+        said = watch.report()
+        assert '1 diagnostics messages read, 1 rejected' in said and 'AttributeError' in said \
+            and f'{c.REFERENCE_STATUS} 0.' in said and 'thread spinning' in said, said
+
+
+@pytest.mark.ros
 def test_the_watch_takes_the_nodes_dds_environment_without_leaving_it_behind(dom, tmp_path):
     import os
     from ros_ehs.nodes.status_watch import StatusWatch

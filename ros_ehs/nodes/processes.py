@@ -421,6 +421,10 @@ class NodeProcesses:
         """Return the latest status ``status_name`` on the domain (None: none seen yet)."""
         return None if self.watch is None else self.watch.status(status_name)
 
+    def watch_report(self) -> str:
+        """Say what the status watch has heard (:meth:`StatusWatch.report`), for a failure."""
+        return 'no status watch' if self.watch is None else self.watch.report()
+
     def status_value(self, status_name: str, key: str, default: float = 0.0) -> float:
         """Return the number ``key`` of the latest status ``status_name`` (``default``: none)."""
         st = self.status(status_name)
@@ -464,7 +468,7 @@ class NodeProcesses:
                 seen = ('no status from it' if st is None else
                         f'its status: {st.message!r} {st.values}')
                 raise StartupError(f'{what} ({status_name} in diagnostics, {timeout:g} s; '
-                                   f'{seen}); {name} log:\n' +
+                                   f'{seen}; {self.watch_report()}); {name} log:\n' +
                                    self.procs[name].output()[-3000:])
             time.sleep(0.05)
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
@@ -51,13 +52,19 @@ class StatusWatch:
 
     ``env``: the nodes' environment, whose :data:`DDS_ENVIRONMENT` variables this process takes
     before it joins. :meth:`status` returns a :class:`ros_ehs_msgs_py.NodeStatus` or None;
-    :meth:`close` leaves the domain (also as a context manager).
+    :meth:`close` leaves the domain (also as a context manager). A message the contract
+    cannot read is counted in ``rejected`` (its error in ``error``) and the watch goes on; an
+    error that ends its thread is kept in ``error`` too. :meth:`report` says what it has
+    heard, for a wait that timed out.
     """
 
     def __init__(self, domain_id: int | None = None, env: dict[str, str] | None = None) -> None:
         self._lock = threading.Lock()
         self._latest: dict[str, contract.NodeStatus] = {}
+        self._heard: dict[str, float] = {}     # when each status last came [monotonic s]
         self.received = 0
+        self.rejected = 0
+        self.error: str | None = None
         self._ctx = rclpy.Context()
         # the nodes' DDS environment while the participant is made, and only then: left in
         # os.environ it would reach every later child of this process (a test's temporary
@@ -86,15 +93,38 @@ class StatusWatch:
         self._thread.start()
 
     def _spin(self) -> None:
-        while not self._stop.is_set() and self._ctx.ok():
-            self._exe.spin_once(timeout_sec=0.05)
+        try:
+            while not self._stop.is_set() and self._ctx.ok():
+                self._exe.spin_once(timeout_sec=0.05)
+        except Exception as exc:      # kept for report(): a silent death blinds every wait
+            if not self._stop.is_set():
+                self.error = f'the watch stopped: {type(exc).__name__}: {exc}'
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        statuses = contract.statuses_from_msg(msg)
+        try:
+            statuses = contract.statuses_from_msg(msg)
+        except Exception as exc:      # one peer's bad message must not end the watch
+            with self._lock:
+                self.rejected += 1
+                self.error = f'a message rejected: {type(exc).__name__}: {exc}'
+            return
+        now = time.monotonic()
         with self._lock:
             self.received += 1
             for st in statuses:
                 self._latest[st.name] = st
+                self._heard[st.name] = now
+
+    def report(self) -> str:
+        """Say what the watch has heard: messages, each status's age, its thread's state."""
+        now = time.monotonic()
+        with self._lock:
+            ages = ', '.join(f'{n} {now - t:.1f} s ago' for n, t in sorted(self._heard.items()))
+            msgs, bad, err = self.received, self.rejected, self.error
+        alive = self._thread.is_alive()
+        return (f'status watch: {msgs} diagnostics messages read, {bad} rejected; statuses '
+                f'last heard: {ages or "none"}; its thread '
+                f'{"spinning" if alive else "stopped"}' + (f'; {err}' if err else ''))
 
     def status(self, name: str) -> contract.NodeStatus | None:
         """Return the latest status called ``name`` (``ros_ehs/plant`` ...), or None."""
@@ -105,6 +135,7 @@ class StatusWatch:
         """Drop the latest status called ``name`` (its node restarts: wait for a new one)."""
         with self._lock:
             self._latest.pop(name, None)
+            self._heard.pop(name, None)
 
     def close(self) -> None:
         """Stop listening and leave the domain (idempotent)."""
