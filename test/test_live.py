@@ -63,6 +63,36 @@ def test_the_window_drops_non_finite_states_and_restarts_on_a_stamp_jumping_back
     assert win.runs == 2 and win.span() == pytest.approx(0.999)
 
 
+def test_a_lockstep_resend_counts_once_in_every_signal_of_the_window():
+    """
+    A state resent with its sensors, stamped as before, counts once in every signal.
+
+    Each signal's noise is what it is without the resends (a repeated sample time made the
+    noise of the pressures NaN, and a NaN passed every residual check).
+    """
+    def run(resends):
+        win = SampleWindow(2.0, capacity=5000)
+        rng = np.random.default_rng(1)
+        noise = rng.normal(0.0, 2e4, (2, 2000))
+        for k in range(2000):
+            t = k * 1e-3
+            for _ in range(1 + (k in resends) * 3):
+                ns = k * 1_000_000
+                win.add_state(ns, 0.04 * math.sin(2 * math.pi * t),
+                              0.08 * math.pi * math.cos(2 * math.pi * t))
+                win.add_command(ns, 0.01 * math.cos(2 * math.pi * t))
+                win.add_pressure(0, ns, 1e7 + 1e6 * math.sin(2 * math.pi * t) + noise[0, k])
+                win.add_pressure(1, ns, 1e7 - 1e6 * math.sin(2 * math.pi * t) + noise[1, k])
+                win.add_load(ns, 5e3 * math.sin(2 * math.pi * t) + 0.5 * noise[0, k])
+        (exp,) = win.experiments()
+        return exp
+    once, resent = run(()), run((500, 900, 901, 1500))
+    assert resent.t.size == once.t.size == 2000
+    for key in ('z', 'p_CP', 'p_CT', 'load_cell'):
+        assert math.isfinite(resent.noise[key]) and resent.noise[key] == once.noise[key], key
+    assert once.noise['p_CP'] == pytest.approx(2e4, rel=0.1)
+
+
 def test_the_window_names_what_is_missing():
     win = SampleWindow(2.0, capacity=5000)
     with pytest.raises(DataError, match='no state received'):

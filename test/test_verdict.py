@@ -192,6 +192,23 @@ def test_a_fit_that_predicts_held_out_data_and_whose_halves_agree_is_adequate():
     assert why == [] and advice == [] and failed == []
 
 
+def test_a_sensed_signal_whose_residual_ratio_has_no_value_fails_its_rule():
+    """A NaN ratio (a noise with no value) is not under the limit: the rule fails, named."""
+    why, _, failed = adequacy(1, 100, 'simplified', '', _check(),
+                              _metrics(p_CP=math.nan, p_CT=1.0))
+    assert failed == ['sensed:p_CP'] and 'p_CP residual is nanx' in why[0], why
+
+
+def test_the_noise_of_a_signal_with_a_repeated_sample_time_is_refused_by_name():
+    from ros_ehs.core.noise import noise_sigma
+    t = np.arange(100) * 1e-3
+    y = np.random.default_rng(0).normal(0.0, 1.0, 100)
+    assert noise_sigma(y, t) == pytest.approx(1.0, rel=0.3)
+    t[50] = t[49]                                            # a resend, not deduplicated
+    with pytest.raises(DataError, match=r'sample times must increase: sample 50 at 0.049'):
+        noise_sigma(y, t)
+
+
 def test_a_fit_that_does_not_predict_the_other_half_is_not_adequate_and_names_the_model():
     why, advice, failed = adequacy(1, 100, 'simplified', '',
                                    _check(prediction={'z_dot': PREDICTION_LIMIT + 0.001,

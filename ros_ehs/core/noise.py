@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from ros_ehs.core.errors import DataError
 
 __all__ = ['noise_sigma']
 
@@ -35,10 +36,16 @@ def noise_sigma(y: np.ndarray, t: np.ndarray | None = None) -> float:
     sigma * sqrt(20); the median absolute deviation keeps stick-slip spikes out. With the
     sample times ``t`` [s] of a signal sampled unevenly (a driver's jitter), the third
     *divided* difference scaled by ``6 h^3`` (``h`` the mean step) is used instead: zero for
-    a quadratic at any sample times, so the jitter does not pass for noise.
+    a quadratic at any sample times, so the jitter does not pass for noise. Sample times
+    that do not increase (a sample repeated) raise :class:`DataError`: their divided
+    differences have no value, and a NaN noise would pass every residual judged by it.
     """
     y = np.asarray(y, dtype=float)
     x = None if t is None or y.size < 8 else np.asarray(t, dtype=float)
+    if x is not None and not np.all(np.diff(x) > 0):
+        k = int(np.argmin(np.diff(x) > 0))
+        raise DataError(f'noise_sigma: the sample times must increase: sample {k + 1} at '
+                        f'{float(x[k + 1]):.9g} s follows {float(x[k]):.9g} s')
     if x is not None and np.any(np.abs(np.diff(x, 2)) > 1e-9 * (x[-1] - x[0])):
         d = y
         for order in (1, 2, 3):

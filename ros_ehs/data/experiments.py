@@ -23,10 +23,11 @@ into message objects.
 Time policy:
 
 * the time base is the ``state`` topic's header stamps (its receive times when the driver
-  does not stamp them); states are sorted by stamp, a repeated stamp (a lock-step resend) is
-  kept once, and a state closer than 0.45 of the median period to the one before it (a stray
-  publisher, another clock) is dropped, the experiment's name says how many (a driver's
-  jitter of a quarter period either way brings two states within 0.5 of it: kept);
+  does not stamp them); states, commands, pressures and load readings are sorted by stamp,
+  a repeated stamp (a lock-step resend) kept once, and a state closer than 0.45 of the
+  median period to the one before it (a stray publisher, another clock) is dropped, the
+  experiment's name says how many (a driver's jitter of a quarter period either way brings
+  two states within 0.5 of it: kept);
 * a run goes on over one or two missed samples (:data:`BRIDGE
   <ros_ehs.core.identify.experiment.BRIDGE>`); a longer gap splits the recording into runs
   (:func:`load_experiments`), and runs too short to fit are dropped;
@@ -167,8 +168,6 @@ def _read(path, tmap: TopicMap, bag: Bag | None, start=None, end=None) -> Series
     if not stamped:
         tc = tc + offset
     ts, recv, z, v, applied = sorted_by_time(ts, recv, z, v, applied)
-    keep = np.concatenate([[True], np.diff(ts) > 0])
-    ts, z, v, applied = ts[keep], z[keep], v[keep], applied[keep]
     keep = on_grid(ts)
     if not keep.all():
         name += f' ({int(keep.size - keep.sum())} off-grid states dropped)'

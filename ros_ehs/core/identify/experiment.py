@@ -311,8 +311,17 @@ def on_grid(ts: np.ndarray) -> np.ndarray:
 
 
 def sorted_by_time(t: np.ndarray, *vals: np.ndarray):
+    """
+    Return ``t`` and ``vals`` sorted by ``t``, a repeated time kept once (its first sample).
+
+    A lock-step plant resends a state it has no answer to, stamped as before, and its
+    sensors with it: the same sample again, not a new one (two samples at one time made the
+    noise's divided differences divide by zero).
+    """
     o = np.argsort(t, kind='stable')
-    return (t[o],) + tuple(v[o] for v in vals)
+    t = t[o]
+    keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
+    return (t[keep],) + tuple(v[o][keep] for v in vals)
 
 
 @dataclass
@@ -465,10 +474,7 @@ def experiments_from_series(name: str, ts, z, v, applied=None, commands=None,
     z = np.asarray(z, dtype=float)
     v = np.asarray(v, dtype=float)
     applied = np.full(z.shape, np.nan) if applied is None else np.asarray(applied, float)
-    order = np.argsort(ts, kind='stable')
-    ts, z, v, applied = ts[order], z[order], v[order], applied[order]
-    keep = np.concatenate([[True], np.diff(ts) > 0]) if ts.size else np.zeros(0, bool)
-    ts, z, v, applied = ts[keep], z[keep], v[keep], applied[keep]
+    ts, z, v, applied = sorted_by_time(ts, z, v, applied)
     tc, vc = (np.zeros(0, np.int64), np.zeros(0)) if commands is None else (
         np.asarray(commands[0], dtype=np.int64), np.asarray(commands[1], dtype=float))
     if ts.size < 2 or (tc.size == 0 and not np.all(np.isfinite(applied))):

@@ -578,8 +578,8 @@ def adequacy(status: int, max_nfev: int, model: str, invalid: str, check: dict |
     wrong_model = bool(invalid)
     medians = median_noise_ratios(metrics)
     for name in SENSED:
-        ratio = medians.get(name, math.nan)
-        if ratio > SENSED_LIMIT:
+        ratio = medians.get(name)
+        if ratio is not None and not ratio <= SENSED_LIMIT:      # a NaN ratio fails too
             wrong_model = True
             failed.append(f'sensed:{name}')
             why.append(f'the {name} residual is {ratio:.1f}x its sensor noise (median of the '
