@@ -148,6 +148,23 @@ def test_force_control_without_a_valid_load_trips_load_feedback_and_holds_in_dis
     assert ax.output == pytest.approx(ax.ctrl.pid.i_term, abs=1e-12)
 
 
+def test_a_hold_in_displacement_closes_the_valve_to_its_null_under_the_hydraulic_force():
+    """
+    The load cell lost, the hold starts at the valve's null under the load the oil holds.
+
+    Its hydraulic force, not the load cell (which tripped), times ``null_load_gain``: with 0 A
+    the displacement loop's P alone found that current, 12 um (120 N) off the held position on
+    the fatigue rig; without a hydraulic force in the state, 0 A.
+    """
+    for force, want in ((9000.0, null_load_gain(RIG) * 9000.0), (NAN, 0.0)):
+        ax = _axis(control_mode='force', command_rate=0.0)
+        ax.step(0, 1e-4, 0.0, force, 0.0, 0.0, 9000.0, 9000.0)
+        i = ax.step(MS, 1e-4, 0.0, force, 0.0, 0.0, NAN, 9000.0)     # lost: held at 0.1 mm
+        assert ax.supervisor.tripped() == ['load_feedback'] and ax.driving == 'displacement'
+        assert ax.demand.z_ref == 1e-4 and i == pytest.approx(want, rel=1e-9, abs=1e-15)
+    assert null_load_gain(RIG) * 9000.0 == pytest.approx(1.1e-4, rel=0.1)   # docs/safety.md
+
+
 def test_a_non_finite_load_in_displacement_is_no_fault():
     ax = _axis()
     for k in range(3):

@@ -70,6 +70,7 @@ import math
 from ros_ehs.core.control.controller import Controller, DeltaP
 from ros_ehs.core.control.modes import ForceLimit, ForceLoop, LOAD_MODES, MODES
 from ros_ehs.core.control.safety import Demand, Event, SafetyConfig, Supervisor
+from ros_ehs.core.model.coefficients import null_load_gain
 from ros_ehs.core.params import Params
 
 __all__ = ['AxisController', 'CLIP_QUIET']
@@ -99,6 +100,7 @@ class AxisController:
         # a force hold's delta-P damping (its filter from the hold's first state on)
         self.hold_dp = DeltaP(params['hold_dp_gain'], params['dp_tau'])
         self.hold_dp_max = float(params['hold_dp_max'])
+        self.i_null_per_n = null_load_gain(params)   # the valve's null under load [A/N]
         self.command_rate = float(params['command_rate'])
         self.rate_limited = 0             # commands the rate limit changed
         self._sent = math.nan             # the last command returned [A]
@@ -134,6 +136,7 @@ class AxisController:
         self.blend_time = float(params['mode_blend_time'])
         self.hold_dp.set_gains(params['hold_dp_gain'], params['dp_tau'])
         self.hold_dp_max = float(params['hold_dp_max'])
+        self.i_null_per_n = null_load_gain(params)
         self.command_rate = float(params['command_rate'])
 
     def restart(self) -> None:
@@ -292,7 +295,7 @@ class AxisController:
                 'displacement'
         if want != self.driving:
             self._handover(want, stamp_ns, z, load, d.mode == 'ramp',
-                           rest=d.mode in ('hold', 'stop'))
+                           rest=d.mode in ('hold', 'stop'), force=force)
         if d.mode == 'hold':
             force_hold = want == 'force'
             e = (self._f_hold - load) if force_hold else (d.z_ref - z)
@@ -324,10 +327,13 @@ class AxisController:
         return self._displacement(d, z, force, load, f_traj)
 
     def _handover(self, loop: str, stamp_ns: int, z: float, load: float, ramp: bool,
-                  rest: bool = False) -> None:
+                  rest: bool = False, force: float = math.nan) -> None:
         u = self.output if self.driving is not None else 0.0
-        if rest and loop == 'displacement':     # a hold or a stop: the valve closes first
-            u = 0.0
+        if rest and loop == 'displacement':     # a hold or a stop: the valve closes first,
+            # to its null under the load the oil holds (the hydraulic force: the load cell
+            # may be what tripped): without it the displacement loop's P alone found that
+            # current, 12 um (120 N) off the held position on the fatigue rig
+            u = self.i_null_per_n * force if math.isfinite(force) else 0.0
         if loop == 'force':     # coming on (a ramp-on) over ramp_time, a switch over the blend
             self.force.start(stamp_ns, load, u, self.supervisor.config.ramp_time if ramp
                              else self.blend_time)
