@@ -360,8 +360,8 @@ SAFETY_SPECS: tuple[ParamSpec, ...] = (
        'swung k_L z by more than twice load_check_force; the fitted k under a quarter of k_L or '
        'above 4 k_L trips (a cell that does not follow the piston)', 'safety', 'D'),
     _p('load_check_force', 'N', 500.0, 1.0, 1.0e7, 'see load_check_window', 'safety', 'D'),
-    _p('load_drift_force', 'N', 150.0, 1.0, 1.0e7, 'load cell drift: the fitted zero-load '
-       'position (smoothed over 0.5 s) moved from its reference (its mean over the first 2 s '
+    _p('load_drift_force', 'N', 100.0, 1.0, 1.0e7, 'load cell drift: the fitted zero-load '
+       'position (smoothed over 0.25 s) moved from its reference (its mean over the first 2 s '
        'of windows judged) by more than this over k_L (its zero drifted; a crack changes k, '
        'not where the load is zero)', 'safety', 'D'),
     _action('load_feedback', 'hold', 'load cell validity under force control and specimen '

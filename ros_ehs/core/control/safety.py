@@ -146,17 +146,17 @@ _PAIRS = {'limit_position_max': ('limit_position_min', 'limit_position_max', 1),
           'limit_specimen_min': ('limit_specimen_min', 'limit_specimen_max', -1)}
 
 
-#: The load cell's fit against the position takes a sample and is judged every this many
-#: periods (a drift or a wrong gain is slow; its window wants ten samples or more)
+#: The load cell's fit against the position takes every period's sample and is judged every
+#: this many periods (a drift or a wrong gain is slow)
 LOAD_CHECK_EVERY = 10
 #: The load check's zero-load position: its reference is the mean of the judged windows'
-#: over this long from the first [s] (one window's zero carries the sensors' noise: 100 N on
-#: the cell and 10 um on the position move it by up to 230 N on the fatigue rig)...
+#: over this long from the first [s]...
 LOAD_ZERO_TIME = 2.0
 #: ...and it is compared smoothed over this long [s] (a first-order filter: it lags a steady
-#: drift by this long; with that noise the smoothed zero stays within 82 N of its reference
-#: over 1200 cycles, the reason for ``load_drift_force``'s 150 N)
-LOAD_ZERO_SMOOTH = 0.5
+#: drift by this long; with 100 N of white noise on the cell and 10 um on the position, the
+#: smoothed zero stays within 37 N of its reference over 1200 cycles of the fatigue rig, the
+#: reason for ``load_drift_force``'s 100 N)
+LOAD_ZERO_SMOOTH = 0.25
 #: The values a user sets to tune each detector (a value set while the action is off protects
 #: nothing: :func:`unprotected`).
 LIMITS_OF = {'limit_position_max': ('limit_position_max',),
@@ -456,19 +456,20 @@ class Supervisor:
 
     def _load_check(self, stamp_ns: int, z: float, load: float, events: list[Event]) -> None:
         """Fit the window's load against the position: a cell that does not follow, or drifted."""
-        self._lc_k += 1
-        if self._lc_k % LOAD_CHECK_EVERY:
-            return          # a sample every LOAD_CHECK_EVERY periods: the faults are slow
         cfg = self.config
-        k = cfg.k_L
         s = self._lc_sums
-        # the window: sums weighted exp(-age / load_check_window) (no samples kept)
-        lam = max(0.0, 1.0 - LOAD_CHECK_EVERY * self.dt / cfg.load_check_window)
+        # the window: every period's sample, weighted exp(-age / load_check_window) (no
+        # samples kept; each sample averages the sensors' noise down)
+        lam = max(0.0, 1.0 - self.dt / cfg.load_check_window)
         s[0] = lam * s[0] + 1.0
         s[1] = lam * s[1] + z
         s[2] = lam * s[2] + load
         s[3] = lam * s[3] + z * z
         s[4] = lam * s[4] + z * load
+        self._lc_k += 1
+        if self._lc_k % LOAD_CHECK_EVERY:
+            return          # judged every LOAD_CHECK_EVERY periods: the faults are slow
+        k = cfg.k_L
         n = max(2, int(round(cfg.load_check_window / self.dt)))
         if self._lc_k < n:
             return
