@@ -63,9 +63,10 @@ def _checkpointed(path, n):
 
 
 def _status(procs, pred, name='procedure'):
-    assert procs.wait_status(c.PROCEDURE_STATUS, lambda st: pred(st.values), BOUND), \
+    st = procs.wait_status(c.PROCEDURE_STATUS, lambda st: pred(st.values), BOUND)
+    assert st is not None, \
         (procs.status(c.PROCEDURE_STATUS), procs.watch_report(), procs[name].output()[-3000:])
-    return procs.status(c.PROCEDURE_STATUS).values
+    return st.values
 
 
 def test_a_procedure_runs_from_start_to_end_and_its_bag_holds_every_cycle(dom, tmp_path, ros):

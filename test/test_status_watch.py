@@ -38,6 +38,37 @@ def test_the_watch_keeps_each_status_newest_and_forgets_a_restarted_nodes(dom):
 
 
 @pytest.mark.ros
+def test_a_wait_sees_a_state_that_passed_between_two_polls(dom, tmp_path):
+    """A lock-step dwell passes in milliseconds: the wait judges every message as it comes."""
+    import threading
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from ros_ehs.nodes.processes import NodeProcesses
+    from ros_ehs.nodes.status_watch import StatusWatch
+    import ros_ehs_msgs_py as c
+
+    def msg(step):
+        return DiagnosticArray(status=[DiagnosticStatus(
+            level=bytes([0]), name=c.PROCEDURE_STATUS, message=f'step {step}',
+            values=[KeyValue(key='step_index', value=str(step))])])
+    with NodeProcesses(dom, tmp_path / 'logs', bound=10.0) as procs:
+        procs.watch = StatusWatch(dom)
+        procs.watch._on_diagnostics(msg(1))
+
+        def feed():                 # the dwell (step 2) and at once the next step (3)
+            procs.watch._on_diagnostics(msg(2))
+            procs.watch._on_diagnostics(msg(3))
+        threading.Timer(0.01, feed).start()
+        st = procs.wait_status(c.PROCEDURE_STATUS, lambda st: st.values['step_index'] == '2')
+        assert st is not None and st.message == 'step 2'
+        assert procs.status(c.PROCEDURE_STATUS).message == 'step 3'      # the newest
+        assert procs.watch._waiters == []                                # the wait's gone
+        with pytest.raises(KeyError):       # a condition that raises fails the wait with it
+            threading.Timer(0.01, feed).start()
+            procs.wait_status(c.PROCEDURE_STATUS, lambda st: st.values['nope'] == '2')
+        assert procs.wait_status(c.PROCEDURE_STATUS, lambda st: False, 0.2) is None
+
+
+@pytest.mark.ros
 def test_a_message_the_watch_cannot_read_is_counted_and_said_and_the_watch_goes_on(dom):
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from ros_ehs.nodes.status_watch import StatusWatch

@@ -241,14 +241,16 @@ def _loop(procs, bag, opts: dict, name: str = 'procedure') -> None:
 
 
 def _status(procs, pred) -> dict:
+    """Return the values of the first procedure status that met ``pred``."""
     import ros_ehs_msgs_py as c
-    if not procs.wait_status(c.PROCEDURE_STATUS, lambda st: pred(st.values), BOUND):
+    st = procs.wait_status(c.PROCEDURE_STATUS, lambda st: pred(st.values), BOUND)
+    if st is None:
         logs = ''.join(f'\n--- {n}:\n' + p.output()[-2000:] for n, p in procs.procs.items()
                        if n.startswith('procedure') or n.startswith('plant')
                        or n.startswith('controller'))
         raise RuntimeError(f'the procedure did not get there: '
                            f'{procs.status(c.PROCEDURE_STATUS)}{logs}')
-    return procs.status(c.PROCEDURE_STATUS).values
+    return st.values
 
 
 #: the resume runs' cycles are seen in the recorded positions as rises through their mean +

@@ -434,19 +434,33 @@ class NodeProcesses:
             return default
 
     def wait_status(self, status_name: str, ready: Callable[[contract.NodeStatus], bool],
-                    timeout: float | None = None) -> bool:
+                    timeout: float | None = None) -> contract.NodeStatus | None:
         """
-        Wait until status ``status_name`` satisfies ``ready``; False after ``timeout`` s.
+        Wait until status ``status_name`` satisfies ``ready``; return that status.
 
-        ``timeout`` defaults to ``bound``.
+        None after ``timeout`` s (default ``bound``). ``ready`` is judged on every message as
+        it comes (a state shorter than the poll is not missed: a lock-step dwell passes in
+        a few milliseconds) and on the newest status every 50 ms (a condition on something
+        else, such as a process that ended, is seen without a new message).
         """
         end = time.monotonic() + (self.bound if timeout is None else timeout)
-        while time.monotonic() < end:
-            st = self.status(status_name)
-            if st is not None and ready(st):
-                return True
-            time.sleep(0.05)
-        return False
+        w = self.watch.waiter(status_name, ready) if self.watch is not None else None
+        try:
+            while True:
+                st = self.status(status_name)
+                if st is not None and ready(st):
+                    return st
+                if w is not None and w.event.wait(0.05):
+                    if w.error is not None:
+                        raise w.error
+                    return w.status
+                if w is None:
+                    time.sleep(0.05)
+                if time.monotonic() >= end:
+                    return None
+        finally:
+            if w is not None:
+                self.watch.unwait(w)
 
     def _expect(self, name: str, status_name: str,
                 ready: Callable[[contract.NodeStatus], bool], timeout: float,

@@ -28,6 +28,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from typing import Callable
 
 from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
@@ -37,13 +38,42 @@ from ros_ehs.nodes.fastdds_profile import ENV
 from ros_ehs.nodes.ros_common import qos_profile
 import ros_ehs_msgs_py as contract
 
-__all__ = ['DDS_ENVIRONMENT', 'StatusWatch']
+__all__ = ['DDS_ENVIRONMENT', 'StatusWatch', 'Waiter']
 
 #: What a participant's DDS set-up is read from: the watch joins the domain as the nodes it
 #: watches do (the same discovery range and Fast DDS profile: a participant on other
 #: shared-memory timeouts can hold a writer that opens its port, docs/nodes.md)
 DDS_ENVIRONMENT = ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS', 'RMW_IMPLEMENTATION',
                    ENV, 'FASTDDS_DEFAULT_PROFILES_FILE')
+
+
+class Waiter:
+    """
+    A condition on one status, judged on every message of it as it comes.
+
+    ``status``: the first status that met ``ready`` (``event`` set); ``error``: what
+    ``ready`` raised instead (``event`` set too).
+    """
+
+    def __init__(self, name: str, ready: Callable[[contract.NodeStatus], bool]) -> None:
+        self.name, self.ready = name, ready
+        self.event = threading.Event()
+        self.status: contract.NodeStatus | None = None
+        self.error: BaseException | None = None
+
+    def judge(self, st: contract.NodeStatus) -> None:
+        """Set ``event`` if ``st`` meets the condition (or the condition raises)."""
+        if self.event.is_set() or st.name != self.name:
+            return
+        try:
+            met = self.ready(st)
+        except Exception as exc:
+            self.error = exc
+            self.event.set()
+            return
+        if met:
+            self.status = st
+            self.event.set()
 
 
 class StatusWatch:
@@ -55,7 +85,8 @@ class StatusWatch:
     :meth:`close` leaves the domain (also as a context manager). A message the contract
     cannot read is counted in ``rejected`` (its error in ``error``) and the watch goes on; an
     error that ends its thread is kept in ``error`` too. :meth:`report` says what it has
-    heard, for a wait that timed out.
+    heard, for a wait that timed out. :meth:`waiter` judges a condition on every message as
+    it comes, so that a state shorter than a poll's period is not missed.
     """
 
     def __init__(self, domain_id: int | None = None, env: dict[str, str] | None = None) -> None:
@@ -65,6 +96,7 @@ class StatusWatch:
         self.received = 0
         self.rejected = 0
         self.error: str | None = None
+        self._waiters: list[Waiter] = []
         self._ctx = rclpy.Context()
         # the nodes' DDS environment while the participant is made, and only then: left in
         # os.environ it would reach every later child of this process (a test's temporary
@@ -114,6 +146,23 @@ class StatusWatch:
             for st in statuses:
                 self._latest[st.name] = st
                 self._heard[st.name] = now
+            waiters = list(self._waiters)
+        for w in waiters:
+            for st in statuses:
+                w.judge(st)
+
+    def waiter(self, name: str, ready: Callable[[contract.NodeStatus], bool]) -> Waiter:
+        """Judge ``ready`` on every status ``name`` from now on, until :meth:`unwait`."""
+        w = Waiter(name, ready)
+        with self._lock:
+            self._waiters.append(w)
+        return w
+
+    def unwait(self, w: Waiter) -> None:
+        """Stop judging ``w``."""
+        with self._lock:
+            if w in self._waiters:
+                self._waiters.remove(w)
 
     def report(self) -> str:
         """Say what the watch has heard: messages, each status's age, its thread's state."""
