@@ -42,7 +42,9 @@ piston's own position in displacement control:
   hold and ``beyond_pct`` beyond the steady cycles' extremes (lost or frozen: targets 0.1 s
   and 2; a drift: 2, with no target on the time: it is judged on a zero smoothed over
   0.25 s, and the load goes beyond the envelope as the reading drifts from it); with
-  100 N of noise on the load cell and 10 um on the position, ``trips`` (none expected).
+  100 N of noise on the load cell and 10 um on the position, ``trips`` (none expected), and
+  a drift at the mean rising with that noise (``first_trip``: ``load_feedback`` expected;
+  ``beyond_pct`` beside that noisy run's own steady cycles).
 
 Each case also gives the command's peak (``cmd_peak``) and the result of its test. The
 last line is one JSON object with every case and ``worst`` per kind.
@@ -330,6 +332,20 @@ def _faults(p_force) -> list[dict]:
     r, arr, ev = _run(_force(cycles=60), p, 'force', noise=(1.0e-5, 0.0, 0.0))
     out.append({'case': 'force/noisy_sensors', 'result': r.result,
                 'trips': sorted({e[2] for e in ev if e[1] == 'trip'})})
+    # the drift with that noise (what load_drift_force is set against), judged beside the
+    # noisy run's own steady cycles: the first trip is the drift's, and when
+    noisy = _steady(r, arr['load'], arr['t'], _cycle_start(r, 10), _cycle_start(r, 20))
+    t_f = t20 + PHASES['rising'] / FREQ
+    r, arr, ev = _run(_force(cycles=100), p, 'force', noise=(1.0e-5, 0.0, 0.0),
+                      fault='drifting_load_cell', fault_time=t_f, max_seconds=t_f + 5.0)
+    trips = [e for e in ev if e[1] == 'trip']
+    m = arr['t'] >= t_f
+    out.append({'case': 'force/drifting_load_cell_noisy_rising', 'result': r.result,
+                'first_trip': trips[0][2] if trips else None,
+                'to_hold_s': round(trips[0][0] - t_f, 4) if trips else None,
+                'beyond_pct': _beyond(arr['load'], noisy[0], noisy[1], rng, m),
+                'load_range_after': [round(float(arr['load'][m].min()), 1),
+                                     round(float(arr['load'][m].max()), 1)]})
     return out
 
 
