@@ -317,12 +317,9 @@ def _faults(p_force) -> list[dict]:
                               fault=fault, fault_time=t_f,
                               max_seconds=t_f + (5.0 if long else 1.0))
             trip = [e for e in ev if e[1] == 'trip' and e[2] == 'load_feedback']
-            m = arr['t'] >= t_f
             out.append({'case': f'force/{fault}_{ph}', 'result': r.result,
                         'to_hold_s': round(trip[0][0] - t_f, 4) if trip else None,
-                        'beyond_pct': _beyond(arr['load'], steady[0], steady[1], rng, m),
-                        'load_range_after': [round(float(arr['load'][m].min()), 1),
-                                             round(float(arr['load'][m].max()), 1)]})
+                        **_after_fault(arr, t_f, steady, rng)})
     # real sensor noise (100 N on the load cell, 10 um on the position): no false trip, the
     # upper load limit 10 % of the range over the peak (its lead amplifies the noise), the
     # lower one as far under the start (0 N)
@@ -339,14 +336,19 @@ def _faults(p_force) -> list[dict]:
     r, arr, ev = _run(_force(cycles=100), p, 'force', noise=(1.0e-5, 0.0, 0.0),
                       fault='drifting_load_cell', fault_time=t_f, max_seconds=t_f + 5.0)
     trips = [e for e in ev if e[1] == 'trip']
-    m = arr['t'] >= t_f
     out.append({'case': 'force/drifting_load_cell_noisy_rising', 'result': r.result,
                 'first_trip': trips[0][2] if trips else None,
                 'to_hold_s': round(trips[0][0] - t_f, 4) if trips else None,
-                'beyond_pct': _beyond(arr['load'], noisy[0], noisy[1], rng, m),
-                'load_range_after': [round(float(arr['load'][m].min()), 1),
-                                     round(float(arr['load'][m].max()), 1)]})
+                **_after_fault(arr, t_f, noisy, rng)})
     return out
+
+
+def _after_fault(arr, t_f: float, steady: tuple[float, float], rng: float) -> dict:
+    """Return the load from ``t_f`` on: beyond ``steady`` in % of ``rng``, and its range."""
+    m = arr['t'] >= t_f
+    return {'beyond_pct': _beyond(arr['load'], steady[0], steady[1], rng, m),
+            'load_range_after': [round(float(arr['load'][m].min()), 1),
+                                 round(float(arr['load'][m].max()), 1)]}
 
 
 def _worst(cases: list[dict], key: str):

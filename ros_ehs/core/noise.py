@@ -42,8 +42,9 @@ def noise_sigma(y: np.ndarray, t: np.ndarray | None = None) -> float:
     """
     y = np.asarray(y, dtype=float)
     x = None if t is None or y.size < 8 else np.asarray(t, dtype=float)
-    if x is not None and not np.all(np.diff(x) > 0):
-        k = int(np.argmin(np.diff(x) > 0))
+    rising = np.diff(x) > 0 if x is not None else None
+    if rising is not None and not rising.all():
+        k = int(np.argmin(rising))
         raise DataError(f'noise_sigma: the sample times must increase: sample {k + 1} at '
                         f'{float(x[k + 1]):.9g} s follows {float(x[k]):.9g} s')
     if x is not None and np.any(np.abs(np.diff(x, 2)) > 1e-9 * (x[-1] - x[0])):
