@@ -54,17 +54,23 @@ def test_a_wait_sees_a_state_that_passed_between_two_polls(dom, tmp_path):
         procs.watch = StatusWatch(dom)
         procs.watch._on_diagnostics(msg(1))
 
-        def feed():                 # the dwell (step 2) and at once the next step (3)
+        def feed():     # once the wait listens: the dwell (step 2) and at once step 3
+            for _ in range(10000):
+                if procs.watch._waiters:
+                    break
+                threading.Event().wait(0.001)
             procs.watch._on_diagnostics(msg(2))
             procs.watch._on_diagnostics(msg(3))
-        threading.Timer(0.01, feed).start()
+        threading.Thread(target=feed).start()
         st = procs.wait_status(c.PROCEDURE_STATUS, lambda st: st.values['step_index'] == '2')
         assert st is not None and st.message == 'step 2'
         assert procs.status(c.PROCEDURE_STATUS).message == 'step 3'      # the newest
         assert procs.watch._waiters == []                                # the wait's gone
-        with pytest.raises(KeyError):       # a condition that raises fails the wait with it
-            threading.Timer(0.01, feed).start()
-            procs.wait_status(c.PROCEDURE_STATUS, lambda st: st.values['nope'] == '2')
+        # a condition that raises on a message fails the wait with it (false on step 3)
+        threading.Thread(target=feed).start()
+        with pytest.raises(KeyError):
+            procs.wait_status(c.PROCEDURE_STATUS, lambda st: st.values['step_index'] == '2'
+                              and st.values['nope'] == 'x')
         assert procs.wait_status(c.PROCEDURE_STATUS, lambda st: False, 0.2) is None
 
 
