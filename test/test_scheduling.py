@@ -85,6 +85,135 @@ def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not(python_lines
     assert len(os.sched_getaffinity(0)) >= 1     # the test process itself is untouched
 
 
+@pytest.mark.ros
+def test_real_time_priority_leaves_the_middlewares_side_threads_on_the_default_scheduler(
+        python_lines):
+    """Discovery and timed events carry no message of the loop: never on SCHED_FIFO."""
+    import os
+    code = ('import os\n'
+            'from ros_ehs.nodes.scheduling import set_realtime, thread_states\n'
+            'import rclpy\n'
+            'rclpy.init()\n'
+            'node = rclpy.create_node("raised")\n'       # the middleware's threads exist
+            'print("probe:", set_realtime(10))\n'
+            'print("probe:", sorted({(t["name"], t["policy"], t["priority"])'
+            ' for t in thread_states(os.getpid())}))\n')
+    lines = [ln[len('probe: '):] for ln in python_lines(code) if ln.startswith('probe: ')]
+    assert len(lines) == 2, lines
+    said, placed = lines
+    if 'not applied' in said:           # unprivileged: nothing raised, said why
+        assert os.geteuid() != 0 and 'CAP_SYS_NICE' in said
+        return
+    assert said.startswith('threads on SCHED_FIFO priority 10 (discovery and timed events '
+                           'on the default scheduler); a thread busy 0.5 s without sleeping '
+                           'dumps the stacks, 5 s ends the process'), said
+    import ast
+    from ros_ehs.nodes.scheduling import SIDE_THREADS
+    placed = ast.literal_eval(placed)
+    assert any(n.startswith(SIDE_THREADS) for n, _, _ in placed), placed
+    assert any(n.startswith('dds.shm.') and n != 'dds.shm.wdog' for n, _, _ in placed), placed
+    for name, policy, priority in placed:
+        want = ('SCHED_OTHER', 0) if name.startswith(SIDE_THREADS) else ('SCHED_FIFO', 10)
+        assert (policy, priority) == want, (name, policy, priority)
+
+
+_RUNAWAY = """
+import os, sys, time
+from ros_ehs.nodes import scheduling
+scheduling.RUNAWAY = (0.2, 1.0)
+os.sched_setaffinity(0, {int(sys.argv[1])})
+print(scheduling.set_realtime(1), flush=True)
+def runaway():
+    while True:
+        pass
+runaway()
+"""
+
+
+@pytest.mark.ros
+def test_a_real_time_thread_that_never_sleeps_says_where_it_is_and_is_ended():
+    """
+    A runaway loop at SCHED_FIFO: its stacks after the first limit, ended at the second.
+
+    The real kernel's RLIMIT_RTTIME, at 0.2 and 1 s here (:data:`RUNAWAY` is 0.5 and 5 s),
+    and at priority 1: under every node's, so no loop of a parallel test is held.
+    """
+    import os
+    import subprocess
+    import sys
+    from ros_ehs.nodes.scheduling import realtime_allowed
+    if not realtime_allowed(1):
+        pytest.fail('this test needs SCHED_FIFO (root or an rtprio limit)')
+    cpu = sorted(os.sched_getaffinity(0))[-1]
+    out = subprocess.run([sys.executable, '-c', _RUNAWAY, str(cpu)], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == -9, (out.returncode, out.stdout, out.stderr)
+    assert out.stdout.startswith('threads on SCHED_FIFO priority 1 ') and \
+        'a thread busy 0.2 s without sleeping dumps the stacks, 1 s ends the process' \
+        in out.stdout, out.stdout
+    # the stacks, at least once, with the loop that ran away in them
+    assert 'most recent call first' in out.stderr and 'in runaway' in out.stderr, out.stderr
+
+
+_STARVED = """
+import os, sys, time
+os.sched_setaffinity(0, {int(sys.argv[1])})
+os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(sys.argv[2])))
+print('ready', flush=True)
+if sys.argv[3] == 'hog':
+    end = time.monotonic() + float(sys.argv[4])
+    while time.monotonic() < end:
+        pass
+else:
+    while True:
+        time.sleep(0.01)
+"""
+
+
+@pytest.mark.ros
+def test_a_killed_process_that_gets_no_cpu_is_said_with_what_holds_it_not_waited_for(
+        monkeypatch, capsys):
+    """
+    A process whose CPU a SCHED_FIFO thread holds does not die on SIGKILL until it runs.
+
+    The real kernel: a sleeper at SCHED_FIFO 1 and a busy loop at SCHED_FIFO 2 for 3 s on
+    the same CPU (both under every node's priority: no loop of a parallel test is held).
+    Killed meanwhile, the sleeper is still there after the wait; the stop says so, with its
+    threads and the busy loop by pid, and returns.
+    """
+    import os
+    import subprocess
+    import sys
+    from ros_ehs.nodes import processes
+    from ros_ehs.nodes.scheduling import realtime_allowed
+    if not realtime_allowed(2):
+        pytest.fail('this test needs SCHED_FIFO (root or an rtprio limit)')
+    cpu = sorted(os.sched_getaffinity(0))[-1]
+    start = {'stdout': subprocess.PIPE, 'text': True}
+    victim = subprocess.Popen([sys.executable, '-c', _STARVED, str(cpu), '1', 'sleep'], **start)
+    hog = None
+    try:
+        assert victim.stdout.readline().strip() == 'ready'
+        hog = subprocess.Popen([sys.executable, '-c', _STARVED, str(cpu), '2', 'hog', '3'],
+                               **start)
+        assert hog.stdout.readline().strip() == 'ready'
+        monkeypatch.setattr(processes, 'KILL_WAIT', 0.5)
+        victim.kill()
+        processes._reap('victim', victim)
+        said = capsys.readouterr().err
+        assert victim.poll() is None, 'the victim died at once: its CPU was not held'
+        assert f'victim (pid {victim.pid}) is still there 0.5 s after SIGKILL' in said, said
+        assert f'pid {victim.pid} tid {victim.pid} python' in said and 'SCHED_FIFO 1' in said
+        held = said.split('threads that held a CPU')[1]
+        assert f'pid {hog.pid} tid {hog.pid}' in held and 'SCHED_FIFO 2' in held, said
+    finally:
+        for p in (hog, victim):
+            if p is not None:
+                p.kill()
+                p.wait(30)
+    assert victim.returncode == -9
+
+
 def test_without_the_privilege_the_bench_says_what_a_normal_priority_loop_risks(monkeypatch):
     import os
     from ros_ehs.nodes import scheduling

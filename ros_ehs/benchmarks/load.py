@@ -83,8 +83,9 @@ REF_TIMEOUT = next(o.default for o in CONTROLLER if o.name == 'reference_timeout
 RAMP = spec('ramp_time').default
 #: a command step counted as a jump [A]
 JUMP = 2.0e-3
-#: the longest wait for a run's states to reach its bag [s]
-BAG_WAIT = 600.0
+#: the longest wait for a run's states to reach its bag [s]: this, plus this many times the
+#: run's own length (a recorder behind on a loaded machine)
+BAG_WAIT = (60.0, 10.0)
 SPIN = 'import time\nwhile True:\n    pass\n'
 
 
@@ -238,7 +239,8 @@ def _run(dom: int, tmp: Path, case: str, n: int, seconds: float, rt: int, pw) ->
                 page.set_default_timeout(BOUND * 1000)
                 page.goto(procs.status(contract.STATION_STATUS).values['url'])
                 page.wait_for_function('window.station.frames > 0')
-            wait_for_counts(bag, {'/state': int((seconds + SKIP) * 1000)}, BAG_WAIT)
+            wait_for_counts(bag, {'/state': int((seconds + SKIP) * 1000)},
+                            BAG_WAIT[0] + BAG_WAIT[1] * (seconds + SKIP))
         finally:
             done.set()
             if stall is not None:

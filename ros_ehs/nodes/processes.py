@@ -43,12 +43,13 @@ from typing import Any, Callable, Iterable
 from ros_ehs.core.errors import EhsError
 from ros_ehs.nodes.fastdds_profile import use_profile
 from ros_ehs.nodes.fastdds_shm import clean_zombies, SHM_DIR
-from ros_ehs.nodes.scheduling import LOOP_CPUS_ENV, loop_placement
+from ros_ehs.nodes.scheduling import (cpu_hogs, describe_threads, LOOP_CPUS_ENV,
+                                      loop_placement, thread_states)
 import ros_ehs_msgs_py as contract
 
-__all__ = ['DUMP_SIGNAL', 'LOOP_CPUS_ENV', 'NodeProcesses', 'StartupError', 'launch_script',
-           'loop_closed', 'loop_placement', 'NodeProcess', 'node_command', 'NODES', 'recording',
-           'reference_started']
+__all__ = ['DUMP_SIGNAL', 'KILL_WAIT', 'LOOP_CPUS_ENV', 'NodeProcesses', 'StartupError',
+           'launch_script', 'loop_closed', 'loop_placement', 'NodeProcess', 'node_command',
+           'NODES', 'recording', 'reference_started']
 
 
 def launch_script(name: str) -> Path:
@@ -79,6 +80,25 @@ def launch_script(name: str) -> Path:
 DUMP_SIGNAL = signal.SIGUSR1
 #: How long the stacks have to reach the log before the next signal [s]
 DUMP_WAIT = 1.0
+
+#: How long a SIGKILLed process has to be gone [s]: one whose thread never gets a CPU (a
+#: SCHED_FIFO thread holding it) is not, and nothing waits on it for good
+KILL_WAIT = 10.0
+
+
+def _reap(name: str, p: subprocess.Popen) -> None:
+    """Wait :data:`KILL_WAIT` s for SIGKILLed ``p``; if it is still there, say why on stderr."""
+    try:
+        p.wait(KILL_WAIT)
+        return
+    except subprocess.TimeoutExpired:
+        pass
+    threads = thread_states(p.pid)
+    print(f'{name} (pid {p.pid}) is still there {KILL_WAIT:g} s after SIGKILL: a thread of '
+          'it gets no CPU to die on. Its threads:\n' + describe_threads(threads)
+          + '\nthreads that held a CPU over the next 0.5 s:\n'
+          + (describe_threads(cpu_hogs()) or '  none'), file=sys.stderr, flush=True)
+
 
 #: The node executables of the package (``ros2 run ros_ehs <name>``).
 NODES = ('plant', 'controller', 'reference', 'recorder', 'player', 'identify', 'procedure',
@@ -260,16 +280,17 @@ class NodeProcesses:
         p = self.procs[name].popen
         if p.poll() is None:
             p.send_signal(signal.SIGKILL)
-            p.wait()
+            _reap(name, p)
 
     def stop(self, names: Iterable[str] | None = None, timeout: float = 10.0) -> dict[str, int]:
         """
         Stop processes in the order given (default: reverse start order) with SIGINT.
 
         Each gets ``timeout`` seconds to exit, then SIGTERM, then SIGKILL. Returns the exit
-        codes (negative: killed by that signal). A node still running after ``timeout`` is
-        first sent :data:`DUMP_SIGNAL`: its threads' stacks go to its log (and a line saying
-        so to stderr), where the hang shows.
+        codes (negative: killed by that signal; None: still there :data:`KILL_WAIT` s after
+        SIGKILL, said on stderr with its threads and what held the CPUs). A node still
+        running after ``timeout`` is first sent :data:`DUMP_SIGNAL`: its threads' stacks go
+        to its log (and a line saying so to stderr), where the hang shows.
         """
         order = list(names) if names is not None else list(reversed(list(self.procs)))
         codes = {}
@@ -294,7 +315,7 @@ class NodeProcesses:
                         p.wait(3.0)
                     except subprocess.TimeoutExpired:
                         p.kill()
-                        p.wait()
+                        _reap(n, p)
             codes[n] = p.returncode
         return codes
 

@@ -321,7 +321,10 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
                                                            BENCH_PRIORITY)))
         cpu = node_cpu(int(getattr(node, 'cpu_affinity', -1)),
                        bool(getattr(node, 'carries_loop', False)))
-        for said in (refused, set_realtime(priority), set_cpu_affinity(cpu)):
+        # placed first, then raised: a thread moved while still on the default scheduler
+        # gets its share of a CPU that a SCHED_FIFO thread holds; raised first, it waited
+        # there behind it for good (set_realtime)
+        for said in (refused, set_cpu_affinity(cpu), set_realtime(priority)):
             if said:
                 (node.get_logger().info if said.startswith('threads') else
                  node.get_logger().warning)(said)

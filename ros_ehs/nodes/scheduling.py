@@ -23,10 +23,10 @@ from __future__ import annotations
 
 import os
 
-__all__ = ['AUTO_CPU', 'AUTO_PRIORITY', 'BENCH_PRIORITY', 'LOOP_CPUS_ENV', 'REFERENCE_PRIORITY',
-           'RISK', 'SIDE_THREADS', 'loop_placement', 'node_cpu', 'node_priority',
-           'realtime_allowed',
-           'rtprio_limit', 'set_cpu_affinity', 'set_realtime', 'setpoint_priority']
+__all__ = ['AUTO_CPU', 'AUTO_PRIORITY', 'BENCH_PRIORITY', 'LOOP_CPUS_ENV', 'POLICIES',
+           'REFERENCE_PRIORITY', 'RISK', 'RUNAWAY', 'SIDE_THREADS', 'cpu_hogs', 'describe_threads',
+           'loop_placement', 'node_cpu', 'node_priority', 'realtime_allowed', 'rtprio_limit',
+           'set_cpu_affinity', 'set_realtime', 'setpoint_priority', 'thread_states']
 
 
 def _thread_ids() -> list[int]:
@@ -85,23 +85,54 @@ def realtime_allowed(priority: int = 1) -> bool:
 
 def set_realtime(priority: int) -> str:
     """
-    Put every thread of this process (the executor's and the middleware's) on SCHED_FIFO.
+    Put the threads of this process that carry the loop on SCHED_FIFO ``priority``.
 
-    ``priority`` 1-99; 0 leaves the default scheduler. Threads started later inherit it.
-    Returns what was done, or why not (no CAP_SYS_NICE and no ``ulimit -r``): never raises,
-    a node without the privilege runs on as before.
+    The executor's, Python's and the middleware's shared-memory listeners; the middleware's
+    side threads (:data:`SIDE_THREADS`: discovery, timed events) stay on the default
+    scheduler: they carry no message of the loop, and one of them busy at SCHED_FIFO would
+    hold its CPU from every thread under that priority there (another node's loop, or a
+    node placing itself: its main thread, moved onto that CPU, never ran again, SIGKILL
+    included). ``priority`` 1-99; 0 leaves the default scheduler. Threads started later
+    inherit their starter's. Returns what was done, or why not (no CAP_SYS_NICE and no
+    ``ulimit -r``): never raises, a node without the privilege runs on as before.
     """
     if priority <= 0:
         return ''
     try:
         param = os.sched_param(priority)
         for tid in _thread_ids():
-            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+            if not _thread_name(tid).startswith(SIDE_THREADS):
+                os.sched_setscheduler(tid, os.SCHED_FIFO, param)
     except (OSError, AttributeError) as err:
         return (f'rt_priority {priority} not applied ({getattr(err, "strerror", err)}): it '
                 'needs CAP_SYS_NICE or an rtprio limit (ulimit -r, /etc/security/limits.conf); '
                 f'{RISK}')
-    return f'threads on SCHED_FIFO priority {priority}'
+    return (f'threads on SCHED_FIFO priority {priority} (discovery and timed events on the '
+            'default scheduler)' + _limit_runaway())
+
+
+#: A thread of a real-time process busy this long without sleeping [s] writes every thread's
+#: stack to stderr (then once a second), and this long ends the process (RLIMIT_RTTIME, as
+#: rtkit asks of the processes it raises): a loop period is a millisecond's work, and a
+#: SCHED_FIFO thread that never sleeps holds its CPU from every thread under it for good
+RUNAWAY = (0.5, 5.0)
+
+
+def _limit_runaway() -> str:
+    """Set :data:`RUNAWAY` on this process; return what to add to the news (or why not)."""
+    import faulthandler
+    import resource
+    import signal
+    soft, hard = (int(x * 1e6) for x in RUNAWAY)
+    try:
+        old_soft, old_hard = resource.getrlimit(resource.RLIMIT_RTTIME)
+        cap = lambda x, old: x if old == resource.RLIM_INFINITY else min(x, old)  # noqa: E731
+        resource.setrlimit(resource.RLIMIT_RTTIME, (cap(soft, old_soft), cap(hard, old_hard)))
+        faulthandler.register(signal.SIGXCPU, all_threads=True, chain=False)
+    except (OSError, ValueError, AttributeError, RuntimeError) as err:
+        return f'; no limit on a runaway thread ({err})'
+    return (f'; a thread busy {RUNAWAY[0]:g} s without sleeping dumps the stacks, '
+            f'{RUNAWAY[1]:g} s ends the process')
 
 
 def set_cpu_affinity(cpu: int) -> str:
@@ -125,6 +156,84 @@ def set_cpu_affinity(cpu: int) -> str:
         return (f'cpu_affinity {cpu} not applied ({getattr(err, "strerror", err)}): this '
                 f'machine has CPUs {sorted(os.sched_getaffinity(0))}')
     return f'threads on CPU {cpu} (discovery and timed events on CPUs {sorted(others)})'
+
+
+#: scheduling policies by number, as /proc gives them
+POLICIES = {0: 'SCHED_OTHER', 1: 'SCHED_FIFO', 2: 'SCHED_RR', 3: 'SCHED_BATCH', 5: 'SCHED_IDLE',
+            6: 'SCHED_DEADLINE'}
+
+
+def _task_stat(pid: int, tid: int) -> dict | None:
+    """Return one thread's name, state, CPU, policy, priority and CPU time [s] from /proc."""
+    try:
+        with open(f'/proc/{pid}/task/{tid}/stat') as f:
+            raw = f.read()
+    except OSError:
+        return None
+    try:
+        rest = raw[raw.rindex(')') + 2:].split()     # from field 3 (state) on
+        return {'pid': pid, 'tid': tid, 'name': raw[raw.index('(') + 1:raw.rindex(')')],
+                'state': rest[0], 'cpu': int(rest[36]), 'priority': int(rest[37]),
+                'policy': POLICIES.get(int(rest[38]), rest[38]),
+                'cpu_s': (int(rest[11]) + int(rest[12])) / os.sysconf('SC_CLK_TCK')}
+    except (ValueError, IndexError):
+        return None
+
+
+def thread_states(pid: int) -> list[dict]:
+    """
+    Return the threads of process ``pid`` as the kernel has them (empty: no such process).
+
+    Each: ``tid``, ``name``, ``state`` (R running or waiting for a CPU, S sleeping, D in the
+    kernel), ``cpu`` (last ran on), ``policy``, ``priority`` and ``cpu_s`` (CPU time used).
+    """
+    try:
+        tids = sorted(int(t) for t in os.listdir(f'/proc/{pid}/task'))
+    except OSError:
+        return []
+    return [t for t in (_task_stat(pid, tid) for tid in tids) if t is not None]
+
+
+def cpu_hogs(interval: float = 0.5, share: float = 0.5, sleep=None) -> list[dict]:
+    """
+    Return the threads of this machine that used more than ``share`` of a CPU over ``interval`` s.
+
+    What held a CPU while a process could not run there; each as :func:`thread_states` gives
+    it, with ``share`` (of one CPU) and the process's command line, the busiest first.
+    """
+    import time
+
+    def every() -> dict:
+        out = {}
+        for d in os.listdir('/proc'):
+            if d.isdigit():
+                for t in thread_states(int(d)):
+                    out[(t['pid'], t['tid'])] = t
+        return out
+    before, t0 = every(), time.monotonic()
+    (sleep or time.sleep)(interval)
+    after, dt = every(), max(time.monotonic() - t0, 1e-3)
+    hogs = []
+    for key, t in after.items():
+        if key in before:
+            used = (t['cpu_s'] - before[key]['cpu_s']) / dt
+            if used > share:
+                try:
+                    with open(f'/proc/{t["pid"]}/cmdline', 'rb') as f:
+                        cmd = f.read().replace(b'\0', b' ').decode(errors='replace').strip()
+                except OSError:
+                    cmd = '?'
+                hogs.append({**t, 'share': round(used, 2), 'command': cmd[:200]})
+    return sorted(hogs, key=lambda h: -h['share'])
+
+
+def describe_threads(threads: list[dict]) -> str:
+    """Return threads (:func:`thread_states`, :func:`cpu_hogs`) as lines for a log."""
+    return '\n'.join(
+        f"  pid {t['pid']} tid {t['tid']} {t['name']}: state {t['state']} on CPU {t['cpu']}, "
+        f"{t['policy']} {t['priority']}"
+        + (f", {t['share']:.0%} of a CPU: {t['command']}" if 'share' in t else '')
+        for t in threads)
 
 
 #: the environment variable that places the loop: ``LOOP_CPU,REFERENCE_CPU`` (e.g. ``1,0``)
