@@ -804,6 +804,9 @@ def test_bench_launch_script_records_a_lockstep_run_and_stops_everything(dom, tm
     for node in ('plant', 'controller'):         # --rt-priority: SCHED_FIFO, or why not
         text = (logs / f'{node}.log').read_text()
         assert 'threads on SCHED_FIFO priority 10' in text or 'rt_priority 10 not applied' in text
+        # placed before raised: never moved while at SCHED_FIFO (docs/nodes.md)
+        if 'threads on SCHED_FIFO' in text and 'threads on CPU' in text:
+            assert text.index('threads on CPU') < text.index('threads on SCHED_FIFO'), text
 
 
 @pytest.mark.parametrize('broken', [False, True])
