@@ -155,6 +155,29 @@ def test_a_real_time_thread_that_never_sleeps_says_where_it_is_and_is_ended():
     assert 'most recent call first' in out.stderr and 'in runaway' in out.stderr, out.stderr
 
 
+_LIMITS = """
+import resource
+from ros_ehs.nodes.scheduling import RUNAWAY, set_realtime
+if __import__('sys').argv[1] == 'lower':
+    resource.setrlimit(resource.RLIMIT_RTTIME, (100000, 300000))
+said = set_realtime(1)
+print(said.startswith('threads on SCHED_FIFO'), resource.getrlimit(resource.RLIMIT_RTTIME))
+"""
+
+
+@pytest.mark.parametrize('before', ['none', 'lower'])
+def test_the_runaway_limit_is_set_on_a_raised_process_and_never_raises_one_set_before(
+        before, python_lines):
+    """RLIMIT_RTTIME: :data:`RUNAWAY` in microseconds, or the lower limit already there."""
+    from ros_ehs.nodes.scheduling import realtime_allowed, RUNAWAY
+    if not realtime_allowed(1):
+        pytest.fail('this test needs SCHED_FIFO (root or an rtprio limit)')
+    raised, limits = python_lines(_LIMITS, before)[-1].split(' ', 1)
+    assert raised == 'True'
+    want = (100000, 300000) if before == 'lower' else tuple(int(x * 1e6) for x in RUNAWAY)
+    assert limits == str(want)
+
+
 _STARVED = """
 import os, sys, time
 os.sched_setaffinity(0, {int(sys.argv[1])})

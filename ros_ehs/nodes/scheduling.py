@@ -123,11 +123,13 @@ def _limit_runaway() -> str:
     import faulthandler
     import resource
     import signal
-    soft, hard = (int(x * 1e6) for x in RUNAWAY)
+
+    def under(limit: int, old: int) -> int:         # never above a limit already set
+        return limit if old == resource.RLIM_INFINITY else min(limit, old)
     try:
-        old_soft, old_hard = resource.getrlimit(resource.RLIMIT_RTTIME)
-        cap = lambda x, old: x if old == resource.RLIM_INFINITY else min(x, old)  # noqa: E731
-        resource.setrlimit(resource.RLIMIT_RTTIME, (cap(soft, old_soft), cap(hard, old_hard)))
+        old = resource.getrlimit(resource.RLIMIT_RTTIME)
+        resource.setrlimit(resource.RLIMIT_RTTIME,
+                           tuple(under(int(x * 1e6), o) for x, o in zip(RUNAWAY, old)))
         faulthandler.register(signal.SIGXCPU, all_threads=True, chain=False)
     except (OSError, ValueError, AttributeError, RuntimeError) as err:
         return f'; no limit on a runaway thread ({err})'
