@@ -86,9 +86,8 @@ def test_cpu_affinity_keeps_every_thread_on_one_cpu_or_says_why_not(python_lines
 
 
 @pytest.mark.ros
-def test_real_time_priority_leaves_the_middlewares_side_threads_on_the_default_scheduler(
-        python_lines):
-    """Discovery and timed events carry no message of the loop: never on SCHED_FIFO."""
+def test_real_time_priority_raises_the_middlewares_side_threads_too(python_lines):
+    """Discovery and timed events take the mutexes the loop's sends take: SCHED_FIFO too."""
     import os
     code = ('import os\n'
             'from ros_ehs.nodes.scheduling import set_realtime, thread_states\n'
@@ -104,17 +103,15 @@ def test_real_time_priority_leaves_the_middlewares_side_threads_on_the_default_s
     if 'not applied' in said:           # unprivileged: nothing raised, said why
         assert os.geteuid() != 0 and 'CAP_SYS_NICE' in said
         return
-    assert said.startswith('threads on SCHED_FIFO priority 10 (discovery and timed events '
-                           'on the default scheduler); a thread busy 0.5 s without sleeping '
-                           'dumps the stacks, 5 s ends the process'), said
+    assert said.startswith('threads on SCHED_FIFO priority 10; a thread busy 0.5 s without '
+                           'sleeping dumps the stacks, 5 s ends the process'), said
     import ast
     from ros_ehs.nodes.scheduling import SIDE_THREADS
     placed = ast.literal_eval(placed)
     assert any(n.startswith(SIDE_THREADS) for n, _, _ in placed), placed
     assert any(n.startswith('dds.shm.') and n != 'dds.shm.wdog' for n, _, _ in placed), placed
-    for name, policy, priority in placed:
-        want = ('SCHED_OTHER', 0) if name.startswith(SIDE_THREADS) else ('SCHED_FIFO', 10)
-        assert (policy, priority) == want, (name, policy, priority)
+    assert {(policy, priority) for _, policy, priority in placed} == {('SCHED_FIFO', 10)}, \
+        placed
 
 
 _RUNAWAY = """
@@ -148,7 +145,7 @@ def test_a_real_time_thread_that_never_sleeps_says_where_it_is_and_is_ended():
     out = subprocess.run([sys.executable, '-c', _RUNAWAY, str(cpu)], capture_output=True,
                          text=True, timeout=60)
     assert out.returncode == -9, (out.returncode, out.stdout, out.stderr)
-    assert out.stdout.startswith('threads on SCHED_FIFO priority 1 ') and \
+    assert out.stdout.startswith('threads on SCHED_FIFO priority 1;') and \
         'a thread busy 0.2 s without sleeping dumps the stacks, 1 s ends the process' \
         in out.stdout, out.stdout
     # the stacks, at least once, with the loop that ran away in them

@@ -57,19 +57,18 @@ CPU_AFFINITY = Setting('cpu_affinity', '', -2, -2, 1023, 'keep the threads of th
                        'two CPUs the process may use, or ROS_EHS_LOOP_CPUS=LOOP,OTHER), '
                        'anywhere with one CPU')
 #: the setpoint's source (reference, procedure): under the loop's priority, above the rest
-REF_RT_PRIORITY = Setting('rt_priority', '', -1, -1, 99, 'real time: SCHED_FIFO priority of the '
-                          "node's threads but the middleware's side ones (1-99), so that a "
-                          "browser or a refit on its CPU cannot starve the loop's setpoints "
-                          '(the controller carries a silent reference on a straight line, '
-                          'which a curve leaves); 0: the default scheduler; -1 (automatic): '
-                          "40, under the loop's 50, in real time when the process may, else "
-                          'the default scheduler and a warning; none in lock-step')
-RT_PRIORITY = Setting('rt_priority', '', -1, -1, 99, 'real time: SCHED_FIFO priority of the '
-                      "node's threads but the middleware's side ones (1-99), so that other "
-                      'work on the machine cannot delay a period; 0: the default scheduler; '
-                      '-1 (automatic): 50 in real time when the process may (CAP_SYS_NICE '
-                      'or ulimit -r), else the default scheduler and a warning of what that '
-                      'risks; none in lock-step')
+REF_RT_PRIORITY = Setting('rt_priority', '', -1, -1, 99, 'real time: SCHED_FIFO priority of all '
+                          'the threads of the node (1-99), so that a browser or a refit on '
+                          "its CPU cannot starve the loop's setpoints (the controller carries "
+                          'a silent reference on a straight line, which a curve leaves); 0: '
+                          "the default scheduler; -1 (automatic): 40, under the loop's 50, in "
+                          'real time when the process may, else the default scheduler and a '
+                          'warning; none in lock-step')
+RT_PRIORITY = Setting('rt_priority', '', -1, -1, 99, 'real time: SCHED_FIFO priority of all the '
+                      'threads of the node (1-99), so that other work on the machine cannot '
+                      'delay a period; 0: the default scheduler; -1 (automatic): 50 in real '
+                      'time when the process may (CAP_SYS_NICE or ulimit -r), else the '
+                      'default scheduler and a warning of what that risks; none in lock-step')
 MODEL = Setting('model', '', 'simplified', meaning='model: full (10 states), reduced (6: the '
                 "simplified with the full model's valve dynamics: for a real rig) or "
                 'simplified (4 states, the paper)', choices=_MODELS)

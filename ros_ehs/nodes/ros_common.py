@@ -323,7 +323,7 @@ def run(factory: Callable[[], Node], args: Sequence[str] | None = None,
                        bool(getattr(node, 'carries_loop', False)))
         # placed first, then raised: a thread moved while still on the default scheduler
         # gets its share of a CPU that a SCHED_FIFO thread holds; raised first, it waited
-        # there behind it for good (set_realtime)
+        # there behind it for good (docs/nodes.md)
         for said in (refused, set_cpu_affinity(cpu), set_realtime(priority)):
             if said:
                 (node.get_logger().info if said.startswith('threads') else

