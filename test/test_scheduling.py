@@ -219,7 +219,7 @@ def test_a_killed_process_that_gets_no_cpu_is_said_with_what_holds_it_not_waited
         assert hog.stdout.readline().strip() == 'ready'
         monkeypatch.setattr(processes, 'KILL_WAIT', 0.5)
         victim.kill()
-        processes._reap('victim', victim)
+        processes.reap_killed('victim', victim)
         said = capsys.readouterr().err
         assert victim.poll() is None, 'the victim died at once: its CPU was not held'
         assert f'victim (pid {victim.pid}) is still there 0.5 s after SIGKILL' in said, said

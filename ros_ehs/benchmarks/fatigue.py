@@ -332,7 +332,7 @@ def _resume(kills: int, seed: int) -> dict:
     import numpy as np
     from ros_ehs.data.bag import open_bag
     from ros_ehs.data.fatigue import read_cycles
-    from ros_ehs.nodes.processes import NodeProcesses
+    from ros_ehs.nodes.processes import NodeProcesses, reap_killed
     import yaml
     rng = random.Random(seed)
     runs = []
@@ -366,7 +366,7 @@ def _resume(kills: int, seed: int) -> dict:
                     for n in names:          # as close to at once as processes allow
                         procs.procs[n].popen.send_signal(signal.SIGKILL)
                     for n in names:
-                        procs.procs[n].popen.wait()
+                        reap_killed(n, procs.procs[n].popen)
                     if everything:
                         bags.append(d / 'bag1')
                         _loop(procs, bags[1], opts, name='procedure_again')

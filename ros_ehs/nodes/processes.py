@@ -49,7 +49,7 @@ import ros_ehs_msgs_py as contract
 
 __all__ = ['DUMP_SIGNAL', 'KILL_WAIT', 'LOOP_CPUS_ENV', 'NodeProcesses', 'StartupError',
            'launch_script', 'loop_closed', 'loop_placement', 'NodeProcess', 'node_command',
-           'NODES', 'recording', 'reference_started']
+           'NODES', 'reap_killed', 'recording', 'reference_started']
 
 
 def launch_script(name: str) -> Path:
@@ -86,7 +86,7 @@ DUMP_WAIT = 1.0
 KILL_WAIT = 10.0
 
 
-def _reap(name: str, p: subprocess.Popen) -> None:
+def reap_killed(name: str, p: subprocess.Popen) -> None:
     """Wait :data:`KILL_WAIT` s for SIGKILLed ``p``; if it is still there, say why on stderr."""
     try:
         p.wait(KILL_WAIT)
@@ -280,7 +280,7 @@ class NodeProcesses:
         p = self.procs[name].popen
         if p.poll() is None:
             p.send_signal(signal.SIGKILL)
-            _reap(name, p)
+            reap_killed(name, p)
 
     def stop(self, names: Iterable[str] | None = None, timeout: float = 10.0) -> dict[str, int]:
         """
@@ -315,7 +315,7 @@ class NodeProcesses:
                         p.wait(3.0)
                     except subprocess.TimeoutExpired:
                         p.kill()
-                        _reap(n, p)
+                        reap_killed(n, p)
             codes[n] = p.returncode
         return codes
 

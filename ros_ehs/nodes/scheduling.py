@@ -158,6 +158,8 @@ def set_cpu_affinity(cpu: int) -> str:
     return f'threads on CPU {cpu} (discovery and timed events on CPUs {sorted(others)})'
 
 
+#: the kernel's clock ticks per second, the unit of /proc's CPU times
+_TICKS_PER_S = os.sysconf('SC_CLK_TCK')
 #: scheduling policies by number, as /proc gives them
 POLICIES = {0: 'SCHED_OTHER', 1: 'SCHED_FIFO', 2: 'SCHED_RR', 3: 'SCHED_BATCH', 5: 'SCHED_IDLE',
             6: 'SCHED_DEADLINE'}
@@ -175,7 +177,7 @@ def _task_stat(pid: int, tid: int) -> dict | None:
         return {'pid': pid, 'tid': tid, 'name': raw[raw.index('(') + 1:raw.rindex(')')],
                 'state': rest[0], 'cpu': int(rest[36]), 'priority': int(rest[37]),
                 'policy': POLICIES.get(int(rest[38]), rest[38]),
-                'cpu_s': (int(rest[11]) + int(rest[12])) / os.sysconf('SC_CLK_TCK')}
+                'cpu_s': (int(rest[11]) + int(rest[12])) / _TICKS_PER_S}
     except (ValueError, IndexError):
         return None
 
@@ -194,7 +196,7 @@ def thread_states(pid: int) -> list[dict]:
     return [t for t in (_task_stat(pid, tid) for tid in tids) if t is not None]
 
 
-def cpu_hogs(interval: float = 0.5, share: float = 0.5, sleep=None) -> list[dict]:
+def cpu_hogs(interval: float = 0.5, share: float = 0.5) -> list[dict]:
     """
     Return the threads of this machine that used more than ``share`` of a CPU over ``interval`` s.
 
@@ -211,7 +213,7 @@ def cpu_hogs(interval: float = 0.5, share: float = 0.5, sleep=None) -> list[dict
                     out[(t['pid'], t['tid'])] = t
         return out
     before, t0 = every(), time.monotonic()
-    (sleep or time.sleep)(interval)
+    time.sleep(interval)
     after, dt = every(), max(time.monotonic() - t0, 1e-3)
     hogs = []
     for key, t in after.items():
